@@ -1,0 +1,4 @@
+"""Drivers: every protocol or file format turned into :class:`groundstation.measurement.Measurement`.
+
+Units, frames and time bases are converted here, once, and nowhere else.
+"""

@@ -1,0 +1,61 @@
+"""Vehicle time for every MAVLink message.
+
+Messages with a ``time_boot_ms``/``time_usec`` field carry the vehicle's clock.
+Messages without one (HEARTBEAT, SYS_STATUS, VFR_HUD, ...) are stamped on the
+same clock through the offset between vehicle time and receive time, estimated
+from the timestamped messages of the same system.
+
+The offset estimate is the *largest* recent value of ``t_vehicle - t_rx``:
+transport delay only ever makes ``t_rx`` later, so the least-delayed message
+gives the best estimate. It is allowed to decay by 100 ppm (crystal drift) and
+is reset outright when it moves by more than ``jump_s`` (reboot, clock jump);
+the estimation loop sees the jump in the message timestamps themselves.
+"""
+from __future__ import annotations
+
+import math
+
+#: ``time_usec`` above this is a UNIX-epoch time (MAVLink lets senders use
+#: either); 1e15 us is about 31 years of uptime.
+EPOCH_THRESHOLD_US = 1e15
+
+
+class VehicleClock:
+    __slots__ = ("offset", "_last_rx", "jump_s", "drift", "resets", "assumed")
+
+    def __init__(self, jump_s: float = 1.0, drift: float = 1e-4) -> None:
+        self.offset = math.nan
+        self._last_rx = math.nan
+        self.jump_s = jump_s
+        self.drift = drift
+        self.resets = 0
+        self.assumed = False   # True while running on receive time (no time field seen)
+
+    def observe(self, t_vehicle: float, t_rx: float) -> None:
+        """Take a timestamped message into the offset estimate."""
+        new = t_vehicle - t_rx
+        off = self.offset
+        if self.assumed:   # a real time field at last: replace the assumption
+            self.assumed = False
+            self.resets += 1
+            off = math.nan
+        if off != off:  # nan: first sample
+            self.offset = new
+        else:
+            off -= self.drift * max(0.0, t_rx - self._last_rx)
+            if abs(new - off) > self.jump_s:
+                self.resets += 1
+                off = new
+            elif new > off:
+                off = new
+            self.offset = off
+        self._last_rx = t_rx
+
+    def assume_receive_time(self) -> None:
+        """Give up waiting for a time field: stamp with receive time (offset 0)."""
+        self.offset = 0.0
+        self.assumed = True
+
+    def vehicle_time(self, t_rx: float) -> float:
+        """Vehicle time for a message without a time field (nan until known)."""
+        return t_rx + self.offset

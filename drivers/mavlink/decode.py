@@ -1,0 +1,340 @@
+"""MAVLink messages (pymavlink objects) to :class:`Measurement` records.
+
+Every unit conversion of the MAVLink driver happens here, driven by the unit
+names of the message definitions (:data:`VECTORS` and :data:`SPECIAL_UNITS`,
+checked against pymavlink's ``fieldunits_by_name`` by the tests). Frames are
+already MAVLink's (NED/FRD) and stay so.
+
+Vehicle time: the message's ``time_usec``/``time_boot_ms`` where it has one
+(a UNIX-epoch ``time_usec`` or a zero time is treated as absent); otherwise the
+system's aligned clock (:mod:`drivers.mavlink.clock`). SERVO_OUTPUT_RAW's
+``time_usec`` is a uint32 that wraps every 71.6 minutes, so it uses the aligned
+clock too.
+
+Until a system has sent its first timestamped message, the offset is unknown:
+its untimed measurements wait (at most ``PENDING_S``) and are stamped once the
+clock is known. A system that never sends a time field is put on receive time
+after ``PENDING_S`` (``VehicleClock.assumed``).
+
+Invalid values the protocol marks as such (UINT16_MAX voltages, -1 currents,
+unused RC/servo channels, no GPS fix, out-of-range distances) are skipped and
+counted in :attr:`MavlinkDecoder.skipped`, never passed on as numbers.
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Callable
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundstation.measurement import Kind, Measurement
+
+from .clock import EPOCH_THRESHOLD_US, VehicleClock
+from .units import UNIT_TO_SI, scale
+
+_nan = math.nan
+_array = np.array
+
+#: Regular vector conversions: message -> [(kind, fields, unit)].
+#: The instance is the message's number (SCALED_IMU2 -> 1) unless the message
+#: has an ``id`` field.
+VECTORS: dict[str, list[tuple[Kind, tuple[str, ...], str]]] = {
+    **{
+        name: [
+            (Kind.ACCEL, ("xacc", "yacc", "zacc"), "mG"),
+            (Kind.GYRO, ("xgyro", "ygyro", "zgyro"), "mrad/s"),
+            (Kind.MAG, ("xmag", "ymag", "zmag"), "mgauss"),
+        ]
+        for name in ("SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU")
+    },
+    "ATTITUDE": [
+        (Kind.ATTITUDE, ("roll", "pitch", "yaw"), "rad"),
+        (Kind.ANGULAR_RATE, ("rollspeed", "pitchspeed", "yawspeed"), "rad/s"),
+    ],
+    "LOCAL_POSITION_NED": [
+        (Kind.POSITION_NED, ("x", "y", "z"), "m"),
+        (Kind.VELOCITY_NED, ("vx", "vy", "vz"), "m/s"),
+    ],
+}
+
+#: Units of the fields the special handlers below read (checked by the tests).
+SPECIAL_UNITS: dict[str, dict[str, str]] = {
+    "HIGHRES_IMU": {"xacc": "m/s/s", "xgyro": "rad/s", "xmag": "gauss", "abs_pressure": "hPa",
+                    "diff_pressure": "hPa", "temperature": "degC"},
+    "SCALED_PRESSURE": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
+    "SCALED_PRESSURE2": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
+    "SCALED_PRESSURE3": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
+    "DISTANCE_SENSOR": {"current_distance": "cm", "min_distance": "cm", "max_distance": "cm",
+                        "covariance": "cm^2"},
+    "GPS_RAW_INT": {"lat": "degE7", "lon": "degE7", "alt": "mm", "h_acc": "mm", "v_acc": "mm"},
+    "GLOBAL_POSITION_INT": {"lat": "degE7", "lon": "degE7", "alt": "mm", "relative_alt": "mm",
+                            "vx": "cm/s", "vy": "cm/s", "vz": "cm/s"},
+    "VFR_HUD": {"airspeed": "m/s", "groundspeed": "m/s", "heading": "deg", "throttle": "%",
+                "alt": "m", "climb": "m/s"},
+    "SYS_STATUS": {"voltage_battery": "mV", "current_battery": "cA", "battery_remaining": "%"},
+    "BATTERY_STATUS": {"voltages": "mV", "voltages_ext": "mV", "current_battery": "cA",
+                       "battery_remaining": "%"},
+    "SERVO_OUTPUT_RAW": {f"servo{i}_raw": "us" for i in range(1, 17)},
+    "RC_CHANNELS": {f"chan{i}_raw": "us" for i in range(1, 19)},
+    "ATT_POS_MOCAP": {"x": "m", "y": "m", "z": "m"},
+}
+
+_INSTANCE_BY_NAME = {"SCALED_IMU2": 1, "SCALED_IMU3": 2, "SCALED_PRESSURE2": 1, "SCALED_PRESSURE3": 2}
+
+# Pre-computed scale factors (the hot path multiplies by constants).
+_MG = scale("mG")
+_CM = scale("cm")
+_MM = scale("mm")
+_DEGE7 = scale("degE7")
+_HPA = scale("hPa")
+_MV = scale("mV")
+_CA = scale("cA")
+_PCT = scale("%")
+_DEG = scale("deg")
+_GAUSS = scale("gauss")
+_CDEGC_S, _CDEGC_O = UNIT_TO_SI["cdegC"]
+_DEGC_O = UNIT_TO_SI["degC"][1]
+_UINT16_MAX = 65535
+#: metres per degree of latitude (WGS84 mean), to express GPS accuracy in degrees
+_M_PER_DEG = 111_320.0
+
+# HIGHRES_IMU fields_updated bits (MAVLink HIGHRES_IMU_UPDATED_FLAGS)
+_HR_ACC, _HR_GYRO, _HR_MAG = 0x7, 0x38, 0x1C0
+_HR_ABS, _HR_DIFF, _HR_TEMP = 0x200, 0x400, 0x1000
+
+Out = list  # list[Measurement]
+
+#: How long untimed measurements wait for their system's clock [s].
+PENDING_S = 2.0
+_PENDING_MAX = 2000
+
+
+def _time_field(cls) -> tuple[str, float] | None:
+    names = cls.fieldnames
+    if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min
+        return None
+    if "time_usec" in names:
+        return "time_usec", 1e-6
+    if "time_boot_ms" in names:
+        return "time_boot_ms", 1e-3
+    return None
+
+
+class MavlinkDecoder:
+    """Turns decoded pymavlink messages into measurements, one link's worth.
+
+    ``decode(msg, t_rx)`` returns a (possibly empty) list. ``skipped`` counts
+    values the protocol marks invalid, by reason; ``unknown`` counts messages
+    this decoder has no conversion for, by type (they still reach the raw hook
+    and the recording).
+    """
+
+    def __init__(self, link_name: str = "mav") -> None:
+        self.link_name = link_name
+        self.clocks: dict[int, VehicleClock] = {}
+        self.skipped: Counter[str] = Counter()
+        self.unknown: Counter[str] = Counter()
+        self._sources: dict[tuple[int, int], str] = {}
+        self._pending: dict[int, list[Measurement]] = {}
+        # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
+        self._handlers: dict[type, tuple[Callable, tuple[str, float] | None, int]] = {}
+        for cls in mavlink.mavlink_map.values():
+            handler = self._handler_for(cls.msgname)
+            if handler is not None:
+                self._handlers[cls] = (handler, _time_field(cls), _INSTANCE_BY_NAME.get(cls.msgname, 0))
+
+    # -- dispatch -----------------------------------------------------------
+    def decode(self, m, t_rx: float) -> Out:
+        entry = self._handlers.get(type(m))
+        if entry is None:
+            self.unknown[m.get_type()] += 1
+            return []
+        handler, tfield, instance = entry
+        hdr = m._header
+        sysid = hdr.srcSystem
+        clock = self.clocks.get(sysid)
+        if clock is None:
+            clock = self.clocks[sysid] = VehicleClock()
+        t = _nan
+        if tfield is not None:
+            raw = getattr(m, tfield[0])
+            if raw and not (tfield[1] == 1e-6 and raw > EPOCH_THRESHOLD_US):
+                t = raw * tfield[1]
+                clock.observe(t, t_rx)
+        if t != t:
+            t = clock.vehicle_time(t_rx)
+        key = (sysid, hdr.srcComponent)
+        source = self._sources.get(key)
+        if source is None:
+            source = self._sources[key] = f"{self.link_name}/{sysid}.{hdr.srcComponent}"
+        out: Out = []
+        handler(m, t, t_rx, source, instance, out)
+        if t != t:  # clock still unknown: hold these back
+            return self._hold(sysid, clock, out, t_rx)
+        if self._pending and sysid in self._pending:
+            out[:0] = self._release(sysid, clock)
+        return out
+
+    def _hold(self, sysid: int, clock: VehicleClock, out: Out, t_rx: float) -> Out:
+        pend = self._pending.setdefault(sysid, [])
+        if len(pend) + len(out) > _PENDING_MAX:
+            self.skipped["no_vehicle_clock"] += len(out)
+        else:
+            pend.extend(out)
+        if pend and t_rx - pend[0].t_rx > PENDING_S:
+            clock.assume_receive_time()
+            return self._release(sysid, clock)
+        return []
+
+    def _release(self, sysid: int, clock: VehicleClock) -> Out:
+        vt = clock.vehicle_time
+        return [m._replace(t=vt(m.t_rx)) for m in self._pending.pop(sysid, ())]
+
+    def _handler_for(self, name: str):
+        if name in VECTORS:
+            specs = [(k, f, scale(u)) for k, f, u in VECTORS[name]]
+            has_id = name == "RAW_IMU"
+
+            def vectors(m, t, t_rx, source, instance, out, specs=specs, has_id=has_id):
+                if has_id:
+                    instance = getattr(m, "id", 0) or 0
+                for kind, fields, s in specs:
+                    v = _array([getattr(m, f) for f in fields], dtype=float)
+                    if s != 1.0:
+                        v *= s
+                    out.append(Measurement(t, kind, v, source, t_rx, None, instance))
+            return vectors
+        return getattr(self, "_" + name.lower(), None)
+
+    # -- messages with special rules ----------------------------------------
+    def _highres_imu(self, m, t, t_rx, source, instance, out):
+        upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
+        instance = getattr(m, "id", 0) or 0
+        if upd & _HR_ACC:
+            out.append(Measurement(t, Kind.ACCEL, _array([m.xacc, m.yacc, m.zacc], dtype=float), source, t_rx, None, instance))
+        if upd & _HR_GYRO:
+            out.append(Measurement(t, Kind.GYRO, _array([m.xgyro, m.ygyro, m.zgyro], dtype=float), source, t_rx, None, instance))
+        if upd & _HR_MAG:
+            out.append(Measurement(t, Kind.MAG, _array([m.xmag, m.ymag, m.zmag], dtype=float) * _GAUSS, source, t_rx, None, instance))
+        if upd & _HR_ABS:
+            out.append(Measurement(t, Kind.BARO_PRESSURE, _array([m.abs_pressure * _HPA]), source, t_rx, None, instance))
+        if upd & _HR_DIFF:
+            out.append(Measurement(t, Kind.DIFF_PRESSURE, _array([m.diff_pressure * _HPA]), source, t_rx, None, instance))
+        if upd & _HR_TEMP:
+            out.append(Measurement(t, Kind.TEMPERATURE, _array([m.temperature + _DEGC_O]), source, t_rx, None, instance))
+
+    def _scaled_pressure(self, m, t, t_rx, source, instance, out):
+        out.append(Measurement(t, Kind.BARO_PRESSURE, _array([m.press_abs * _HPA]), source, t_rx, None, instance))
+        if m.press_diff:
+            out.append(Measurement(t, Kind.DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance))
+        out.append(Measurement(t, Kind.TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance))
+
+    _scaled_pressure2 = _scaled_pressure
+    _scaled_pressure3 = _scaled_pressure
+
+    def _distance_sensor(self, m, t, t_rx, source, instance, out):
+        d = m.current_distance
+        if d < m.min_distance or d > m.max_distance:
+            # ArduPilot and PX4 report out-of-range readings this way.
+            self.skipped["range_out_of_bounds"] += 1
+            return
+        cov = m.covariance
+        var = None if cov in (0, 255) else _array([cov * 1e-4])
+        out.append(Measurement(t, Kind.RANGE, _array([d * _CM]), source, t_rx, var, m.id))
+
+    def _gps_raw_int(self, m, t, t_rx, source, instance, out):
+        if m.fix_type < 3:  # no fix or 2D: no usable altitude
+            self.skipped["gps_no_3d_fix"] += 1
+            return
+        lat = m.lat * _DEGE7
+        var = None
+        h_acc, v_acc = getattr(m, "h_acc", 0), getattr(m, "v_acc", 0)
+        if h_acc and v_acc:
+            # Accuracy [mm] to variance in the value's own units (deg^2, deg^2, m^2).
+            h_deg = h_acc * _MM / _M_PER_DEG
+            coslat = max(math.cos(math.radians(lat)), 1e-6)
+            var = _array([h_deg**2, (h_deg / coslat) ** 2, (v_acc * _MM) ** 2])
+        out.append(Measurement(t, Kind.GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance))
+
+    def _global_position_int(self, m, t, t_rx, source, instance, out):
+        out.append(Measurement(t, Kind.GLOBAL_POSITION,
+                               _array([m.lat * _DEGE7, m.lon * _DEGE7, m.alt * _MM, m.relative_alt * _MM]),
+                               source, t_rx, None, instance))
+        out.append(Measurement(t, Kind.VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM,
+                               source, t_rx, None, instance))
+
+    def _vfr_hud(self, m, t, t_rx, source, instance, out):
+        out.append(Measurement(t, Kind.THROTTLE, _array([m.throttle * _PCT]), source, t_rx, None, instance))
+        out.append(Measurement(t, Kind.ALTITUDE, _array([float(m.alt)]), source, t_rx, None, instance))
+        out.append(Measurement(t, Kind.CLIMB_RATE, _array([float(m.climb)]), source, t_rx, None, instance))
+        out.append(Measurement(t, Kind.AIRSPEED, _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
+                               source, t_rx, None, instance))
+
+    def _sys_status(self, m, t, t_rx, source, instance, out):
+        self._battery(m.voltage_battery, m.current_battery, m.battery_remaining, t, t_rx, source, 0, out)
+
+    def _battery_status(self, m, t, t_rx, source, instance, out):
+        cells = [v for v in m.voltages if v != _UINT16_MAX]
+        cells += [v for v in (getattr(m, "voltages_ext", None) or ()) if v not in (0, _UINT16_MAX)]
+        volts = sum(cells) if cells else _UINT16_MAX
+        self._battery(volts, m.current_battery, m.battery_remaining, t, t_rx, source, m.id, out)
+
+    def _battery(self, mv, ca, pct, t, t_rx, source, instance, out):
+        if mv not in (_UINT16_MAX, 0):
+            out.append(Measurement(t, Kind.BATTERY_VOLTAGE, _array([mv * _MV]), source, t_rx, None, instance))
+        else:
+            self.skipped["battery_voltage_unknown"] += 1
+        if ca != -1:
+            out.append(Measurement(t, Kind.BATTERY_CURRENT, _array([ca * _CA]), source, t_rx, None, instance))
+        if pct != -1:
+            out.append(Measurement(t, Kind.BATTERY_REMAINING, _array([pct * _PCT]), source, t_rx, None, instance))
+
+    def _servo_output_raw(self, m, t, t_rx, source, instance, out):
+        raw = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
+        while len(raw) > 8 and raw[-1] == 0:  # MAVLink 2 extension channels 9-16 unused
+            raw.pop()
+        v = (_array(raw, dtype=float) - 1000.0) * 1e-3
+        v[_array(raw) == 0] = _nan
+        out.append(Measurement(t, Kind.ACTUATOR, v, source, t_rx, None, m.port))
+
+    def _rc_channels(self, m, t, t_rx, source, instance, out):
+        n = m.chancount or 18
+        raw = [getattr(m, f"chan{i}_raw") for i in range(1, n + 1)]
+        v = (_array(raw, dtype=float) - 1000.0) * 1e-3
+        v[_array(raw) == _UINT16_MAX] = _nan
+        out.append(Measurement(t, Kind.RC_INPUT, v, source, t_rx, None, instance))
+
+    def _manual_control(self, m, t, t_rx, source, instance, out):
+        # Normalised as MAVLink defines them: x, y, r in [-1000, 1000]; z in [0, 1000]
+        # for ArduPilot and PX4 (some GCSs send [-1000, 1000]); passed on as sent / 1000.
+        out.append(Measurement(t, Kind.MANUAL_CONTROL, _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
+                               source, t_rx, None, m.target))
+
+    def _heartbeat(self, m, t, t_rx, source, instance, out):
+        armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
+        out.append(Measurement(t, Kind.VEHICLE_STATUS,
+                               _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),
+                               source, t_rx, None, instance))
+
+    def _attitude_quaternion(self, m, t, t_rx, source, instance, out):
+        out.append(Measurement(t, Kind.ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]),
+                               source, t_rx, None, instance))
+
+    def _att_pos_mocap(self, m, t, t_rx, source, instance, out):
+        q = list(m.q)
+        out.append(Measurement(t, Kind.TRUTH_POSE, _array([m.x, m.y, m.z, *q]), source, t_rx, None, instance))
+
+    def _ekf_status_report(self, m, t, t_rx, source, instance, out):
+        out.append(Measurement(t, Kind.EKF_STATUS,
+                               _array([m.flags, m.velocity_variance, m.pos_horiz_variance, m.pos_vert_variance,
+                                       m.compass_variance, m.terrain_alt_variance], dtype=float),
+                               source, t_rx, None, instance))
+
+
+#: Every message type this decoder converts (the issue's list and a few more).
+DECODED_TYPES = sorted(
+    set(VECTORS) | set(SPECIAL_UNITS)
+    | {"HEARTBEAT", "ATTITUDE_QUATERNION", "MANUAL_CONTROL", "EKF_STATUS_REPORT"}
+)

@@ -1,0 +1,271 @@
+"""A live MAVLink link to a vehicle, as an asyncio ``async for`` stream.
+
+>>> async with MavlinkLink("udpin:0.0.0.0:14550", record="flight.tlog") as link:
+...     async for m in link.measurements():
+...         print(m.describe())
+
+The link
+
+* opens any transport of :mod:`drivers.connection` (UDP, TCP, serial), MAVLink 1 and 2;
+* sends a GCS HEARTBEAT at 1 Hz, in the protocol version the vehicle speaks;
+* asks each vehicle for the streams it needs with SET_MESSAGE_INTERVAL, and
+  falls back to REQUEST_DATA_STREAM when the vehicle does not accept it;
+* knows whether it is alive: any valid message proves it, ``lost_after``
+  seconds of silence (or the device vanishing) lose it; state changes are
+  :class:`LinkEvent` records on :meth:`events`;
+* keeps :class:`~drivers.mavlink.receiver.LinkCounters`;
+* records every valid frame, in and out, to a MAVProxy-compatible ``.tlog``.
+"""
+from __future__ import annotations
+
+import asyncio
+import enum
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from groundstation.broadcast import Broadcast, Subscription
+from groundstation.measurement import Measurement
+
+from ..connection import Endpoint, parse_connection
+from ..tlog import TlogWriter
+from ..transports import Transport, open_transport
+from .receiver import LinkCounters, MavlinkReceiver
+
+#: Streams requested from a vehicle: message name -> rate [Hz].
+DEFAULT_STREAMS: dict[str, float] = {
+    "HIGHRES_IMU": 100.0, "SCALED_IMU": 50.0, "RAW_IMU": 50.0,
+    "SCALED_PRESSURE": 25.0, "DISTANCE_SENSOR": 20.0,
+    "ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 50.0,
+    "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0,
+    "VFR_HUD": 10.0, "SERVO_OUTPUT_RAW": 20.0, "RC_CHANNELS": 10.0,
+    "SYS_STATUS": 2.0, "BATTERY_STATUS": 2.0, "EKF_STATUS_REPORT": 2.0,
+}
+
+#: REQUEST_DATA_STREAM groups used when SET_MESSAGE_INTERVAL is refused.
+FALLBACK_DATA_STREAMS: dict[int, float] = {
+    mavlink.MAV_DATA_STREAM_RAW_SENSORS: 50.0,
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: 2.0,
+    mavlink.MAV_DATA_STREAM_RC_CHANNELS: 10.0,
+    mavlink.MAV_DATA_STREAM_POSITION: 10.0,
+    mavlink.MAV_DATA_STREAM_EXTRA1: 50.0,
+    mavlink.MAV_DATA_STREAM_EXTRA2: 10.0,
+    mavlink.MAV_DATA_STREAM_EXTRA3: 10.0,
+}
+
+_GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
+
+
+class LinkState(enum.Enum):
+    CONNECTING = "connecting"   # opened, nothing valid received yet
+    ALIVE = "alive"
+    LOST = "lost"
+    CLOSED = "closed"
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    state: LinkState
+    t: float        # wall-clock time of the change
+    reason: str
+
+
+class MavlinkLink:
+    def __init__(self, url: str | Endpoint, *, name: str = "mav", lost_after: float = 3.0,
+                 heartbeat_hz: float = 1.0, streams: dict[str, float] | None = DEFAULT_STREAMS,
+                 record: str | Path | None = None, system_id: int = 255, component_id: int = 190,
+                 buffer: int = 100_000, ack_timeout: float = 1.0) -> None:
+        self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
+        self.name = name
+        self.lost_after = lost_after
+        self.heartbeat_hz = heartbeat_hz
+        self.streams = dict(streams or {})
+        self.ack_timeout = ack_timeout
+        self.record_path = Path(record) if record else None
+        self.recorder: TlogWriter | None = None
+        self._mav_out = mavlink.MAVLink(None, system_id, component_id)
+        self.receiver = MavlinkReceiver(name, on_frame=self._frame_in, on_message=self._message_in)
+        self.message_hooks: list[Callable[[object, float], None]] = []
+        self._measurements: Broadcast[Measurement] = Broadcast(buffer)
+        self._events: Broadcast[LinkEvent] = Broadcast(1000)
+        self.state = LinkState.CLOSED
+        self.transport: Transport | None = None
+        self._last_valid = 0.0
+        self._tasks: list[asyncio.Task] = []
+        self._vehicles: dict[int, int] = {}           # sysid -> autopilot compid
+        self._acks: dict[tuple[int, int], asyncio.Future] = {}
+        self.stream_method: dict[int, str] = {}        # sysid -> how streams were requested
+
+    # -- public API -----------------------------------------------------------
+    @property
+    def counters(self) -> LinkCounters:
+        return self.receiver.counters
+
+    def measurements(self, maxlen: int | None = None) -> Subscription[Measurement]:
+        """An ``async for`` stream of measurements (subscribe before data flows)."""
+        return self._measurements.subscribe(maxlen)
+
+    def events(self) -> Subscription[LinkEvent]:
+        """An ``async for`` stream of link state changes."""
+        return self._events.subscribe()
+
+    @property
+    def vehicles(self) -> dict[int, int]:
+        return dict(self._vehicles)
+
+    async def open(self) -> None:
+        """Open the transport; raises :class:`drivers.transports.TransportError`."""
+        tr = open_transport(self.endpoint)
+        tr.on_data = self._data
+        tr.on_disconnect = self._disconnected
+        tr.on_connect = self._connected
+        await tr.open()
+        self.transport = tr
+        if self.record_path is not None:
+            self.recorder = TlogWriter(self.record_path)
+        self._set_state(LinkState.CONNECTING, f"opened {self.endpoint}")
+        loop = asyncio.get_running_loop()
+        self._tasks = [loop.create_task(self._heartbeat_task()), loop.create_task(self._watchdog_task())]
+        if self.recorder is not None:
+            self._tasks.append(loop.create_task(self._flush_task()))
+
+    async def close(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except (asyncio.CancelledError, Exception):
+                pass
+        self._tasks = []
+        if self.transport is not None:
+            await self.transport.close()
+        if self.recorder is not None:
+            self.recorder.close()
+        self._set_state(LinkState.CLOSED, "closed")
+        self._measurements.close()
+        self._events.close()
+
+    async def __aenter__(self) -> "MavlinkLink":
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.close()
+
+    def send(self, msg, *, force_mavlink1: bool | None = None) -> None:
+        """Encode and send a pymavlink message (recorded like MAVProxy does)."""
+        if self.transport is None:
+            return
+        v1 = self._peer_is_v1() if force_mavlink1 is None else force_mavlink1
+        buf = msg.pack(self._mav_out, force_mavlink1=v1)
+        self._mav_out.seq = (self._mav_out.seq + 1) % 256
+        self.transport.send(buf)
+        if self.recorder is not None:
+            self.recorder.write(buf, time.time())
+
+    # -- receive path ------------------------------------------------------------
+    def _data(self, data: bytes, t_rx: float) -> None:
+        n_before = self.receiver.counters.messages + self.receiver.counters.unknown
+        out = self.receiver.feed(data, t_rx)
+        c = self.receiver.counters
+        if c.messages + c.unknown != n_before:
+            self._last_valid = time.monotonic()
+            if self.state is not LinkState.ALIVE:
+                self._set_state(LinkState.ALIVE, "valid message received")
+        if out:
+            self._measurements.publish_many(out)
+            c.dropped = self._measurements.dropped
+
+    def _frame_in(self, frame: bytes, t_rx: float) -> None:
+        if self.recorder is not None:
+            self.recorder.write(frame, t_rx)
+
+    def _message_in(self, m, t_rx: float) -> None:
+        mtype = m.get_type()
+        if mtype == "HEARTBEAT":
+            self._heartbeat_in(m)
+        elif mtype == "COMMAND_ACK":
+            fut = self._acks.get((m._header.srcSystem, m.command))
+            if fut is not None and not fut.done():
+                fut.set_result(m.result)
+        for hook in self.message_hooks:
+            hook(m, t_rx)
+
+    def _heartbeat_in(self, m) -> None:
+        hdr = m._header
+        if m.type in _GCS_TYPES or m.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+            return
+        if hdr.srcSystem not in self._vehicles:
+            self._vehicles[hdr.srcSystem] = hdr.srcComponent
+            if self.streams:
+                asyncio.get_running_loop().create_task(
+                    self._request_streams(hdr.srcSystem, hdr.srcComponent))
+
+    def _peer_is_v1(self) -> bool:
+        peers = self.receiver.peer_mavlink1
+        keys = [k for k in peers if k[0] in self._vehicles] or list(peers)
+        return bool(keys) and all(peers[k] for k in keys)
+
+    # -- link state ----------------------------------------------------------------
+    def _set_state(self, state: LinkState, reason: str) -> None:
+        if state is self.state:
+            return
+        self.state = state
+        self._events.publish(LinkEvent(state, time.time(), reason))
+
+    def _disconnected(self, reason: str) -> None:
+        self._set_state(LinkState.LOST, reason)
+
+    def _connected(self, reason: str) -> None:
+        if self.state is not LinkState.ALIVE:
+            self._set_state(LinkState.CONNECTING, reason)
+
+    async def _watchdog_task(self) -> None:
+        period = max(0.02, self.lost_after / 10)
+        while True:
+            await asyncio.sleep(period)
+            if self.state is LinkState.ALIVE and time.monotonic() - self._last_valid > self.lost_after:
+                self._set_state(LinkState.LOST, f"no valid message for {self.lost_after:g} s")
+
+    async def _heartbeat_task(self) -> None:
+        hb = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)
+        while True:
+            if self.transport is not None and self.transport.has_peer:
+                self.send(hb)
+            await asyncio.sleep(1.0 / self.heartbeat_hz)
+
+    async def _flush_task(self) -> None:
+        while self.recorder is not None and not self.recorder.closed:
+            await asyncio.sleep(self.recorder.flush_s)
+            self.recorder.flush()
+
+    # -- stream requests ---------------------------------------------------------------
+    async def _request_streams(self, sysid: int, compid: int) -> None:
+        """SET_MESSAGE_INTERVAL for every stream; REQUEST_DATA_STREAM if refused."""
+        loop = asyncio.get_running_loop()
+        cmd = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
+        accepted = 0
+        for name, hz in self.streams.items():
+            msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
+            fut = loop.create_future()
+            self._acks[(sysid, cmd)] = fut
+            self.send(mavlink.MAVLink_command_long_message(
+                sysid, compid, cmd, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0))
+            try:
+                result = await asyncio.wait_for(fut, self.ack_timeout)
+            except asyncio.TimeoutError:
+                break  # no answer at all: the vehicle does not take the command
+            # A refusal for one message only means the vehicle lacks that sensor.
+            accepted += result == mavlink.MAV_RESULT_ACCEPTED
+        self._acks.pop((sysid, cmd), None)
+        if accepted:
+            self.stream_method[sysid] = "SET_MESSAGE_INTERVAL"
+            return
+        self.stream_method[sysid] = "REQUEST_DATA_STREAM"
+        for stream_id, hz in FALLBACK_DATA_STREAMS.items():
+            self.send(mavlink.MAVLink_request_data_stream_message(sysid, compid, stream_id, int(hz), 1))

@@ -1,0 +1,205 @@
+"""The ``.tlog`` telemetry log, as MAVProxy and QGroundControl write it.
+
+Each record is an 8-byte big-endian timestamp (microseconds since the UNIX
+epoch, the receive time) followed by one raw MAVLink 1 or 2 frame. Files we
+write open in MAVProxy, QGroundControl and pymavlink's ``mavlogfile``; theirs
+open here.
+
+:class:`TlogWriter` is crash-safe: it hands its buffer to the operating system
+at least every ``flush_s`` (a SIGKILLed process then loses at most that much).
+:class:`TlogIndex` scans a file once into arrays of record timestamps and
+offsets, so a replay can seek by *time* (bisection on the timestamps), not by
+byte fraction, which breaks across recording gaps. Corrupt stretches are
+skipped by resynchronising on the next plausible record and counted; a
+truncated last record is tolerated and reported.
+"""
+from __future__ import annotations
+
+import os
+import struct
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+_TS = struct.Struct(">Q")
+#: Timestamps outside 2000-01-01 .. 2100-01-01 cannot be a tlog's.
+_TS_MIN_US = 946_684_800_000_000
+_TS_MAX_US = 4_102_444_800_000_000
+#: A resynchronised record must lie within this of the last good timestamp.
+_RESYNC_WINDOW_US = 86_400_000_000
+
+
+class TlogError(ValueError):
+    """The file is not a readable tlog (one-line message naming file and offset)."""
+
+
+class TlogWriter:
+    """Append-only tlog writer, flushed to the OS at least every ``flush_s``."""
+
+    def __init__(self, path: str | os.PathLike, flush_s: float = 0.5) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "ab", buffering=1 << 16)
+        self.flush_s = flush_s
+        self._last_flush = time.monotonic()
+        self.records = 0
+
+    def write(self, frame: bytes, t_unix: float) -> None:
+        f = self._f
+        if f is None:
+            return
+        f.write(_TS.pack(int(t_unix * 1e6)))
+        f.write(frame)
+        self.records += 1
+        now = time.monotonic()
+        if now - self._last_flush >= self.flush_s:
+            f.flush()
+            self._last_flush = now
+
+    def flush(self) -> None:
+        """Hand buffered records to the OS (called by a timer while idle, too)."""
+        if self._f is not None:
+            self._f.flush()
+            self._last_flush = time.monotonic()
+
+    def close(self) -> None:
+        if self._f is not None:
+            self._f.flush()
+            os.fsync(self._f.fileno())
+            self._f.close()
+            self._f = None
+
+    @property
+    def closed(self) -> bool:
+        return self._f is None
+
+
+def _frame_length(data, pos: int) -> int:
+    """Length of the MAVLink frame starting at ``pos`` (0 if no frame starts there)."""
+    magic = data[pos]
+    if magic == 0xFE:
+        return 8 + data[pos + 1]
+    if magic == 0xFD:
+        return 12 + data[pos + 1] + (13 if data[pos + 2] & 0x01 else 0)
+    return 0
+
+
+@dataclass
+class TlogIndex:
+    """Record timestamps and offsets of one tlog file, and what was skipped."""
+
+    path: Path
+    data: bytes
+    t: np.ndarray                 # receive time of each record [s since epoch]
+    offset: np.ndarray            # byte offset of each record's timestamp
+    length: np.ndarray            # frame length of each record
+    skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
+    truncated_at: int | None = None   # offset of an incomplete last record
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def start(self) -> float:
+        return float(self.t[0]) if len(self.t) else 0.0
+
+    @property
+    def duration(self) -> float:
+        return float(self._t_mono[-1] - self.t[0]) if len(self.t) else 0.0
+
+    @property
+    def _t_mono(self) -> np.ndarray:
+        # The recorder's clock may step back; seeking uses the running maximum.
+        return np.maximum.accumulate(self.t)
+
+    def seek(self, t_rel: float) -> int:
+        """Index of the first record at or after ``t_rel`` seconds into the file."""
+        return int(np.searchsorted(self._t_mono, self.start + t_rel, side="left"))
+
+    def frame(self, i: int) -> bytes:
+        o = int(self.offset[i]) + 8
+        return self.data[o:o + int(self.length[i])]
+
+    @classmethod
+    def scan(cls, path: str | os.PathLike) -> "TlogIndex":
+        p = Path(path)
+        try:
+            data = p.read_bytes()
+        except OSError as e:
+            raise TlogError(f"{p}: cannot read: {e.strerror or e}") from None
+        n = len(data)
+        ts_list: list[int] = []
+        off_list: list[int] = []
+        len_list: list[int] = []
+        skipped: list[tuple[int, int]] = []
+        truncated_at = None
+        unpack = _TS.unpack_from
+        pos = 0
+        last_ts = None
+        while pos + 9 <= n:
+            ts = unpack(data, pos)[0]
+            flen = _frame_length(data, pos + 8)
+            ok = flen and _TS_MIN_US <= ts <= _TS_MAX_US and (
+                last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US)
+            if ok and pos + 8 + flen > n:
+                truncated_at = pos
+                break
+            if ok:
+                # A record is trusted when the next one also looks like a record
+                # (guards against a corrupted length byte) or the file ends here.
+                nxt = pos + 8 + flen
+                if nxt + 9 <= n:
+                    nts = unpack(data, nxt)[0]
+                    ok = _frame_length(data, nxt + 8) and abs(nts - ts) <= _RESYNC_WINDOW_US
+                elif nxt != n:
+                    ok = nxt + 8 >= n  # trailing partial timestamp: truncated next record
+                    if ok:
+                        truncated_at = nxt
+            if ok:
+                ts_list.append(ts)
+                off_list.append(pos)
+                len_list.append(flen)
+                last_ts = ts
+                pos += 8 + flen
+                if truncated_at is not None:
+                    break
+                continue
+            if not ts_list and pos > 4096:
+                raise TlogError(f"{p}: not a MAVLink tlog (no valid record in the first 4096 bytes)")
+            start = pos
+            pos = _resync(data, pos + 1, last_ts)
+            if pos < 0:
+                if not ts_list:
+                    raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
+                skipped.append((start, n - start))
+                pos = n
+                break
+            skipped.append((start, pos - start))
+        else:
+            if 0 < n - pos < 9 and ts_list:
+                truncated_at = pos
+        if not ts_list:
+            raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
+        return cls(p, data, np.array(ts_list, dtype=np.float64) * 1e-6,
+                   np.array(off_list, dtype=np.int64), np.array(len_list, dtype=np.int64),
+                   skipped, truncated_at)
+
+
+def _resync(data: bytes, pos: int, last_ts: int | None) -> int:
+    """Next offset >= pos where a plausible record starts, or -1."""
+    n = len(data)
+    unpack = _TS.unpack_from
+    while True:
+        # Find the next magic byte 8 bytes after a candidate record start.
+        a = data.find(b"\xfe", pos + 8)
+        b = data.find(b"\xfd", pos + 8)
+        cand = min(x for x in (a, b, n) if x >= 0)
+        if cand >= n:
+            return -1
+        start = cand - 8
+        ts = unpack(data, start)[0]
+        if _TS_MIN_US <= ts <= _TS_MAX_US and (last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US):
+            return start
+        pos = start + 1

@@ -1,0 +1,334 @@
+"""Byte transports on asyncio: UDP, TCP client/server, serial (pyserial).
+
+pymavlink's ``mavutil`` connections block on reads, so they would need a thread
+per link; these transports sit on the event loop instead and hand bytes to a
+callback as they arrive. Any protocol (MAVLink, the sensor-board frames) runs
+on top of them.
+
+Serial and TCP-client transports reconnect on their own: when the device
+disappears (a USB radio unplugged, a pty closed) or the peer closes, they
+report ``on_disconnect`` and retry every ``retry_s`` until it is back. UDP has
+no connection; it simply resumes when datagrams arrive again.
+"""
+from __future__ import annotations
+
+import abc
+import asyncio
+import errno
+import os
+import time
+from typing import Callable
+
+import serial
+
+from .connection import Endpoint
+
+OnData = Callable[[bytes, float], None]
+OnEvent = Callable[[str], None]
+
+
+class TransportError(OSError):
+    """The transport could not be opened (one-line message)."""
+
+
+def _nothing(*_a) -> None:
+    return None
+
+
+class Transport(abc.ABC):
+    """Base: ``on_data(bytes, t_rx)``, ``on_connect(text)``, ``on_disconnect(reason)``."""
+
+    reconnects = False
+
+    def __init__(self, endpoint: Endpoint) -> None:
+        self.endpoint = endpoint
+        self.on_data: OnData = _nothing
+        self.on_connect: OnEvent = _nothing
+        self.on_disconnect: OnEvent = _nothing
+        self.connected = False
+
+    @abc.abstractmethod
+    async def open(self) -> None:
+        """See the subclasses."""
+
+    @abc.abstractmethod
+    def send(self, data: bytes) -> None:
+        """See the subclasses."""
+
+    @abc.abstractmethod
+    async def close(self) -> None:
+        """See the subclasses."""
+
+    @property
+    def has_peer(self) -> bool:
+        return self.connected
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        return None
+
+
+# --------------------------------------------------------------------- UDP
+class _Datagram(asyncio.DatagramProtocol):
+    def __init__(self, owner: "UdpTransport") -> None:
+        self.owner = owner
+
+    def datagram_received(self, data: bytes, addr) -> None:
+        self.owner._received(data, addr)
+
+    def error_received(self, exc: Exception) -> None:
+        # ICMP port unreachable while the peer is not listening yet: harmless.
+        self.owner.send_errors += 1
+
+
+class UdpTransport(Transport):
+    """``udpin`` listens and answers the last sender; ``udpout`` talks to one address."""
+
+    def __init__(self, endpoint: Endpoint) -> None:
+        super().__init__(endpoint)
+        self._tr: asyncio.DatagramTransport | None = None
+        self.peer: tuple | None = None
+        self.send_errors = 0
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        ep = self.endpoint
+        try:
+            if ep.scheme == "udpin":
+                self._tr, _ = await loop.create_datagram_endpoint(
+                    lambda: _Datagram(self), local_addr=(ep.host, ep.port))
+            else:
+                self.peer = (ep.host, ep.port)
+                self._tr, _ = await loop.create_datagram_endpoint(
+                    lambda: _Datagram(self), local_addr=("0.0.0.0", 0))
+        except OSError as e:
+            raise TransportError(f"cannot open {ep}: {e.strerror or e}") from None
+        self.connected = True
+
+    def _received(self, data: bytes, addr) -> None:
+        if self.endpoint.scheme == "udpin":
+            self.peer = addr
+        self.on_data(data, time.time())
+
+    def send(self, data: bytes) -> None:
+        if self._tr is not None and self.peer is not None:
+            self._tr.sendto(data, self.peer)
+
+    @property
+    def has_peer(self) -> bool:
+        return self.peer is not None
+
+    @property
+    def local_address(self):
+        return self._tr.get_extra_info("sockname")[:2] if self._tr else None
+
+    async def close(self) -> None:
+        if self._tr is not None:
+            self._tr.close()
+            self._tr = None
+        self.connected = False
+
+
+# --------------------------------------------------------------------- TCP
+class _Stream(asyncio.Protocol):
+    def __init__(self, owner: "TcpTransport") -> None:
+        self.owner = owner
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport) -> None:
+        self.transport = transport
+        self.owner._peer_up(self)
+
+    def data_received(self, data: bytes) -> None:
+        self.owner.on_data(data, time.time())
+
+    def connection_lost(self, exc) -> None:
+        self.owner._peer_down(self, exc)
+
+
+class TcpTransport(Transport):
+    """``tcp`` (client, reconnecting) or ``tcpin`` (server, any number of peers)."""
+
+    def __init__(self, endpoint: Endpoint, retry_s: float = 0.5) -> None:
+        super().__init__(endpoint)
+        self.reconnects = endpoint.scheme == "tcp"
+        self.retry_s = retry_s
+        self._peers: list[_Stream] = []
+        self._server: asyncio.AbstractServer | None = None
+        self._retry_task: asyncio.Task | None = None
+        self._closing = False
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        ep = self.endpoint
+        try:
+            if ep.scheme == "tcpin":
+                self._server = await loop.create_server(lambda: _Stream(self), ep.host, ep.port)
+                self.connected = True
+            else:
+                await loop.create_connection(lambda: _Stream(self), ep.host, ep.port)
+        except OSError as e:
+            raise TransportError(f"cannot open {ep}: {e.strerror or e}") from None
+
+    def _peer_up(self, s: _Stream) -> None:
+        self._peers.append(s)
+        self.connected = True
+        self.on_connect(f"{self.endpoint} connected")
+
+    def _peer_down(self, s: _Stream, exc) -> None:
+        if s in self._peers:
+            self._peers.remove(s)
+        if self._closing:
+            return
+        if self.endpoint.scheme == "tcp":
+            self.connected = False
+            self.on_disconnect(f"{self.endpoint}: peer closed" + (f" ({exc})" if exc else ""))
+            self._retry_task = asyncio.get_running_loop().create_task(self._reconnect())
+        elif not self._peers:
+            self.on_disconnect(f"{self.endpoint}: last client left")
+
+    async def _reconnect(self) -> None:
+        loop = asyncio.get_running_loop()
+        while not self._closing and not self._peers:
+            await asyncio.sleep(self.retry_s)
+            try:
+                await loop.create_connection(lambda: _Stream(self), self.endpoint.host, self.endpoint.port)
+            except OSError:
+                continue
+
+    def send(self, data: bytes) -> None:
+        for p in self._peers:
+            if p.transport is not None and not p.transport.is_closing():
+                p.transport.write(data)
+
+    @property
+    def has_peer(self) -> bool:
+        return bool(self._peers)
+
+    @property
+    def local_address(self):
+        if self._server is not None and self._server.sockets:
+            return self._server.sockets[0].getsockname()[:2]
+        return None
+
+    async def close(self) -> None:
+        self._closing = True
+        if self._retry_task is not None:
+            self._retry_task.cancel()
+        for p in list(self._peers):
+            if p.transport is not None:
+                p.transport.close()
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+        self.connected = False
+
+
+# ------------------------------------------------------------------ serial
+class SerialTransport(Transport):
+    """A serial device through pyserial, read from the event loop (no thread).
+
+    Reconnects when the device path exists again (a USB radio replugged: its
+    ``/dev/serial/by-id`` link comes back). The device is polled for every
+    ``retry_s``: the kernel offers no portable event for a device appearing.
+    """
+
+    reconnects = True
+
+    def __init__(self, endpoint: Endpoint, retry_s: float = 0.25) -> None:
+        super().__init__(endpoint)
+        self.retry_s = retry_s
+        self._ser: serial.Serial | None = None
+        self._fd: int | None = None
+        self._retry_task: asyncio.Task | None = None
+        self._closing = False
+
+    def _open_port(self) -> None:
+        ep = self.endpoint
+        try:
+            ser = serial.Serial(ep.device, ep.baud, timeout=0, write_timeout=0, exclusive=False)
+        except (serial.SerialException, OSError, ValueError) as e:
+            msg = str(e)
+            if isinstance(e, OSError) or "No such file" in msg or "could not open" in msg:
+                if not os.path.exists(ep.device):
+                    raise TransportError(f"cannot open {ep.device}: no such device") from None
+            raise TransportError(f"cannot open {ep.device}: {msg.splitlines()[0] if msg else e}") from None
+        self._ser = ser
+        self._fd = ser.fileno()
+        asyncio.get_running_loop().add_reader(self._fd, self._readable)
+        self.connected = True
+
+    async def open(self) -> None:
+        self._open_port()
+
+    def _readable(self) -> None:
+        ser = self._ser
+        if ser is None:
+            return
+        try:
+            data = os.read(self._fd, 65536)
+        except BlockingIOError:
+            return
+        except OSError as e:
+            self._lost(f"{self.endpoint.device}: {os.strerror(e.errno) if e.errno else e}")
+            return
+        if not data:
+            self._lost(f"{self.endpoint.device}: device closed")
+            return
+        self.on_data(data, time.time())
+
+    def _lost(self, reason: str) -> None:
+        self._drop_port()
+        if self._closing:
+            return
+        self.on_disconnect(reason)
+        self._retry_task = asyncio.get_running_loop().create_task(self._reconnect())
+
+    def _drop_port(self) -> None:
+        if self._fd is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._fd)
+            except (RuntimeError, ValueError):
+                pass
+        if self._ser is not None:
+            try:
+                self._ser.close()
+            except (OSError, serial.SerialException):
+                pass
+        self._ser, self._fd = None, None
+        self.connected = False
+
+    async def _reconnect(self) -> None:
+        while not self._closing:
+            await asyncio.sleep(self.retry_s)
+            try:
+                self._open_port()
+            except TransportError:
+                continue
+            self.on_connect(f"{self.endpoint.device} reconnected")
+            return
+
+    def send(self, data: bytes) -> None:
+        if self._fd is None:
+            return
+        try:
+            os.write(self._fd, data)
+        except BlockingIOError:
+            pass  # output buffer full: drop, as a radio would
+        except OSError as e:
+            if e.errno in (errno.EIO, errno.ENXIO, errno.EBADF):
+                self._lost(f"{self.endpoint.device}: {os.strerror(e.errno)}")
+
+    async def close(self) -> None:
+        self._closing = True
+        if self._retry_task is not None:
+            self._retry_task.cancel()
+        self._drop_port()
+
+
+def open_transport(endpoint: Endpoint) -> Transport:
+    if endpoint.scheme in ("udpin", "udpout"):
+        return UdpTransport(endpoint)
+    if endpoint.scheme in ("tcp", "tcpin"):
+        return TcpTransport(endpoint)
+    return SerialTransport(endpoint)

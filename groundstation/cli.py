@@ -1,0 +1,235 @@
+"""``groundstation``: the command line.
+
+    groundstation connect URL [--record FILE] [--export OUT.csv] [--no-web]
+    groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
+    groundstation info FILE.tlog
+
+Every failure the user can cause (bad connection string, missing device,
+unreadable or foreign file) ends in one line on stderr and exit status 2,
+never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime as _dt
+import math
+import os
+import signal
+import sys
+from pathlib import Path
+
+from drivers.connection import ConnectionStringError, parse_connection
+from drivers.mavlink.link import LinkState, MavlinkLink
+from drivers.tlog import TlogError, TlogIndex
+from drivers.transports import TransportError
+
+from .console import StatusLine
+from .export import MeasurementCsvWriter
+from .replay import Replay, check_speed
+
+
+class UsageError(Exception):
+    """A user error reported as one line."""
+
+
+def _speed(text: str) -> float:
+    if text.lower() in ("max", "inf"):
+        return math.inf
+    try:
+        return check_speed(float(text.rstrip("x")))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _add_output_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-web", action="store_true",
+                   help="headless: print a status line each second instead of serving the dashboard")
+    p.add_argument("--export", metavar="OUT.csv", type=Path, help="write the decoded measurements to CSV")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="groundstation", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    c = sub.add_parser("connect", help="connect to a vehicle (UDP, TCP or serial) and record the session")
+    c.add_argument("url", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyUSB0,57600")
+    c.add_argument("--record", type=Path, help="tlog path (default sessions/<date-time>.tlog)")
+    c.add_argument("--no-record", action="store_true", help="do not record the session")
+    c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
+    c.add_argument("--duration", type=float, help="stop after this many seconds")
+    _add_output_options(c)
+
+    r = sub.add_parser("replay", help="play a recorded .tlog through the live path")
+    r.add_argument("file", type=Path)
+    r.add_argument("--speed", type=_speed, default=1.0, help="0.1 to 100, or 'max' (default 1)")
+    r.add_argument("--start", type=float, default=0.0, help="start this many seconds into the file")
+    r.add_argument("--loop", action="store_true")
+    _add_output_options(r)
+
+    i = sub.add_parser("info", help="summarise a .tlog: duration, messages, damage")
+    i.add_argument("file", type=Path)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except BrokenPipeError:  # output piped into `head` and closed: not an error
+        sys.stdout = open(os.devnull, "w")
+        return 0
+
+
+def _run(args) -> int:
+    try:
+        if args.command == "info":
+            return cmd_info(args)
+        if not args.no_web:
+            print("groundstation: the browser dashboard is not part of this build; running headless",
+                  file=sys.stderr)
+        runner = {"connect": run_connect, "replay": run_replay}[args.command]
+        return asyncio.run(runner(args))
+    except BrokenPipeError:
+        raise
+    except (UsageError, TlogError, TransportError, ConnectionStringError, OSError) as e:
+        print(f"groundstation: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+# ---------------------------------------------------------------- info
+def cmd_info(args) -> int:
+    idx = TlogIndex.scan(args.file)
+    rp = Replay(args.file, speed=math.inf)
+    n = sum(1 for _ in rp.iter_measurements())
+    c = rp.receiver.counters
+    print(f"{args.file}: {len(idx)} records, {idx.duration:.1f} s, "
+          f"MAVLink1 {c.mavlink1} / MAVLink2 {c.mavlink2} frames, {n} measurements")
+    print(f"  CRC errors {c.crc_errors}, garbage {c.bad_data}, unknown ids {c.unknown}, "
+          f"sequence loss {c.loss_percent:.2f}%")
+    for sysid in sorted({k[0] for k in c.per_source}):
+        print(f"  system {sysid}: loss {c.loss_percent_of(sysid):.2f}%")
+    damage = rp.skipped_summary()
+    if damage:
+        print(f"  damage: {damage}")
+    for name, count in sorted(c.by_type.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:<28} {count:>8}")
+    return 0
+
+
+# ---------------------------------------------------------------- helpers
+def _install_stop(stop: asyncio.Event) -> None:
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, stop.set)
+        except (NotImplementedError, RuntimeError):
+            pass
+
+
+async def _consume(sub, status: StatusLine, writer: MeasurementCsvWriter | None) -> None:
+    async for m in sub:
+        status.see(m)
+        if writer is not None:
+            writer.write(m)
+
+
+# ---------------------------------------------------------------- connect
+async def run_connect(args) -> int:
+    endpoint = parse_connection(args.url)
+    record = None
+    if not args.no_record:
+        record = args.record or Path("sessions") / f"{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog"
+    link = MavlinkLink(endpoint, record=record, lost_after=args.lost_after)
+    sub = link.measurements()
+    events = link.events()
+    await link.open()
+    where = link.transport.local_address if link.transport else None
+    print(f"link open: {endpoint}" + (f" (bound to {where[0]}:{where[1]})" if where else "")
+          + (f"; recording to {record}" if record else ""), flush=True)
+    stop = asyncio.Event()
+    _install_stop(stop)
+    status = StatusLine()
+    writer = MeasurementCsvWriter(args.export) if args.export else None
+
+    async def print_events():
+        async for ev in events:
+            print(f"link {ev.state.value}: {ev.reason}", flush=True)
+
+    async def print_status():
+        while True:
+            await asyncio.sleep(1.0)
+            if not args.quiet:
+                status.print(link.state.value, link.counters)
+
+    tasks = [asyncio.create_task(_consume(sub, status, writer)),
+             asyncio.create_task(print_events()), asyncio.create_task(print_status())]
+    try:
+        if args.duration:
+            try:
+                await asyncio.wait_for(stop.wait(), args.duration)
+            except asyncio.TimeoutError:
+                pass
+        else:
+            await stop.wait()
+    finally:
+        tasks[2].cancel()
+        await link.close()
+        await asyncio.gather(*tasks[:2], return_exceptions=True)
+        if writer is not None:
+            writer.close()
+    c = link.counters
+    print(f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
+          + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else ""), flush=True)
+    return 0 if link.state is LinkState.CLOSED else 1
+
+
+# ---------------------------------------------------------------- replay
+async def run_replay(args) -> int:
+    rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
+    writer = MeasurementCsvWriter(args.export) if args.export else None
+    print(f"replaying {args.file}: {len(rp.index)} records, {rp.duration:.1f} s at "
+          f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)
+    status = StatusLine()
+    if rp.speed == math.inf and not args.loop:
+        # Batch: the same receive path, without an event loop round trip per record.
+        for m in rp.iter_measurements():
+            status.see(m)
+            if writer is not None:
+                writer.write(m)
+    else:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        sub = rp.measurements()
+        consumer = asyncio.create_task(_consume(sub, status, writer))
+        player = asyncio.create_task(rp.run())
+
+        async def print_status():
+            while True:
+                await asyncio.sleep(1.0)
+                if not args.quiet:
+                    status.print(rp.status.state.value, rp.receiver.counters,
+                                 f"t {rp.position:.1f}/{rp.duration:.1f} s")
+
+        printer = asyncio.create_task(print_status())
+        stopper = asyncio.create_task(stop.wait())
+        await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        for t in (printer, stopper, player):
+            t.cancel()
+        await asyncio.gather(player, return_exceptions=True)
+        rp.close()
+        await consumer
+    if writer is not None:
+        writer.close()
+    damage = rp.skipped_summary()
+    print(f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
+          + (f"; {damage}" if damage else "")
+          + (f"; wrote {writer.rows} rows to {args.export}" if writer else ""), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

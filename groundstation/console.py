@@ -1,0 +1,53 @@
+"""A one-line-per-second terminal status for headless sessions (``--no-web``)."""
+from __future__ import annotations
+
+import sys
+import time
+from typing import TextIO
+
+from drivers.mavlink.receiver import LinkCounters
+
+from .measurement import Kind, Measurement
+
+#: The kinds whose latest value the status line shows, with format and unit.
+_SHOWN = (
+    (Kind.ALTITUDE, "alt {:.1f} m"),
+    (Kind.RANGE, "range {:.2f} m"),
+    (Kind.BARO_PRESSURE, "baro {:.0f} Pa"),
+    (Kind.BATTERY_VOLTAGE, "batt {:.2f} V"),
+    (Kind.THROTTLE, "thr {:.0%}"),
+)
+
+
+class StatusLine:
+    """Keeps the latest values; :meth:`line` renders them with the link's rates."""
+
+    def __init__(self, out: TextIO = sys.stdout) -> None:
+        self.out = out
+        self.latest: dict[Kind, float] = {}
+        self.count = 0
+        self._last = (time.monotonic(), 0, 0)
+
+    def see(self, m: Measurement) -> None:
+        self.count += 1
+        if m.kind in _SHOWN_KINDS:
+            self.latest[m.kind] = float(m.value[0])
+
+    def line(self, state: str, counters: LinkCounters, extra: str = "") -> str:
+        now = time.monotonic()
+        t0, msgs0, meas0 = self._last
+        dt = max(now - t0, 1e-9)
+        self._last = (now, counters.messages, self.count)
+        parts = [f"[{state}]", f"{(counters.messages - msgs0) / dt:.0f} msg/s",
+                 f"{(self.count - meas0) / dt:.0f} meas/s",
+                 f"loss {counters.loss_percent:.1f}%", f"crc {counters.crc_errors}"]
+        parts += [fmt.format(self.latest[k]) for k, fmt in _SHOWN if k in self.latest]
+        if extra:
+            parts.append(extra)
+        return "  ".join(parts)
+
+    def print(self, state: str, counters: LinkCounters, extra: str = "") -> None:
+        print(self.line(state, counters, extra), file=self.out, flush=True)
+
+
+_SHOWN_KINDS = {k for k, _ in _SHOWN}

@@ -1,0 +1,39 @@
+import asyncio
+import functools
+import socket
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+REAL = REPO.parent / "shared" / "data" / "real"
+
+
+def real_file(rel: str) -> Path:
+    """A file of ../shared/data/real, or a visible skip when it is not there."""
+    p = REAL / rel
+    if not p.exists():
+        pytest.skip(f"real data not available: {p} (the shared/ folder is absent)")
+    return p
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def free_tcp_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def async_test(timeout: float = 20.0):
+    """Run an async test body on a fresh event loop, bounded in time."""
+    def deco(fn):
+        @functools.wraps(fn)
+        def wrapper(*args, **kwargs):
+            return asyncio.run(asyncio.wait_for(fn(*args, **kwargs), timeout))
+        return wrapper
+    return deco
