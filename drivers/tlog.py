@@ -22,6 +22,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.generator.mavcrc import x25crc
+
+
+def mcrf4xx(b: bytes) -> int:
+    return x25crc(b).crc
 
 _TS = struct.Struct(">Q")
 #: Timestamps outside 2000-01-01 .. 2100-01-01 cannot be a tlog's.
@@ -152,7 +158,8 @@ class TlogIndex:
                 nxt = pos + 8 + flen
                 if nxt + 9 <= n:
                     nts = unpack(data, nxt)[0]
-                    ok = _frame_length(data, nxt + 8) and abs(nts - ts) <= _RESYNC_WINDOW_US
+                    ok = (_frame_length(data, nxt + 8) and abs(nts - ts) <= _RESYNC_WINDOW_US) \
+                        or _frame_crc_ok(data, pos + 8, flen)   # damage follows a good frame
                 elif nxt != n:
                     ok = nxt + 8 >= n  # trailing partial timestamp: truncated next record
                     if ok:
@@ -185,6 +192,20 @@ class TlogIndex:
         return cls(p, data, np.array(ts_list, dtype=np.float64) * 1e-6,
                    np.array(off_list, dtype=np.int64), np.array(len_list, dtype=np.int64),
                    skipped, truncated_at)
+
+
+def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
+    """True if the frame at ``pos`` is a known message whose CRC checks out."""
+    if data[pos] == 0xFE:
+        hlen, msgid = 6, data[pos + 5]
+    else:
+        hlen, msgid = 10, data[pos + 7] | data[pos + 8] << 8 | data[pos + 9] << 16
+    cls = mavlink.mavlink_map.get(msgid)
+    plen = data[pos + 1]
+    if cls is None or pos + hlen + plen + 2 > len(data):
+        return False
+    crc = mcrf4xx(bytes(data[pos + 1:pos + hlen + plen]) + bytes([cls.crc_extra]))
+    return crc == (data[pos + hlen + plen] | data[pos + hlen + plen + 1] << 8)
 
 
 def _resync(data: bytes, pos: int, last_ts: int | None) -> int:

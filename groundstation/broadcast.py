@@ -110,6 +110,13 @@ class Broadcast(Generic[T]):
             for s in self._subs:
                 s._push_many(items)
 
+    def needs_wait(self) -> bool:
+        """True if a lossless subscriber's buffer is more than half full."""
+        for s in self._subs:
+            if not s.lossy and not s._closed and len(s._buf) > s._buf.maxlen // 2:
+                return True
+        return False
+
     async def wait_for_space(self) -> None:
         """Wait until every lossless subscriber's buffer is at most half full."""
         for s in list(self._subs):

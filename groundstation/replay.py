@@ -140,6 +140,7 @@ class Replay:
         idx = self.index
         feed = self.receiver.feed
         publish = self._measurements.publish_many
+        needs_wait = self._measurements.needs_wait
         batch_budget = 0
         while True:
             while self._i < len(idx):
@@ -155,6 +156,8 @@ class Replay:
                     if due > now + 0.001:
                         await asyncio.sleep(due - now)
                         continue  # controls may have changed while waiting
+                if needs_wait():  # a lossless consumer is behind: let it catch up
+                    await self._measurements.wait_for_space()
                 self._i += 1
                 out = feed(idx.frame(i), t_rec)
                 if out:
@@ -162,7 +165,6 @@ class Replay:
                 batch_budget += 1
                 if batch_budget >= 256:  # let consumers and controls run
                     batch_budget = 0
-                    await self._measurements.wait_for_space()
                     await asyncio.sleep(0)
             if not self.loop:
                 break

@@ -41,6 +41,7 @@ class MavlinkVehicle:
         self.data_stream_requests: list[tuple[int, int]] = []
         self.frames_sent = 0
         self._got: asyncio.Event | None = None
+        self._hb_task: asyncio.Task | None = None
 
     async def open(self) -> None:
         loop = asyncio.get_running_loop()
@@ -56,7 +57,22 @@ class MavlinkVehicle:
             if self.pty.master is None:
                 self.pty.plug()
 
+    def start_heartbeat(self, hz: float = 1.0) -> None:
+        """Send HEARTBEAT periodically, as every autopilot does."""
+        async def beat():
+            while True:
+                self.heartbeat()
+                await asyncio.sleep(1.0 / hz)
+        if self._hb_task is None:
+            self._hb_task = asyncio.get_running_loop().create_task(beat())
+
+    def stop_heartbeat(self) -> None:
+        if self._hb_task is not None:
+            self._hb_task.cancel()
+            self._hb_task = None
+
     def close(self) -> None:
+        self.stop_heartbeat()
         if self._sock is not None:
             try:
                 asyncio.get_running_loop().remove_reader(self._sock.fileno())

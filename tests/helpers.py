@@ -1,0 +1,28 @@
+"""Shared builders for tests: real pymavlink frames and tlogs."""
+import struct
+from pathlib import Path
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+
+def imu_frames(n: int, *, sysid=1, t0_ms=1000, dt_ms=10, mavlink1=False, enc=None):
+    """n SCALED_IMU frames (level vehicle, z reads -1 g) with their vehicle times."""
+    enc = enc or mavlink.MAVLink(None, sysid, 1)
+    out = []
+    for i in range(n):
+        msg = mavlink.MAVLink_scaled_imu_message(t0_ms + i * dt_ms, i % 100, 0, -1000, 0, 0, 0, 0, 0, 0)
+        out.append(bytes(msg.pack(enc, force_mavlink1=mavlink1)))
+        enc.seq = (enc.seq + 1) % 256
+    return out
+
+
+def write_tlog(path: Path, frames, t0=1_700_000_000.0, dt=0.01, gap_after=None, gap=0.0):
+    """Write frames as a tlog by hand (independent of our writer)."""
+    with open(path, "wb") as f:
+        t = t0
+        for i, fr in enumerate(frames):
+            f.write(struct.pack(">Q", int(t * 1e6)) + fr)
+            t += dt
+            if gap_after is not None and i == gap_after:
+                t += gap
+    return path
