@@ -16,6 +16,7 @@ import abc
 import asyncio
 import errno
 import os
+import socket
 import time
 from typing import Callable
 
@@ -69,50 +70,71 @@ class Transport(abc.ABC):
 
 
 # --------------------------------------------------------------------- UDP
-class _Datagram(asyncio.DatagramProtocol):
-    def __init__(self, owner: "UdpTransport") -> None:
-        self.owner = owner
-
-    def datagram_received(self, data: bytes, addr) -> None:
-        self.owner._received(data, addr)
-
-    def error_received(self, exc: Exception) -> None:
-        # ICMP port unreachable while the peer is not listening yet: harmless.
-        self.owner.send_errors += 1
-
-
 class UdpTransport(Transport):
-    """``udpin`` listens and answers the last sender; ``udpout`` talks to one address."""
+    """``udpin`` listens and answers the last sender; ``udpout`` talks to one address.
+
+    A plain non-blocking socket on ``loop.add_reader`` rather than asyncio's
+    datagram transport, which reads one datagram per event-loop turn: under a
+    burst that lets the kernel buffer overflow. Here each wake-up drains the
+    socket (up to ``drain`` datagrams) and hands them over in one call.
+    """
+
+    drain = 2000
 
     def __init__(self, endpoint: Endpoint) -> None:
         super().__init__(endpoint)
-        self._tr: asyncio.DatagramTransport | None = None
+        self._sock: socket.socket | None = None
         self.peer: tuple | None = None
         self.send_errors = 0
 
     async def open(self) -> None:
-        loop = asyncio.get_running_loop()
         ep = self.endpoint
         try:
+            infos = socket.getaddrinfo(ep.host, ep.port, type=socket.SOCK_DGRAM)
+            family, _, _, _, addr = infos[0]
+            s = socket.socket(family, socket.SOCK_DGRAM)
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
             if ep.scheme == "udpin":
-                self._tr, _ = await loop.create_datagram_endpoint(
-                    lambda: _Datagram(self), local_addr=(ep.host, ep.port))
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind(addr)
             else:
-                self.peer = (ep.host, ep.port)
-                self._tr, _ = await loop.create_datagram_endpoint(
-                    lambda: _Datagram(self), local_addr=("0.0.0.0", 0))
+                s.bind(("0.0.0.0", 0) if family == socket.AF_INET else ("::", 0))
+                self.peer = addr
         except OSError as e:
             raise TransportError(f"cannot open {ep}: {e.strerror or e}") from None
+        s.setblocking(False)
+        self._sock = s
+        asyncio.get_running_loop().add_reader(s.fileno(), self._readable)
         self.connected = True
 
-    def _received(self, data: bytes, addr) -> None:
+    def _readable(self) -> None:
+        sock = self._sock
+        if sock is None:
+            return
+        chunks = []
+        addr = None
+        for _ in range(self.drain):
+            try:
+                data, addr = sock.recvfrom(65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:          # ICMP errors surface here on Linux: harmless
+                self.send_errors += 1
+                break
+            chunks.append(data)
+        if not chunks:
+            return
         if self.endpoint.scheme == "udpin":
             self.peer = addr
-        self.on_data(data, time.time())
+        # Datagrams each hold whole frames, so joining them keeps framing intact.
+        self.on_data(b"".join(chunks), time.time())
 
     def send(self, data: bytes) -> None:
-        if self._tr is not None and self.peer is not None:
-            self._tr.sendto(data, self.peer)
+        if self._sock is not None and self.peer is not None:
+            try:
+                self._sock.sendto(data, self.peer)
+            except OSError:
+                self.send_errors += 1
 
     @property
     def has_peer(self) -> bool:
@@ -120,12 +142,16 @@ class UdpTransport(Transport):
 
     @property
     def local_address(self):
-        return self._tr.get_extra_info("sockname")[:2] if self._tr else None
+        return self._sock.getsockname()[:2] if self._sock else None
 
     async def close(self) -> None:
-        if self._tr is not None:
-            self._tr.close()
-            self._tr = None
+        if self._sock is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._sock.fileno())
+            except (RuntimeError, ValueError):
+                pass
+            self._sock.close()
+            self._sock = None
         self.connected = False
 
 

@@ -1,0 +1,150 @@
+"""The command line, as a user runs it: exit codes, one-line errors, exports, crash safety."""
+import asyncio
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sim_bridge.mavlink_vehicle import MavlinkVehicle
+
+from .conftest import async_test, free_udp_port, real_file
+from .helpers import imu_frames, write_tlog
+
+GS = [sys.executable, "-m", "groundstation.cli"]
+
+
+def run(*args, timeout=120):
+    return subprocess.run(GS + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def assert_one_line_error(r, text):
+    assert r.returncode == 2, r
+    assert "Traceback" not in r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("groundstation: error")]
+    assert len(lines) == 1 and text in lines[0], r.stderr
+
+
+def test_replay_export_of_a_real_tlog(tmp_path):
+    src = real_file("mavlink_tlog/ardusub_small.tlog")
+    out = tmp_path / "out.csv"
+    r = run("replay", str(src), "--speed", "max", "--no-web", "--export", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "4 frames with bad CRC skipped" in r.stdout
+    rows = list(csv.DictReader(open(out)))
+    assert rows[0].keys() == {"t", "kind", "instance", "component", "value", "variance", "source"}
+    kinds = {row["kind"] for row in rows}
+    assert {"attitude", "baro_pressure", "battery_voltage", "throttle"} <= kinds
+    pressures = [float(row["value"]) for row in rows if row["kind"] == "baro_pressure"]
+    assert 80_000 < min(pressures) and max(pressures) < 300_000     # Pa (a depth sensor reads > 1 atm)
+    ts = [float(row["t"]) for row in rows if row["kind"] == "attitude"]
+    assert all(b >= a for a, b in zip(ts, ts[1:]))
+
+
+@pytest.mark.parametrize("case,content,text", [
+    ("text", b"FMT, 128, 89, FMT, BBnNZ\n" * 500, "not a MAVLink tlog"),
+    ("empty", b"", "not a MAVLink tlog"),
+    ("garbage", None, "not a MAVLink tlog"),
+])
+def test_replay_of_a_file_that_is_not_a_tlog(tmp_path, case, content, text):
+    p = tmp_path / f"{case}.tlog"
+    p.write_bytes(content if content is not None else os.urandom(20000))
+    assert_one_line_error(run("replay", str(p), "--no-web"), text)
+
+
+def test_replay_of_a_missing_file():
+    assert_one_line_error(run("replay", "/nonexistent/x.tlog", "--no-web"), "No such file")
+
+
+def test_replay_of_a_truncated_file_keeps_what_is_there(tmp_path):
+    p = write_tlog(tmp_path / "t.tlog", imu_frames(100))
+    p.write_bytes(p.read_bytes()[:-10])
+    r = run("replay", str(p), "--speed", "max", "--no-web", "--export", str(tmp_path / "o.csv"))
+    assert r.returncode == 0 and "truncated last record" in r.stdout
+    assert "297 measurements" in r.stdout
+
+
+@pytest.mark.parametrize("url,text", [
+    ("/dev/ttyNO_SUCH_PORT,57600", "no such device"),
+    ("bogus:thing", "unknown connection"),
+    ("udpin:127.0.0.1:99999", "out of range"),
+    ("udpin:203.0.113.7:14550", "cannot open"),     # an address this machine does not have
+])
+def test_connect_errors_are_one_line(url, text):
+    assert_one_line_error(run("connect", url, "--no-web", "--no-record"), text)
+
+
+@async_test(timeout=60)
+async def test_sigkill_loses_at_most_the_last_second(tmp_path):
+    port = free_udp_port()
+    rec = tmp_path / "killed.tlog"
+    proc = await asyncio.create_subprocess_exec(
+        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--quiet", "--record", str(rec),
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    veh = MavlinkVehicle(udp_to=("127.0.0.1", port))
+    try:
+        line = await asyncio.wait_for(proc.stdout.readline(), 20)
+        assert b"link open" in line
+        await veh.open()
+        sent_at = []
+        for i in range(50):
+            veh.send(mavlink.MAVLink_attitude_message(1000 + 20 * i, 0.01 * i, 0, 0, 0, 0, 0))
+            sent_at.append(time.monotonic())
+        # Every frame reaches the file within a second without any shutdown.
+        deadline = sent_at[-1] + 1.0
+
+        def recorded():
+            if not rec.exists():
+                return 0
+            conn = mavutil.mavlink_connection(str(rec))
+            n = 0
+            while conn.recv_match(type="ATTITUDE") is not None:
+                n += 1
+            return n
+        while recorded() < 50 and time.monotonic() < deadline + 0.5:
+            await asyncio.sleep(0.05)
+        assert recorded() == 50
+        assert time.monotonic() <= deadline + 0.5
+        proc.send_signal(signal.SIGKILL)
+        await proc.wait()
+        assert recorded() == 50          # a SIGKILLed session's file is intact and readable
+    finally:
+        veh.close()
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+
+
+@async_test(timeout=60)
+async def test_connect_records_until_sigint(tmp_path):
+    port = free_udp_port()
+    rec = tmp_path / "s.tlog"
+    out = tmp_path / "m.csv"
+    proc = await asyncio.create_subprocess_exec(
+        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--record", str(rec), "--export", str(out),
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+    veh = MavlinkVehicle(udp_to=("127.0.0.1", port))
+    try:
+        assert b"link open" in await asyncio.wait_for(proc.stdout.readline(), 20)
+        await veh.open()
+        veh.heartbeat()
+        await veh.wait_for("HEARTBEAT", timeout=10)       # the GCS answered: it is running
+        for i in range(20):
+            veh.send(mavlink.MAVLink_scaled_pressure_message(1000 + 40 * i, 1000.0, 0.0, 2000, 0))
+        await veh.wait_for("COMMAND_LONG", timeout=10)    # and it asked for streams
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = await asyncio.wait_for(proc.communicate(), 20)
+        assert proc.returncode == 0, stderr
+        assert b"Traceback" not in stderr and b"closed:" in stdout
+    finally:
+        veh.close()
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+    rows = list(csv.DictReader(open(out)))
+    assert sum(r["kind"] == "baro_pressure" for r in rows) == 20
