@@ -104,8 +104,7 @@ class Replay:
         self._i = self.index.seek(max(0.0, min(t, self.duration)))
         self._anchor = None
         # Start framing afresh: a frame is never split across records.
-        self.receiver.mav.buf = bytearray()
-        self.receiver.mav.buf_index = 0
+        self.receiver.reset()
         if self._state is ReplayState.ENDED:
             self._set_state(ReplayState.PLAYING if self._playing.is_set() else ReplayState.PAUSED)
         self._publish_status()

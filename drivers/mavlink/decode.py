@@ -36,6 +36,10 @@ from .units import UNIT_TO_SI, scale
 
 _nan = math.nan
 _array = np.array
+#: Builds a Measurement from a full 7-tuple without NamedTuple's keyword
+#: __new__ (a third of the cost at 1 kHz). Field order as in Measurement.
+_M = Measurement
+_new = tuple.__new__
 
 #: Regular vector conversions: message -> [(kind, fields, unit)].
 #: The instance is the message's number (SCALED_IMU2 -> 1) unless the message
@@ -147,13 +151,21 @@ class MavlinkDecoder:
 
     # -- dispatch -----------------------------------------------------------
     def decode(self, m, t_rx: float) -> Out:
-        entry = self._handlers.get(type(m))
+        """Measurements from a pymavlink message object."""
+        hdr = m._header
+        return self.convert(type(m), m, hdr.srcSystem, hdr.srcComponent, t_rx)
+
+    def convert(self, cls, m, sysid: int, compid: int, t_rx: float) -> Out:
+        """Measurements from message ``m`` of pymavlink class ``cls``.
+
+        ``m`` is anything with the message's field names as attributes: a
+        pymavlink object, or the framer's light namedtuple.
+        """
+        entry = self._handlers.get(cls)
         if entry is None:
-            self.unknown[m.get_type()] += 1
+            self.unknown[cls.msgname] += 1
             return []
         handler, tfield, instance = entry
-        hdr = m._header
-        sysid = hdr.srcSystem
         clock = self.clocks.get(sysid)
         if clock is None:
             clock = self.clocks[sysid] = VehicleClock()
@@ -165,10 +177,10 @@ class MavlinkDecoder:
                 clock.observe(t, t_rx)
         if t != t:
             t = clock.vehicle_time(t_rx)
-        key = (sysid, hdr.srcComponent)
+        key = (sysid, compid)
         source = self._sources.get(key)
         if source is None:
-            source = self._sources[key] = f"{self.link_name}/{sysid}.{hdr.srcComponent}"
+            source = self._sources[key] = f"{self.link_name}/{sysid}.{compid}"
         out: Out = []
         handler(m, t, t_rx, source, instance, out)
         if t != t:  # clock still unknown: hold these back
@@ -194,42 +206,51 @@ class MavlinkDecoder:
 
     def _handler_for(self, name: str):
         if name in VECTORS:
-            specs = [(k, f, scale(u)) for k, f, u in VECTORS[name]]
+            fields = tuple(f for _, fs, _ in VECTORS[name] for f in fs)
+            scales = np.array([scale(u) for _, fs, u in VECTORS[name] for _ in fs])
+            slices, k = [], 0
+            for kind, fs, _ in VECTORS[name]:
+                slices.append((kind, slice(k, k + len(fs))))
+                k += len(fs)
             has_id = name == "RAW_IMU"
 
-            def vectors(m, t, t_rx, source, instance, out, specs=specs, has_id=has_id):
+            def vectors(m, t, t_rx, source, instance, out, fields=fields, scales=scales,
+                        slices=slices, has_id=has_id):
                 if has_id:
-                    instance = getattr(m, "id", 0) or 0
-                for kind, fields, s in specs:
-                    v = _array([getattr(m, f) for f in fields], dtype=float)
-                    if s != 1.0:
-                        v *= s
-                    out.append(Measurement(t, kind, v, source, t_rx, None, instance))
+                    instance = m.id or 0
+                v = _array([getattr(m, f) for f in fields], dtype=float)
+                v *= scales
+                for kind, sl in slices:
+                    out.append(_new(_M, (t, kind, v[sl], source, t_rx, None, instance)))
             return vectors
         return getattr(self, "_" + name.lower(), None)
 
     # -- messages with special rules ----------------------------------------
     def _highres_imu(self, m, t, t_rx, source, instance, out):
         upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
-        instance = getattr(m, "id", 0) or 0
+        instance = m.id
+        # One array for the whole message; the measurements hold views of it.
+        v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro,
+                    m.xmag * _GAUSS, m.ymag * _GAUSS, m.zmag * _GAUSS,
+                    m.abs_pressure * _HPA, m.diff_pressure * _HPA, m.temperature + _DEGC_O))
         if upd & _HR_ACC:
-            out.append(Measurement(t, Kind.ACCEL, _array([m.xacc, m.yacc, m.zacc], dtype=float), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.ACCEL, v[0:3], source, t_rx, None, instance)))
         if upd & _HR_GYRO:
-            out.append(Measurement(t, Kind.GYRO, _array([m.xgyro, m.ygyro, m.zgyro], dtype=float), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.GYRO, v[3:6], source, t_rx, None, instance)))
         if upd & _HR_MAG:
-            out.append(Measurement(t, Kind.MAG, _array([m.xmag, m.ymag, m.zmag], dtype=float) * _GAUSS, source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.MAG, v[6:9], source, t_rx, None, instance)))
         if upd & _HR_ABS:
-            out.append(Measurement(t, Kind.BARO_PRESSURE, _array([m.abs_pressure * _HPA]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.BARO_PRESSURE, v[9:10], source, t_rx, None, instance)))
         if upd & _HR_DIFF:
-            out.append(Measurement(t, Kind.DIFF_PRESSURE, _array([m.diff_pressure * _HPA]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.DIFF_PRESSURE, v[10:11], source, t_rx, None, instance)))
         if upd & _HR_TEMP:
-            out.append(Measurement(t, Kind.TEMPERATURE, _array([m.temperature + _DEGC_O]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.TEMPERATURE, v[11:12], source, t_rx, None, instance)))
 
     def _scaled_pressure(self, m, t, t_rx, source, instance, out):
-        out.append(Measurement(t, Kind.BARO_PRESSURE, _array([m.press_abs * _HPA]), source, t_rx, None, instance))
+        out.append(_new(_M, (t, Kind.BARO_PRESSURE, _array([m.press_abs * _HPA]), source, t_rx, None, instance)))
         if m.press_diff:
-            out.append(Measurement(t, Kind.DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance))
-        out.append(Measurement(t, Kind.TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance)))
+        out.append(_new(_M, (t, Kind.TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance)))
 
     _scaled_pressure2 = _scaled_pressure
     _scaled_pressure3 = _scaled_pressure
@@ -242,7 +263,7 @@ class MavlinkDecoder:
             return
         cov = m.covariance
         var = None if cov in (0, 255) else _array([cov * 1e-4])
-        out.append(Measurement(t, Kind.RANGE, _array([d * _CM]), source, t_rx, var, m.id))
+        out.append(_new(_M, (t, Kind.RANGE, _array([d * _CM]), source, t_rx, var, m.id)))
 
     def _gps_raw_int(self, m, t, t_rx, source, instance, out):
         if m.fix_type < 3:  # no fix or 2D: no usable altitude
@@ -256,21 +277,21 @@ class MavlinkDecoder:
             h_deg = h_acc * _MM / _M_PER_DEG
             coslat = max(math.cos(math.radians(lat)), 1e-6)
             var = _array([h_deg**2, (h_deg / coslat) ** 2, (v_acc * _MM) ** 2])
-        out.append(Measurement(t, Kind.GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance))
+        out.append(_new(_M, (t, Kind.GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance)))
 
     def _global_position_int(self, m, t, t_rx, source, instance, out):
-        out.append(Measurement(t, Kind.GLOBAL_POSITION,
+        out.append(_new(_M, (t, Kind.GLOBAL_POSITION,
                                _array([m.lat * _DEGE7, m.lon * _DEGE7, m.alt * _MM, m.relative_alt * _MM]),
-                               source, t_rx, None, instance))
-        out.append(Measurement(t, Kind.VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM,
-                               source, t_rx, None, instance))
+                               source, t_rx, None, instance)))
+        out.append(_new(_M, (t, Kind.VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM,
+                               source, t_rx, None, instance)))
 
     def _vfr_hud(self, m, t, t_rx, source, instance, out):
-        out.append(Measurement(t, Kind.THROTTLE, _array([m.throttle * _PCT]), source, t_rx, None, instance))
-        out.append(Measurement(t, Kind.ALTITUDE, _array([float(m.alt)]), source, t_rx, None, instance))
-        out.append(Measurement(t, Kind.CLIMB_RATE, _array([float(m.climb)]), source, t_rx, None, instance))
-        out.append(Measurement(t, Kind.AIRSPEED, _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
-                               source, t_rx, None, instance))
+        out.append(_new(_M, (t, Kind.THROTTLE, _array([m.throttle * _PCT]), source, t_rx, None, instance)))
+        out.append(_new(_M, (t, Kind.ALTITUDE, _array([float(m.alt)]), source, t_rx, None, instance)))
+        out.append(_new(_M, (t, Kind.CLIMB_RATE, _array([float(m.climb)]), source, t_rx, None, instance)))
+        out.append(_new(_M, (t, Kind.AIRSPEED, _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
+                               source, t_rx, None, instance)))
 
     def _sys_status(self, m, t, t_rx, source, instance, out):
         self._battery(m.voltage_battery, m.current_battery, m.battery_remaining, t, t_rx, source, 0, out)
@@ -283,13 +304,13 @@ class MavlinkDecoder:
 
     def _battery(self, mv, ca, pct, t, t_rx, source, instance, out):
         if mv not in (_UINT16_MAX, 0):
-            out.append(Measurement(t, Kind.BATTERY_VOLTAGE, _array([mv * _MV]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.BATTERY_VOLTAGE, _array([mv * _MV]), source, t_rx, None, instance)))
         else:
             self.skipped["battery_voltage_unknown"] += 1
         if ca != -1:
-            out.append(Measurement(t, Kind.BATTERY_CURRENT, _array([ca * _CA]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.BATTERY_CURRENT, _array([ca * _CA]), source, t_rx, None, instance)))
         if pct != -1:
-            out.append(Measurement(t, Kind.BATTERY_REMAINING, _array([pct * _PCT]), source, t_rx, None, instance))
+            out.append(_new(_M, (t, Kind.BATTERY_REMAINING, _array([pct * _PCT]), source, t_rx, None, instance)))
 
     def _servo_output_raw(self, m, t, t_rx, source, instance, out):
         raw = [getattr(m, f"servo{i}_raw", 0) for i in range(1, 17)]
@@ -297,40 +318,40 @@ class MavlinkDecoder:
             raw.pop()
         v = (_array(raw, dtype=float) - 1000.0) * 1e-3
         v[_array(raw) == 0] = _nan
-        out.append(Measurement(t, Kind.ACTUATOR, v, source, t_rx, None, m.port))
+        out.append(_new(_M, (t, Kind.ACTUATOR, v, source, t_rx, None, m.port)))
 
     def _rc_channels(self, m, t, t_rx, source, instance, out):
         n = m.chancount or 18
         raw = [getattr(m, f"chan{i}_raw") for i in range(1, n + 1)]
         v = (_array(raw, dtype=float) - 1000.0) * 1e-3
         v[_array(raw) == _UINT16_MAX] = _nan
-        out.append(Measurement(t, Kind.RC_INPUT, v, source, t_rx, None, instance))
+        out.append(_new(_M, (t, Kind.RC_INPUT, v, source, t_rx, None, instance)))
 
     def _manual_control(self, m, t, t_rx, source, instance, out):
         # Normalised as MAVLink defines them: x, y, r in [-1000, 1000]; z in [0, 1000]
         # for ArduPilot and PX4 (some GCSs send [-1000, 1000]); passed on as sent / 1000.
-        out.append(Measurement(t, Kind.MANUAL_CONTROL, _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
-                               source, t_rx, None, m.target))
+        out.append(_new(_M, (t, Kind.MANUAL_CONTROL, _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
+                               source, t_rx, None, m.target)))
 
     def _heartbeat(self, m, t, t_rx, source, instance, out):
         armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
-        out.append(Measurement(t, Kind.VEHICLE_STATUS,
+        out.append(_new(_M, (t, Kind.VEHICLE_STATUS,
                                _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),
-                               source, t_rx, None, instance))
+                               source, t_rx, None, instance)))
 
     def _attitude_quaternion(self, m, t, t_rx, source, instance, out):
-        out.append(Measurement(t, Kind.ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]),
-                               source, t_rx, None, instance))
+        out.append(_new(_M, (t, Kind.ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]),
+                               source, t_rx, None, instance)))
 
     def _att_pos_mocap(self, m, t, t_rx, source, instance, out):
         q = list(m.q)
-        out.append(Measurement(t, Kind.TRUTH_POSE, _array([m.x, m.y, m.z, *q]), source, t_rx, None, instance))
+        out.append(_new(_M, (t, Kind.TRUTH_POSE, _array([m.x, m.y, m.z, *q]), source, t_rx, None, instance)))
 
     def _ekf_status_report(self, m, t, t_rx, source, instance, out):
-        out.append(Measurement(t, Kind.EKF_STATUS,
+        out.append(_new(_M, (t, Kind.EKF_STATUS,
                                _array([m.flags, m.velocity_variance, m.pos_horiz_variance, m.pos_vert_variance,
                                        m.compass_variance, m.terrain_alt_variance], dtype=float),
-                               source, t_rx, None, instance))
+                               source, t_rx, None, instance)))
 
 
 #: Every message type this decoder converts (the issue's list and a few more).

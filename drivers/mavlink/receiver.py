@@ -2,9 +2,9 @@
 
 Live links and replays both push bytes through a :class:`MavlinkReceiver`, so a
 recording plays through exactly the code a live vehicle exercises. Framing and
-CRC checking are pymavlink's (``parse_buffer`` with ``robust_parsing``, CRC in C
-through ``fastcrc``); this module adds the per-link counters, the recording tap
-and the raw-message hook.
+CRC checking are done by :mod:`drivers.mavlink.framing` on pymavlink's message
+definitions; this module adds the per-link counters, the recording tap and the
+raw-message hook.
 """
 from __future__ import annotations
 
@@ -17,10 +17,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from groundstation.measurement import Measurement
 
 from .decode import MavlinkDecoder
+from .framing import Framer
 
-# pymavlink gives both of these the base class's id (0, HEARTBEAT's), so they
-# are told apart by class.
-_BAD_DATA = mavlink.MAVLink_bad_data
 _UNKNOWN = mavlink.MAVLink_unknown
 
 
@@ -32,7 +30,7 @@ class LinkCounters:
     messages: int = 0
     by_type: Counter = field(default_factory=Counter)
     crc_errors: int = 0
-    bad_data: int = 0          # garbage bytes, bad prefixes, bad lengths (not CRC)
+    bad_data: int = 0          # stretches of garbage before a start marker, bad headers
     unknown: int = 0           # message ids not in the dialect (CRC unverifiable)
     seq_lost: int = 0          # frames missing by sequence number
     mavlink1: int = 0
@@ -66,15 +64,14 @@ class MavlinkReceiver:
 
     ``on_frame(raw_frame_bytes, t_rx)`` sees every frame that passed its CRC
     (and unknown-id frames, whose CRC cannot be checked): the recorder uses it.
-    ``on_message(msg, t_rx)`` is the raw-message hook: every decoded pymavlink
-    message, including those no measurement comes from.
+    ``on_message(msg, t_rx)`` is the raw-message hook: every pymavlink message
+    object, i.e. every message *not* on the framer's fast sensor path (which
+    yields measurements instead), unknown ids included.
     """
 
     def __init__(self, link_name: str = "mav", *,
                  on_frame: Callable[[bytes, float], None] | None = None,
                  on_message: Callable[[object, float], None] | None = None) -> None:
-        self.mav = mavlink.MAVLink(None)
-        self.mav.robust_parsing = True
         self.decoder = MavlinkDecoder(link_name)
         self.counters = LinkCounters()
         self.on_frame = on_frame
@@ -82,63 +79,74 @@ class MavlinkReceiver:
         self._last_seq: dict[tuple[int, int], int] = {}
         #: (sysid, compid) -> True if that peer speaks MAVLink 1 only so far
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
+        self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)
+        self._out: list[Measurement] = []
+        self._t_rx = 0.0
+
+    def reset(self) -> None:
+        """Drop a partial frame (a replay seeking elsewhere)."""
+        self._framer.reset()
 
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
-        c = self.counters
-        c.bytes += len(data)
-        msgs = self.mav.parse_buffer(data)
-        if not msgs:
-            return []
-        out: list[Measurement] = []
-        decode = self.decoder.decode
-        for m in msgs:
-            cls = type(m)
-            if cls is _BAD_DATA:
-                if "CRC" in m.reason:
-                    c.crc_errors += 1
-                else:
-                    c.bad_data += 1
-                continue
-            buf = m._msgbuf
-            if cls is _UNKNOWN:
-                c.unknown += 1
-                c.by_type[m.get_type()] += 1
-                self._track(buf, c)
-                if self.on_frame is not None:
-                    self.on_frame(bytes(buf), t_rx)
-                if self.on_message is not None:
-                    self.on_message(m, t_rx)
-                continue
-            c.messages += 1
-            c.by_type[m._type] += 1
-            self._track(buf, c)
-            if self.on_frame is not None:
-                self.on_frame(bytes(buf), t_rx)
-            if self.on_message is not None:
-                self.on_message(m, t_rx)
-            out.extend(decode(m, t_rx))
+        self.counters.bytes += len(data)
+        self._t_rx = t_rx
+        out = self._out = []
+        self._framer.feed(data)
         return out
 
-    def _track(self, buf, c: LinkCounters) -> None:
+    # -- framer callbacks ------------------------------------------------------------
+    def _fast(self, spec, m, sysid, compid, seq, frame) -> None:
+        c = self.counters
+        c.messages += 1
+        c.by_type[spec.name] += 1
+        self._track(frame[0], seq, sysid, compid, c)
+        if self.on_frame is not None:
+            self.on_frame(frame, self._t_rx)
+        out = self.decoder.convert(spec.cls, m, sysid, compid, self._t_rx)
+        if out:
+            self._out += out
+
+    def _object(self, m, sysid, compid, seq, frame) -> None:
+        c = self.counters
+        if type(m) is _UNKNOWN:
+            c.unknown += 1
+        else:
+            c.messages += 1
+        c.by_type[m.get_type()] += 1
+        self._track(frame[0], seq, sysid, compid, c)
+        if self.on_frame is not None:
+            self.on_frame(frame, self._t_rx)
+        if self.on_message is not None:
+            self.on_message(m, self._t_rx)
+        if type(m) is not _UNKNOWN:
+            self._out.extend(self.decoder.convert(type(m), m, sysid, compid, self._t_rx))
+
+    def _crc_error(self) -> None:
+        self.counters.crc_errors += 1
+
+    def _garbage(self) -> None:
+        self.counters.bad_data += 1
+
+    def _track(self, magic: int, seq: int, sysid: int, compid: int, c: LinkCounters) -> None:
         """Sequence-gap counting per (system, component), and protocol version."""
-        if buf[0] == 0xFD:
+        key = (sysid, compid)
+        stats = c.per_source.get(key)
+        if magic == 0xFD:
             c.mavlink2 += 1
-            seq, key = buf[4], (buf[5], buf[6])
-            self.peer_mavlink1[key] = False
         else:
             c.mavlink1 += 1
-            seq, key = buf[2], (buf[3], buf[4])
-            self.peer_mavlink1.setdefault(key, True)
-        stats = c.per_source.get(key)
         if stats is None:
-            stats = c.per_source[key] = [0, 0]
+            c.per_source[key] = [1, 0]
+            self._last_seq[key] = seq
+            self.peer_mavlink1[key] = magic != 0xFD
+            return
         stats[0] += 1
-        last = self._last_seq.get(key)
-        if last is not None:
-            gap = (seq - last - 1) & 0xFF
-            # A gap of 255 is a duplicate/reordered frame, not 255 lost ones;
-            # gaps above 128 are counted as restarts of the peer's counter.
-            if gap < 128:
-                c.seq_lost += gap
-                stats[1] += gap
+        if magic == 0xFD and self.peer_mavlink1[key]:
+            self.peer_mavlink1[key] = False
+        gap = (seq - self._last_seq[key] - 1) & 0xFF
+        # A gap of 255 is a duplicate/reordered frame, not 255 lost ones;
+        # gaps above 128 are counted as restarts of the peer's counter.
+        if gap and gap < 128:
+            c.seq_lost += gap
+            stats[1] += gap
         self._last_seq[key] = seq
