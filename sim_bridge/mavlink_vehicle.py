@@ -24,10 +24,14 @@ from .pty_port import PtyPort
 class MavlinkVehicle:
     """``ack``: 'accept', 'deny' or 'ignore' SET_MESSAGE_INTERVAL commands."""
 
-    def __init__(self, *, udp_to: tuple[str, int] | None = None, pty: PtyPort | None = None,
-                 sysid: int = 1, compid: int = 1, mavlink1: bool = False, ack: str = "accept") -> None:
-        if (udp_to is None) == (pty is None):
-            raise ValueError("give exactly one of udp_to or pty")
+    def __init__(self, *, udp_to: tuple[str, int] | None = None, udp_listen: tuple[str, int] | None = None,
+                 pty: PtyPort | None = None, sysid: int = 1, compid: int = 1, mavlink1: bool = False,
+                 ack: str = "accept") -> None:
+        if sum(x is not None for x in (udp_to, udp_listen, pty)) != 1:
+            raise ValueError("give exactly one of udp_to, udp_listen or pty")
+        #: listen on this address and answer whoever wrote last (a vehicle the
+        #: ground station reaches with ``udpout:``)
+        self.udp_listen = udp_listen
         self.mav = mavlink.MAVLink(None, sysid, compid)
         self.mav.robust_parsing = True
         self.mavlink1 = mavlink1
@@ -46,9 +50,9 @@ class MavlinkVehicle:
     async def open(self) -> None:
         loop = asyncio.get_running_loop()
         self._got = asyncio.Event()
-        if self.udp_to is not None:
+        if self.udp_to is not None or self.udp_listen is not None:
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(("127.0.0.1", 0))
+            s.bind(self.udp_listen or ("127.0.0.1", 0))
             s.setblocking(False)
             self._sock = s
             loop.add_reader(s.fileno(), self._udp_readable)
@@ -71,6 +75,10 @@ class MavlinkVehicle:
             self._hb_task.cancel()
             self._hb_task = None
 
+    @property
+    def port(self) -> int | None:
+        return self._sock.getsockname()[1] if self._sock is not None else None
+
     def close(self) -> None:
         self.stop_heartbeat()
         if self._sock is not None:
@@ -91,6 +99,8 @@ class MavlinkVehicle:
 
     def send_bytes(self, data: bytes) -> None:
         if self._sock is not None:
+            if self.udp_to is None:
+                return          # listening, and nobody has written yet
             try:
                 self._sock.sendto(data, self.udp_to)
             except OSError:
@@ -112,9 +122,11 @@ class MavlinkVehicle:
     # -- receiving ---------------------------------------------------------------------
     def _udp_readable(self) -> None:
         try:
-            data, _ = self._sock.recvfrom(65536)
+            data, addr = self._sock.recvfrom(65536)
         except (BlockingIOError, OSError):
             return
+        if self.udp_listen is not None:
+            self.udp_to = addr
         self._incoming(data)
 
     def _incoming(self, data: bytes) -> None:

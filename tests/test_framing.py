@@ -16,7 +16,7 @@ from ingest import make_stream  # noqa: E402
 
 
 def _key(m):
-    return (m.t, m.kind, m.instance, tuple(np.round(np.nan_to_num(m.value, nan=-1e300), 9)))
+    return (m.t, m.kind, m.instance, tuple(np.round(np.nan_to_num(m.value, nan=-12345.0), 9)))
 
 
 @pytest.fixture(scope="module")

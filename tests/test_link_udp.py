@@ -204,3 +204,45 @@ async def test_tcp_client_reconnects_when_the_peer_returns():
         await link.close()
         server.close()
         await server.wait_closed()
+
+
+@async_test()
+async def test_udpout_reaches_a_listening_vehicle():
+    veh = MavlinkVehicle(udp_listen=("127.0.0.1", 0))
+    await veh.open()
+    link = MavlinkLink(f"udpout:127.0.0.1:{veh.port}", heartbeat_hz=20.0)
+    sub, events = link.measurements(), link.events()
+    await link.open()
+    try:
+        await veh.wait_for("HEARTBEAT")          # our heartbeat tells the vehicle where we are
+        veh.heartbeat()
+        veh.send(mavlink.MAVLink_attitude_message(1000, 0.3, 0, 0, 0, 0, 0))
+        got = await _take(sub, 3)
+        assert any(m.kind is Kind.ATTITUDE and m.value[0] == pytest.approx(0.3) for m in got)
+        assert link.state is LinkState.ALIVE
+    finally:
+        await link.close()
+        veh.close()
+
+
+@async_test()
+async def test_tcpin_serves_a_connecting_vehicle():
+    port = free_tcp_port()
+    link = MavlinkLink(f"tcpin:127.0.0.1:{port}", heartbeat_hz=20.0, streams={})
+    sub, events = link.measurements(), link.events()
+    await link.open()
+    enc = mavlink.MAVLink(None, 1, 1)
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(enc)))
+        writer.write(bytes(mavlink.MAVLink_attitude_message(1000, -0.2, 0, 0, 0, 0, 0).pack(enc)))
+        await writer.drain()
+        got = await _take(sub, 3)
+        assert any(m.kind is Kind.ATTITUDE and m.value[0] == pytest.approx(-0.2) for m in got)
+        back = mavlink.MAVLink(None)
+        msgs = []
+        while not any(m.get_type() == "HEARTBEAT" for m in msgs):
+            msgs += back.parse_buffer(await asyncio.wait_for(reader.read(1024), 5)) or []
+    finally:
+        writer.close()
+        await link.close()
