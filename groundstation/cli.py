@@ -24,7 +24,7 @@ from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 
-from .console import StatusLine
+from .console import REPLAY_HELP, StatusLine, replay_command
 from .export import MeasurementCsvWriter
 from .replay import Replay, check_speed
 
@@ -215,6 +215,14 @@ async def run_replay(args) -> int:
                                  f"t {rp.position:.1f}/{rp.duration:.1f} s")
 
         printer = asyncio.create_task(print_status())
+        if sys.stdin is not None and sys.stdin.isatty():
+            print(REPLAY_HELP, flush=True)
+
+            def on_stdin():
+                reply = replay_command(sys.stdin.readline(), rp, stop)
+                if reply:
+                    print(reply, flush=True)
+            asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
         stopper = asyncio.create_task(stop.wait())
         await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
         for t in (printer, stopper, player):

@@ -51,3 +51,39 @@ class StatusLine:
 
 
 _SHOWN_KINDS = {k for k, _ in _SHOWN}
+
+
+REPLAY_HELP = "replay controls: p = pause/resume, s SECONDS = seek, x SPEED = speed (0.1..100 or max), q = quit"
+
+
+def replay_command(line: str, replay, stop) -> str:
+    """Apply one typed replay command; returns what to print.
+
+    The same :class:`~groundstation.replay.Replay` methods the dashboard's
+    controls call, for headless use.
+    """
+    import math
+
+    words = line.strip().split()
+    if not words:
+        return ""
+    cmd, arg = words[0].lower(), words[1] if len(words) > 1 else ""
+    try:
+        if cmd == "p":
+            if replay.status.state.value == "paused":
+                replay.resume()
+                return "resumed"
+            replay.pause()
+            return "paused"
+        if cmd == "s":
+            replay.seek(float(arg))
+            return f"at {replay.position:.1f} s"
+        if cmd == "x":
+            replay.set_speed(math.inf if arg.lower() == "max" else float(arg))
+            return f"speed {arg}"
+        if cmd == "q":
+            stop.set()
+            return "quitting"
+    except ValueError as e:
+        return f"? {e}"
+    return f"? {REPLAY_HELP}"

@@ -90,3 +90,16 @@ def test_speed_limits():
     with pytest.raises(ValueError):
         from groundstation.replay import check_speed
         check_speed(1000)
+
+
+@async_test()
+async def test_typed_replay_commands(two_seconds):
+    from groundstation.console import replay_command
+    rp = Replay(two_seconds, speed=1.0)
+    stop = asyncio.Event()
+    assert replay_command("p", rp, stop) == "paused" and rp.status.state is ReplayState.PAUSED
+    assert replay_command("p", rp, stop) == "resumed" and rp.status.state is ReplayState.PLAYING
+    assert replay_command("s 1.0", rp, stop).startswith("at 1.0")
+    assert replay_command("x max", rp, stop) == "speed max" and rp.speed == math.inf
+    assert replay_command("x 1000", rp, stop).startswith("?")
+    assert replay_command("q", rp, stop) == "quitting" and stop.is_set()
