@@ -103,3 +103,13 @@ async def test_typed_replay_commands(two_seconds):
     assert replay_command("x max", rp, stop) == "speed max" and rp.speed == math.inf
     assert replay_command("x 1000", rp, stop).startswith("?")
     assert replay_command("q", rp, stop) == "quitting" and stop.is_set()
+
+
+def test_seeking_is_not_counted_as_packet_loss(two_seconds):
+    rp = Replay(two_seconds, speed=math.inf)
+    it = rp.iter_measurements()
+    for _ in range(30):
+        next(it)
+    rp.seek(1.5)
+    list(rp.iter_measurements())
+    assert rp.receiver.counters.seq_lost == 0

@@ -84,8 +84,12 @@ class MavlinkReceiver:
         self._t_rx = 0.0
 
     def reset(self) -> None:
-        """Drop a partial frame (a replay seeking elsewhere)."""
+        """Drop a partial frame and the sequence history (a replay seeking
+        elsewhere: the jump in sequence numbers is not loss)."""
         self._framer.reset()
+        self._last_seq.clear()
+        for key in self.counters.per_source:
+            self._last_seq[key] = None
 
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
         self.counters.bytes += len(data)
@@ -143,7 +147,11 @@ class MavlinkReceiver:
         stats[0] += 1
         if magic == 0xFD and self.peer_mavlink1[key]:
             self.peer_mavlink1[key] = False
-        gap = (seq - self._last_seq[key] - 1) & 0xFF
+        last = self._last_seq[key]
+        if last is None:
+            self._last_seq[key] = seq
+            return
+        gap = (seq - last - 1) & 0xFF
         # A gap of 255 is a duplicate/reordered frame, not 255 lost ones;
         # gaps above 128 are counted as restarts of the peer's counter.
         if gap and gap < 128:
