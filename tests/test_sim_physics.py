@@ -74,8 +74,7 @@ def test_coax_torque_spin_up_is_T_over_I():
 def test_quad_hovers_at_g_minus_beta_over_alpha():
     p = QuadParams()
     v = Quad(p)
-    v.kin.pos = np.array([0.0, 0.0, -2.0])
-    v.on_ground = False
+    v.place(2.0)
     for _ in range(2000):
         v.step(1e-3, QuadCommand(throttle=(G - p.beta) / p.alpha))
     assert abs(v.kin.vel[2]) < 1e-9 and v.kin.pos[2] == pytest.approx(-2.0)
@@ -84,8 +83,7 @@ def test_quad_hovers_at_g_minus_beta_over_alpha():
 
 def test_quad_thrust_tilts_with_attitude():
     v = Quad()
-    v.kin.pos = np.array([0.0, 0.0, -2.0])
-    v.on_ground = False
+    v.place(2.0)
     for _ in range(3000):
         v.step(1e-3, QuadCommand(throttle=0.6, pitch=-0.2))   # nose down: accelerates north
     assert v.theta == pytest.approx(-0.2, abs=1e-3) and v.kin.vel[0] > 0.5

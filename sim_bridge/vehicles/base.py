@@ -39,6 +39,11 @@ class Vehicle(abc.ABC):
     def truth(self) -> dict[str, float]:
         """Every state by name, for the truth sidecar."""
 
+    def imu_truth(self) -> tuple[float, float, float, float, float, float]:
+        """Specific force and body rates (FRD) as floats, for the IMU."""
+        k = self.kin
+        return (*k.specific_force.tolist(), *k.omega.tolist())
+
     @property
     def throttle(self) -> float:
         """Collective throttle 0..1 as the outputs show it (for rotor-wash effects)."""

@@ -85,7 +85,7 @@ class Coax(Vehicle):
         self.I = np.diag(self.p.inertia)
         self.I_inv = np.linalg.inv(self.I)
         self.on_ground = True
-        self.thrust_scale = 1.0       # set by vehicle-side effects (ground effect, voltage)
+        self.thrust_factor = 1.0      # set by thrust effects each step
 
     @property
     def throttle(self) -> float:
@@ -99,7 +99,7 @@ class Coax(Vehicle):
         f_l = g * (k_w * self.F_L)
         f_u = np.array([0.0, 0.0, -self.F_U])
         tau = np.cross([0.0, 0.0, -p.l_L], f_l) + g * self.T_L + np.array([0.0, 0.0, self.T_U])
-        return (f_l + f_u) * self.thrust_scale, tau
+        return (f_l + f_u) * self.thrust_factor, tau
 
     def step(self, dt: float, cmd: CoaxCommand) -> None:
         p, k = self.p, self.kin

@@ -24,15 +24,12 @@ current drawn ``I = I_idle + I_max * tau^2``::
 the ESCs compensate voltage, so thrust does not depend on V; the
 ``thrust_voltage`` effect removes that compensation (thrust ~ V^2).
 
-Effects that act on the vehicle (:mod:`sim_bridge.effects`) hook in through
-``thrust_hooks`` (a_T -> a_T) and ``actuator_hooks`` (tau_cmd -> tau).
+Effects that act on the thrust (:mod:`sim_bridge.effects`) set ``thrust_factor``.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
-
 import numpy as np
 
 from ..rotation import a_ib
@@ -68,12 +65,18 @@ class QuadCommand:
 
 
 class Quad(Vehicle):
+    """State in plain floats (this model runs at >= 50x real time with all
+    sensors); the numpy :class:`Kinematics` the sensors read is built lazily."""
+
     name = "quad"
 
     def __init__(self, params: QuadParams | None = None) -> None:
         self.p = params or QuadParams()
-        self.kin = Kinematics()
+        self.n = self.e = self.d = 0.0          # NED position [m]
+        self.vn = self.ve = self.vd = 0.0       # NED velocity [m/s]
+        self.an = self.ae = self.ad = 0.0       # NED acceleration [m/s^2]
         self.phi = self.theta = self.psi = 0.0
+        self.w = (0.0, 0.0, 0.0)                # body rates
         self.tau = 0.0                 # throttle applied to the motors
         self.tau_cmd = 0.0
         self.a_thrust = 0.0            # thrust acceleration [m/s^2]
@@ -81,8 +84,8 @@ class Quad(Vehicle):
         self.current = self.p.i_idle
         self.voltage = self.open_circuit_voltage()
         self.on_ground = True
-        self.thrust_hooks: list[Callable[["Quad", float], float]] = []
-        self.actuator_hooks: list[Callable[["Quad", float, float], float]] = []
+        self.thrust_factor = 1.0       # set by thrust effects each step
+        self._kin: Kinematics | None = None
 
     def open_circuit_voltage(self) -> float:
         p = self.p
@@ -92,64 +95,87 @@ class Quad(Vehicle):
     def throttle(self) -> float:
         return self.tau
 
+    @property
+    def kin(self) -> Kinematics:
+        k = self._kin
+        if k is None:
+            R = a_ib(self.phi, self.theta, self.psi)
+            acc = np.array([self.an, self.ae, self.ad - G])
+            k = self._kin = Kinematics(np.array([self.n, self.e, self.d]), np.array([self.vn, self.ve, self.vd]),
+                                       R, np.array(self.w), R.T @ acc)
+        return k
+
+    def imu_truth(self):
+        """R^T (a - g) with R = A_IB(phi, theta, psi) written out (eq. 3.10)."""
+        sf, cf = math.sin(self.phi), math.cos(self.phi)
+        st, ct = math.sin(self.theta), math.cos(self.theta)
+        sp, cp = math.sin(self.psi), math.cos(self.psi)
+        an, ae, ad = self.an, self.ae, self.ad - G
+        fx = cp * ct * an + ct * sp * ae - st * ad
+        fy = (cp * sf * st - cf * sp) * an + (cf * cp + sf * sp * st) * ae + ct * sf * ad
+        fz = (sf * sp + cf * cp * st) * an + (cf * sp * st - cp * sf) * ae + cf * ct * ad
+        return (fx, fy, fz, *self.w)
+
+    def place(self, height: float) -> None:
+        """Put the vehicle in the air at ``height`` (tests)."""
+        self.d = -height
+        self.on_ground = False
+        self._kin = None
+
     def step(self, dt: float, cmd: QuadCommand) -> None:
-        p, k = self.p, self.kin
+        p = self.p
+        self._kin = None
         self.tau_cmd = min(1.0, max(0.0, cmd.throttle))
-        tau = self.tau_cmd
-        for hook in self.actuator_hooks:
-            tau = hook(self, tau, dt)
-        self.tau = tau
+        self.tau = tau = self.tau_cmd
         # attitude inner loop (first-order) and Euler rates -> body rates
-        a = dt / p.tau_att
-        dphi = (cmd.roll - self.phi) * a / dt
-        dtheta = (cmd.pitch - self.theta) * a / dt
-        dpsi = cmd.yaw_rate
         if self.on_ground:
-            dphi = -self.phi / p.tau_att
-            dtheta = -self.theta / p.tau_att
-            dpsi = 0.0
+            dphi, dtheta, dpsi = -self.phi / p.tau_att, -self.theta / p.tau_att, 0.0
+        else:
+            dphi = (cmd.roll - self.phi) / p.tau_att
+            dtheta = (cmd.pitch - self.theta) / p.tau_att
+            dpsi = cmd.yaw_rate
         self.phi += dphi * dt
         self.theta += dtheta * dt
         self.psi = (self.psi + dpsi * dt + math.pi) % (2 * math.pi) - math.pi
         sf, cf = math.sin(self.phi), math.cos(self.phi)
         st, ct = math.sin(self.theta), math.cos(self.theta)
+        sp, cp = math.sin(self.psi), math.cos(self.psi)
         # body rates from Euler rates (coaxial document eq. 6.13)
-        k.omega = np.array([dphi - st * dpsi, ct * sf * dpsi + cf * dtheta, cf * ct * dpsi - sf * dtheta])
+        self.w = (dphi - st * dpsi, ct * sf * dpsi + cf * dtheta, cf * ct * dpsi - sf * dtheta)
         # battery
         self.current = p.i_idle + p.i_max * tau * tau
         self.soc -= self.current * dt / (3600.0 * p.capacity_ah)
         self.voltage = self.open_circuit_voltage() - p.r_int * self.current
-        # thrust (document eq. 2), then effects acting on it
-        a_t = max(0.0, p.alpha * tau + p.beta)
-        for hook in self.thrust_hooks:
-            a_t = hook(self, a_t)
+        # thrust (document eq. 2) along the body's -z axis: third column of A_IB (eq. 3.10)
+        a_t = max(0.0, p.alpha * tau + p.beta) * self.thrust_factor
         self.a_thrust = a_t
-        R = a_ib(self.phi, self.theta, self.psi)
-        k.R = R
-        thrust_ned = R[:, 2] * (-a_t)
-        acc = thrust_ned + np.array([0.0, 0.0, G]) - p.drag * k.vel
+        an = -a_t * (sf * sp + cf * cp * st) - p.drag * self.vn
+        ae = -a_t * (cf * sp * st - cp * sf) - p.drag * self.ve
+        ad = -a_t * cf * ct + G - p.drag * self.vd
         if self.on_ground:
-            if acc[2] < 0:          # lift-off once thrust exceeds weight
+            if ad < 0:              # lift-off once thrust exceeds weight
                 self.on_ground = False
             else:
-                acc[:] = 0.0
-                k.vel[:] = 0.0
-        k.vel = k.vel + acc * dt
-        k.pos = k.pos + k.vel * dt
-        if k.pos[2] >= 0.0 and not self.on_ground and k.vel[2] >= 0:
-            k.pos[2] = 0.0          # touch-down
-            k.vel[:] = 0.0
-            acc[:] = 0.0
+                an = ae = ad = 0.0
+                self.vn = self.ve = self.vd = 0.0
+        self.vn += an * dt
+        self.ve += ae * dt
+        self.vd += ad * dt
+        self.n += self.vn * dt
+        self.e += self.ve * dt
+        self.d += self.vd * dt
+        if self.d >= 0.0 and not self.on_ground and self.vd >= 0:
+            self.d = 0.0            # touch-down
+            self.vn = self.ve = self.vd = 0.0
+            an = ae = ad = 0.0
             self.on_ground = True
-        # specific force = acceleration minus gravity, in the body frame
-        k.specific_force = R.T @ (acc - np.array([0.0, 0.0, G]))
+        self.an, self.ae, self.ad = an, ae, ad
 
     def truth(self) -> dict[str, float]:
-        k = self.kin
         return {
-            "n": k.pos[0], "e": k.pos[1], "d": k.pos[2], "vn": k.vel[0], "ve": k.vel[1], "vd": k.vel[2],
+            "n": self.n, "e": self.e, "d": self.d, "vn": self.vn, "ve": self.ve, "vd": self.vd,
             "roll": self.phi, "pitch": self.theta, "yaw": self.psi,
-            "p": k.omega[0], "q": k.omega[1], "r": k.omega[2],
+            "p": self.w[0], "q": self.w[1], "r": self.w[2],
             "throttle": self.tau, "a_thrust": self.a_thrust,
             "alpha_eff": (self.a_thrust - self.p.beta) / self.tau if self.tau > 0.05 else self.p.alpha,
             "voltage": self.voltage, "current": self.current, "soc": self.soc,

@@ -1,0 +1,347 @@
+"""The simulator's catalogue of physical effects, switched on per scenario.
+
+Each effect documents its equation, units and a realistic range, and acts at
+one or more stages of the simulation:
+
+* ``command(cmd, dt)``: on the actuator command before the vehicle sees it;
+* ``thrust_factor(sim)``: a factor on the rotors' thrust;
+* ``accel(f, sim)``, ``gyro(w, sim)``: on the IMU's readings (body FRD);
+* ``baro_alt(sim)``: an altitude error [m] the barometer reads in addition
+  (turned into pressure through the standard atmosphere);
+* ``range(d, sim)``: on the range reading [m];
+* ``delay``: a per-sensor latency [s].
+
+The names are the catalogue's canonical names, shared with the diagnosis
+(which has its own code: the two share names, not code paths). A scenario says
+which effects exist and which are *declared* to the ground station; an
+undeclared effect reaches it by no channel at all (see :mod:`sim_bridge.scenario`).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from .rotation import a_ib
+
+
+@dataclass(frozen=True)
+class Param:
+    default: float
+    unit: str
+    low: float                 # realistic range
+    high: float
+    help: str = ""
+
+
+class Effect:
+    name: ClassVar[str] = ""
+    equation: ClassVar[str] = ""
+    params: ClassVar[dict[str, Param]] = {}
+    #: sensors whose readings this effect delays (sensor_delay only)
+    delay: dict[str, float]
+
+    def __init__(self, **kw) -> None:
+        unknown = set(kw) - set(self.params) - self.extra_keys()
+        if unknown:
+            raise ValueError(f"effect {self.name}: unknown parameter(s) {', '.join(sorted(unknown))}; "
+                             f"known: {', '.join(self.params) or 'none'}")
+        self.values = {k: float(kw.get(k, p.default)) for k, p in self.params.items()}
+        self.delay = {}
+        self.setup(kw)
+
+    def extra_keys(self) -> set[str]:
+        return set()
+
+    def setup(self, kw: dict) -> None:
+        """Derived quantities (called once)."""
+
+    def __getattr__(self, item):
+        values = self.__dict__.get("values")
+        if values is not None and item in values:
+            return values[item]
+        raise AttributeError(item)
+
+    def describe(self) -> dict:
+        return {"name": self.name, "params": dict(self.values), **({"delay": self.delay} if self.delay else {})}
+
+    # stages (identity by default)
+    def command(self, cmd, dt, sim):
+        return cmd
+
+    def thrust_factor(self, sim) -> float:
+        return 1.0
+
+    def accel(self, f, sim):
+        return f
+
+    def gyro(self, w, sim):
+        return w
+
+    def baro_alt(self, sim) -> float:
+        return 0.0
+
+    def range(self, d, sim):
+        return d
+
+    def step(self, dt, sim) -> None:
+        """Advance internal state (random walks, filters) by one physics step."""
+
+
+REGISTRY: dict[str, type[Effect]] = {}
+
+
+def register(cls):
+    REGISTRY[cls.name] = cls
+    return cls
+
+
+@register
+class AccelBias(Effect):
+    name = "accel_bias"
+    equation = "f_meas = f + b  (body FRD)"
+    params = {"x": Param(0.0, "m/s^2", -0.5, 0.5), "y": Param(0.0, "m/s^2", -0.5, 0.5),
+              "z": Param(0.2, "m/s^2", -0.5, 0.5, "a real IMU's z bias is typically 0.05-0.3")}
+
+    def setup(self, kw):
+        self.b = np.array([self.x, self.y, self.z])
+
+    def accel(self, f, sim):
+        return f + self.b
+
+
+@register
+class AccelScale(Effect):
+    name = "accel_scale"
+    equation = "f_meas = (1 + s) f  (all axes)"
+    params = {"s": Param(0.02, "1", -0.05, 0.05, "scale-factor error, 0.5-3 % is typical")}
+
+    def accel(self, f, sim):
+        return f * (1.0 + self.s)
+
+
+@register
+class GyroBias(Effect):
+    name = "gyro_bias"
+    equation = "w_meas = w + b  (body FRD)"
+    params = {"x": Param(0.01, "rad/s", -0.05, 0.05), "y": Param(0.0, "rad/s", -0.05, 0.05),
+              "z": Param(0.0, "rad/s", -0.05, 0.05)}
+
+    def setup(self, kw):
+        self.b = np.array([self.x, self.y, self.z])
+
+    def gyro(self, w, sim):
+        return w + self.b
+
+
+@register
+class BaroBiasDrift(Effect):
+    name = "baro_bias_drift"
+    equation = "h_err(t) = rate * t + sigma * W(t)  (W: standard Wiener process)"
+    params = {"rate": Param(0.02, "m/s", -0.15, 0.15, "Crazyflie logs drift 0.09-0.13 m/s in flight"),
+              "sigma": Param(0.05, "m/sqrt(s)", 0.0, 0.3)}
+
+    def setup(self, kw):
+        self.err = 0.0
+
+    def step(self, dt, sim):
+        self.err += self.rate * dt + self.sigma * math.sqrt(dt) * sim.rng.standard_normal()
+
+    def baro_alt(self, sim):
+        return self.err
+
+
+@register
+class BaroThermal(Effect):
+    name = "baro_thermal"
+    equation = "h_err = k * (T - T_start),  T: sensor temperature (rises while the motors run)"
+    params = {"k": Param(0.3, "m/K", -1.0, 1.0)}
+
+    def baro_alt(self, sim):
+        return self.k * (sim.temperature - sim.temperature_start)
+
+
+@register
+class BaroThrust(Effect):
+    name = "baro_thrust"
+    equation = "h_err = k * LPF(throttle),  LPF: first order, time constant tc (rotor wash)"
+    params = {"k": Param(2.0, "m per unit throttle", -8.0, 8.0, "Crazyflie: +4 m jump at spin-up"),
+              "tc": Param(0.5, "s", 0.05, 3.0)}
+
+    def setup(self, kw):
+        self.lp = 0.0
+
+    def step(self, dt, sim):
+        self.lp += (sim.vehicle.throttle - self.lp) * (1 - math.exp(-dt / self.tc))
+
+    def baro_alt(self, sim):
+        return self.k * self.lp
+
+
+@register
+class BaroGroundEffect(Effect):
+    name = "baro_ground_effect"
+    equation = "h_err = A * exp(-h / h0) while the rotors run (pressure field near the ground)"
+    params = {"A": Param(-1.5, "m", -3.0, 0.0, "ArduPilot underpowered.log dips -2.7 m at spin-up"),
+              "h0": Param(0.5, "m", 0.2, 1.5)}
+
+    def baro_alt(self, sim):
+        if not sim.vehicle.motors_running:
+            return 0.0
+        return self.A * math.exp(-max(0.0, sim.vehicle.kin.height) / self.h0)
+
+
+@register
+class RangeTilt(Effect):
+    """Always physical: the range sensor reads the slant distance. The effect's
+    presence in a scenario only says whether the ground station is told."""
+    name = "range_tilt"
+    equation = "d = h / (cos(phi) cos(theta))  (always simulated; declaring it tells the estimator)"
+    params = {}
+
+
+@register
+class RangeOffset(Effect):
+    name = "range_offset"
+    equation = "d_meas = d + o  (mounting lever arm, ground clearance)"
+    params = {"o": Param(-0.035, "m", -0.1, 0.1, "Crazyflie flow deck: -3.3 to -4.0 cm")}
+
+    def range(self, d, sim):
+        return d + self.o
+
+
+SENSORS = ("imu", "baro", "range", "gps", "attitude", "battery")
+
+
+@register
+class SensorDelay(Effect):
+    name = "sensor_delay"
+    equation = "y_meas(t) = y(t - seconds)  (for the named sensor)"
+    params = {"seconds": Param(0.03, "s", 0.005, 0.2)}
+
+    def extra_keys(self):
+        return {"sensor"}
+
+    def setup(self, kw):
+        sensor = str(kw.get("sensor", "range"))
+        if sensor not in SENSORS:
+            raise ValueError(f"sensor_delay: sensor must be one of {', '.join(SENSORS)}")
+        self.sensor = sensor
+        self.delay = {sensor: self.seconds}
+
+    def describe(self):
+        return {"name": self.name, "params": {"sensor": self.sensor, "seconds": self.seconds}}
+
+
+@register
+class ThrustVoltage(Effect):
+    name = "thrust_voltage"
+    equation = "thrust = thrust_nominal * (V / V_ref)^n  (no ESC voltage compensation)"
+    params = {"n": Param(2.0, "1", 1.0, 2.5, "thrust ~ rpm^2 ~ V^2"),
+              "v_ref": Param(0.0, "V", 0.0, 30.0, "0: the pack voltage at the start of the run")}
+
+    def thrust_factor(self, sim):
+        v = getattr(sim.vehicle, "voltage", None)
+        if v is None:
+            return 1.0
+        if self.values["v_ref"] <= 0.0:
+            self.values["v_ref"] = v
+        return (v / self.v_ref) ** self.n
+
+
+@register
+class ThrustGroundEffect(Effect):
+    name = "thrust_ground_effect"
+    equation = "thrust = thrust_nominal / (1 - (R / (4 h))^2)  (Cheeseman-Bennett, h >= R)"
+    params = {"R": Param(0.12, "m", 0.03, 0.3, "rotor radius")}
+
+    def thrust_factor(self, sim):
+        h = max(sim.vehicle.kin.height, self.R)
+        return 1.0 / (1.0 - (self.R / (4.0 * h)) ** 2)
+
+
+@register
+class ActuatorLag(Effect):
+    name = "actuator_lag"
+    equation = "u_applied' = (u_cmd - u_applied) / tc  (first order, on every actuator input)"
+    params = {"tc": Param(0.08, "s", 0.01, 0.3)}
+
+    def setup(self, kw):
+        self.state = None
+
+    def command(self, cmd, dt, sim):
+        fields = list(vars(cmd))
+        now = np.array([getattr(cmd, f) for f in fields], dtype=float)
+        if self.state is None:
+            self.state = now
+        else:
+            self.state = self.state + (now - self.state) * (1 - math.exp(-dt / self.tc))
+        out = type(cmd)(*self.state)
+        return out
+
+
+@register
+class ImuMisalignment(Effect):
+    name = "imu_misalignment"
+    equation = "f_meas = C f,  w_meas = C w,  C = A_IB(roll, pitch, yaw)^T of the mounting error"
+    params = {"roll": Param(2.0, "deg", -5.0, 5.0), "pitch": Param(-1.5, "deg", -5.0, 5.0),
+              "yaw": Param(0.0, "deg", -5.0, 5.0)}
+
+    def setup(self, kw):
+        self.C = a_ib(math.radians(self.roll), math.radians(self.pitch), math.radians(self.yaw)).T
+
+    def accel(self, f, sim):
+        return self.C @ f
+
+    def gyro(self, w, sim):
+        return self.C @ w
+
+
+@register
+class Vibration(Effect):
+    name = "vibration"
+    equation = "f_meas = f + A * throttle * sin(2 pi freq t + phase_i)  (each axis, rotor harmonic)"
+    params = {"A": Param(2.0, "m/s^2", 0.2, 8.0), "freq": Param(123.0, "Hz", 50.0, 300.0)}
+
+    def setup(self, kw):
+        self.phase = np.array([0.0, 2.1, 4.2])
+
+    def accel(self, f, sim):
+        return f + self.A * sim.vehicle.throttle * np.sin(2 * math.pi * self.freq * sim.t + self.phase)
+
+
+def parse_effect(text: str) -> Effect:
+    """``NAME`` or ``NAME:k=v,k=v`` -> an effect instance (one-line errors)."""
+    name, _, rest = text.partition(":")
+    name = name.strip()
+    cls = REGISTRY.get(name)
+    if cls is None:
+        raise ValueError(f"unknown effect {name!r}; known: {', '.join(sorted(REGISTRY))}")
+    kw = {}
+    for item in filter(None, (s.strip() for s in rest.split(","))):
+        k, eq, v = item.partition("=")
+        if not eq:
+            raise ValueError(f"effect {name}: expected k=v, got {item!r}")
+        kw[k.strip()] = v.strip() if k.strip() == "sensor" else _number(name, k, v)
+    return cls(**kw)
+
+
+def _number(name: str, k: str, v: str) -> float:
+    try:
+        return float(v)
+    except ValueError:
+        raise ValueError(f"effect {name}: {k}={v!r} is not a number") from None
+
+
+def catalogue_markdown() -> str:
+    """The catalogue as a table (for the README and ``groundstation sim --list-effects``)."""
+    rows = ["| effect | equation | parameters (default, unit, realistic range) |", "|---|---|---|"]
+    for name in sorted(REGISTRY):
+        cls = REGISTRY[name]
+        ps = "; ".join(f"{k} = {p.default:g} {p.unit} [{p.low:g}, {p.high:g}]" for k, p in cls.params.items())
+        if name == "sensor_delay":
+            ps = "sensor = one of " + "/".join(SENSORS) + "; " + ps
+        rows.append(f"| `{name}` | {cls.equation} | {ps or 'none'} |")
+    return "\n".join(rows)

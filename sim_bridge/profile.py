@@ -1,0 +1,156 @@
+"""The built-in flight: a reference profile and the on-board controllers that fly it.
+
+Without commands from the ground station the simulated vehicle flies:
+ground idle, take-off, hover, climb/descend steps, an altitude sine, tilt
+manoeuvres, descent and landing (and repeats the middle part for long runs).
+The seed varies heights, periods and tilt amplitudes so that nothing
+downstream gets tuned to one trajectory.
+
+The controllers stand for the vehicle's own autopilot. They fly on the true
+state (a real autopilot flies on its estimate; the simulator's point is the
+sensors, not the autopilot) and on the *nominal* vehicle parameters, so an
+undeclared thrust effect shows up as it does in real logs: the throttle moves
+to compensate.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .rotation import euler_from_matrix
+from .vehicles.base import G
+from .vehicles.coax import Coax, CoaxCommand
+from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
+from .vehicles.quad import Quad, QuadCommand
+
+
+@dataclass
+class Setpoint:
+    height: float = 0.0        # [m], up
+    roll: float = 0.0          # [rad] (feed-forward tilt manoeuvres)
+    pitch: float = 0.0
+    armed: bool = False
+
+
+class FlightProfile:
+    """Height and tilt references over time, varied by the seed."""
+
+    def __init__(self, seed: int = 0, duration: float = 60.0) -> None:
+        rng = np.random.default_rng(seed + 1000)
+        self.h1 = rng.uniform(1.0, 2.0)            # hover height
+        self.h_hi = self.h1 + rng.uniform(0.8, 1.6)
+        self.h_lo = max(0.6, self.h1 - rng.uniform(0.3, 0.8))
+        self.sine_amp = rng.uniform(0.3, 0.7)
+        self.sine_period = rng.uniform(5.0, 10.0)
+        self.tilt = math.radians(rng.uniform(8.0, 20.0))
+        self.tilt_period = rng.uniform(2.0, 4.0)
+        self.duration = duration
+
+    def __call__(self, t: float) -> Setpoint:
+        land_at = max(20.0, self.duration - 7.0)
+        if t < 2.0:
+            return Setpoint(0.0, armed=False)                 # ground idle, motors off
+        if t >= land_at + 4.0:
+            return Setpoint(0.0, armed=False)                 # landed
+        if t >= land_at:
+            return Setpoint(self.h1 * max(0.0, 1 - (t - land_at) / 3.0) - 0.3, armed=True)
+        if t < 5.0:
+            return Setpoint(self.h1 * (t - 2.0) / 3.0, armed=True)   # take-off ramp
+        # the middle repeats with a 40 s period for long runs
+        u = (t - 5.0) % 40.0
+        if u < 6.0:
+            return Setpoint(self.h1, armed=True)
+        if u < 16.0:
+            return Setpoint(self.h_hi if u < 11.0 else self.h_lo, armed=True)
+        if u < 28.0:
+            return Setpoint(self.h1 + self.sine_amp * math.sin(2 * math.pi * (u - 16.0) / self.sine_period), armed=True)
+        w = 2 * math.pi / self.tilt_period
+        return Setpoint(self.h1, self.tilt * math.sin(w * (u - 28.0)), self.tilt * math.sin(0.7 * w * (u - 28.0)), True)
+
+
+class QuadAutopilot:
+    """Height PID through the nominal thrust model; horizontal position hold by tilt."""
+
+    def __init__(self, quad: Quad, profile: FlightProfile) -> None:
+        self.q, self.profile = quad, profile
+        self.i = 0.0
+
+    def __call__(self, t: float, dt: float) -> QuadCommand:
+        q, p = self.q, self.q.p
+        sp = self.profile(t)
+        if not sp.armed:
+            self.i = 0.0
+            return QuadCommand(0.0)
+        h, vz = -q.d, -q.vd
+        err = sp.height - h
+        self.i = max(-3.0, min(3.0, self.i + err * dt * 1.2))
+        a_cmd = 4.0 * err - 3.2 * vz + self.i
+        tilt = max(0.5, math.cos(q.phi) * math.cos(q.theta))
+        tau = (a_cmd + G - p.beta) / (p.alpha * tilt)
+        # horizontal: hold the origin (tilt setpoints from a PD on position)
+        c, s = math.cos(q.psi), math.sin(q.psi)
+        an = -0.8 * q.n - 1.2 * q.vn
+        ae = -0.8 * q.e - 1.2 * q.ve
+        pitch = -(c * an + s * ae) / G
+        roll = (-s * an + c * ae) / G
+        lim = 0.35
+        return QuadCommand(tau, max(-lim, min(lim, roll + sp.roll)), max(-lim, min(lim, pitch + sp.pitch)), 0.0)
+
+
+class CoaxAutopilot:
+    """Collective for height, flapping angles for roll/pitch, differential for yaw."""
+
+    def __init__(self, coax: Coax, profile: FlightProfile) -> None:
+        self.c, self.profile = coax, profile
+        self.i = 0.0
+
+    def __call__(self, t: float, dt: float) -> CoaxCommand:
+        v, p, k = self.c, self.c.p, self.c.kin
+        sp = self.profile(t)
+        if not sp.armed:
+            self.i = 0.0
+            return CoaxCommand()
+        roll, pitch, _ = euler_from_matrix(k.R)
+        h, vz = k.height, -k.vel[2]
+        err = sp.height - h
+        self.i = max(-3.0, min(3.0, self.i + err * dt * 1.0))
+        a_cmd = 3.0 * err - 2.5 * vz + self.i
+        tilt = max(0.5, math.cos(roll) * math.cos(pitch))
+        i_col = p.mass * (G + a_cmd) / ((1 + p.k_w) * p.k_F * tilt)
+        # position hold -> attitude setpoints
+        an = -0.5 * k.pos[0] - 1.0 * k.vel[0]
+        ae = -0.5 * k.pos[1] - 1.0 * k.vel[1]
+        pitch_sp = max(-0.3, min(0.3, -an / G + sp.pitch))
+        roll_sp = max(-0.3, min(0.3, ae / G + sp.roll))
+        # torques about x / y come from the lower rotor: (l_L b F_L, l_L a F_L) for small a, b
+        f_l = max(0.5, v.F_L)
+        Ix, Iy, Iz = p.inertia
+        tx = Ix * (36.0 * (roll_sp - roll) - 12.0 * k.omega[0])
+        ty = Iy * (36.0 * (pitch_sp - pitch) - 12.0 * k.omega[1])
+        b = tx / (p.l_L * f_l)
+        a = ty / (p.l_L * f_l)
+        dyaw = Iz * (-4.0 * k.omega[2]) / p.k_T
+        return CoaxCommand(i_col - dyaw, i_col + dyaw, a, b)
+
+
+class Heli3dofAutopilot:
+    """PD on elevation through V_s, on pitch through V_d, pitch set from travel."""
+
+    def __init__(self, heli: Heli3dof, profile: FlightProfile) -> None:
+        self.h, self.profile = heli, profile
+        rng = np.random.default_rng(profile.duration.__hash__() % 1000)
+        self.e_step = 0.15 + 0.1 * rng.random()
+
+    def __call__(self, t: float, dt: float) -> Heli3dofCommand:
+        P = self.h.p
+        p, pd, e, ed, lam, lamd = self.h.x
+        if t < 2.0:
+            return Heli3dofCommand(0.0, 0.0)
+        e_ref = 0.0 if t < 10.0 else (self.e_step if (t // 8) % 2 else -self.e_step / 2)
+        lamd_ref = 0.0 if t < 15.0 else 0.3 * math.sin(2 * math.pi * t / 20.0)
+        p_ref = max(-0.4, min(0.4, 1.5 * (lamd_ref - lamd)))
+        V_s = P.V_s0 + 40.0 * (e_ref - e) - 25.0 * ed
+        V_d = 60.0 * (p_ref - p) - 12.0 * pd
+        return Heli3dofCommand((V_s - V_d) / 2.0, (V_s + V_d) / 2.0)

@@ -1,0 +1,100 @@
+"""A scenario: which vehicle, which effects exist, which are declared, the seed.
+
+Scenario files are JSON::
+
+    {"vehicle": "quad", "seed": 3, "duration": 60,
+     "effects":    [{"name": "baro_thrust", "params": {"k": 3.0}}],
+     "undeclared": [{"name": "sensor_delay", "params": {"sensor": "range", "seconds": 0.04}}],
+     "sensors": {"rates": {"imu": 250}}}
+
+``effects`` are declared: the ground station may be told of them (they are
+written to the ``*.declared.json`` beside a recording). ``undeclared`` effects
+act on the simulated physics and sensors only; they reach the ground station
+by no channel at all (not the link, not the declared file). The truth sidecar
+(``*.truth.csv`` and ``*.truth.json``) records everything, for scoring.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .effects import Effect, parse_effect
+from .sensors import SensorConfig
+
+VEHICLES = ("quad", "coax", "heli3dof")
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot be used (one-line message)."""
+
+
+@dataclass
+class Scenario:
+    vehicle: str = "quad"
+    seed: int = 0
+    duration: float = 60.0
+    declared: list[Effect] = field(default_factory=list)
+    undeclared: list[Effect] = field(default_factory=list)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+
+    def __post_init__(self) -> None:
+        if self.vehicle not in VEHICLES:
+            raise ScenarioError(f"unknown vehicle {self.vehicle!r}; use one of {', '.join(VEHICLES)}")
+
+    @property
+    def effects(self) -> list[Effect]:
+        return self.declared + self.undeclared
+
+    @classmethod
+    def from_args(cls, vehicle: str, seed: int, duration: float, effects: list[str], undeclared: list[str],
+                  file: str | Path | None = None) -> "Scenario":
+        base = cls.load(file) if file else cls(vehicle=vehicle, seed=seed, duration=duration)
+        try:
+            base.declared += [parse_effect(s) for s in effects]
+            base.undeclared += [parse_effect(s) for s in undeclared]
+        except ValueError as e:
+            raise ScenarioError(str(e)) from None
+        if not file:
+            return base
+        return base
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Scenario":
+        p = Path(path)
+        try:
+            d = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise ScenarioError(f"{p}: cannot read scenario: {e}") from None
+
+        def effects(key):
+            out = []
+            for item in d.get(key, []):
+                params = item.get("params", {})
+                spec = item["name"] + (":" + ",".join(f"{k}={v}" for k, v in params.items()) if params else "")
+                out.append(parse_effect(spec))
+            return out
+
+        try:
+            cfg = SensorConfig()
+            for k, v in d.get("sensors", {}).items():
+                if k == "rates":
+                    cfg.rates.update(v)
+                elif hasattr(cfg, k):
+                    setattr(cfg, k, v)
+                else:
+                    raise ScenarioError(f"{p}: unknown sensor setting {k!r}")
+            return cls(vehicle=d.get("vehicle", "quad"), seed=int(d.get("seed", 0)),
+                       duration=float(d.get("duration", 60.0)), declared=effects("effects"),
+                       undeclared=effects("undeclared"), sensors=cfg)
+        except (KeyError, ValueError, TypeError) as e:
+            raise ScenarioError(f"{p}: {e}") from None
+
+    def declared_json(self) -> dict:
+        """What the ground station may know: vehicle and declared effects only."""
+        return {"vehicle": self.vehicle, "effects": [e.describe() for e in self.declared]}
+
+    def truth_json(self) -> dict:
+        return {"vehicle": self.vehicle, "seed": self.seed, "duration": self.duration,
+                "declared": [e.describe() for e in self.declared],
+                "undeclared": [e.describe() for e in self.undeclared]}

@@ -1,0 +1,167 @@
+"""The simulator: a vehicle, its autopilot, its sensors and the scenario's effects.
+
+``step()`` advances the physics by one fixed step (1 kHz for the quadcopter
+and coaxial helicopter, 500 Hz for the 3-DOF helicopter, as its lab samples)
+and returns the sensor samples that fall due, delayed as the scenario's
+``sensor_delay`` effects say. Transports (:mod:`sim_bridge.bridge`,
+:mod:`sim_bridge.fast`) turn samples into bytes; nothing here knows about
+MAVLink.
+
+Commands from the ground station (:meth:`command`) override the built-in
+profile while they keep coming; ``command_timeout`` seconds after the last
+one the vehicle falls back to its own autopilot (a failsafe).
+"""
+from __future__ import annotations
+
+import heapq
+from typing import NamedTuple
+
+import numpy as np
+
+from .profile import CoaxAutopilot, FlightProfile, Heli3dofAutopilot, QuadAutopilot
+from .rotation import euler_from_matrix
+from .scenario import Scenario
+from .sensors import SensorSuite
+from .vehicles.coax import Coax
+from .vehicles.heli3dof import Heli3dof
+from .vehicles.quad import Quad
+
+
+class Sample(NamedTuple):
+    t: float           # vehicle time when the reading is delivered [s]
+    sensor: str
+    values: tuple
+
+
+#: Physics step rates [Hz]; never below the IMU's rate (the quadcopter's slowest
+#: dynamics, 0.12 s, are resolved many times over at 500 Hz).
+PHYSICS_RATE = {"quad": 500.0, "coax": 1000.0, "heli3dof": 500.0}
+
+
+class Simulator:
+    def __init__(self, scenario: Scenario, *, truth_rate: float = 100.0, command_timeout: float = 0.5) -> None:
+        self.scenario = scenario
+        self.rng = np.random.default_rng(scenario.seed)
+        self.profile = FlightProfile(scenario.seed, scenario.duration)
+        name = scenario.vehicle
+        if name == "quad":
+            self.vehicle = Quad()
+            self.autopilot = QuadAutopilot(self.vehicle, self.profile)
+        elif name == "coax":
+            self.vehicle = Coax()
+            self.autopilot = CoaxAutopilot(self.vehicle, self.profile)
+        else:
+            self.vehicle = Heli3dof()
+            self.autopilot = Heli3dofAutopilot(self.vehicle, self.profile)
+        self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
+        self.dt = 1.0 / self.rate
+        self.effects = scenario.effects
+        from .effects import Effect
+        self.imu_effects = [e for e in self.effects
+                            if type(e).accel is not Effect.accel or type(e).gyro is not Effect.gyro]
+        self.sensors = SensorSuite(name, scenario.sensors, self.rng)
+        self.temperature = scenario.sensors.ambient_temp
+        self.temperature_start = self.temperature
+        self.delays: dict[str, float] = {}
+        for e in self.effects:
+            self.delays.update(e.delay)
+        self._pending: list[tuple[float, int, Sample]] = []
+        self._seq = 0
+        self.t = 0.0
+        self.step_count = 0
+        self.truth_every = max(1, int(round(self.rate / truth_rate)))
+        self.truth_rows: list[dict] = []
+        self.keep_truth = True
+        self.command_timeout = command_timeout
+        #: the on-board controllers run at 250 Hz, as an autopilot's outer loops do
+        self.autopilot_every = max(1, int(round(self.rate / 250.0)))
+        self._auto_cmd = None
+        self._external = None
+        self._external_until = -1.0
+        self.last_command = None
+
+    # -- ground-station commands -------------------------------------------------------
+    def command(self, cmd) -> None:
+        """Fly this command (the vehicle's own command type) until it goes stale."""
+        self._external = cmd
+        self._external_until = self.t + self.command_timeout
+
+    @property
+    def externally_commanded(self) -> bool:
+        return self._external is not None and self.t <= self._external_until
+
+    # -- stepping -------------------------------------------------------------------------
+    def step(self) -> list[Sample]:
+        dt, v = self.dt, self.vehicle
+        if self.externally_commanded:
+            cmd = self._external
+        elif self.step_count % self.autopilot_every == 0:
+            cmd = self._auto_cmd = self.autopilot(self.t, dt * self.autopilot_every)
+        else:
+            cmd = self._auto_cmd
+        for e in self.effects:
+            cmd = e.command(cmd, dt, self)
+        self.last_command = cmd
+        factor = 1.0
+        for e in self.effects:
+            factor *= e.thrust_factor(self)
+        if hasattr(v, "thrust_factor"):
+            v.thrust_factor = factor
+        v.step(dt, cmd)
+        self.temperature = self.sensors.temperature(self, dt)
+        for e in self.effects:
+            e.step(dt, self)
+        self.t = (self.step_count + 1) * dt
+        self.step_count += 1
+        out: list[Sample] = []
+        for name in self.sensors.due(self.t, dt):
+            s = Sample(self.t, name, self.sensors.read(name, self))
+            d = self.delays.get(self._delay_key(name), 0.0)
+            if d > 0:
+                self._seq += 1
+                heapq.heappush(self._pending, (self.t + d, self._seq, s))
+            else:
+                out.append(s)
+        while self._pending and self._pending[0][0] <= self.t + 0.5 * dt:
+            due, _, s = heapq.heappop(self._pending)
+            # delivered (and stamped) late: the reading is old, the stamp is not
+            out.append(Sample(self.t, s.sensor, s.values))
+        if self.keep_truth and self.step_count % self.truth_every == 0:
+            self.truth_rows.append(self.truth())
+        return out
+
+    @staticmethod
+    def _delay_key(name: str) -> str:
+        return "imu" if name == "encoders" else name
+
+    def run(self, seconds: float):
+        """Yield samples for ``seconds`` of simulated time (batch use)."""
+        n = int(round(seconds / self.dt))
+        for _ in range(n):
+            yield from self.step()
+
+    # -- outputs --------------------------------------------------------------------------
+    def actuator_outputs(self) -> list[float]:
+        """What the outputs show, normalised 0..1 (PWM (us - 1000) / 1000 on the wire)."""
+        c = self.last_command
+        v = self.vehicle
+        if isinstance(v, Quad):
+            return [v.tau] * 4
+        if isinstance(v, Coax):
+            if c is None:
+                return [0.0, 0.0, 0.5, 0.5]
+            # flapping angles through the swash-plate servos, centred at 0.5
+            return [v.cmd.i_L, v.cmd.i_U, 0.5 + v.cmd.a / (2 * v.p.max_flap), 0.5 + v.cmd.b / (2 * v.p.max_flap)]
+        return [v.cmd.V_f / v.p.V_max, v.cmd.V_b / v.p.V_max]
+
+    def truth(self) -> dict[str, float]:
+        row = {"t": self.t, "h": self.vehicle.kin.height}
+        row.update(self.vehicle.truth())
+        row["baro_alt_error"] = sum(e.baro_alt(self) for e in self.effects)
+        row["temperature"] = self.temperature
+        k = self.vehicle.kin
+        row["range_true"] = max(0.0, k.height) / max(0.2, k.R[2, 2])
+        if "roll" not in row:
+            r, p, y = euler_from_matrix(k.R)
+            row.update({"roll": r, "pitch": p, "yaw": y})
+        return {key: float(val) for key, val in row.items()}
