@@ -24,7 +24,7 @@ browser:
 	  else echo "warning: chromium not installed and apt-get unavailable; browser tests will be skipped"; fi; }
 
 demo: setup
-	$(BIN)/groundstation replay tests/fixtures/dronekit_flight.tlog --speed 50 --no-web --export out/demo_measurements.csv
+	$(BIN)/groundstation demo --duration 60
 
 test: setup browser
 	$(BIN)/python -m pytest -q

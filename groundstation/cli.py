@@ -3,6 +3,9 @@
     groundstation connect URL [--record FILE] [--export OUT.csv] [--no-web]
     groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
     groundstation info FILE.tlog
+    groundstation sim --vehicle {quad,coax,heli3dof} [--effect NAME:k=v] [--undeclared NAME:k=v] --seed N
+    groundstation sim ... --fast --duration S --log OUT.tlog --truth OUT.csv
+    groundstation demo
 
 Every failure the user can cause (bad connection string, missing device,
 unreadable or foreign file) ends in one line on stderr and exit status 2,
@@ -26,7 +29,10 @@ from drivers.transports import TransportError
 
 from .console import REPLAY_HELP, StatusLine, replay_command
 from .export import MeasurementCsvWriter
+from sim_bridge.scenario import ScenarioError
+
 from .replay import Replay, check_speed
+from .sim_cli import add_sim_parser, cmd_sim, run_demo
 
 
 class UsageError(Exception):
@@ -70,6 +76,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", help="summarise a .tlog: duration, messages, damage")
     i.add_argument("file", type=Path)
+    add_sim_parser(sub)
     return ap
 
 
@@ -86,14 +93,18 @@ def _run(args) -> int:
     try:
         if args.command == "info":
             return cmd_info(args)
-        if not args.no_web:
+        if args.command == "sim":
+            return cmd_sim(args)
+        if args.command == "demo":
+            return asyncio.run(run_demo(args))
+        if not getattr(args, "no_web", True):
             print("groundstation: the browser dashboard is not part of this build; running headless",
                   file=sys.stderr)
         runner = {"connect": run_connect, "replay": run_replay}[args.command]
         return asyncio.run(runner(args))
     except BrokenPipeError:
         raise
-    except (UsageError, TlogError, TransportError, ConnectionStringError, OSError) as e:
+    except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, OSError, ValueError) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

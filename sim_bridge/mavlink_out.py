@@ -88,9 +88,10 @@ class FramePacker:
         return bytes(msg.pack(enc))
 
 
-#: MAVLink message ids each sensor's stream is requested by (SET_MESSAGE_INTERVAL)
+#: The message each sensor stream is sent as, hence requested by (SET_MESSAGE_INTERVAL);
+#: a request for any other message is answered UNSUPPORTED.
 STREAM_OF_MESSAGE = {
-    "HIGHRES_IMU": "imu", "SCALED_IMU": "imu", "RAW_IMU": "imu", "SCALED_PRESSURE": "baro",
+    "HIGHRES_IMU": "imu", "SCALED_PRESSURE": "baro",
     "DISTANCE_SENSOR": "range", "GPS_RAW_INT": "gps", "ATTITUDE": "attitude",
     "SERVO_OUTPUT_RAW": "actuators", "SYS_STATUS": "battery",
 }

@@ -148,3 +148,33 @@ async def test_connect_records_until_sigint(tmp_path):
             await proc.wait()
     rows = list(csv.DictReader(open(out)))
     assert sum(r["kind"] == "baro_pressure" for r in rows) == 20
+
+
+def test_sim_fast_writes_log_truth_and_declared(tmp_path):
+    log, truth = tmp_path / "s.tlog", tmp_path / "s.csv"
+    r = run("sim", "--vehicle", "quad", "--seed", "3", "--fast", "--duration", "10", "--log", str(log),
+            "--truth", str(truth), "--effect", "baro_thrust:k=2", "--undeclared", "accel_bias:z=0.2")
+    assert r.returncode == 0, r.stderr
+    assert "x real time" in r.stdout
+    assert log.stat().st_size > 100_000 and truth.exists() and (tmp_path / "s.declared.json").exists()
+    info = run("info", str(log))
+    assert "HIGHRES_IMU" in info.stdout and "CRC errors 0" in info.stdout
+
+
+def test_sim_lists_its_effects():
+    r = run("sim", "--list-effects")
+    assert r.returncode == 0
+    for name in ("accel_bias", "baro_thrust", "range_tilt", "sensor_delay", "thrust_voltage", "vibration"):
+        assert f"`{name}`" in r.stdout
+
+
+@pytest.mark.parametrize("args,text", [
+    (["--effect", "warp_drive:k=1"], "unknown effect 'warp_drive'"),
+    (["--effect", "accel_bias:q=1"], "unknown parameter"),
+    (["--effect", "accel_bias:z=lots"], "not a number"),
+    (["--undeclared", "sensor_delay:sensor=radar"], "sensor must be one of"),
+    (["--vehicle", "blimp"], "invalid choice"),
+])
+def test_sim_bad_arguments_are_one_line(tmp_path, args, text):
+    r = run("sim", "--fast", "--log", str(tmp_path / "x.tlog"), *args)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr

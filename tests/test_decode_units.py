@@ -188,3 +188,8 @@ def test_unknown_messages_are_counted_recorded_and_hooked():
     raw = hdr + b"\x00\x00"
     assert r.feed(raw, 1.0) == []
     assert r.counters.unknown == 1 and frames == [raw] and hooked[0].get_type().startswith("UNKNOWN")
+
+
+def test_ground_station_heartbeats_are_not_vehicle_status():
+    out, _ = decode(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_GCS, 8, 0, 0, 4, 3))
+    assert (Kind.VEHICLE_STATUS, 0) not in out

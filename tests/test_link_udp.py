@@ -60,7 +60,7 @@ async def test_measurements_heartbeats_and_stream_requests(tmp_path):
         hb = [m for m in veh.received if m.get_type() == "HEARTBEAT"][0]
         assert hb.type == mavlink.MAV_TYPE_GCS and hb._header.srcSystem == 255
         await veh.wait_for("COMMAND_LONG", len(link.streams))
-        assert veh.message_intervals[mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE] == pytest.approx(1e6 / 25)
+        assert veh.message_intervals[mavlink.MAVLINK_MSG_ID_SCALED_PRESSURE] == pytest.approx(1e6 / 50)
         assert link.stream_method[1] == "SET_MESSAGE_INTERVAL"
         assert not veh.data_stream_requests
     finally:

@@ -334,6 +334,8 @@ class MavlinkDecoder:
                                source, t_rx, None, m.target)))
 
     def _heartbeat(self, m, t, t_rx, source, instance, out):
+        if m.type == mavlink.MAV_TYPE_GCS:
+            return  # a ground station's (ours, recorded in a tlog): no vehicle status
         armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
         out.append(_new(_M, (t, Kind.VEHICLE_STATUS,
                                _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),

@@ -36,13 +36,14 @@ from ..transports import Transport, open_transport
 from .receiver import LinkCounters, MavlinkReceiver
 
 #: Streams requested from a vehicle: message name -> rate [Hz].
+#: What the estimators need most comes first (IMU, baro, range), then the rest.
 DEFAULT_STREAMS: dict[str, float] = {
-    "HIGHRES_IMU": 100.0, "SCALED_IMU": 50.0, "RAW_IMU": 50.0,
-    "SCALED_PRESSURE": 25.0, "DISTANCE_SENSOR": 20.0,
+    "HIGHRES_IMU": 250.0, "SCALED_IMU": 50.0, "RAW_IMU": 50.0,
+    "SCALED_PRESSURE": 50.0, "DISTANCE_SENSOR": 25.0,
     "ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 50.0,
     "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0,
-    "VFR_HUD": 10.0, "SERVO_OUTPUT_RAW": 20.0, "RC_CHANNELS": 10.0,
-    "SYS_STATUS": 2.0, "BATTERY_STATUS": 2.0, "EKF_STATUS_REPORT": 2.0,
+    "VFR_HUD": 10.0, "SERVO_OUTPUT_RAW": 50.0, "RC_CHANNELS": 10.0,
+    "SYS_STATUS": 5.0, "BATTERY_STATUS": 5.0, "EKF_STATUS_REPORT": 2.0,
 }
 
 #: REQUEST_DATA_STREAM groups used when SET_MESSAGE_INTERVAL is refused.

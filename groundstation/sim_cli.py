@@ -1,0 +1,167 @@
+"""``groundstation sim`` and ``groundstation demo``: the simulated vehicle from the command line."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import csv
+import json
+import signal
+from pathlib import Path
+
+from sim_bridge.bridge import LinkFaults, SimBridge
+from sim_bridge.effects import catalogue_markdown
+from sim_bridge.fast import declared_path, run_fast
+from sim_bridge.pty_port import PtyPort
+from sim_bridge.scenario import VEHICLES, Scenario
+
+
+def add_sim_parser(sub) -> None:
+    s = sub.add_parser("sim", help="run a simulated vehicle (real time on UDP/serial, or --fast into a tlog)")
+    s.add_argument("--vehicle", choices=VEHICLES, default="quad")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
+    s.add_argument("--effect", action="append", default=[], metavar="NAME:k=v,...",
+                   help="a declared effect (the ground station may be told); repeatable")
+    s.add_argument("--undeclared", action="append", default=[], metavar="NAME:k=v,...",
+                   help="an effect that acts but is told to nobody; repeatable")
+    s.add_argument("--duration", type=float, help="seconds of simulated time (default: run until stopped; 60 with --fast)")
+    s.add_argument("--udp", default="127.0.0.1:14550", metavar="HOST:PORT",
+                   help="send MAVLink to the ground station here (default 127.0.0.1:14550); 'none' for no UDP")
+    s.add_argument("--serial", action="store_true", help="also speak MAVLink on a pseudo-terminal (path printed)")
+    s.add_argument("--serial-link", type=Path, help="keep a stable symlink to the pty here (like /dev/serial/by-id)")
+    s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
+    s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
+    s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
+    s.add_argument("--fast", action="store_true", help="as fast as possible into --log (no transport)")
+    s.add_argument("--log", type=Path, help="with --fast: the tlog to write")
+    s.add_argument("--truth", type=Path, help="truth sidecar CSV (every state at 100 Hz)")
+    s.add_argument("--list-effects", action="store_true", help="print the effect catalogue and exit")
+
+    d = sub.add_parser("demo", help="simulated quadcopter + ground station on loopback, no hardware")
+    d.add_argument("--duration", type=float, default=60.0)
+    d.add_argument("--vehicle", choices=VEHICLES, default="quad")
+    d.add_argument("--seed", type=int, default=1)
+    d.add_argument("--record", type=Path, default=Path("out/demo.tlog"))
+
+
+def scenario_from(args) -> Scenario:
+    duration = args.duration if args.duration else 60.0
+    return Scenario.from_args(args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario)
+
+
+def cmd_sim(args) -> int:
+    if args.list_effects:
+        print(catalogue_markdown())
+        return 0
+    scenario = scenario_from(args)
+    if args.fast:
+        if args.log is None:
+            raise ValueError("--fast needs --log OUT.tlog")
+        r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration)
+        print(f"sim: {scenario.vehicle} seed {scenario.seed}: {r.seconds:g} s simulated in {r.wall:.2f} s "
+              f"({r.speedup:.0f}x real time), {r.frames} frames -> {r.log}"
+              + (f"; truth -> {r.truth}" if r.truth else "") + f"; declared -> {declared_path(r.log)}")
+        return 0
+    return asyncio.run(_run_realtime(args, scenario))
+
+
+def _udp(text: str):
+    if text.lower() == "none":
+        return None
+    host, _, port = text.rpartition(":")
+    if not port.isdigit():
+        raise ValueError(f"--udp {text!r}: expected HOST:PORT")
+    return host or "127.0.0.1", int(port)
+
+
+async def _run_realtime(args, scenario: Scenario) -> int:
+    pty = PtyPort(args.serial_link) if (args.serial or args.serial_link) else None
+    bridge = SimBridge(scenario, udp_to=_udp(args.udp), pty=pty, speed=args.speed,
+                       faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0))
+    truth_file = None
+    if args.truth:
+        truth_file = open(args.truth, "w", newline="")
+        writer = None
+
+        def sink(row):
+            nonlocal writer
+            if writer is None:
+                writer = csv.DictWriter(truth_file, fieldnames=list(row))
+                writer.writeheader()
+            writer.writerow(row)
+        bridge.truth_sink = sink
+        args.truth.with_suffix(".truth.json").write_text(json.dumps(scenario.truth_json(), indent=2))
+    await bridge.open()
+    where = []
+    if bridge.udp_to:
+        where.append(f"UDP to {bridge.udp_to[0]}:{bridge.udp_to[1]} (connect with udpin:0.0.0.0:{bridge.udp_to[1]})")
+    if pty is not None:
+        where.append(f"serial {pty.path}")
+    print(f"sim: {scenario.vehicle} seed {scenario.seed} speaking MAVLink on " + " and ".join(where), flush=True)
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, bridge.close)
+        except (NotImplementedError, RuntimeError):
+            pass
+    try:
+        await bridge.run(args.duration)
+    finally:
+        bridge.close()
+        if truth_file is not None:
+            truth_file.close()
+    print(f"sim: stopped at t = {bridge.sim.t:.1f} s; {bridge.frames_sent} frames sent, "
+          f"{bridge.frames_dropped} dropped by fault injection", flush=True)
+    return 0
+
+
+async def run_demo(args) -> int:
+    """Bridge and ground station in one process, over real loopback UDP."""
+    from drivers.mavlink.link import MavlinkLink
+
+    from .console import StatusLine
+
+    link = MavlinkLink("udpin:127.0.0.1:0", record=args.record)
+    sub, events = link.measurements(), link.events()
+    await link.open()
+    port = link.transport.local_address[1]
+    scenario = Scenario(vehicle=args.vehicle, seed=args.seed, duration=args.duration)
+    bridge = SimBridge(scenario, udp_to=("127.0.0.1", port))
+    await bridge.open()
+    print(f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}",
+          flush=True)
+    status = StatusLine()
+
+    async def consume():
+        async for m in sub:
+            status.see(m)
+
+    async def show_events():
+        async for ev in events:
+            print(f"link {ev.state.value}: {ev.reason}", flush=True)
+
+    async def show_status():
+        while True:
+            await asyncio.sleep(1.0)
+            status.print(link.state.value, link.counters, f"sim t {bridge.sim.t:.0f} s")
+
+    tasks = [asyncio.create_task(c) for c in (consume(), show_events(), show_status())]
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, bridge.close)
+        except (NotImplementedError, RuntimeError):
+            pass
+    try:
+        await bridge.run(args.duration)
+    finally:
+        bridge.close()
+        tasks[2].cancel()
+        await link.close()
+        await asyncio.gather(*tasks, return_exceptions=True)
+    c = link.counters
+    print(f"demo: {c.messages} messages, loss {c.loss_percent:.2f}%, streams via "
+          f"{link.stream_method.get(1, 'none')}; recorded {args.record}", flush=True)
+    return 0
+
+

@@ -1,0 +1,244 @@
+"""The simulated vehicle in real time, on the transports real hardware uses.
+
+A :class:`SimBridge` steps the :class:`~sim_bridge.simulator.Simulator` against
+the wall clock and speaks MAVLink 2 over
+
+* UDP, sending to the ground station's address (as SITL or a companion does
+  towards ``udpin:0.0.0.0:14550``), answering whoever writes back, and/or
+* a serial pseudo-terminal whose path it prints (the ground station opens it
+  with pyserial like a USB radio).
+
+Towards the ground station it behaves like an autopilot: HEARTBEAT at 1 Hz;
+``SET_MESSAGE_INTERVAL`` changes a stream's rate (COMMAND_ACK ACCEPTED, or
+UNSUPPORTED for a message it does not send); ``REQUEST_DATA_STREAM`` sets the
+rates of the ArduPilot stream groups; ``MANUAL_CONTROL`` and
+``SET_ATTITUDE_TARGET`` fly the vehicle while they keep coming, and it falls
+back to its own autopilot ``command_timeout`` seconds after the last one.
+
+Link faults on demand (:class:`LinkFaults`): random frame loss, corrupted
+bytes, loss bursts, and :meth:`SimBridge.disconnect` for a while.
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import random
+import socket
+import time
+from dataclasses import dataclass
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
+from .pty_port import PtyPort
+from .scenario import Scenario
+from .simulator import Simulator
+from .vehicles.coax import CoaxCommand
+from .vehicles.heli3dof import Heli3dofCommand
+from .vehicles.quad import QuadCommand
+
+#: ArduPilot's REQUEST_DATA_STREAM groups -> our sensor streams
+DATA_STREAM_GROUPS = {
+    mavlink.MAV_DATA_STREAM_RAW_SENSORS: ("imu", "baro"),
+    mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: ("battery",),
+    mavlink.MAV_DATA_STREAM_RC_CHANNELS: ("actuators",),
+    mavlink.MAV_DATA_STREAM_POSITION: ("gps",),
+    mavlink.MAV_DATA_STREAM_EXTRA1: ("attitude",),
+    mavlink.MAV_DATA_STREAM_EXTRA3: ("range",),
+}
+MAX_TILT = math.radians(30.0)
+
+
+@dataclass
+class LinkFaults:
+    loss: float = 0.0          # probability a frame is lost
+    corrupt: float = 0.0       # probability a frame has one byte flipped
+    burst_every: float = 0.0   # mean seconds between loss bursts (0: none)
+    burst_len: float = 0.0     # seconds each burst lasts
+
+
+class SimBridge:
+    def __init__(self, scenario: Scenario, *, udp_to: tuple[str, int] | None = None,
+                 pty: PtyPort | None = None, faults: LinkFaults | None = None,
+                 speed: float = 1.0, command_timeout: float = 0.5, sysid: int = 1) -> None:
+        self.scenario = scenario
+        self.sim = Simulator(scenario, command_timeout=command_timeout)
+        self.sim.keep_truth = False
+        self.encoder = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
+        self.udp_to = udp_to
+        self.pty = pty
+        self.faults = faults or LinkFaults()
+        self.speed = speed
+        self._rng = random.Random(scenario.seed + 7)
+        self._sock: socket.socket | None = None
+        self._parser = mavlink.MAVLink(None)
+        self._parser.robust_parsing = True
+        self.frames_sent = 0
+        self.frames_dropped = 0
+        self.received: dict[str, int] = {}
+        self.commands_received = 0
+        self._down_until = 0.0
+        self._burst_until = 0.0
+        self._next_burst = math.inf
+        self._stop = asyncio.Event()
+        self.truth_sink = None            # callable(row) for a live truth sidecar
+
+    # -- transports --------------------------------------------------------------------------
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        if self.udp_to is not None:
+            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+            s.bind(("0.0.0.0", 0))
+            s.setblocking(False)
+            self._sock = s
+            loop.add_reader(s.fileno(), self._udp_readable)
+        if self.pty is not None:
+            self.pty.on_data = self._incoming
+            if self.pty.master is None:
+                self.pty.plug()
+        if self.faults.burst_every > 0:
+            self._next_burst = self._rng.expovariate(1.0 / self.faults.burst_every)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._sock is not None:
+            try:
+                asyncio.get_running_loop().remove_reader(self._sock.fileno())
+            except (RuntimeError, ValueError):
+                pass
+            self._sock.close()
+            self._sock = None
+        if self.pty is not None:
+            self.pty.close()
+
+    def _udp_readable(self) -> None:
+        try:
+            data, addr = self._sock.recvfrom(65536)
+        except (BlockingIOError, OSError):
+            return
+        self.udp_to = addr          # answer whoever talks to us
+        self._incoming(data)
+
+    def _send(self, frame: bytes) -> None:
+        f, now = self.faults, time.monotonic()
+        if now < self._down_until or now < self._burst_until or (f.loss and self._rng.random() < f.loss):
+            self.frames_dropped += 1
+            return
+        if f.corrupt and self._rng.random() < f.corrupt:
+            b = bytearray(frame)
+            b[self._rng.randrange(1, len(b))] ^= 1 << self._rng.randrange(8)
+            frame = bytes(b)
+        if self._sock is not None and self.udp_to is not None:
+            try:
+                self._sock.sendto(frame, self.udp_to)
+            except OSError:
+                pass
+        if self.pty is not None:
+            self.pty.write(frame)
+        self.frames_sent += 1
+
+    def disconnect(self, seconds: float) -> None:
+        """Go silent for ``seconds`` (a serial link is unplugged and plugged back)."""
+        self._down_until = time.monotonic() + seconds
+        if self.pty is not None:
+            self.pty.unplug()
+            asyncio.get_running_loop().call_later(seconds, self._replug)
+
+    def _replug(self) -> None:
+        if not self._stop.is_set():
+            self.pty.plug()
+
+    # -- the ground station's messages --------------------------------------------------------
+    def _incoming(self, data: bytes) -> None:
+        for m in self._parser.parse_buffer(data) or ():
+            t = m.get_type()
+            if t == "BAD_DATA":
+                continue
+            self.received[t] = self.received.get(t, 0) + 1
+            handler = getattr(self, "_on_" + t.lower(), None)
+            if handler is not None:
+                handler(m)
+
+    def _ack(self, command: int, result: int) -> None:
+        self._send(self.encoder.packer.pack("COMMAND_ACK", command=command, result=result))
+
+    def _on_command_long(self, m) -> None:
+        if m.target_system not in (0, self.encoder.packer.sysid):
+            return
+        if m.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        cls = mavlink.mavlink_map.get(int(m.param1))
+        stream = STREAM_OF_MESSAGE.get(cls.msgname if cls else "")
+        if stream is None or stream not in self.sim.sensors.rates:
+            self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        interval = m.param2
+        if interval > 0:
+            self.sim.sensors.set_rate(stream, 1e6 / interval)
+        elif interval == 0:
+            self.sim.sensors.set_rate(stream, self.scenario.sensors.rates[stream])
+        self._ack(m.command, mavlink.MAV_RESULT_ACCEPTED)
+
+    def _on_request_data_stream(self, m) -> None:
+        for stream in DATA_STREAM_GROUPS.get(m.req_stream_id, ()):
+            if m.start_stop and m.req_message_rate > 0:
+                self.sim.sensors.set_rate(stream, float(m.req_message_rate))
+
+    def _on_manual_control(self, m) -> None:
+        if m.target not in (0, self.encoder.packer.sysid):
+            return
+        x, y, z, r = m.x / 1000.0, m.y / 1000.0, m.z / 1000.0, m.r / 1000.0
+        v = self.scenario.vehicle
+        if v == "quad":
+            cmd = QuadCommand(z, y * MAX_TILT, -x * MAX_TILT, r * 2.0)
+        elif v == "coax":
+            p = self.sim.vehicle.p
+            cmd = CoaxCommand(z - 0.1 * r, z + 0.1 * r, -x * p.max_flap, y * p.max_flap)
+        else:
+            P = self.sim.vehicle.p
+            vs, vd = 2 * P.V_max * z, P.V_max * y
+            cmd = Heli3dofCommand((vs - vd) / 2, (vs + vd) / 2)
+        self.commands_received += 1
+        self.sim.command(cmd)
+
+    def _on_set_attitude_target(self, m) -> None:
+        if m.target_system not in (0, self.encoder.packer.sysid) or self.scenario.vehicle != "quad":
+            return
+        w, x, y, z = m.q
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+        self.commands_received += 1
+        self.sim.command(QuadCommand(m.thrust, roll, pitch, m.body_yaw_rate))
+
+    # -- running -------------------------------------------------------------------------------
+    def _tick(self, target_t: float) -> None:
+        sim, enc = self.sim, self.encoder
+        while sim.t + 0.5 * sim.dt < target_t:
+            samples = sim.step()
+            if sim.step_count % int(round(1.0 / sim.dt)) == 1:
+                self._send(enc.heartbeat(sim.profile(sim.t).armed or sim.externally_commanded))
+            for s in samples:
+                for fr in enc.encode(s):
+                    self._send(fr)
+            if self.truth_sink is not None and sim.step_count % sim.truth_every == 0:
+                self.truth_sink(sim.truth())
+        if self.faults.burst_every > 0 and sim.t >= self._next_burst:
+            self._burst_until = time.monotonic() + self.faults.burst_len
+            self._next_burst = sim.t + self._rng.expovariate(1.0 / self.faults.burst_every)
+
+    async def run(self, duration: float | None = None, tick: float = 0.004) -> None:
+        """Run in real time (times ``speed``) until ``duration`` or :meth:`close`."""
+        start = time.monotonic()
+        t0 = self.sim.t
+        while not self._stop.is_set():
+            target = t0 + (time.monotonic() - start) * self.speed
+            if duration is not None:
+                target = min(target, t0 + duration)
+            self._tick(target)
+            if duration is not None and self.sim.t + 0.5 * self.sim.dt >= t0 + duration:
+                break
+            try:
+                await asyncio.wait_for(self._stop.wait(), tick)
+            except asyncio.TimeoutError:
+                pass
