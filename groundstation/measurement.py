@@ -58,6 +58,8 @@ class Kind(enum.Enum):
     BATTERY_REMAINING = "battery_remaining"  # state of charge [0..1]
     VEHICLE_STATUS = "vehicle_status"    # armed, custom_mode, system_status, mav_type, autopilot
     EKF_STATUS = "ekf_status"            # flags, velocity/pos-h/pos-v/compass/terrain variance ratios
+    ENCODERS = "encoders"                # joint angles [rad] (3-DOF helicopter: p, e, lambda)
+    MOTOR_VOLTAGE = "motor_voltage"      # motor voltages [V] (3-DOF helicopter: V_f, V_b)
     TRUTH_POSE = "truth_pose"            # motion capture / simulator truth: x, y, z NED [m], qw, qx, qy, qz
 
     @property
@@ -96,6 +98,8 @@ KIND_COMPONENTS: dict[Kind, tuple[str, ...] | None] = {
     Kind.BATTERY_REMAINING: ("soc",),
     Kind.VEHICLE_STATUS: ("armed", "custom_mode", "system_status", "mav_type", "autopilot"),
     Kind.EKF_STATUS: ("flags", "velocity", "pos_horiz", "pos_vert", "compass", "terrain_alt"),
+    Kind.ENCODERS: ("p", "e", "lambda"),
+    Kind.MOTOR_VOLTAGE: ("V_f", "V_b"),
     Kind.TRUTH_POSE: ("n", "e", "d", "qw", "qx", "qy", "qz"),
 }
 

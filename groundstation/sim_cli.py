@@ -29,6 +29,8 @@ def add_sim_parser(sub) -> None:
                    help="send MAVLink to the ground station here (default 127.0.0.1:14550); 'none' for no UDP")
     s.add_argument("--serial", action="store_true", help="also speak MAVLink on a pseudo-terminal (path printed)")
     s.add_argument("--serial-link", type=Path, help="keep a stable symlink to the pty here (like /dev/serial/by-id)")
+    s.add_argument("--board", action="store_true",
+                   help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)")
     s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
     s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
     s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
@@ -76,7 +78,8 @@ def _udp(text: str):
 
 async def _run_realtime(args, scenario: Scenario) -> int:
     pty = PtyPort(args.serial_link) if (args.serial or args.serial_link) else None
-    bridge = SimBridge(scenario, udp_to=_udp(args.udp), pty=pty, speed=args.speed,
+    board = PtyPort() if args.board else None
+    bridge = SimBridge(scenario, udp_to=_udp(args.udp), pty=pty, board=board, speed=args.speed,
                        faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0))
     truth_file = None
     if args.truth:
@@ -97,6 +100,9 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         where.append(f"UDP to {bridge.udp_to[0]}:{bridge.udp_to[1]} (connect with udpin:0.0.0.0:{bridge.udp_to[1]})")
     if pty is not None:
         where.append(f"serial {pty.path}")
+    if board is not None:
+        kind = "binary frames" if scenario.vehicle == "heli3dof" else "NMEA GPS"
+        where.append(f"sensor board ({kind}) {board.path}")
     print(f"sim: {scenario.vehicle} seed {scenario.seed} speaking MAVLink on " + " and ".join(where), flush=True)
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):

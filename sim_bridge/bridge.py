@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from .board_out import BoardEncoder
+from .fast import EPOCH
 from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
 from .pty_port import PtyPort
 from .scenario import Scenario
@@ -59,7 +61,7 @@ class LinkFaults:
 
 class SimBridge:
     def __init__(self, scenario: Scenario, *, udp_to: tuple[str, int] | None = None,
-                 pty: PtyPort | None = None, faults: LinkFaults | None = None,
+                 pty: PtyPort | None = None, board: PtyPort | None = None, faults: LinkFaults | None = None,
                  speed: float = 1.0, command_timeout: float = 0.5, sysid: int = 1) -> None:
         self.scenario = scenario
         self.sim = Simulator(scenario, command_timeout=command_timeout)
@@ -67,6 +69,10 @@ class SimBridge:
         self.encoder = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
         self.udp_to = udp_to
         self.pty = pty
+        #: the sensor board's own serial port: binary frames (3-DOF helicopter)
+        #: or an NMEA GPS receiver (quadcopter, coaxial helicopter)
+        self.board = board
+        self.board_encoder = BoardEncoder(scenario.vehicle, EPOCH) if board is not None else None
         self.faults = faults or LinkFaults()
         self.speed = speed
         self._rng = random.Random(scenario.seed + 7)
@@ -96,6 +102,8 @@ class SimBridge:
             self.pty.on_data = self._incoming
             if self.pty.master is None:
                 self.pty.plug()
+        if self.board is not None and self.board.master is None:
+            self.board.plug()
         if self.faults.burst_every > 0:
             self._next_burst = self._rng.expovariate(1.0 / self.faults.burst_every)
 
@@ -110,6 +118,8 @@ class SimBridge:
             self._sock = None
         if self.pty is not None:
             self.pty.close()
+        if self.board is not None:
+            self.board.close()
 
     def _udp_readable(self) -> None:
         try:
@@ -221,6 +231,9 @@ class SimBridge:
             for s in samples:
                 for fr in enc.encode(s):
                     self._send(fr)
+                if self.board_encoder is not None:
+                    for fr in self.board_encoder.encode(s):
+                        self.board.write(fr)
             if self.truth_sink is not None and sim.step_count % sim.truth_every == 0:
                 self.truth_sink(sim.truth())
         if self.faults.burst_every > 0 and sim.t >= self._next_burst:

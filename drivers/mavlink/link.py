@@ -19,9 +19,7 @@ The link
 from __future__ import annotations
 
 import asyncio
-import enum
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -31,6 +29,7 @@ from groundstation.broadcast import Broadcast, Subscription
 from groundstation.measurement import Measurement
 
 from ..connection import Endpoint, parse_connection
+from ..link_state import LinkEvent, LinkState
 from ..tlog import TlogWriter
 from ..transports import Transport, open_transport
 from .receiver import LinkCounters, MavlinkReceiver
@@ -58,20 +57,6 @@ FALLBACK_DATA_STREAMS: dict[int, float] = {
 }
 
 _GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
-
-
-class LinkState(enum.Enum):
-    CONNECTING = "connecting"   # opened, nothing valid received yet
-    ALIVE = "alive"
-    LOST = "lost"
-    CLOSED = "closed"
-
-
-@dataclass(frozen=True)
-class LinkEvent:
-    state: LinkState
-    t: float        # wall-clock time of the change
-    reason: str
 
 
 class MavlinkLink:
