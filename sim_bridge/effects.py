@@ -240,14 +240,15 @@ class ThrustVoltage(Effect):
     name = "thrust_voltage"
     equation = "thrust = thrust_nominal * (V / V_ref)^n  (no ESC voltage compensation)"
     params = {"n": Param(2.0, "1", 1.0, 2.5, "thrust ~ rpm^2 ~ V^2"),
-              "v_ref": Param(0.0, "V", 0.0, 30.0, "0: the pack voltage at the start of the run")}
+              "v_ref": Param(0.0, "V", 0.0, 30.0, "0: a full pack's voltage under hover load")}
 
     def thrust_factor(self, sim):
         v = getattr(sim.vehicle, "voltage", None)
         if v is None:
             return 1.0
-        if self.values["v_ref"] <= 0.0:
-            self.values["v_ref"] = v
+        if self.values["v_ref"] <= 0.0:   # the voltage the vehicle was tuned at
+            p = sim.vehicle.p
+            self.values["v_ref"] = p.n_cells * p.v_full - p.r_int * (p.i_idle + p.i_max * p.hover_throttle ** 2)
         return (v / self.v_ref) ** self.n
 
 
