@@ -30,6 +30,7 @@ test: setup browser
 	$(BIN)/python -m pytest -q
 
 bench: setup
+	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/ingest.py
 
 clean:
