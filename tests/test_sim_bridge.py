@@ -172,3 +172,37 @@ def test_baro_reads_the_standard_atmosphere(tmp_path):
     baro = [(m.t, m.value[0]) for m in Replay(tmp_path / "q.tlog").iter_measurements() if m.kind is Kind.BARO_PRESSURE]
     err = np.array([altitude_at(p) - 120.0 - np.interp(t, tt, h) for t, p in baro])
     assert abs(err.mean()) < 0.1 and 0.2 < err.std() < 0.5          # 4 Pa of noise is ~0.33 m
+
+
+@async_test(timeout=40)
+async def test_set_attitude_target_and_disconnect_on_demand(tmp_path):
+    port = PtyPort(tmp_path / "ttyQ")
+    port.plug()
+    bridge = SimBridge(Scenario("quad", seed=8), udp_to=None, pty=port, speed=2.0, command_timeout=0.3)
+    await bridge.open()
+    link = MavlinkLink(f"{port.path},921600", heartbeat_hz=5.0, lost_after=0.5, streams={})
+    events = link.events()
+    await link.open()
+    runner = asyncio.create_task(bridge.run(60.0))
+    try:
+        async for ev in events:
+            if ev.state is LinkState.ALIVE:
+                break
+        half = math.radians(10) / 2
+        q = [math.cos(half), math.sin(half), 0.0, 0.0]            # 10 deg of roll
+        for _ in range(30):
+            link.send(mavlink.MAVLink_set_attitude_target_message(0, 1, 1, 0b00000111, q, 0, 0, 0.0, 0.7))
+            await asyncio.sleep(0.02)
+        assert bridge.sim.externally_commanded and bridge.sim.vehicle.tau == pytest.approx(0.7)
+        assert bridge.sim.last_command.roll == pytest.approx(math.radians(10), abs=1e-6)
+        bridge.disconnect(1.0)                                     # the radio drops out for a second
+        async for ev in events:
+            if ev.state is LinkState.LOST:
+                break
+        async for ev in events:
+            if ev.state is LinkState.ALIVE:
+                break
+    finally:
+        bridge.close()
+        await runner
+        await link.close()
