@@ -36,6 +36,17 @@ def _nothing(*_a) -> None:
     return None
 
 
+def close_watched_socket(sock: socket.socket | None) -> None:
+    """Stop the event loop watching ``sock`` and close it (None: nothing to do)."""
+    if sock is None:
+        return
+    try:
+        asyncio.get_running_loop().remove_reader(sock.fileno())
+    except (RuntimeError, ValueError):
+        pass
+    sock.close()
+
+
 class Transport(abc.ABC):
     """Base: ``on_data(bytes, t_rx)``, ``on_connect(text)``, ``on_disconnect(reason)``."""
 
@@ -145,13 +156,8 @@ class UdpTransport(Transport):
         return self._sock.getsockname()[:2] if self._sock else None
 
     async def close(self) -> None:
-        if self._sock is not None:
-            try:
-                asyncio.get_running_loop().remove_reader(self._sock.fileno())
-            except (RuntimeError, ValueError):
-                pass
-            self._sock.close()
-            self._sock = None
+        close_watched_socket(self._sock)
+        self._sock = None
         self.connected = False
 
 

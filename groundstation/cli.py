@@ -18,7 +18,6 @@ import asyncio
 import datetime as _dt
 import math
 import os
-import signal
 import sys
 from pathlib import Path
 
@@ -32,6 +31,7 @@ from .export import MeasurementCsvWriter
 from sim_bridge.scenario import ScenarioError
 
 from .replay import Replay, check_speed
+from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
 
 
@@ -133,12 +133,7 @@ def cmd_info(args) -> int:
 
 # ---------------------------------------------------------------- helpers
 def _install_stop(stop: asyncio.Event) -> None:
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, stop.set)
-        except (NotImplementedError, RuntimeError):
-            pass
+    on_stop_signal(stop.set)
 
 
 async def _consume(sub, status: StatusLine, writer: MeasurementCsvWriter | None) -> None:

@@ -1,11 +1,9 @@
 """``groundstation sim`` and ``groundstation demo``: the simulated vehicle from the command line."""
 from __future__ import annotations
 
-import argparse
 import asyncio
 import csv
 import json
-import signal
 from pathlib import Path
 
 from sim_bridge.bridge import LinkFaults, SimBridge
@@ -13,6 +11,8 @@ from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import VEHICLES, Scenario
+
+from .signals import on_stop_signal
 
 
 def add_sim_parser(sub) -> None:
@@ -104,12 +104,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         kind = "binary frames" if scenario.vehicle == "heli3dof" else "NMEA GPS"
         where.append(f"sensor board ({kind}) {board.path}")
     print(f"sim: {scenario.vehicle} seed {scenario.seed} speaking MAVLink on " + " and ".join(where), flush=True)
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, bridge.close)
-        except (NotImplementedError, RuntimeError):
-            pass
+    on_stop_signal(bridge.close)
     try:
         await bridge.run(args.duration)
     finally:
@@ -152,12 +147,7 @@ async def run_demo(args) -> int:
             status.print(link.state.value, link.counters, f"sim t {bridge.sim.t:.0f} s")
 
     tasks = [asyncio.create_task(c) for c in (consume(), show_events(), show_status())]
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        try:
-            loop.add_signal_handler(sig, bridge.close)
-        except (NotImplementedError, RuntimeError):
-            pass
+    on_stop_signal(bridge.close)
     try:
         await bridge.run(args.duration)
     finally:

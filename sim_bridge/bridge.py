@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from drivers.transports import close_watched_socket
+
 from .board_out import BoardEncoder
 from .fast import EPOCH
 from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
@@ -109,13 +111,8 @@ class SimBridge:
 
     def close(self) -> None:
         self._stop.set()
-        if self._sock is not None:
-            try:
-                asyncio.get_running_loop().remove_reader(self._sock.fileno())
-            except (RuntimeError, ValueError):
-                pass
-            self._sock.close()
-            self._sock = None
+        close_watched_socket(self._sock)
+        self._sock = None
         if self.pty is not None:
             self.pty.close()
         if self.board is not None:

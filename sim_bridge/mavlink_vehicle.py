@@ -18,6 +18,8 @@ from collections import Counter
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from drivers.transports import close_watched_socket
+
 from .pty_port import PtyPort
 
 
@@ -81,13 +83,8 @@ class MavlinkVehicle:
 
     def close(self) -> None:
         self.stop_heartbeat()
-        if self._sock is not None:
-            try:
-                asyncio.get_running_loop().remove_reader(self._sock.fileno())
-            except (RuntimeError, ValueError):
-                pass
-            self._sock.close()
-            self._sock = None
+        close_watched_socket(self._sock)
+        self._sock = None
         if self.pty is not None:
             self.pty.close()
 

@@ -1,5 +1,4 @@
 """The MAVLink link over a real pseudo-terminal opened by pyserial: unplug and replug."""
-import asyncio
 
 import pytest
 from pymavlink import mavutil
@@ -39,7 +38,7 @@ async def test_serial_link_survives_unplug_and_replug(tmp_path):
         link.recorder.flush()
         conn = mavutil.mavlink_connection(str(tmp_path / "s.tlog"))
         n = 0
-        while (m := conn.recv_match(type="DISTANCE_SENSOR")) is not None:
+        while conn.recv_match(type="DISTANCE_SENSOR") is not None:
             n += 1
         assert n == 10                                   # nothing recorded so far is lost
 

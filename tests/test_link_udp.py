@@ -155,7 +155,7 @@ async def test_flooding_peer_is_bounded_and_counted():
         await _next_state(events, LinkState.ALIVE)
         frame = veh.encode(mavlink.MAVLink_attitude_message(1, 0, 0, 0, 0, 0, 0))
         sock = veh._sock
-        for burst in range(400):           # 20,000 frames in bursts the socket buffer holds
+        for _ in range(400):           # 20,000 frames in bursts the socket buffer holds
             for _ in range(50):
                 try:
                     sock.sendto(frame, veh.udp_to)
@@ -211,7 +211,7 @@ async def test_udpout_reaches_a_listening_vehicle():
     veh = MavlinkVehicle(udp_listen=("127.0.0.1", 0))
     await veh.open()
     link = MavlinkLink(f"udpout:127.0.0.1:{veh.port}", heartbeat_hz=20.0)
-    sub, events = link.measurements(), link.events()
+    sub = link.measurements()
     await link.open()
     try:
         await veh.wait_for("HEARTBEAT")          # our heartbeat tells the vehicle where we are
@@ -229,7 +229,7 @@ async def test_udpout_reaches_a_listening_vehicle():
 async def test_tcpin_serves_a_connecting_vehicle():
     port = free_tcp_port()
     link = MavlinkLink(f"tcpin:127.0.0.1:{port}", heartbeat_hz=20.0, streams={})
-    sub, events = link.measurements(), link.events()
+    sub = link.measurements()
     await link.open()
     enc = mavlink.MAVLink(None, 1, 1)
     reader, writer = await asyncio.open_connection("127.0.0.1", port)

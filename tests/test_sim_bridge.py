@@ -48,7 +48,6 @@ def _rates(ms, t0, t1):
 @async_test(timeout=60)
 async def test_udp_every_sensor_at_its_requested_rate_and_the_recording_replays(tmp_path):
     link = MavlinkLink("udpin:127.0.0.1:0", record=tmp_path / "s.tlog")
-    events = link.events()
     await link.open()
     bridge = SimBridge(Scenario("quad", seed=2, duration=60), udp_to=("127.0.0.1", link.transport.local_address[1]),
                        speed=4.0)

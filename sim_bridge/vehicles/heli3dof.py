@@ -118,7 +118,7 @@ class Heli3dof(Vehicle):
         """IMU frame on the arm: yaw = travel, pitch = elevation, roll = helicopter pitch."""
         P, k = self.p, self.kin
         p, pd, e, ed, lam, lamd = self.x
-        pdd, edd, ldd = xd[1], xd[3], xd[5]
+        edd, ldd = xd[3], xd[5]
         R = a_ib(p, e, lam)
         k.R = R
         sp, cp, se, ce = math.sin(p), math.cos(p), math.sin(e), math.cos(e)
