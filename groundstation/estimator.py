@@ -1,0 +1,154 @@
+"""An estimator: a :class:`~groundstation.filters.ModelFilter` plus the rules that
+route measurements to it (which kinds are inputs, which feed the context,
+which are measurement updates), and the handling of time: prediction through
+dropouts, re-initialisation on clock jumps.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from .filters import InnovationRecord, ModelFilter
+from .measurement import Kind, Measurement
+from .models.base import Context, LinearModel
+
+G = 9.80665
+
+InputRule = Callable[[Measurement, Context], "np.ndarray | None"]
+ContextRule = Callable[[Measurement, Context], None]
+
+
+@dataclass
+class EstimatorCounters:
+    updates: int = 0
+    predictions: int = 0
+    reinitialisations: int = 0
+    skipped: dict = field(default_factory=dict)
+
+    def skip(self, why: str) -> None:
+        self.skipped[why] = self.skipped.get(why, 0) + 1
+
+
+class KalmanEstimator:
+    """``handle(m)`` -> the innovation record when ``m`` was a measurement update.
+
+    Clock jumps: a measurement more than ``jump_back`` seconds before the
+    filter's time (a reboot, a replay seek) or more than ``max_gap`` after it
+    re-initialises the filter at the new time, cleanly and counted. Shorter
+    gaps are predicted through (the covariance grows, as it should).
+    """
+
+    def __init__(self, model: LinearModel, *, inputs: dict[Kind, InputRule], context: dict[Kind, ContextRule],
+                 name: str | None = None, jump_back: float = 0.5, max_gap: float = 5.0) -> None:
+        self.name = name or model.name
+        self.model = model
+        self.filter = ModelFilter(model)
+        self.inputs = inputs
+        self.context = context
+        self.jump_back = jump_back
+        self.max_gap = max_gap
+        self.counters = EstimatorCounters()
+        self.started = False
+        self._by_kind: dict[Kind, list] = {}
+        for mm in model.measurements.values():
+            self._by_kind.setdefault(mm.kind, []).append(mm)
+
+    @property
+    def kinds(self) -> set[Kind]:
+        return set(self.inputs) | set(self.context) | set(self._by_kind)
+
+    @property
+    def t(self) -> float:
+        return self.filter.t
+
+    def _time(self, t: float) -> bool:
+        f = self.filter
+        if not self.started:
+            f.reset(t)
+            self.started = True
+            return True
+        if t < f.t - self.jump_back or t > f.t + self.max_gap:
+            self.counters.reinitialisations += 1
+            refs = {k: v for k, v in f.ctx.values.items() if not k.endswith("_ref")}
+            f.reset(t)
+            f.ctx.values.update(refs)
+            return True
+        return t >= f.t - 1e-9
+
+    def handle(self, m: Measurement) -> InnovationRecord | None:
+        if m.t != m.t or not np.all(np.isfinite(m.value[:1])):
+            self.counters.skip("not_finite")
+            return None
+        f = self.filter
+        rule = self.context.get(m.kind)
+        if rule is not None:
+            rule(m, f.ctx)
+        inp = self.inputs.get(m.kind)
+        mms = self._by_kind.get(m.kind)
+        if inp is None and not mms:
+            return None
+        if not self._time(m.t):
+            self.counters.skip("out_of_order")
+            return None
+        f.predict_to(m.t)
+        self.counters.predictions += 1
+        if inp is not None:
+            u = inp(m, f.ctx)
+            if u is not None:
+                f.u = u
+        rec = None
+        for mm in mms or ():
+            if mm.instance is not None and m.instance != mm.instance:
+                continue
+            f.ctx.values["z"] = float(f.x[0])
+            z = mm.extract(m, f.ctx)
+            if z is None:
+                self.counters.skip(f"{mm.name}_not_used")     # calibrating, out of range
+                continue
+            if not np.all(np.isfinite(z)):
+                self.counters.skip(f"{mm.name}_invalid")
+                continue
+            rec = f.update(mm, z)
+            self.counters.updates += 1
+        return rec
+
+
+# -- the altitude estimator's routing (coaxial document, chapter 9) ---------------------------
+def _attitude(m: Measurement, ctx: Context) -> None:
+    ctx.values["roll"], ctx.values["pitch"] = float(m.value[0]), float(m.value[1])
+
+
+def _quaternion(m: Measurement, ctx: Context) -> None:
+    w, x, y, z = m.value
+    ctx.values["roll"] = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    ctx.values["pitch"] = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+
+
+def _throttle(m: Measurement, ctx: Context) -> None:
+    ctx.values["throttle"] = float(m.value[0])
+
+
+def _actuators(m: Measurement, ctx: Context) -> None:
+    v = m.value[np.isfinite(m.value)]
+    if len(v):
+        ctx.values["throttle"] = float(np.mean(v[:4]))
+
+
+def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """gamma_z = -(A_IB f)_down - g: the world-vertical specific force, gravity removed."""
+    if m.instance != 0:
+        return None
+    fx, fy, fz = m.value
+    phi, theta = ctx.get("roll"), ctx.get("pitch")
+    f_down = -math.sin(theta) * fx + math.cos(theta) * math.sin(phi) * fy + math.cos(phi) * math.cos(theta) * fz
+    return np.array([-f_down - G])
+
+
+def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+    from .models.altitude import altitude_model
+    return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
+                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
+                                    Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators})

@@ -1,0 +1,121 @@
+"""A thin layer over filterpy: a declared model in, predict/update, an innovation log out.
+
+:class:`ModelFilter` drives ``filterpy.kalman.KalmanFilter`` with the exact
+discretisation of a :class:`~groundstation.models.base.LinearModel` for each
+step, and records for every measurement update the innovation nu, its
+covariance S, NIS = nu^T S^-1 nu, the gain K and the inputs used
+(:class:`InnovationLog`): the closed-loop diagnosis reads this log.
+Attributes keep filterpy's (and the textbook's) symbols: ``x, P, F, Q, H, R``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from filterpy.kalman import KalmanFilter
+
+from .models.base import Context, LinearModel, MeasurementModel, discretize
+
+
+@dataclass
+class InnovationRecord:
+    t: float
+    sensor: str
+    nu: np.ndarray
+    S: np.ndarray
+    nis: float
+    K: np.ndarray
+    u: np.ndarray
+    z: np.ndarray
+
+
+@dataclass
+class InnovationLog:
+    """Every update's innovation, per sensor, as arrays on demand."""
+
+    records: list[InnovationRecord] = field(default_factory=list)
+
+    def append(self, r: InnovationRecord) -> None:
+        self.records.append(r)
+
+    def sensors(self) -> list[str]:
+        return sorted({r.sensor for r in self.records})
+
+    def arrays(self, sensor: str) -> dict[str, np.ndarray]:
+        rs = [r for r in self.records if r.sensor == sensor]
+        if not rs:
+            return {"t": np.empty(0), "nu": np.empty((0, 1)), "S": np.empty((0, 1, 1)), "nis": np.empty(0)}
+        return {"t": np.array([r.t for r in rs]), "nu": np.array([r.nu for r in rs]),
+                "S": np.array([r.S for r in rs]), "nis": np.array([r.nis for r in rs]),
+                "K": np.array([r.K for r in rs]), "u": np.array([r.u for r in rs]),
+                "z": np.array([r.z for r in rs])}
+
+
+class ModelFilter:
+    """Kalman filter for a declared linear model (filterpy underneath)."""
+
+    def __init__(self, model: LinearModel, t0: float = 0.0) -> None:
+        self.model = model
+        self.ctx = Context()
+        self.log = InnovationLog()
+        self.updates = 0
+        self._cache: dict = {}
+        self._u_dependent = True
+        try:   # LTI models discretise once per step length
+            u0 = np.zeros(len(model.inputs))
+            self._u_dependent = not np.array_equal(model.A(u0), model.A(u0 + 1.0))
+        except Exception:
+            pass
+        self.reset(t0)
+
+    def reset(self, t0: float) -> None:
+        m = self.model
+        kf = KalmanFilter(dim_x=m.n, dim_z=1, dim_u=len(m.inputs))
+        kf.x = m.x0.astype(float).copy()
+        kf.P = m.P0.astype(float).copy()
+        self.kf = kf
+        self.t = t0
+        self.u = np.zeros(len(m.inputs))
+
+    # filterpy's symbols, as properties
+    @property
+    def x(self) -> np.ndarray:
+        return self.kf.x
+
+    @property
+    def P(self) -> np.ndarray:
+        return self.kf.P
+
+    def _discrete(self, dt: float):
+        key = (round(dt, 7), tuple(np.round(self.u, 6)) if self._u_dependent else None)
+        d = self._cache.get(key)
+        if d is None:
+            d = discretize(self.model.A(self.u), self.model.B, self.model.Qc, dt)
+            if len(self._cache) > 4096:
+                self._cache.clear()
+            self._cache[key] = d
+        return d
+
+    def predict_to(self, t: float) -> None:
+        """Propagate x and P to time t with the held input (zero-order hold)."""
+        dt = t - self.t
+        if dt <= 0.0:
+            return
+        Phi, G, Qk = self._discrete(dt)
+        self.kf.predict(u=self.u, B=G, F=Phi, Q=Qk)
+        self.t = t
+
+    def update(self, mm: MeasurementModel, z: np.ndarray) -> InnovationRecord:
+        kf = self.kf
+        H = np.atleast_2d(mm.row(self.ctx))
+        if mm.offset is not None:
+            z = z - mm.offset(self.ctx)
+        kf.update(z, R=mm.R, H=H)
+        nu = np.atleast_1d(kf.y).astype(float).copy()
+        S = np.atleast_2d(kf.S).astype(float).copy()
+        nis = float(nu @ np.linalg.solve(S, nu))
+        rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(),
+                               np.atleast_1d(z).astype(float))
+        self.log.append(rec)
+        self.updates += 1
+        return rec
