@@ -1,6 +1,6 @@
 """``groundstation``: the command line.
 
-    groundstation connect URL [--record FILE] [--export OUT.csv] [--no-web]
+    groundstation connect URL [--record FILE] [--export OUT.csv] [--model NAME] [--no-web]
     groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
     groundstation info FILE.tlog
     groundstation sim --vehicle {quad,coax,heli3dof} [--effect NAME:k=v] [--undeclared NAME:k=v] --seed N
@@ -27,7 +27,9 @@ from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 
 from .console import REPLAY_HELP, StatusLine, replay_command
-from .export import MeasurementCsvWriter
+from .estimators import MODELS, build_estimator, declared_beside, declared_effects
+from .export import EstimateCsvWriter, MeasurementCsvWriter
+from .loop import EstimationLoop
 from sim_bridge.scenario import ScenarioError
 
 from .replay import Replay, check_speed
@@ -51,7 +53,13 @@ def _speed(text: str) -> float:
 def _add_output_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-web", action="store_true",
                    help="headless: print a status line each second instead of serving the dashboard")
-    p.add_argument("--export", metavar="OUT.csv", type=Path, help="write the decoded measurements to CSV")
+    p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
+    p.add_argument("--declared", type=Path,
+                   help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any")
+    p.add_argument("--export", metavar="OUT.csv", type=Path,
+                   help="write the estimates: t, states, sigma_<state> (one row per estimate)")
+    p.add_argument("--export-measurements", metavar="M.csv", type=Path,
+                   help="write the decoded measurements (long format)")
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
@@ -136,11 +144,47 @@ def _install_stop(stop: asyncio.Event) -> None:
     on_stop_signal(stop.set)
 
 
-async def _consume(sub, status: StatusLine, writer: MeasurementCsvWriter | None) -> None:
+class Outputs:
+    """The estimation loop and the files a command writes, fed measurement by measurement."""
+
+    def __init__(self, args, declared_path: Path | None) -> None:
+        self.estimator = build_estimator(args.model, declared_effects(declared_path))
+        self.loop = EstimationLoop([self.estimator])
+        self.status = StatusLine()
+        self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None
+        self.estimates = None
+        if args.export:
+            self.estimates = EstimateCsvWriter(args.export, self.estimator.name, self.estimator.model.states)
+            self._snaps = self.loop.snapshots.subscribe()
+
+    def see(self, m) -> None:
+        self.status.see(m)
+        if self.measurements is not None:
+            self.measurements.write(m)
+        self.loop.push(m)
+        self._drain()
+
+    def _drain(self) -> None:
+        if self.estimates is not None:
+            for snap in self._snaps.get_nowait():
+                self.estimates.write(snap)
+
+    def close(self) -> str:
+        self.loop.flush()
+        self._drain()
+        parts = []
+        if self.estimates is not None:
+            self.estimates.close()
+            parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
+        if self.measurements is not None:
+            self.measurements.close()
+            parts.append(f"wrote {self.measurements.rows} measurement rows to {self.measurements.path}")
+        return "; ".join(parts)
+
+
+async def _consume(sub, out: Outputs) -> None:
     async for m in sub:
-        status.see(m)
-        if writer is not None:
-            writer.write(m)
+        out.see(m)
 
 
 # ---------------------------------------------------------------- connect
@@ -158,8 +202,8 @@ async def run_connect(args) -> int:
           + (f"; recording to {record}" if record else ""), flush=True)
     stop = asyncio.Event()
     _install_stop(stop)
-    status = StatusLine()
-    writer = MeasurementCsvWriter(args.export) if args.export else None
+    out = Outputs(args, args.declared)
+    status = out.status
 
     async def print_events():
         async for ev in events:
@@ -171,7 +215,7 @@ async def run_connect(args) -> int:
             if not args.quiet:
                 status.print(link.state.value, link.counters)
 
-    tasks = [asyncio.create_task(_consume(sub, status, writer)),
+    tasks = [asyncio.create_task(_consume(sub, out)),
              asyncio.create_task(print_events()), asyncio.create_task(print_status())]
     try:
         if args.duration:
@@ -185,32 +229,30 @@ async def run_connect(args) -> int:
         tasks[2].cancel()
         await link.close()
         await asyncio.gather(*tasks[:2], return_exceptions=True)
-        if writer is not None:
-            writer.close()
+        written = out.close()
     c = link.counters
     print(f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
-          + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else ""), flush=True)
+          + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else "")
+          + (f"; {written}" if written else ""), flush=True)
     return 0 if link.state is LinkState.CLOSED else 1
 
 
 # ---------------------------------------------------------------- replay
 async def run_replay(args) -> int:
     rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
-    writer = MeasurementCsvWriter(args.export) if args.export else None
+    out = Outputs(args, args.declared or declared_beside(args.file))
+    status = out.status
     print(f"replaying {args.file}: {len(rp.index)} records, {rp.duration:.1f} s at "
           f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)
-    status = StatusLine()
     if rp.speed == math.inf and not args.loop:
         # Batch: the same receive path, without an event loop round trip per record.
         for m in rp.iter_measurements():
-            status.see(m)
-            if writer is not None:
-                writer.write(m)
+            out.see(m)
     else:
         stop = asyncio.Event()
         _install_stop(stop)
         sub = rp.measurements()
-        consumer = asyncio.create_task(_consume(sub, status, writer))
+        consumer = asyncio.create_task(_consume(sub, out))
         player = asyncio.create_task(rp.run())
 
         async def print_status():
@@ -236,12 +278,10 @@ async def run_replay(args) -> int:
         await asyncio.gather(player, return_exceptions=True)
         rp.close()
         await consumer
-    if writer is not None:
-        writer.close()
+    written = out.close()
     damage = rp.skipped_summary()
     print(f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
-          + (f"; {damage}" if damage else "")
-          + (f"; wrote {writer.rows} rows to {args.export}" if writer else ""), flush=True)
+          + (f"; {damage}" if damage else "") + (f"; {written}" if written else ""), flush=True)
     return 0
 
 

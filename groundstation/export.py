@@ -1,4 +1,14 @@
-"""CSV export of decoded measurements (tidy/long format).
+"""CSV exports: estimates (the contract other tools read) and decoded measurements.
+
+Estimates, one row per estimate (after each measurement update)::
+
+    t,<state>...,sigma_<state>...
+
+``t`` is vehicle time [s]; states in the model's units (see its docstring);
+``sigma_<state>`` the square root of the covariance's diagonal. Written from
+the same :class:`~groundstation.loop.Snapshot` objects the dashboard reads.
+
+Decoded measurements (tidy/long format):
 
 One row per measurement component::
 
@@ -47,6 +57,29 @@ class MeasurementCsvWriter:
     def write_all(self, ms: Iterable[Measurement]) -> None:
         for m in ms:
             self.write(m)
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+
+class EstimateCsvWriter:
+    """``t, states, sigma_<state>`` from snapshots of one estimator."""
+
+    def __init__(self, path: str | Path, estimator: str, states: list[str]) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.estimator = estimator
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(["t", *states, *[f"sigma_{s}" for s in states]])
+        self.rows = 0
+
+    def write(self, snap) -> None:
+        if snap.estimator != self.estimator:
+            return
+        self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
+        self.rows += 1
 
     def close(self) -> None:
         if not self._f.closed:

@@ -64,16 +64,15 @@ class ClockAligner:
         k = self.key(m.source)
         if self.reference is None:
             self.reference = k
-        if k == self.reference or m.t_rx != m.t_rx:
+        if m.t_rx != m.t_rx:
             return m.t
         off = m.t - m.t_rx
         prev = self.offsets.get(k)
         if prev is None or off > prev or abs(off - prev) > 1.0:
             self.offsets[k] = off
-        ref = self.offsets.get(self.reference)
-        if ref is None:
+        if k == self.reference:
             return m.t
-        return m.t - self.offsets[k] + ref
+        return m.t - self.offsets[k] + self.offsets[self.reference]
 
 
 @dataclass

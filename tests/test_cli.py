@@ -33,8 +33,13 @@ def assert_one_line_error(r, text):
 def test_replay_export_of_a_real_tlog(tmp_path):
     src = real_file("mavlink_tlog/ardusub_small.tlog")
     out = tmp_path / "out.csv"
-    r = run("replay", str(src), "--speed", "max", "--no-web", "--export", str(out))
+    est = tmp_path / "est.csv"
+    r = run("replay", str(src), "--speed", "max", "--no-web", "--export-measurements", str(out), "--export", str(est))
     assert r.returncode == 0, r.stderr
+    header = open(est).readline().strip().split(",")
+    assert header == ["t", "z", "vz", "b_acc", "sigma_z", "sigma_vz", "sigma_b_acc"]
+    est_rows = list(csv.DictReader(open(est)))
+    assert len(est_rows) > 100 and all(float(r["sigma_z"]) > 0 for r in est_rows)
     assert "4 frames with bad CRC skipped" in r.stdout
     rows = list(csv.DictReader(open(out)))
     assert rows[0].keys() == {"t", "kind", "instance", "component", "value", "variance", "source"}
@@ -64,7 +69,7 @@ def test_replay_of_a_missing_file():
 def test_replay_of_a_truncated_file_keeps_what_is_there(tmp_path):
     p = write_tlog(tmp_path / "t.tlog", imu_frames(100))
     p.write_bytes(p.read_bytes()[:-10])
-    r = run("replay", str(p), "--speed", "max", "--no-web", "--export", str(tmp_path / "o.csv"))
+    r = run("replay", str(p), "--speed", "max", "--no-web", "--export-measurements", str(tmp_path / "o.csv"))
     assert r.returncode == 0 and "truncated last record" in r.stdout
     assert "297 measurements" in r.stdout
 
@@ -126,7 +131,7 @@ async def test_connect_records_until_sigint(tmp_path):
     rec = tmp_path / "s.tlog"
     out = tmp_path / "m.csv"
     proc = await asyncio.create_subprocess_exec(
-        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--record", str(rec), "--export", str(out),
+        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--record", str(rec), "--export-measurements", str(out),
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
     veh = MavlinkVehicle(udp_to=("127.0.0.1", port))
     try:

@@ -36,6 +36,10 @@ from ..rotation import a_ib
 from .base import G, Kinematics, Vehicle
 
 
+#: Landing-gear contact time constant [s]: a touchdown at 1 m/s peaks at ~3.4 g.
+CONTACT_TC = 0.03
+
+
 @dataclass
 class QuadParams:
     alpha: float = 22.0        # thrust gain [m/s^2 per unit throttle]
@@ -158,17 +162,24 @@ class Quad(Vehicle):
             else:
                 an = ae = ad = 0.0
                 self.vn = self.ve = self.vd = 0.0
+        elif self.d >= 0.0 and self.vd > 0.0:
+            # ground contact: a damper stops the descent over ~CONTACT_TC (the
+            # IMU sees the landing impact, as on a real vehicle)
+            ad = min(ad, -self.vd / CONTACT_TC)
+            an, ae = -self.vn / CONTACT_TC, -self.ve / CONTACT_TC
         self.vn += an * dt
         self.ve += ae * dt
         self.vd += ad * dt
         self.n += self.vn * dt
         self.e += self.ve * dt
         self.d += self.vd * dt
-        if self.d >= 0.0 and not self.on_ground and self.vd >= 0:
-            self.d = 0.0            # touch-down
+        if not self.on_ground and self.d >= 0.0 and self.vd <= 0.02 and ad >= -G:
+            self.d = 0.0            # at rest on the ground
             self.vn = self.ve = self.vd = 0.0
             an = ae = ad = 0.0
             self.on_ground = True
+        elif self.d > 0.0:
+            self.d = 0.0
         self.an, self.ae, self.ad = an, ae, ad
 
     def truth(self) -> dict[str, float]:

@@ -1,0 +1,36 @@
+"""Which estimator ``--model NAME`` means, configured by the declared effects.
+
+A simulated session's ``*.declared.json`` (or ``--declared FILE``) lists the
+effects the ground station has been told of; each known one changes the model
+(``range_tilt`` gives the altitude filter its slant-range measurement).
+Undeclared effects are, by definition, not here: finding them is the diagnosis's job.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from .estimator import KalmanEstimator, altitude_estimator
+from .models.altitude import altitude_model
+
+MODELS = ("altitude",)
+
+
+def declared_effects(path: Path | None) -> list[dict]:
+    if path is None or not path.exists():
+        return []
+    try:
+        return list(json.loads(path.read_text()).get("effects", []))
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{path}: cannot read declared effects: {e}") from None
+
+
+def build_estimator(name: str, declared: list[dict] = ()) -> KalmanEstimator:
+    names = {e.get("name") for e in declared}
+    if name == "altitude":
+        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names))
+    raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
+
+
+def declared_beside(log: Path) -> Path:
+    return log.with_suffix(".declared.json")

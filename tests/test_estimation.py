@@ -1,0 +1,174 @@
+"""The altitude filter and the estimation loop, against the document and the simulator's truth."""
+import csv
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from groundstation.estimator import altitude_estimator
+from groundstation.loop import EstimationLoop
+from groundstation.measurement import Kind, Measurement
+from groundstation.models.altitude import altitude_model
+from groundstation.models.base import discretize, observability_rank
+from groundstation.replay import Replay
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+
+
+def test_exact_discretisation_reproduces_the_documents_closed_forms():
+    m = altitude_model(G_acc=0.7, G_bias=0.3)
+    T, Ga, Gb = 0.01, 0.7, 0.3
+    Phi, G, Qk = discretize(m.A(None), m.B, m.Qc, T)
+    np.testing.assert_allclose(Phi, [[1, T, -T**2 / 2], [0, 1, -T], [0, 0, 1]], atol=1e-15)        # (9.14)
+    np.testing.assert_allclose(G.ravel(), [T**2 / 2, T, 0], atol=1e-15)                             # (9.16)
+    Q924 = np.array([
+        [T**3 / 3 * Ga + T**5 / 20 * Gb, T**2 / 2 * Ga + T**4 / 8 * Gb, -T**3 / 6 * Gb],
+        [T**2 / 2 * Ga + T**4 / 8 * Gb, T * Ga + T**3 / 3 * Gb, -T**2 / 2 * Gb],
+        [-T**3 / 6 * Gb, -T**2 / 2 * Gb, T * Gb]])
+    np.testing.assert_allclose(Qk, Q924, rtol=1e-9, atol=1e-18)                                      # (9.24)
+
+
+def test_altitude_model_is_observable_from_the_range_sensor():
+    m = altitude_model()
+    assert observability_rank(m.A(None), m.measurements["range"].row(None)) == 3
+
+
+def run_altitude(tmp_path, seed, *, bias=0.0, seconds=60.0):
+    """A simulated flight (range tilt declared, IMU bias drawn from the filter's prior) through the loop."""
+    sc = Scenario.from_args("quad", seed, seconds, ["range_tilt", f"accel_bias:z={bias}"], [])
+    run_fast(sc, tmp_path / f"q{seed}.tlog", tmp_path / f"q{seed}.csv")
+    rows = list(csv.DictReader(open(tmp_path / f"q{seed}.csv")))
+    truth = {k: np.array([float(r[k]) for r in rows]) for k in ("t", "h", "vd", "roll", "pitch")}
+    est = altitude_estimator(altitude_model(range_tilt=True))
+    loop = EstimationLoop([est])
+    snaps = loop.snapshots.subscribe()
+    ranges = []
+    for m in Replay(tmp_path / f"q{seed}.tlog").iter_measurements():
+        loop.push(m)
+        if m.kind is Kind.RANGE:
+            ranges.append((m.t, m.value[0]))
+    loop.flush()
+    return est, snaps.get_nowait(), truth, np.array(ranges)
+
+
+def errors(snaps, truth, bias, t0=6.0, t1=50.0):
+    t = np.array([s.t for s in snaps])
+    keep = (t > t0) & (t < t1)
+    xt = np.stack([np.interp(t, truth["t"], truth["h"]), -np.interp(t, truth["t"], truth["vd"]),
+                   np.full(len(t), bias)], 1)
+    e = np.array([s.x for s in snaps]) - xt
+    P = np.array([s.P for s in snaps])
+    return t[keep], e[keep], P[keep]
+
+
+@pytest.mark.slow
+def test_nees_and_nis_inside_their_95_percent_bands_over_20_seeded_runs(tmp_path):
+    M = 20
+    rng = np.random.default_rng(2024)
+    nees_runs, nis_runs = [], {"range": [], "baro": []}
+    for seed in range(M):
+        bias = float(rng.normal(0.0, 0.2))                 # drawn from the filter's prior (P0_bias = 0.2^2)
+        est, snaps, truth, _ = run_altitude(tmp_path, 100 + seed, bias=bias)
+        _, e, P = errors(snaps, truth, -bias)     # a body-z (down) bias is -b on gamma_z (up)
+        nees_runs.append(np.mean([ei @ np.linalg.solve(Pi, ei) for ei, Pi in zip(e, P)]))
+        for s in nis_runs:
+            a = est.filter.log.arrays(s)
+            nis_runs[s].append(a["nis"][(a["t"] > 6) & (a["t"] < 50)].mean())
+    anees = np.mean(nees_runs)
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * M) / M
+    assert lo <= anees <= hi, (anees, lo, hi)
+    lo1, hi1 = chi2.ppf([0.025, 0.975], M) / M
+    for s, v in nis_runs.items():
+        assert lo1 <= np.mean(v) <= hi1, (s, np.mean(v), lo1, hi1)
+
+
+def test_rmse_below_the_range_sensor_noise_and_below_a_low_pass_of_equal_lag(tmp_path):
+    est, snaps, truth, rng = run_altitude(tmp_path, 3)
+    t, e, _ = errors(snaps, truth, 0.0)
+    rmse = np.sqrt(np.mean(e[:, 0] ** 2))
+    # the range sensor's own error (against the slant it really measures)
+    slant = np.interp(rng[:, 0], truth["t"], truth["h"]) / (
+        np.cos(np.interp(rng[:, 0], truth["t"], truth["roll"])) * np.cos(np.interp(rng[:, 0], truth["t"], truth["pitch"])))
+    keep = (rng[:, 0] > 6) & (rng[:, 0] < 50)
+    sensor_noise = np.std(rng[keep, 1] - slant[keep])
+    assert rmse < sensor_noise
+    # a first-order low-pass of the range with the filter's lag (group delay = its time constant)
+    zs = np.array([s.x[0] for s in snaps])
+    ts = np.array([s.t for s in snaps])
+    h_at = np.interp(ts, truth["t"], truth["h"])
+    lags = np.arange(0.0, 0.2, 0.002)
+    lag = lags[np.argmin([np.mean((zs - np.interp(ts - L, truth["t"], truth["h"])) ** 2) for L in lags])]
+    tau = max(lag, 0.02)
+    lp, y = [], rng[0, 1]
+    for (tk, d), tprev in zip(rng, np.r_[rng[0, 0], rng[:-1, 0]]):
+        y += (1 - math.exp(-(tk - tprev) / tau)) * (d - y)
+        lp.append(y)
+    lp_err = np.array(lp) - np.interp(rng[:, 0], truth["t"], truth["h"])
+    assert rmse < np.sqrt(np.mean(lp_err[keep] ** 2))
+    assert rmse < 0.006 and abs(np.mean(h_at - zs)) < 0.005
+
+
+def _m(t, kind, value, source="sim/1.1", t_rx=None, instance=0):
+    return Measurement(t, kind, np.atleast_1d(np.asarray(value, dtype=float)), source,
+                       t if t_rx is None else t_rx, None, instance)
+
+
+def test_loop_orders_within_the_window_counts_late_and_reinitialises_on_a_clock_jump():
+    est = altitude_estimator()
+    loop = EstimationLoop([est], reorder_s=0.05)
+    out = loop.snapshots.subscribe()
+    for k in range(100):                                   # 1 s of IMU at 100 Hz, level and still
+        loop.push(_m(10 + k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
+        if k % 4 == 0:
+            loop.push(_m(10 + k * 0.01 - 0.02, Kind.RANGE, [1.0]))   # 20 ms late: inside the window
+    loop.push(_m(10.2, Kind.RANGE, [1.0]))                 # 0.8 s late: dropped, counted
+    assert loop.counters.late == 1
+    loop.flush()
+    snaps = out.get_nowait()
+    ts = [s.t for s in snaps]
+    assert ts == sorted(ts) and len(snaps) == 25
+    assert snaps[-1].x[0] == pytest.approx(1.0, abs=0.05)
+    # the vehicle reboots: its clock starts again from zero
+    for k in range(10):
+        loop.push(_m(0.01 * k, Kind.ACCEL, [0, 0, -9.80665]))
+    loop.push(_m(0.1, Kind.RANGE, [2.0]))
+    loop.flush()
+    assert est.counters.reinitialisations == 1 and loop.latest["altitude"].t == pytest.approx(0.1)
+
+
+def test_prediction_through_a_dropout_grows_the_covariance():
+    est = altitude_estimator()
+    loop = EstimationLoop([est], reorder_s=0.0)
+    for k in range(200):
+        loop.push(_m(k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
+        if k % 4 == 0:
+            loop.push(_m(k * 0.01, Kind.RANGE, [1.0]))
+    p_before = est.filter.P[0, 0]
+    for k in range(200, 400):                              # the range sensor goes quiet for 2 s
+        loop.push(_m(k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
+    loop.flush()
+    assert est.filter.P[0, 0] > 10 * p_before
+
+
+def test_truth_never_reaches_an_estimator_and_clocks_are_aligned():
+    est = altitude_estimator()
+    loop = EstimationLoop([est])
+    truth = loop.truth.subscribe()
+    loop.push(_m(1.0, Kind.TRUTH_POSE, [0, 0, -1, 1, 0, 0, 0]))
+    assert est.counters.predictions == 0 and len(truth.get_nowait()) == 1
+    # a second source whose clock runs 100 s ahead of the vehicle's
+    loop.push(_m(5.0, Kind.ACCEL, [0, 0, -9.8], source="mav/1.1", t_rx=1000.0))
+    loop.push(_m(105.0, Kind.RANGE, [1.0], source="board", t_rx=1000.01))
+    loop.flush()
+    assert loop.latest["altitude"].t == pytest.approx(5.01, abs=1e-6)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_non_finite_measurements_are_counted_and_skipped(bad):
+    est = altitude_estimator()
+    loop = EstimationLoop([est], reorder_s=0.0)
+    loop.push(_m(0.0, Kind.ACCEL, [0, 0, -9.8]))
+    loop.push(_m(0.01, Kind.RANGE, [bad]))
+    loop.flush()
+    assert est.counters.skipped.get("not_finite") == 1 and np.all(np.isfinite(est.filter.x))
