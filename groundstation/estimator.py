@@ -79,7 +79,8 @@ class KalmanEstimator:
         return t >= f.t - 1e-9
 
     def handle(self, m: Measurement) -> InnovationRecord | None:
-        if m.t != m.t or not np.all(np.isfinite(m.value[:1])):
+        v0 = m.value[0] if len(m.value) else math.nan
+        if m.t != m.t or not math.isfinite(v0):
             self.counters.skip("not_finite")
             return None
         f = self.filter
@@ -117,14 +118,22 @@ class KalmanEstimator:
 
 
 # -- the altitude estimator's routing (coaxial document, chapter 9) ---------------------------
+def _set_tilt(ctx: Context, roll: float, pitch: float) -> None:
+    v = ctx.values
+    v["roll"], v["pitch"] = roll, pitch
+    # the third row of A_IB (coaxial doc. eq. 3.10): body -> world-down, kept
+    # with the attitude (50 Hz) rather than recomputed per IMU sample (1 kHz)
+    v["down_row"] = (-math.sin(pitch), math.cos(pitch) * math.sin(roll), math.cos(roll) * math.cos(pitch))
+
+
 def _attitude(m: Measurement, ctx: Context) -> None:
-    ctx.values["roll"], ctx.values["pitch"] = float(m.value[0]), float(m.value[1])
+    _set_tilt(ctx, float(m.value[0]), float(m.value[1]))
 
 
 def _quaternion(m: Measurement, ctx: Context) -> None:
     w, x, y, z = m.value
-    ctx.values["roll"] = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    ctx.values["pitch"] = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
+    _set_tilt(ctx, math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+              math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))))
 
 
 def _throttle(m: Measurement, ctx: Context) -> None:
@@ -141,10 +150,12 @@ def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     """gamma_z = -(A_IB f)_down - g: the world-vertical specific force, gravity removed."""
     if m.instance != 0:
         return None
-    fx, fy, fz = m.value
-    phi, theta = ctx.get("roll"), ctx.get("pitch")
-    f_down = -math.sin(theta) * fx + math.cos(theta) * math.sin(phi) * fy + math.cos(phi) * math.cos(theta) * fz
-    return np.array([-f_down - G])
+    fx, fy, fz = m.value.tolist()
+    a, b, c = ctx.values.get("down_row", _LEVEL)
+    return np.array([-(a * fx + b * fy + c * fz) - G])
+
+
+_LEVEL = (0.0, 0.0, 1.0)
 
 
 def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:

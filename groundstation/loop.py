@@ -1,8 +1,12 @@
 """The asyncio estimation loop: measurements in, state and covariance out.
 
 * Any number of sources (links, boards, replays, the simulator) are merged and
-  processed in vehicle-time order: a short reorder window (``reorder_s``)
-  absorbs late arrivals; anything later than that is counted and dropped.
+  processed in vehicle-time order, each measurement the moment it arrives (no
+  hold-back delay). A measurement that arrives late, but within ``reorder_s``
+  of the newest one, rolls the estimators back to a checkpoint before it and
+  re-runs the buffered measurements in order; anything later than that is
+  counted and dropped. Live estimates thus cost no latency for ordering, and
+  replays give the same result as a perfectly ordered stream.
 * Source clocks are aligned: each source's offset to the receive clock is
   estimated (least-delayed sample), and sources are mapped onto the first
   source's clock. Sources of one vehicle (``mav/1.1``, ``mav/1.100``) share a clock.
@@ -15,9 +19,10 @@
 from __future__ import annotations
 
 import asyncio
-import heapq
+import bisect
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,9 +83,14 @@ class ClockAligner:
 @dataclass
 class LoopCounters:
     processed: int = 0
-    late: int = 0
+    late: int = 0            # later than the reorder window: dropped
+    rollbacks: int = 0       # late within the window: re-run in order
     truth: int = 0
     by_estimator: dict = field(default_factory=dict)
+
+
+#: a checkpoint of every estimator at most this often (vehicle time) [s]
+CHECKPOINT_EVERY = 0.01
 
 
 class EstimationLoop:
@@ -92,54 +102,99 @@ class EstimationLoop:
         self.snapshots: Broadcast[Snapshot] = Broadcast(200_000)
         self.truth: Broadcast[Measurement] = Broadcast(100_000)
         self.counters = LoopCounters()
-        self._heap: list = []
-        self._seq = 0
         self._latest = -math.inf
-        self._released = -math.inf
         self._tasks: list[asyncio.Task] = []
         self.latest: dict[str, Snapshot] = {}
+        #: kinds some estimator consumes; the rest are not processed at all
+        self.kinds = set().union(*(e.kinds for e in estimators)) if estimators else set()
+        # the last reorder_s of processed measurements, and checkpoints to roll back to
+        self._history: deque[tuple[float, int, Measurement]] = deque()
+        self._checkpoints: deque[tuple[float, int, list]] = deque()
+        self._seq = 0
 
     # -- synchronous core (replays, tests, benchmarks) --------------------------------------
     def push(self, m: Measurement) -> None:
-        if m.kind.is_truth:
-            self.counters.truth += 1
-            self.truth.publish(m)
+        if m.kind not in self.kinds:
+            if m.kind.is_truth:
+                self.counters.truth += 1
+                self.truth.publish(m)
             return
         t = self.clocks.align(m) if self.clocks is not None else m.t
         if t != t:
             return
-        if t < self._released:
-            if t < self._released - 1.0:      # a clock jump, not a late sample: start over
-                self._released = -math.inf
-                self._latest = -math.inf
-            else:
-                self.counters.late += 1
-                return
         if t != m.t:
             m = m._replace(t=t)
-        self._seq += 1
-        heapq.heappush(self._heap, (t, self._seq, m))
-        if t > self._latest:
+        if t >= self._latest:
             self._latest = t
-        horizon = self._latest - self.reorder_s
-        while self._heap and self._heap[0][0] <= horizon:
-            self._process(heapq.heappop(self._heap)[2])
+            self._process(m, publish=True)
+        elif t < self._latest - 1.0:
+            # a clock jump (reboot, seek), not a late sample: start the history over
+            self._history.clear()
+            self._checkpoints.clear()
+            self._latest = t
+            self._process(m, publish=True)
+        elif t >= self._latest - self.reorder_s and self._rollback(m):
+            self.counters.rollbacks += 1
+        else:
+            self.counters.late += 1
 
     def flush(self) -> None:
-        while self._heap:
-            self._process(heapq.heappop(self._heap)[2])
+        """Nothing is held back; kept for callers that mark the end of a stream."""
 
-    def _process(self, m: Measurement) -> None:
-        self._released = m.t
+    def _process(self, m: Measurement, publish: bool) -> None:
+        t = m.t
+        if not self._checkpoints or t - self._checkpoints[-1][0] >= CHECKPOINT_EVERY:
+            self._checkpoints.append((t, self._seq, [e.filter.checkpoint() if e.started else None
+                                                     for e in self.estimators]))
+        self._seq += 1
+        self._history.append((t, self._seq, m))
+        horizon = t - self.reorder_s - CHECKPOINT_EVERY
+        while len(self._checkpoints) > 1 and self._checkpoints[1][0] < horizon:
+            self._checkpoints.popleft()
+        while self._history and self._history[0][0] < horizon - CHECKPOINT_EVERY:
+            self._history.popleft()
         self.counters.processed += 1
         for est in self.estimators:
             rec = est.handle(m)
+            if rec is not None and publish:
+                self._publish(est, rec)
+
+    def _rollback(self, m: Measurement) -> bool:
+        """Re-run from the last checkpoint before ``m`` with ``m`` in its place."""
+        i = bisect.bisect_right([c[0] for c in self._checkpoints], m.t) - 1
+        if i < 0:
+            return False
+        t_cp, seq_cp, states = self._checkpoints[i]
+        if any(s is None for s in states):
+            return False
+        for est, cp in zip(self.estimators, states):
+            est.filter.restore(cp)
+        # measurements processed at or after the checkpoint, plus the late one, in time order
+        redo = sorted([h for h in self._history if h[1] > seq_cp] + [(m.t, 0, m)], key=lambda h: (h[0], h[1]))
+        while len(self._checkpoints) > i + 1:
+            self._checkpoints.pop()
+        self._history = deque(h for h in self._history if h[1] <= seq_cp)
+        last = {}
+        for _, _, mm in redo:
+            self._process_quiet(mm, last)
+        for est in self.estimators:
+            if est.name in last:
+                self._publish(est, last[est.name])
+        return True
+
+    def _process_quiet(self, m: Measurement, last: dict) -> None:
+        self._seq += 1
+        self._history.append((m.t, self._seq, m))
+        for est in self.estimators:
+            rec = est.handle(m)
             if rec is not None:
-                f = est.filter
-                snap = Snapshot(f.t, est.name, tuple(est.model.states), f.x.copy(), f.P.copy(), rec,
-                                time.monotonic())
-                self.latest[est.name] = snap
-                self.snapshots.publish(snap)
+                last[est.name] = rec
+
+    def _publish(self, est: KalmanEstimator, rec: InnovationRecord) -> None:
+        f = est.filter
+        snap = Snapshot(f.t, est.name, tuple(est.model.states), f.x.copy(), f.P.copy(), rec, time.monotonic())
+        self.latest[est.name] = snap
+        self.snapshots.publish(snap)
 
     # -- asyncio -----------------------------------------------------------------------------
     def attach(self, subscription) -> None:
