@@ -32,6 +32,7 @@ test: setup browser
 bench: setup
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/ingest.py
+	$(BIN)/python bench/estimation.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

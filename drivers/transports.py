@@ -87,7 +87,7 @@ class UdpTransport(Transport):
     A plain non-blocking socket on ``loop.add_reader`` rather than asyncio's
     datagram transport, which reads one datagram per event-loop turn: under a
     burst that lets the kernel buffer overflow. Here each wake-up drains the
-    socket (up to ``drain`` datagrams) and hands them over in one call.
+    socket (up to ``drain`` datagrams), handing each on as it is read.
     """
 
     drain = 2000
@@ -122,8 +122,7 @@ class UdpTransport(Transport):
         sock = self._sock
         if sock is None:
             return
-        chunks = []
-        addr = None
+        on_data, udpin = self.on_data, self.endpoint.scheme == "udpin"
         for _ in range(self.drain):
             try:
                 data, addr = sock.recvfrom(65536)
@@ -132,13 +131,13 @@ class UdpTransport(Transport):
             except OSError:          # ICMP errors surface here on Linux: harmless
                 self.send_errors += 1
                 break
-            chunks.append(data)
-        if not chunks:
-            return
-        if self.endpoint.scheme == "udpin":
-            self.peer = addr
-        # Datagrams each hold whole frames, so joining them keeps framing intact.
-        self.on_data(b"".join(chunks), time.time())
+            if udpin:
+                self.peer = addr
+            # each datagram is handed on as it is read, with its own receive
+            # time: a burst does not make its first frame wait for its last
+            on_data(data, time.time())
+            if self._sock is None:   # closed by a callback
+                break
 
     def send(self, data: bytes) -> None:
         if self._sock is not None and self.peer is not None:

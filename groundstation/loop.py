@@ -197,6 +197,13 @@ class EstimationLoop:
         self.snapshots.publish(snap)
 
     # -- asyncio -----------------------------------------------------------------------------
+    def attach_link(self, link) -> None:
+        """Estimate inside the link's receive path (lowest latency; never blocks)."""
+        def sink(ms):
+            for m in ms:
+                self.push(m)
+        link.sinks.append(sink)
+
     def attach(self, subscription) -> None:
         """Consume an ``async for`` stream of measurements (a link's, a replay's)."""
         async def pump():

@@ -75,6 +75,10 @@ class MavlinkLink:
         self._mav_out = mavlink.MAVLink(None, system_id, component_id)
         self.receiver = MavlinkReceiver(name, on_frame=self._frame_in, on_message=self._message_in)
         self.message_hooks: list[Callable[[object, float], None]] = []
+        #: called synchronously with each batch of new measurements, before the
+        #: ``async for`` subscribers see them: the estimation loop attaches here
+        #: (``EstimationLoop.attach_link``) to estimate with no task hop
+        self.sinks: list[Callable[[list[Measurement]], None]] = []
         self._measurements: Broadcast[Measurement] = Broadcast(buffer)
         self._events: Broadcast[LinkEvent] = Broadcast(1000)
         self.state = LinkState.CLOSED
@@ -163,6 +167,8 @@ class MavlinkLink:
             if self.state is not LinkState.ALIVE:
                 self._set_state(LinkState.ALIVE, "valid message received")
         if out:
+            for sink in self.sinks:
+                sink(out)
             self._measurements.publish_many(out)
             c.dropped = self._measurements.dropped
 
