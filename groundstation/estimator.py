@@ -163,3 +163,28 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                     Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators})
+
+
+# -- the quadcopter thrust-model estimator's routing (quadcopter document) ---------------------
+#: below this throttle the vehicle is taken to stand on the ground (the ground,
+#: not the thrust model, carries its weight); the thrust model is for flight
+TAU_GROUND = 0.15
+
+
+def thrust_input(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """u = (tau c, c, g): throttle times tilt, tilt, gravity (see models.quad_thrust);
+    all zero on the ground, where the document's model does not apply."""
+    tau = ctx.get("throttle")
+    if tau < TAU_GROUND:
+        return np.zeros(3)
+    c = ctx.values.get("down_row", _LEVEL)[2]
+    return np.array([tau * c, c, G])
+
+
+def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+    from .models.quad_thrust import quad_thrust_model
+    return KalmanEstimator(model or quad_thrust_model(),
+                           inputs={Kind.ACTUATOR: thrust_input, Kind.THROTTLE: thrust_input,
+                                   Kind.ATTITUDE: thrust_input},
+                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
+                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle})

@@ -10,10 +10,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .estimator import KalmanEstimator, altitude_estimator
+from .estimator import KalmanEstimator, altitude_estimator, quad_thrust_estimator
 from .models.altitude import altitude_model
+from .models.quad_thrust import quad_thrust_model
 
-MODELS = ("altitude",)
+MODELS = ("altitude", "quad_thrust")
 
 
 def declared_effects(path: Path | None) -> list[dict]:
@@ -29,6 +30,8 @@ def build_estimator(name: str, declared: list[dict] = ()) -> KalmanEstimator:
     names = {e.get("name") for e in declared}
     if name == "altitude":
         return altitude_estimator(altitude_model(range_tilt="range_tilt" in names))
+    if name == "quad_thrust":
+        return quad_thrust_estimator(quad_thrust_model(range_tilt="range_tilt" in names))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
 
 
