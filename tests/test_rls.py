@@ -28,7 +28,8 @@ def test_forgetting_factor_tracks_a_drifting_parameter():
         y = 2.0 * x + b + rng.normal(scale=0.05)
         plain.update([x, 1.0], y)
         forget.update([x, 1.0], y)
-    assert abs(forget.theta[1] - 4.0) < 0.1 < abs(plain.theta[1] - 4.0)
+    # lambda = 0.98 remembers ~50 samples: it lags the ramp by ~50 x 0.002 = 0.1; plain RLS by ~2
+    assert abs(forget.theta[1] - 4.0) < 0.15 and abs(plain.theta[1] - 4.0) > 1.5
     with pytest.raises(ValueError):
         RecursiveLeastSquares(2, lam=1.5)
 
