@@ -16,10 +16,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 import datetime as _dt
+import json
 import math
 import os
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from drivers.connection import ConnectionStringError, parse_connection
 from drivers.mavlink.link import LinkState, MavlinkLink
@@ -30,6 +33,7 @@ from .console import REPLAY_HELP, StatusLine, replay_command
 from .estimators import MODELS, build_estimator, declared_beside, declared_effects
 from .export import EstimateCsvWriter, MeasurementCsvWriter
 from .loop import EstimationLoop
+from .noise import load_noise, stationary_noise
 from sim_bridge.scenario import ScenarioError
 
 from .replay import Replay, check_speed
@@ -54,6 +58,7 @@ def _add_output_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-web", action="store_true",
                    help="headless: print a status line each second instead of serving the dashboard")
     p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
+    p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
     p.add_argument("--declared", type=Path,
                    help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any")
     p.add_argument("--export", metavar="OUT.csv", type=Path,
@@ -84,6 +89,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("info", help="summarise a .tlog: duration, messages, damage")
     i.add_argument("file", type=Path)
+    n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
+    n.add_argument("file", type=Path)
+    n.add_argument("--model", default="heli3dof", choices=MODELS)
+    n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
+    n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
+    n.add_argument("--out", type=Path, help="write the JSON for --noise here")
     add_sim_parser(sub)
     return ap
 
@@ -101,6 +112,8 @@ def _run(args) -> int:
     try:
         if args.command == "info":
             return cmd_info(args)
+        if args.command == "noise":
+            return cmd_noise(args)
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":
@@ -139,6 +152,24 @@ def cmd_info(args) -> int:
     return 0
 
 
+# ---------------------------------------------------------------- noise
+def cmd_noise(args) -> int:
+    est = build_estimator(args.model)
+    rp = Replay(args.file, speed=math.inf)
+    result = stationary_noise(rp.iter_measurements(), est, args.start, args.end)
+    if not result:
+        raise UsageError(f"{args.file}: no measurements of the {args.model} model between "
+                         f"{args.start:g} s and {args.end:g} s")
+    for name, r in result.items():
+        R = np.array(r["R"])
+        print(f"{name} ({r['n']} samples, {args.start:g}-{args.end:g} s): R =" + (f"  [{r['note']}]" if "note" in r else ""))
+        print("  " + np.array2string(R, precision=3, separator=", ", prefix="  "))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.out} (use with --noise)")
+    return 0
+
+
 # ---------------------------------------------------------------- helpers
 def _install_stop(stop: asyncio.Event) -> None:
     on_stop_signal(stop.set)
@@ -148,7 +179,7 @@ class Outputs:
     """The estimation loop and the files a command writes, fed measurement by measurement."""
 
     def __init__(self, args, declared_path: Path | None) -> None:
-        self.estimator = build_estimator(args.model, declared_effects(declared_path))
+        self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise))
         self.loop = EstimationLoop([self.estimator])
         self.status = StatusLine()
         self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None

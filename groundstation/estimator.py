@@ -86,6 +86,7 @@ class KalmanEstimator:
         f = self.filter
         rule = self.context.get(m.kind)
         if rule is not None:
+            f.ctx.values["_x"] = f.kf.x
             rule(m, f.ctx)
         inp = self.inputs.get(m.kind)
         mms = self._by_kind.get(m.kind)
@@ -188,3 +189,33 @@ def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
                                    Kind.ATTITUDE: thrust_input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                     Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle})
+
+
+# -- the 3-DOF helicopter's routing (lab document) ---------------------------------------------
+V_MAX_3DOF = 12.0    # the simulated rig's motor voltage range (its outputs are V / V_max)
+
+
+def _motor_voltages(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """u = (V_f + V_b - V_s0, V_b - V_f) from the motor outputs."""
+    from .models.heli3dof import V_S0
+    if m.kind is Kind.MOTOR_VOLTAGE:
+        vf, vb = float(m.value[0]), float(m.value[1])
+    else:                                         # ACTUATOR: normalised outputs
+        vf, vb = float(m.value[0]) * V_MAX_3DOF, float(m.value[1]) * V_MAX_3DOF
+    return np.array([vf + vb - V_S0, vb - vf])
+
+
+def _estimate_for_gyro(m: Measurement, ctx: Context) -> None:
+    """The gyro's Euler-rate transform needs the current pitch and elevation."""
+    x = ctx.values.get("_x")
+    if x is not None:
+        ctx.values["p_hat"], ctx.values["e_hat"] = float(x[0]), float(x[2])
+
+
+def heli3dof_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+    from .models.heli3dof import heli3dof_model
+    est = KalmanEstimator(model or heli3dof_model(), inputs={Kind.ACTUATOR: _motor_voltages,
+                                                             Kind.MOTOR_VOLTAGE: _motor_voltages},
+                          context={Kind.GYRO: _estimate_for_gyro})
+    est.filter.ctx.values["_x"] = est.filter.kf.x
+    return est

@@ -10,11 +10,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .estimator import KalmanEstimator, altitude_estimator, quad_thrust_estimator
+from .estimator import KalmanEstimator, altitude_estimator, heli3dof_estimator, quad_thrust_estimator
 from .models.altitude import altitude_model
 from .models.quad_thrust import quad_thrust_model
 
-MODELS = ("altitude", "quad_thrust")
+MODELS = ("altitude", "quad_thrust", "heli3dof")
 
 
 def declared_effects(path: Path | None) -> list[dict]:
@@ -26,10 +26,14 @@ def declared_effects(path: Path | None) -> list[dict]:
         raise ValueError(f"{path}: cannot read declared effects: {e}") from None
 
 
-def build_estimator(name: str, declared: list[dict] = ()) -> KalmanEstimator:
+def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None) -> KalmanEstimator:
+    """``noise``: measurement covariances by sensor (``groundstation noise``'s output)."""
     names = {e.get("name") for e in declared}
     if name == "altitude":
         return altitude_estimator(altitude_model(range_tilt="range_tilt" in names))
+    if name == "heli3dof":
+        from .models.heli3dof import heli3dof_model
+        return heli3dof_estimator(heli3dof_model(R=noise))
     if name == "quad_thrust":
         return quad_thrust_estimator(quad_thrust_model(range_tilt="range_tilt" in names))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
