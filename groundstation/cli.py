@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.connection import ConnectionStringError, parse_connection
+from drivers.logs.crazyflie import CrazyflieLogError
 from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
@@ -95,6 +96,10 @@ def build_parser() -> argparse.ArgumentParser:
     n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
     n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
     n.add_argument("--out", type=Path, help="write the JSON for --noise here")
+    e = sub.add_parser("evaluate", help="run the estimators on a log; errors vs truth, NIS, whiteness")
+    e.add_argument("file", type=Path)
+    e.add_argument("--model", default="altitude", choices=MODELS)
+    e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
     add_sim_parser(sub)
     return ap
 
@@ -112,6 +117,10 @@ def _run(args) -> int:
     try:
         if args.command == "info":
             return cmd_info(args)
+        if args.command == "evaluate":
+            from .evaluate import evaluate
+            print(evaluate(args.file, args.model, vehicle=args.vehicle).table())
+            return 0
         if args.command == "noise":
             return cmd_noise(args)
         if args.command == "sim":
@@ -125,7 +134,8 @@ def _run(args) -> int:
         return asyncio.run(runner(args))
     except BrokenPipeError:
         raise
-    except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, OSError, ValueError) as e:
+    except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, CrazyflieLogError,
+            OSError, ValueError) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -26,11 +26,28 @@ def declared_effects(path: Path | None) -> list[dict]:
         raise ValueError(f"{path}: cannot read declared effects: {e}") from None
 
 
-def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None) -> KalmanEstimator:
-    """``noise``: measurement covariances by sensor (``groundstation noise``'s output)."""
+VEHICLE_CONFIGS = Path(__file__).parent / "vehicles"
+
+
+def vehicle_config(vehicle: str | None, model: str) -> dict:
+    """A vehicle's model parameters (``groundstation/vehicles/<vehicle>.json``), or none."""
+    if not vehicle:
+        return {}
+    p = VEHICLE_CONFIGS / f"{vehicle}.json"
+    if not p.exists():
+        known = ", ".join(sorted(x.stem for x in VEHICLE_CONFIGS.glob("*.json")))
+        raise ValueError(f"no vehicle configuration {vehicle!r}; known: {known}")
+    return dict(json.loads(p.read_text()).get(model, {}))
+
+
+def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None,
+                    vehicle: str | None = None) -> KalmanEstimator:
+    """``noise``: measurement covariances by sensor (``groundstation noise``'s output);
+    ``vehicle``: a per-vehicle parameter file (noise densities, sensor noise)."""
     names = {e.get("name") for e in declared}
+    params = vehicle_config(vehicle, name)
     if name == "altitude":
-        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names))
+        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, **params))
     if name == "heli3dof":
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))

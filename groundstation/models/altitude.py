@@ -18,7 +18,8 @@ Measurement models, one per sensor (eq. 9.8 is the range sensor's):
 * ``range``: ``d = z`` (H = (1, 0, 0)), the document's eq. 9.8; with
   ``range_tilt=True`` (the catalogue effect, when declared or found) the slant
   ``d = z / (cos(roll) cos(pitch))``, H = (1 / (cos(roll) cos(pitch)), 0, 0);
-* ``baro``: pressure altitude (ISA) minus its value at initialisation, ``= z``;
+* ``baro``: pressure altitude (ISA, or the log's own baro altitude) minus its
+  value at initialisation, ``= z``;
 * ``gps``: GPS altitude minus its value at initialisation, ``= z``.
 
 Corrections to the document, made knowingly:
@@ -89,6 +90,9 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
                                  lambda ctx: H, np.array([[sigma_baro**2]])),
         "gps": MeasurementModel("gps", Kind.GPS, relative(lambda m: float(m.value[2]), "gps_ref", 10),
                                 lambda ctx: H, np.array([[sigma_gps**2]])),
+        # logs that give the barometer as an altitude (DataFlash BARO.Alt, Crazyflie baro.asl)
+        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, relative(lambda m: float(m.value[0]), "baro_ref", 25),
+                                     lambda ctx: H, np.array([[sigma_baro**2]])),
     }
     return LinearModel(
         name="altitude", states=["z", "vz", "b_acc"], inputs=["gamma_z"],

@@ -1,0 +1,1 @@
+"""Log-file readers: the formats real vehicles leave behind, to measurements."""

@@ -1,0 +1,71 @@
+"""Crazyflie uSD logs (real flights with Vicon truth, read from ../shared; never copied here)."""
+import struct
+import subprocess
+import sys
+import zlib
+
+import numpy as np
+import pytest
+
+from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log, measurements, read_crazyflie
+from groundstation.measurement import Kind
+
+from .conftest import real_file
+
+LOGS = ["0425-traj6", "0425-traj4", "0422-log00"]
+
+
+@pytest.mark.parametrize("name", LOGS)
+def test_reads_every_log_with_its_crc_and_converts_units_and_frames(name):
+    p = real_file(f"crazyflie_util/{name}")
+    assert is_crazyflie_log(p)
+    log = read_crazyflie(p)
+    assert log.crc_ok and log.damage is None and 28 < log.duration < 51
+    ms = measurements(log)
+    kinds = {m.kind for m in ms}
+    assert {Kind.ACCEL, Kind.GYRO, Kind.BARO_ALTITUDE, Kind.RANGE, Kind.TRUTH_POSE} <= kinds
+    t0 = ms[0].t                                                            # microseconds since boot
+    still = [m.value for m in ms if m.kind is Kind.ACCEL and m.t < t0 + 1.0]
+    assert np.mean(still, axis=0)[2] == pytest.approx(-9.81, abs=0.15)      # FRD: level reads -g on z
+    vicon = [m for m in ms if m.kind is Kind.TRUTH_POSE]
+    assert -2.1 < min(m.value[2] for m in vicon) and max(m.value[2] for m in vicon) < 0.0   # NED: down is +
+    baro = [m.t for m in ms if m.kind is Kind.BARO_ALTITUDE]
+    assert 20 < len(baro) / log.duration < 30                               # repeats dropped: ~25 Hz
+
+
+def test_truncated_and_corrupted_files_keep_what_came_before(tmp_path):
+    raw = real_file("crazyflie_util/0425-traj4").read_bytes()
+    cut = tmp_path / "cut"
+    cut.write_bytes(raw[:1_000_000])
+    log = read_crazyflie(cut)
+    assert log.damage and "cut" in log.damage and "offset" in log.damage
+    assert len(measurements(log)) > 10_000
+    bad = bytearray(raw)
+    bad[500_000] ^= 0xFF                   # a value byte: records stay aligned, the CRC catches it
+    (tmp_path / "bad").write_bytes(bytes(bad))
+    log = read_crazyflie(tmp_path / "bad")
+    assert not log.crc_ok and "CRC-32 mismatch" in log.damage
+
+
+@pytest.mark.parametrize("content,text", [(b"\xbc\x03\x00\x00\x00" + b"\x00" * 10, "version 3"),
+                                          (b"hello", "not a Crazyflie"), (b"\xbc\x02\x00\x05\x00\x01", "damaged")])
+def test_foreign_files_are_clear_errors(tmp_path, content, text):
+    p = tmp_path / "x"
+    body = content
+    p.write_bytes(body + struct.pack("<I", zlib.crc32(body)))
+    with pytest.raises(CrazyflieLogError, match=text):
+        read_crazyflie(p)
+
+
+@pytest.mark.parametrize("name", LOGS)
+def test_evaluate_the_altitude_filter_against_vicon(name):
+    p = real_file(f"crazyflie_util/{name}")
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "evaluate", str(p)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    lines = {ln.split()[0]: ln.split() for ln in r.stdout.splitlines() if ln.split()}
+    est, tof = float(lines["estimate"][1]), float(lines["range"][2])
+    # Both carry the ToF's ~3.5 cm mounting offset (unobservable with the ToF as the
+    # only precise absolute sensor), so the filter can only remove the noise part:
+    # it is within 15 % of the ToF on every log (beats it on two of three). Beating it
+    # everywhere needs the offset and the IMU misalignment found (the diagnosis).
+    assert tof < 0.05 and est < 1.15 * tof
