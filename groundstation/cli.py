@@ -26,6 +26,7 @@ import numpy as np
 
 from drivers.connection import ConnectionStringError, parse_connection
 from drivers.logs.crazyflie import CrazyflieLogError
+from drivers.logs.dataflash import DataFlashError
 from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
@@ -135,7 +136,7 @@ def _run(args) -> int:
     except BrokenPipeError:
         raise
     except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, CrazyflieLogError,
-            OSError, ValueError) as e:
+            DataFlashError, OSError, ValueError) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -279,7 +280,30 @@ async def run_connect(args) -> int:
 
 
 # ---------------------------------------------------------------- replay
+def _replay_other_format(args) -> int | None:
+    """DataFlash and Crazyflie logs: batch replay (``--speed max``) through the same loop."""
+    from drivers.logs.crazyflie import is_crazyflie_log
+    from drivers.logs.dataflash import is_dataflash
+
+    from .evaluate import load_measurements
+    if not (is_dataflash(args.file) or is_crazyflie_log(args.file)):
+        return None
+    if args.speed != math.inf or args.loop:
+        raise UsageError(f"{args.file}: paced playback is for tlogs; use --speed max for this format")
+    ms, desc, vehicle = load_measurements(args.file)
+    out = Outputs(args, args.declared)
+    print(f"replaying {args.file}: {desc}", flush=True)
+    for m in ms:
+        out.see(m)
+    written = out.close()
+    print(f"done: {out.status.count} measurements" + (f"; {written}" if written else ""), flush=True)
+    return 0
+
+
 async def run_replay(args) -> int:
+    other = _replay_other_format(args)
+    if other is not None:
+        return other
     rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
     out = Outputs(args, args.declared or declared_beside(args.file))
     status = out.status

@@ -15,6 +15,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from drivers.logs.crazyflie import is_crazyflie_log, measurements as cf_measurements, read_crazyflie
+from drivers.logs.dataflash import is_dataflash, read_dataflash
 
 from .atmosphere import altitude_at
 from .derived import with_attitude
@@ -47,6 +48,9 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
         ms = list(with_attitude(cf_measurements(log)))
         desc = f"Crazyflie uSD log, {log.duration:.1f} s" + (f"; {log.damage}" if log.damage else "")
         return ms, desc, "crazyflie"
+    if is_dataflash(path):
+        log = read_dataflash(path)
+        return log.measurements, f"ArduPilot DataFlash log, {log.duration:.1f} s (clock: {log.clock})", None
     rp = Replay(path)
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()

@@ -1,0 +1,157 @@
+"""ArduPilot DataFlash logs (binary ``.bin`` and text ``.log``) to measurements.
+
+Parsing is pymavlink's ``DFReader`` (it reads the self-describing FMT records);
+this module maps channels to measurements and fixes the time base.
+
+Time: ``TimeUS`` [us] or ``TimeMS`` [ms] where a record has one. Old text logs
+(``underpowered.log``) have no time field at all and DFReader makes up a clock;
+there, as the data README says, time is the row count of the 10 Hz control
+loop: ``t = (CTUN records so far) / 10`` for every record.
+
+=========  =====================================  ====================================
+record     fields                                 measurement
+=========  =====================================  ====================================
+IMU, IMU2  AccX/Y/Z [m/s^2], GyrX/Y/Z [rad/s]     ACCEL, GYRO (FRD already); IMU2 -> 1
+BARO       Alt [m], Press [Pa], Temp [degC]       BARO_ALTITUDE, BARO_PRESSURE, TEMPERATURE [K]
+CTUN       ThrOut (0..1000 old, 0..1 new),         THROTTLE [0..1]; BarAlt -> BARO_ALTITUDE
+           BarAlt [m], SonAlt [m]                 (only in logs without BARO); SonAlt -> RANGE (> 0)
+CURR       Volt, Curr (V x 100, A x 100 in old)   BATTERY_VOLTAGE [V], BATTERY_CURRENT [A] (0: not connected)
+ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
+GPS        Lat, Lng [deg], Alt [m], Status        GPS (3-D fix only)
+RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
+=========  =====================================  ====================================
+"""
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pymavlink import DFReader
+
+from groundstation.measurement import Kind, Measurement
+
+CONTROL_RATE = 10.0     # CTUN's rate in logs without a clock [Hz]
+
+
+class DataFlashError(ValueError):
+    """Not a readable DataFlash log (one line naming the file)."""
+
+
+def is_dataflash(path: str | Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    # binary: the record header 0xA3 0x95; text: FMT lines near the top (after a banner)
+    return head[:2] == b"\xa3\x95" or b"\nFMT," in b"\n" + head
+
+
+@dataclass
+class DataFlashLog:
+    path: Path
+    measurements: list[Measurement]
+    counts: Counter = field(default_factory=Counter)
+    skipped: Counter = field(default_factory=Counter)
+    clock: str = "TimeUS/TimeMS"
+
+    @property
+    def duration(self) -> float:
+        return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
+
+
+def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
+    p = Path(path)
+    if not p.exists():
+        raise DataFlashError(f"{p}: cannot read: no such file")
+    if not is_dataflash(p):
+        raise DataFlashError(f"{p}: not a DataFlash log (no FMT record in the first 4096 bytes)")
+    try:
+        r = DFReader.DFReader_text(str(p)) if not open(p, "rb").read(2) == b"\xa3\x95" else DFReader.DFReader_binary(str(p))
+    except Exception as e:      # DFReader raises assorted errors on foreign data
+        raise DataFlashError(f"{p}: not a readable DataFlash log: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    msgs = []
+    while True:
+        try:
+            m = r.recv_msg()
+        except Exception as e:  # damage after this point: keep what came before
+            msgs.append(("__damage__", f"{p}: damaged after {len(msgs)} records: {e}"))
+            break
+        if m is None:
+            break
+        msgs.append(m)
+    types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
+    has_baro = types["BARO"] > 0
+    log = DataFlashLog(p, [], types)
+    timed = any(hasattr(m, "TimeUS") or hasattr(m, "TimeMS") for m in msgs
+                if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT"))
+    if not timed:
+        log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
+    n_ctun = 0
+    out = log.measurements
+    for m in msgs:
+        if isinstance(m, tuple):
+            log.skipped["damage"] += 1
+            continue
+        typ = m.get_type()
+        if typ == "CTUN":
+            n_ctun += 1
+        if timed:
+            if hasattr(m, "TimeUS"):
+                t = m.TimeUS * 1e-6
+            elif hasattr(m, "TimeMS") and typ != "GPS":      # GPS TimeMS is GPS time of week
+                t = m.TimeMS * 1e-3
+            else:
+                t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
+        else:
+            t = n_ctun / CONTROL_RATE
+        _convert(typ, m, t, source, has_baro, out, log.skipped)
+    out.sort(key=lambda x: x.t)
+    return log
+
+
+def _convert(typ, m, t, s, has_baro, out, skipped) -> None:
+    def add(kind, value, instance=0):
+        out.append(Measurement(t, kind, np.asarray(value, dtype=float), s, t, None, instance))
+
+    if typ in ("IMU", "IMU2"):
+        inst = getattr(m, "I", 1 if typ == "IMU2" else 0)
+        add(Kind.ACCEL, [m.AccX, m.AccY, m.AccZ], inst)
+        add(Kind.GYRO, [m.GyrX, m.GyrY, m.GyrZ], inst)
+    elif typ == "BARO":
+        add(Kind.BARO_ALTITUDE, [m.Alt])
+        add(Kind.BARO_PRESSURE, [m.Press])
+        add(Kind.TEMPERATURE, [m.Temp + 273.15])
+    elif typ == "CTUN":
+        thr = getattr(m, "ThrOut", None)
+        if thr is not None:
+            add(Kind.THROTTLE, [thr / 1000.0 if thr > 1.5 else thr])
+        if not has_baro and hasattr(m, "BarAlt"):
+            add(Kind.BARO_ALTITUDE, [m.BarAlt])
+        son = getattr(m, "SonAlt", getattr(m, "SAlt", 0.0))
+        if son and son > 0:
+            add(Kind.RANGE, [son])
+        else:
+            skipped["range_invalid"] += 1
+    elif typ == "CURR":
+        v, i = m.Volt, m.Curr
+        if v > 100:                      # old logs: volts x 100, amps x 100
+            v, i = v / 100.0, i / 100.0
+        if v > 0:
+            add(Kind.BATTERY_VOLTAGE, [v])
+            add(Kind.BATTERY_CURRENT, [i])
+        else:
+            skipped["battery_not_connected"] += 1
+    elif typ == "ATT":
+        add(Kind.ATTITUDE, np.radians([m.Roll, m.Pitch, m.Yaw]))
+    elif typ == "GPS":
+        if getattr(m, "Status", 0) >= 3:
+            add(Kind.GPS, [m.Lat, m.Lng, m.Alt])
+        else:
+            skipped["gps_no_3d_fix"] += 1
+    elif typ == "RCOU":
+        ch = [getattr(m, f"C{k}", 0) or getattr(m, f"Ch{k}", 0) for k in range(1, 5)]
+        add(Kind.ACTUATOR, [(c - 1000.0) / 1000.0 if c else math.nan for c in ch])

@@ -1,0 +1,66 @@
+"""ArduPilot DataFlash logs through pymavlink's DFReader, with the time base fixed."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drivers.logs.dataflash import DataFlashError, read_dataflash
+from groundstation.measurement import Kind
+
+from .conftest import real_file
+
+DURATIONS = {"ardupilot_loganalyzer_underpowered.log": 430.1, "ardupilot_loganalyzer_mechanical_fail.log": 110.0,
+             "pyflightcoach_pilot_0004.BIN": 99.4, "erle_pxf_copter_Loiter_RTL.bin": 278.6}
+
+
+@pytest.mark.parametrize("name,duration", DURATIONS.items())
+def test_reads_every_log(name, duration):
+    log = read_dataflash(real_file(f"ardupilot_dataflash/{name}"))
+    assert log.duration == pytest.approx(duration, abs=0.5)
+    ts = [m.t for m in log.measurements]
+    assert ts == sorted(ts)
+
+
+def test_clockless_text_log_gets_the_control_loop_clock_and_shows_the_voltage_sag():
+    log = read_dataflash(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
+    assert log.clock.startswith("row count of CTUN")
+    by = {k: np.array([(m.t, m.value[0]) for m in log.measurements if m.kind is k])
+          for k in (Kind.THROTTLE, Kind.BATTERY_VOLTAGE, Kind.RANGE, Kind.BARO_ALTITUDE)}
+    v = by[Kind.BATTERY_VOLTAGE]
+    thr = np.interp(v[:, 0], by[Kind.THROTTLE][:, 0], by[Kind.THROTTLE][:, 1])
+    air = thr > 0.3
+    # the data README: volts 10.9 -> 9.2 in the air, corr(throttle, volt) = -0.86
+    assert v[air, 1][:20].mean() > 10.5 and v[air, 1].min() < 9.3
+    assert np.corrcoef(thr[air], v[air, 1])[0, 1] < -0.8
+    assert by[Kind.RANGE][:, 1].max() < 8.0          # sonar 0.2-7.7 m
+
+
+def test_binary_log_units_and_frames():
+    log = read_dataflash(real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin"))
+    acc = np.array([m.value for m in log.measurements if m.kind is Kind.ACCEL][:50])
+    assert acc[:, 2].mean() == pytest.approx(-9.8, abs=0.2)          # FRD, at rest
+    temps = [m.value[0] for m in log.measurements if m.kind is Kind.TEMPERATURE]
+    assert 280 < min(temps) and max(temps) < 330                      # kelvin
+
+
+def test_foreign_and_truncated_files(tmp_path):
+    (tmp_path / "x.bin").write_bytes(b"\x00" * 5000)
+    with pytest.raises(DataFlashError, match="not a DataFlash log"):
+        read_dataflash(tmp_path / "x.bin")
+    raw = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin").read_bytes()
+    (tmp_path / "cut.bin").write_bytes(raw[:400_000])
+    log = read_dataflash(tmp_path / "cut.bin")
+    assert 50 < log.duration < 278                                      # what came before the cut is kept
+
+
+def test_replay_export_and_evaluate_on_dataflash(tmp_path):
+    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
+    out = tmp_path / "e.csv"
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(p), "--speed", "max", "--no-web",
+                        "--export-measurements", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "battery_voltage" in out.read_text()
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(p), "--no-web"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "use --speed max" in r.stderr and "Traceback" not in r.stderr
