@@ -56,9 +56,14 @@ def _speed(text: str) -> float:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
+def _add_web_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-web", action="store_true", help="headless: no dashboard")
+    p.add_argument("--host", default="127.0.0.1", help="dashboard address (default 127.0.0.1; 0.0.0.0 exposes it)")
+    p.add_argument("--port", type=int, default=8080, help="dashboard port (a free one if taken)")
+
+
 def _add_output_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--no-web", action="store_true",
-                   help="headless: print a status line each second instead of serving the dashboard")
+    _add_web_options(p)
     p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
     p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
     p.add_argument("--declared", type=Path,
@@ -128,9 +133,6 @@ def _run(args) -> int:
             return cmd_sim(args)
         if args.command == "demo":
             return asyncio.run(run_demo(args))
-        if not getattr(args, "no_web", True):
-            print("groundstation: the browser dashboard is not part of this build; running headless",
-                  file=sys.stderr)
         runner = {"connect": run_connect, "replay": run_replay}[args.command]
         return asyncio.run(runner(args))
     except BrokenPipeError:
@@ -189,27 +191,35 @@ def _install_stop(stop: asyncio.Event) -> None:
 class Outputs:
     """The estimation loop and the files a command writes, fed measurement by measurement."""
 
-    def __init__(self, args, declared_path: Path | None) -> None:
+    def __init__(self, args, declared_path: Path | None, dashboard=None) -> None:
         self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise))
         self.loop = EstimationLoop([self.estimator])
         self.status = StatusLine()
+        self.dashboard = dashboard
         self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None
         self.estimates = None
         if args.export:
             self.estimates = EstimateCsvWriter(args.export, self.estimator.name, self.estimator.model.states)
-            self._snaps = self.loop.snapshots.subscribe()
+        # the exporter and the dashboard read the same snapshots
+        self._snaps = self.loop.snapshots.subscribe() if (args.export or dashboard) else None
 
     def see(self, m) -> None:
         self.status.see(m)
         if self.measurements is not None:
             self.measurements.write(m)
+        if self.dashboard is not None:
+            self.dashboard.feed_measurement(m)
         self.loop.push(m)
         self._drain()
 
     def _drain(self) -> None:
-        if self.estimates is not None:
-            for snap in self._snaps.get_nowait():
+        if self._snaps is None:
+            return
+        for snap in self._snaps.get_nowait():
+            if self.estimates is not None:
                 self.estimates.write(snap)
+            if self.dashboard is not None:
+                self.dashboard.feed_snapshot(snap)
 
     def close(self) -> str:
         self.loop.flush()
@@ -222,6 +232,38 @@ class Outputs:
             self.measurements.close()
             parts.append(f"wrote {self.measurements.rows} measurement rows to {self.measurements.path}")
         return "; ".join(parts)
+
+
+def _start_dashboard(args):
+    if getattr(args, "no_web", True):
+        return None
+    from web.dashboard import Dashboard
+    dash = Dashboard(host=args.host, port=args.port)
+    print(f"dashboard: {dash.url}", flush=True)
+    return dash
+
+
+def link_markdown(state: str, counters, rates: dict[str, float]) -> str:
+    top = sorted(rates.items(), key=lambda kv: -kv[1])[:8]
+    lines = "\n".join(f"| {k} | {v:.1f} |" for k, v in top)
+    return (f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
+            f"garbage {counters.bad_data}\n\n| message | Hz |\n|---|---|\n{lines}")
+
+
+class RateMeter:
+    """Messages per second by type, from the counters' differences."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, int] = {}
+        self._t = None
+
+    def __call__(self, by_type) -> dict[str, float]:
+        import time as _time
+        now = _time.monotonic()
+        dt = (now - self._t) if self._t else 1.0
+        rates = {k: (v - self._last.get(k, 0)) / dt for k, v in by_type.items()}
+        self._last, self._t = dict(by_type), now
+        return rates
 
 
 async def _consume(sub, out: Outputs) -> None:
@@ -244,8 +286,10 @@ async def run_connect(args) -> int:
           + (f"; recording to {record}" if record else ""), flush=True)
     stop = asyncio.Event()
     _install_stop(stop)
-    out = Outputs(args, args.declared)
+    dash = _start_dashboard(args)
+    out = Outputs(args, args.declared, dash)
     status = out.status
+    rates = RateMeter()
 
     async def print_events():
         async for ev in events:
@@ -254,11 +298,15 @@ async def run_connect(args) -> int:
     async def print_status():
         while True:
             await asyncio.sleep(1.0)
+            if dash is not None:
+                dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type)))
             if not args.quiet:
                 status.print(link.state.value, link.counters)
 
     tasks = [asyncio.create_task(_consume(sub, out)),
              asyncio.create_task(print_events()), asyncio.create_task(print_status())]
+    if dash is not None:
+        tasks.append(asyncio.create_task(dash.run()))
     try:
         if args.duration:
             try:
@@ -268,9 +316,12 @@ async def run_connect(args) -> int:
         else:
             await stop.wait()
     finally:
-        tasks[2].cancel()
+        for t in tasks[2:]:
+            t.cancel()
         await link.close()
-        await asyncio.gather(*tasks[:2], return_exceptions=True)
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if dash is not None:
+            dash.stop()
         written = out.close()
     c = link.counters
     print(f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
@@ -305,11 +356,12 @@ async def run_replay(args) -> int:
     if other is not None:
         return other
     rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
-    out = Outputs(args, args.declared or declared_beside(args.file))
+    dash = _start_dashboard(args)
+    out = Outputs(args, args.declared or declared_beside(args.file), dash)
     status = out.status
     print(f"replaying {args.file}: {len(rp.index)} records, {rp.duration:.1f} s at "
           f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)
-    if rp.speed == math.inf and not args.loop:
+    if rp.speed == math.inf and not args.loop and dash is None:
         # Batch: the same receive path, without an event loop round trip per record.
         for m in rp.iter_measurements():
             out.see(m)
@@ -320,14 +372,24 @@ async def run_replay(args) -> int:
         consumer = asyncio.create_task(_consume(sub, out))
         player = asyncio.create_task(rp.run())
 
+        rates = RateMeter()
+
         async def print_status():
             while True:
                 await asyncio.sleep(1.0)
+                if dash is not None:
+                    dash.set_link_status(link_markdown(f"replay {rp.status.state.value} · t {rp.position:.1f}"
+                                                       f" / {rp.duration:.1f} s", rp.receiver.counters,
+                                                       rates(rp.receiver.counters.by_type)))
                 if not args.quiet:
                     status.print(rp.status.state.value, rp.receiver.counters,
                                  f"t {rp.position:.1f}/{rp.duration:.1f} s")
 
         printer = asyncio.create_task(print_status())
+        web = None
+        if dash is not None:
+            dash.attach_replay(rp)
+            web = asyncio.create_task(dash.run())
         if sys.stdin is not None and sys.stdin.isatty():
             print(REPLAY_HELP, flush=True)
 
@@ -338,11 +400,16 @@ async def run_replay(args) -> int:
             asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
         stopper = asyncio.create_task(stop.wait())
         await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
-        for t in (printer, stopper, player):
+        if dash is not None and not stop.is_set():
+            print(f"replay ended; the dashboard stays at {dash.url} until Ctrl-C", flush=True)
+            await stop.wait()
+        for t in (printer, stopper, player, *([web] if web else [])):
             t.cancel()
-        await asyncio.gather(player, return_exceptions=True)
+        await asyncio.gather(player, *([web] if web else []), return_exceptions=True)
         rp.close()
         await consumer
+        if dash is not None:
+            dash.stop()
     written = out.close()
     damage = rp.skipped_summary()
     print(f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"

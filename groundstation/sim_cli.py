@@ -44,6 +44,9 @@ def add_sim_parser(sub) -> None:
     d.add_argument("--vehicle", choices=VEHICLES, default="quad")
     d.add_argument("--seed", type=int, default=1)
     d.add_argument("--record", type=Path, default=Path("out/demo.tlog"))
+    d.add_argument("--no-web", action="store_true", help="no dashboard")
+    d.add_argument("--host", default="127.0.0.1")
+    d.add_argument("--port", type=int, default=8080)
 
 
 def scenario_from(args) -> Scenario:
@@ -122,9 +125,21 @@ async def run_demo(args) -> int:
 
     from .console import StatusLine
 
+    from .estimators import build_estimator
+    from .loop import EstimationLoop
+
     link = MavlinkLink("udpin:127.0.0.1:0", record=args.record)
     sub, events = link.measurements(), link.events()
     await link.open()
+    dash = None
+    if not args.no_web:
+        from web.dashboard import Dashboard
+        dash = Dashboard(host=args.host, port=args.port)
+        print(f"dashboard: {dash.url}", flush=True)
+    model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
+    loop = EstimationLoop([build_estimator(model, [{"name": "range_tilt"}] if model == "altitude" else [])])
+    snaps = loop.snapshots.subscribe(lossy=True, maxlen=1000)
+    loop.attach_link(link)
     port = link.transport.local_address[1]
     scenario = Scenario(vehicle=args.vehicle, seed=args.seed, duration=args.duration)
     bridge = SimBridge(scenario, udp_to=("127.0.0.1", port))
@@ -136,6 +151,10 @@ async def run_demo(args) -> int:
     async def consume():
         async for m in sub:
             status.see(m)
+            if dash is not None:
+                dash.feed_measurement(m)
+                for s in snaps.get_nowait():
+                    dash.feed_snapshot(s)
 
     async def show_events():
         async for ev in events:
@@ -144,17 +163,27 @@ async def run_demo(args) -> int:
     async def show_status():
         while True:
             await asyncio.sleep(1.0)
-            status.print(link.state.value, link.counters, f"sim t {bridge.sim.t:.0f} s")
+            z = loop.latest.get(model)
+            extra = f"sim t {bridge.sim.t:.0f} s" + (f"  est {z.states[0]} {z.x[0]:+.3f} ±{z.sigma[0]:.3f}" if z else "")
+            status.print(link.state.value, link.counters, extra)
+            if dash is not None:
+                dash.set_link_status(f"**{link.state.value}** · {link.counters.messages} messages · "
+                                     f"loss {link.counters.loss_percent:.2f} % · simulated {args.vehicle}, t {bridge.sim.t:.0f} s")
 
     tasks = [asyncio.create_task(c) for c in (consume(), show_events(), show_status())]
+    if dash is not None:
+        tasks.append(asyncio.create_task(dash.run()))
     on_stop_signal(bridge.close)
     try:
         await bridge.run(args.duration)
     finally:
         bridge.close()
-        tasks[2].cancel()
+        for t in tasks[2:]:
+            t.cancel()
         await link.close()
         await asyncio.gather(*tasks, return_exceptions=True)
+        if dash is not None:
+            dash.stop()
     c = link.counters
     print(f"demo: {c.messages} messages, loss {c.loss_percent:.2f}%, streams via "
           f"{link.stream_method.get(1, 'none')}; recorded {args.record}", flush=True)

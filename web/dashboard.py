@@ -1,0 +1,292 @@
+"""The browser dashboard: live estimates and their uncertainty in a viser 3D view.
+
+``Dashboard.feed_measurement`` / ``feed_snapshot`` only store the latest data
+(cheap, never blocking the estimation loop); two tasks push to the browsers at
+their own rates: the 3D scene at <= ``scene_hz`` (30 Hz) and the plots at <=
+``plot_hz`` (10 Hz), from windowed buffers.
+
+Frames: the world is NED and the body FRD (MAVLink's); viser's world is z-up.
+Shown as x = north, y = west, z = up, i.e. vectors ``(n, -e, -d)`` and body
+quaternions ``(w, x, -y, -z)`` (a half turn about x): a right-handed frame
+in which north/up read naturally and nothing is mirrored.
+
+Scene: the vehicle at its estimated pose (box + axes), the truth as a ghost
+when the session has truth, a trail, the position covariance as a 3-sigma
+ellipsoid oriented by its eigenvectors, the range sensor's ray, a ground grid.
+Panels: link status, the state table with +-sigma, time plots (estimate with
++-2 sigma against its measurements; innovations with +-2 sqrt(S); NIS with its
+95 % chi-square band), replay controls, and the diagnosis panel.
+"""
+from __future__ import annotations
+
+import asyncio
+import math
+import socket
+from collections import deque
+
+import numpy as np
+import viser
+from scipy.stats import chi2
+
+from groundstation.measurement import Kind, Measurement
+
+_FLIP = np.array([1.0, -1.0, -1.0])
+
+
+def ned_to_view(v) -> np.ndarray:
+    return np.asarray(v, dtype=float) * _FLIP
+
+
+def frd_quat_to_view(q) -> tuple[float, float, float, float]:
+    w, x, y, z = q
+    return (float(w), float(x), float(-y), float(-z))
+
+
+def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+
+
+def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
+    from sim_bridge.rotation import quaternion_from_matrix
+    return quaternion_from_matrix(R)
+
+
+def free_port(host: str, port: int) -> int:
+    """``port`` if it can be bound on ``host``, else a free one."""
+    with socket.socket() as s:
+        try:
+            s.bind((host, port))
+            return port
+        except OSError:
+            s.bind((host, 0))
+            return s.getsockname()[1]
+
+
+class Dashboard:
+    def __init__(self, *, host: str = "127.0.0.1", port: int = 8080, scene_hz: float = 30.0,
+                 plot_hz: float = 10.0, window_s: float = 20.0, title: str = "groundstation") -> None:
+        self.port = free_port(host, port)
+        self.host = host
+        self.server = viser.ViserServer(host=host, port=self.port, label=title, verbose=False)
+        self.scene_hz, self.plot_hz, self.window_s = scene_hz, plot_hz, window_s
+        self.url = f"http://{host}:{self.port}"
+        self.scene_updates = 0
+        self.plot_updates = 0
+        self._snap = None
+        self._att = (0.0, 0.0, 0.0)
+        self._truth: Measurement | None = None
+        self._pos_ne = np.zeros(2)
+        self._gps0 = None
+        self._range = math.nan
+        self._trail: deque = deque(maxlen=600)
+        self._series: deque = deque()       # (t, z, sigma_z)
+        self._meas: deque = deque()         # (t, range)
+        self._innov: deque = deque()        # (t, nu, 2 sqrt S, nis)
+        self._dirty = False
+        self.status_text = "waiting for data"
+        self._build()
+        self._tasks: list[asyncio.Task] = []
+
+    # -- layout -----------------------------------------------------------------------------
+    def _build(self) -> None:
+        sc, gui = self.server.scene, self.server.gui
+        sc.add_grid("/ground", width=20.0, height=20.0, cell_size=0.5, section_size=2.0)
+        self.vehicle = sc.add_frame("/vehicle", axes_length=0.3, axes_radius=0.012)
+        sc.add_box("/vehicle/body", color=(40, 110, 220), dimensions=(0.35, 0.35, 0.08))
+        self.ghost = sc.add_box("/truth", color=(60, 200, 90), dimensions=(0.35, 0.35, 0.08), opacity=0.35,
+                                visible=False)
+        self.ellipsoid = sc.add_icosphere("/covariance", radius=1.0, color=(240, 160, 40), opacity=0.25,
+                                          scale=(0.05, 0.05, 0.05))
+        self.trail = sc.add_line_segments("/trail", points=np.zeros((1, 2, 3)), colors=(90, 90, 90), thickness=0.01)
+        self.ray = sc.add_line_segments("/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50),
+                                        thickness=0.015, visible=False)
+        with gui.add_folder("Link"):
+            self.link_md = gui.add_markdown("waiting for data")
+        with gui.add_folder("State"):
+            self.state_md = gui.add_markdown("no estimate yet")
+        with gui.add_folder("Plots"):
+            t0 = np.zeros(2)
+            self.plot_z = gui.add_uplot(
+                data=(t0, t0, t0, t0, t0),
+                series=({"label": "t [s]"}, {"label": "z", "stroke": "#1f6fd1", "width": 2},
+                        {"label": "-2σ", "stroke": "#9bb9e8"}, {"label": "+2σ", "stroke": "#9bb9e8"},
+                        {"label": "range", "stroke": "#d23a3a", "width": 1}),
+                scales={"x": {"time": False, "auto": True}}, title="height: estimate ±2σ vs range", aspect=1.6)
+            self.plot_nu = gui.add_uplot(
+                data=(t0, t0, t0, t0),
+                series=({"label": "t [s]"}, {"label": "ν", "stroke": "#444", "width": 1},
+                        {"label": "-2√S", "stroke": "#e39b3b"}, {"label": "+2√S", "stroke": "#e39b3b"}),
+                scales={"x": {"time": False, "auto": True}}, title="innovation (last sensor) ±2√S", aspect=1.6)
+            self.plot_nis = gui.add_uplot(
+                data=(t0, t0, t0, t0),
+                series=({"label": "t [s]"}, {"label": "NIS", "stroke": "#7a3fc0", "width": 1},
+                        {"label": "χ² 2.5 %", "stroke": "#aaa"}, {"label": "χ² 97.5 %", "stroke": "#aaa"}),
+                scales={"x": {"time": False, "auto": True}}, title="NIS and its 95 % band", aspect=1.6)
+        self.replay_folder = gui.add_folder("Replay")
+        with self.replay_folder:
+            self.play = gui.add_button("pause")
+            self.speed = gui.add_slider("speed ×", min=0.1, max=100.0, step=0.1, initial_value=1.0)
+            self.position = gui.add_slider("time [s]", min=0.0, max=1.0, step=0.1, initial_value=0.0)
+        self.replay_folder.visible = False
+        with gui.add_folder("Diagnosis"):
+            self.diagnosis_md = gui.add_markdown("No diagnosis has been run on this session.")
+
+    # -- feeding (cheap: store only) ----------------------------------------------------------
+    def feed_measurement(self, m: Measurement) -> None:
+        k = m.kind
+        if k is Kind.ATTITUDE:
+            self._att = (float(m.value[0]), float(m.value[1]), float(m.value[2]))
+        elif k is Kind.RANGE:
+            self._range = float(m.value[0])
+            self._meas.append((m.t, self._range))
+        elif k is Kind.POSITION_NED:
+            self._pos_ne = np.array(m.value[:2], dtype=float)
+        elif k is Kind.GPS:
+            if self._gps0 is None:
+                self._gps0 = (float(m.value[0]), float(m.value[1]))
+            lat0, lon0 = self._gps0
+            ne = np.array([(m.value[0] - lat0) * 111_320.0,
+                           (m.value[1] - lon0) * 111_320.0 * math.cos(math.radians(lat0))])
+            # no estimator here estimates horizontal position: show GPS, smoothed
+            # (time constant ~2 s at 5 Hz) so its metre of noise does not scribble
+            self._pos_ne = self._pos_ne + 0.1 * (ne - self._pos_ne)
+        elif k is Kind.TRUTH_POSE:
+            self._truth = m
+        self._dirty = True
+
+    def feed_snapshot(self, snap) -> None:
+        self._snap = snap
+        if "z" in snap.states:
+            i = snap.states.index("z")
+            self._series.append((snap.t, float(snap.x[i]), float(snap.sigma[i])))
+        rec = snap.innovation
+        if rec is not None:
+            self._innov.append((rec.t, float(rec.nu[0]), 2.0 * math.sqrt(float(rec.S[0, 0])), rec.nis, len(rec.nu)))
+        self._dirty = True
+
+    def set_link_status(self, text: str) -> None:
+        self.status_text = text
+
+    def attach_replay(self, replay) -> None:
+        """Show the replay controls and wire them to ``replay`` (pause/resume, speed, seek)."""
+        self.replay_folder.visible = True
+        self.position.max = max(0.1, round(replay.duration, 1))
+
+        @self.play.on_click
+        def _(_e) -> None:
+            if replay.status.state.value == "paused":
+                replay.resume()
+                self.play.label = "pause"
+            else:
+                replay.pause()
+                self.play.label = "play"
+
+        @self.speed.on_update
+        def _(_e) -> None:
+            replay.set_speed(float(self.speed.value))
+
+        @self.position.on_update
+        def _(_e) -> None:
+            if abs(self.position.value - replay.position) > 0.5:
+                replay.seek(float(self.position.value))
+        self._replay = replay
+
+    # -- pushing to browsers --------------------------------------------------------------------
+    def _pose(self):
+        s = self._snap
+        z = 0.0
+        if s is not None and "z" in s.states:
+            z = float(s.x[s.states.index("z")])
+        pos = np.array([self._pos_ne[0], self._pos_ne[1], -z])        # NED
+        return pos, euler_to_quat(*self._att)
+
+    def update_scene(self) -> None:
+        pos, q = self._pose()
+        p_view = ned_to_view(pos)
+        self.vehicle.position = p_view
+        self.vehicle.wxyz = frd_quat_to_view(q)
+        if not self._trail or np.linalg.norm(self._trail[-1] - p_view) > 0.02:
+            self._trail.append(p_view)
+        if len(self._trail) > 1:
+            pts = np.array(self._trail)
+            self.trail.points = np.stack([pts[:-1], pts[1:]], axis=1)
+        s = self._snap
+        if s is not None:
+            sig_z = float(s.sigma[s.states.index("z")]) if "z" in s.states else 0.05
+            cov = np.diag([0.05**2, 0.05**2, sig_z**2])           # horizontal: not estimated here
+            w, V = np.linalg.eigh(cov)
+            if np.linalg.det(V) < 0:
+                V[:, 0] = -V[:, 0]
+            self.ellipsoid.scale = tuple(float(x) for x in 3.0 * np.sqrt(np.clip(w, 1e-12, None)))
+            self.ellipsoid.wxyz = matrix_to_quat(V)
+            self.ellipsoid.position = p_view
+        if self._range == self._range:
+            R = _rot(*self._att)
+            end = pos + R @ np.array([0.0, 0.0, self._range])           # along body z (down)
+            self.ray.points = np.array([[ned_to_view(pos), ned_to_view(end)]])
+            self.ray.visible = True
+        if self._truth is not None:
+            self.ghost.visible = True
+            self.ghost.position = ned_to_view(self._truth.value[:3])
+            self.ghost.wxyz = frd_quat_to_view(self._truth.value[3:7])
+        self.scene_updates += 1
+
+    def update_panels(self) -> None:
+        self.link_md.content = self.status_text
+        s = self._snap
+        if s is not None:
+            rows = "\n".join(f"| {n} | {v:+.4f} | ±{sg:.4f} |" for n, v, sg in zip(s.states, s.x, s.sigma))
+            self.state_md.content = f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}"
+        t_now = self._series[-1][0] if self._series else 0.0
+        for buf in (self._series, self._meas, self._innov):
+            while buf and buf[0][0] < t_now - self.window_s:
+                buf.popleft()
+        if len(self._series) > 1:
+            a = np.array(self._series)
+            t, z, sg = a[:, 0], a[:, 1], a[:, 2]
+            # the range on the estimate's time axis (uPlot needs one x axis, and NaN
+            # gaps break its scales, blanking the panel)
+            if self._meas:
+                m = np.array(self._meas)
+                rng = np.interp(t, m[:, 0], m[:, 1])
+            else:
+                rng = z.copy()
+            self.plot_z.data = (t, z, z - 2 * sg, z + 2 * sg, rng)
+        if len(self._innov) > 1:
+            a = np.array(self._innov)
+            dof = int(a[-1, 4])
+            lo, hi = chi2.ppf([0.025, 0.975], dof)
+            self.plot_nu.data = (a[:, 0], a[:, 1], -a[:, 2], a[:, 2])
+            self.plot_nis.data = (a[:, 0], a[:, 3], np.full(len(a), lo), np.full(len(a), hi))
+        replay = getattr(self, "_replay", None)
+        if replay is not None and abs(self.position.value - replay.position) > 0.5:
+            self.position.value = round(replay.position, 1)
+        self.plot_updates += 1
+
+    async def run(self) -> None:
+        """Push scene and panels at their rates until cancelled."""
+        async def scene():
+            while True:
+                if self._dirty:
+                    self.update_scene()
+                await asyncio.sleep(1.0 / self.scene_hz)
+
+        async def panels():
+            while True:
+                self.update_panels()
+                await asyncio.sleep(1.0 / self.plot_hz)
+        await asyncio.gather(scene(), panels())
+
+    def stop(self) -> None:
+        self.server.stop()
+
+
+def _rot(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    from sim_bridge.rotation import a_ib
+    return a_ib(roll, pitch, yaw)
+
+
