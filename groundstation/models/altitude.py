@@ -39,7 +39,7 @@ import numpy as np
 
 from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel
+from .base import LinearModel, MeasurementModel, relative_to_estimate
 
 G = 9.80665
 
@@ -60,25 +60,6 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
     B = np.array([[0.0], [1.0], [0.0]])
     H = np.array([[1.0, 0.0, 0.0]])
 
-    def relative(value_of, ref_key, n_cal):
-        """An absolute altitude (baro, GPS) made relative to the ground station's
-        zero: its first ``n_cal`` readings are averaged against the estimate of
-        z (no update meanwhile), so the zero carries 1/sqrt(n_cal) of one
-        reading's noise instead of all of it."""
-        acc_key, n_key = ref_key + "_sum", ref_key + "_n"
-
-        def extract(m, ctx):
-            v = value_of(m)
-            ref = ctx.values.get(ref_key)
-            if ref is None:
-                ctx.values[acc_key] = ctx.get(acc_key) + v - ctx.get("z")
-                ctx.values[n_key] = ctx.get(n_key) + 1
-                if ctx.values[n_key] < n_cal:
-                    return None
-                ref = ctx.values[ref_key] = ctx.values[acc_key] / ctx.values[n_key]
-            return np.array([v - ref])
-        return extract
-
     def range_row(ctx):
         c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
         return np.array([[1.0 / max(c, 0.2), 0.0, 0.0]])
@@ -86,12 +67,14 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
     meas = {
         "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0]]),
                                   range_row if range_tilt else (lambda ctx: H), np.array([[sigma_range**2]])),
-        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE, relative(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
+        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
+                                 relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
                                  lambda ctx: H, np.array([[sigma_baro**2]])),
-        "gps": MeasurementModel("gps", Kind.GPS, relative(lambda m: float(m.value[2]), "gps_ref", 10),
+        "gps": MeasurementModel("gps", Kind.GPS, relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
                                 lambda ctx: H, np.array([[sigma_gps**2]])),
         # logs that give the barometer as an altitude (DataFlash BARO.Alt, Crazyflie baro.asl)
-        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, relative(lambda m: float(m.value[0]), "baro_ref", 25),
+        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE,
+                                     relative_to_estimate(lambda m: float(m.value[0]), "baro_ref", 25),
                                      lambda ctx: H, np.array([[sigma_baro**2]])),
     }
     return LinearModel(

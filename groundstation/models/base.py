@@ -121,6 +121,26 @@ class LinearModel:
                            self.doc, list(self.notes))
 
 
+def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_cal: int):
+    """An extractor for an absolute altitude (baro, GPS) made relative to the
+    ground station's zero: its first ``n_cal`` readings are averaged against the
+    estimate of z (no update meanwhile: the extractor returns None), so the zero
+    carries 1/sqrt(n_cal) of one reading's noise instead of all of it."""
+    acc_key, n_key = key + "_sum", key + "_n"
+
+    def extract(m: Measurement, ctx: Context) -> np.ndarray | None:
+        v = value_of(m)
+        ref = ctx.values.get(key)
+        if ref is None:
+            ctx.values[acc_key] = ctx.get(acc_key) + v - ctx.get("z")
+            ctx.values[n_key] = ctx.get(n_key) + 1
+            if ctx.values[n_key] < n_cal:
+                return None
+            ref = ctx.values[key] = ctx.values[acc_key] / ctx.values[n_key]
+        return np.array([v - ref])
+    return extract
+
+
 def pad_row(row: np.ndarray, k: int) -> np.ndarray:
     """Extend measurement rows with k zero columns (for augmented states)."""
     r = np.atleast_2d(row)

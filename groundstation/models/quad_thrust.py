@@ -46,7 +46,7 @@ from scipy.linalg import expm
 
 from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel, observability_rank
+from .base import LinearModel, MeasurementModel, observability_rank, relative_to_estimate
 
 G = 9.80665
 STATES = ["z", "vz", "alpha", "beta", "d_bar", "d_tof"]
@@ -91,30 +91,16 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
             r[0, 0] = 1.0 / max(c, 0.2)
         return r
 
-    def relative(value_of, key, n_cal):
-        acc_key, n_key = key + "_sum", key + "_n"
-
-        def extract(m, ctx):
-            v = value_of(m)
-            ref = ctx.values.get(key)
-            if ref is None:
-                ctx.values[acc_key] = ctx.get(acc_key) + v - ctx.get("z")
-                ctx.values[n_key] = ctx.get(n_key) + 1
-                if ctx.values[n_key] < n_cal:
-                    return None
-                ref = ctx.values[key] = ctx.values[acc_key] / ctx.values[n_key]
-            return np.array([v - ref])
-        return extract
-
     meas = {
         "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0]]), tof_row,
                                   np.array([[sigma_range**2]])),
         "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
-                                 relative(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
+                                 relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
                                  lambda ctx: row(0, 4), np.array([[sigma_baro**2]])),
     }
     if use_gps:
-        meas["gps"] = MeasurementModel("gps", Kind.GPS, relative(lambda m: float(m.value[2]), "gps_ref", 10),
+        meas["gps"] = MeasurementModel("gps", Kind.GPS,
+                                       relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
                                        lambda ctx: row(0), np.array([[sigma_gps**2]]))
     return LinearModel(
         name="quad_thrust", states=list(STATES), inputs=["tau_c", "c", "g"], A=_A, B=B,
