@@ -31,7 +31,7 @@ from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 
-from .console import REPLAY_HELP, StatusLine, replay_command
+from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
 from .estimators import MODELS, build_estimator, declared_beside, declared_effects
 from .export import EstimateCsvWriter, MeasurementCsvWriter
 from .loop import EstimationLoop
@@ -291,10 +291,6 @@ async def run_connect(args) -> int:
     status = out.status
     rates = RateMeter()
 
-    async def print_events():
-        async for ev in events:
-            print(f"link {ev.state.value}: {ev.reason}", flush=True)
-
     async def print_status():
         while True:
             await asyncio.sleep(1.0)
@@ -304,7 +300,7 @@ async def run_connect(args) -> int:
                 status.print(link.state.value, link.counters)
 
     tasks = [asyncio.create_task(_consume(sub, out)),
-             asyncio.create_task(print_events()), asyncio.create_task(print_status())]
+             asyncio.create_task(print_link_events(events)), asyncio.create_task(print_status())]
     if dash is not None:
         tasks.append(asyncio.create_task(dash.run()))
     try:

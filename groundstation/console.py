@@ -53,6 +53,12 @@ class StatusLine:
 _SHOWN_KINDS = {k for k, _ in _SHOWN}
 
 
+async def print_link_events(events) -> None:
+    """One line per link state change, until the stream ends."""
+    async for ev in events:
+        print(f"link {ev.state.value}: {ev.reason}", flush=True)
+
+
 REPLAY_HELP = "replay controls: p = pause/resume, s SECONDS = seek, x SPEED = speed (0.1..100 or max), q = quit"
 
 

@@ -60,12 +60,9 @@ class ModelFilter:
         self.log = InnovationLog()
         self.updates = 0
         self._cache: dict = {}
-        self._u_dependent = True
-        try:   # LTI models discretise once per step length
-            u0 = np.zeros(len(model.inputs))
-            self._u_dependent = not np.array_equal(model.A(u0), model.A(u0 + 1.0))
-        except Exception:
-            pass
+        # time-invariant models discretise once per step length
+        u0 = np.zeros(len(model.inputs))
+        self._u_dependent = not np.array_equal(model.A(u0), model.A(u0 + 1.0))
         self.reset(t0)
 
     def reset(self, t0: float) -> None:

@@ -123,7 +123,7 @@ async def run_demo(args) -> int:
     """Bridge and ground station in one process, over real loopback UDP."""
     from drivers.mavlink.link import MavlinkLink
 
-    from .console import StatusLine
+    from .console import StatusLine, print_link_events
 
     from .estimators import build_estimator
     from .loop import EstimationLoop
@@ -156,10 +156,6 @@ async def run_demo(args) -> int:
                 for s in snaps.get_nowait():
                     dash.feed_snapshot(s)
 
-    async def show_events():
-        async for ev in events:
-            print(f"link {ev.state.value}: {ev.reason}", flush=True)
-
     async def show_status():
         while True:
             await asyncio.sleep(1.0)
@@ -170,7 +166,7 @@ async def run_demo(args) -> int:
                 dash.set_link_status(f"**{link.state.value}** · {link.counters.messages} messages · "
                                      f"loss {link.counters.loss_percent:.2f} % · simulated {args.vehicle}, t {bridge.sim.t:.0f} s")
 
-    tasks = [asyncio.create_task(c) for c in (consume(), show_events(), show_status())]
+    tasks = [asyncio.create_task(c) for c in (consume(), print_link_events(events), show_status())]
     if dash is not None:
         tasks.append(asyncio.create_task(dash.run()))
     on_stop_signal(bridge.close)

@@ -83,6 +83,7 @@ class SimBridge:
         self._parser.robust_parsing = True
         self.frames_sent = 0
         self.frames_dropped = 0
+        self.send_errors = 0
         self.received: dict[str, int] = {}
         self.commands_received = 0
         self._down_until = 0.0
@@ -138,8 +139,8 @@ class SimBridge:
         if self._sock is not None and self.udp_to is not None:
             try:
                 self._sock.sendto(frame, self.udp_to)
-            except OSError:
-                pass
+            except OSError:          # no listener yet (ICMP refused) or buffer full: counted
+                self.send_errors += 1
         if self.pty is not None:
             self.pty.write(frame)
         self.frames_sent += 1

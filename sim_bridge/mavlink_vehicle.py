@@ -46,6 +46,7 @@ class MavlinkVehicle:
         self.message_intervals: dict[int, float] = {}   # msg id -> interval [us]
         self.data_stream_requests: list[tuple[int, int]] = []
         self.frames_sent = 0
+        self.send_errors = 0
         self._got: asyncio.Event | None = None
         self._hb_task: asyncio.Task | None = None
 
@@ -100,8 +101,8 @@ class MavlinkVehicle:
                 return          # listening, and nobody has written yet
             try:
                 self._sock.sendto(data, self.udp_to)
-            except OSError:
-                pass
+            except OSError:          # no listener yet (ICMP refused) or buffer full: counted
+                self.send_errors += 1
         elif self.pty is not None:
             self.pty.write(data)
 

@@ -19,6 +19,7 @@ The link
 from __future__ import annotations
 
 import asyncio
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -125,11 +126,10 @@ class MavlinkLink:
     async def close(self) -> None:
         for t in self._tasks:
             t.cancel()
-        for t in self._tasks:
-            try:
-                await t
-            except (asyncio.CancelledError, Exception):
-                pass
+        # the link's own tasks end by cancellation; anything else is a bug to show
+        for r in await asyncio.gather(*self._tasks, return_exceptions=True):
+            if isinstance(r, Exception):
+                print(f"groundstation: link task failed: {type(r).__name__}: {r}", file=sys.stderr)
         self._tasks = []
         if self.transport is not None:
             await self.transport.close()
