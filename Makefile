@@ -32,6 +32,7 @@ test: setup browser
 bench: setup
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/ingest.py
+	$(BIN)/python bench/bulk.py
 	$(BIN)/python bench/estimation.py
 
 clean:

@@ -84,6 +84,8 @@ class TlogWriter:
 
 def _frame_length(data, pos: int) -> int:
     """Length of the MAVLink frame starting at ``pos`` (0 if no frame starts there)."""
+    if pos + 3 > len(data):
+        return 0 if pos >= len(data) or data[pos] not in (0xFD, 0xFE) else 10**9   # cut short: truncated
     magic = data[pos]
     if magic == 0xFE:
         return 8 + data[pos + 1]
@@ -146,6 +148,21 @@ class TlogIndex:
         last_ts = None
         while pos + 9 <= n:
             ts = unpack(data, pos)[0]
+            if pos + 11 <= n and last_ts is not None and abs(ts - last_ts) <= _RESYNC_WINDOW_US:
+                # Fast path (nearly every record): a frame follows, and so does the next record.
+                magic = data[pos + 8]
+                flen = 8 + data[pos + 9] if magic == 0xFE else \
+                    12 + data[pos + 9] + (13 if data[pos + 10] & 0x01 else 0) if magic == 0xFD else 0
+                nxt = pos + 8 + flen
+                if flen and nxt + 11 <= n:
+                    nm = data[nxt + 8]
+                    if (nm == 0xFE or nm == 0xFD) and abs(unpack(data, nxt)[0] - ts) <= _RESYNC_WINDOW_US:
+                        ts_list.append(ts)
+                        off_list.append(pos)
+                        len_list.append(flen)
+                        last_ts = ts
+                        pos = nxt
+                        continue
             flen = _frame_length(data, pos + 8)
             ok = flen and _TS_MIN_US <= ts <= _TS_MAX_US and (
                 last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US)

@@ -191,8 +191,9 @@ def _install_stop(stop: asyncio.Event) -> None:
 class Outputs:
     """The estimation loop and the files a command writes, fed measurement by measurement."""
 
-    def __init__(self, args, declared_path: Path | None, dashboard=None) -> None:
-        self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise))
+    def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
+        self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise),
+                                         vehicle=vehicle)
         self.loop = EstimationLoop([self.estimator])
         self.status = StatusLine()
         self.dashboard = dashboard
@@ -327,35 +328,26 @@ async def run_connect(args) -> int:
 
 
 # ---------------------------------------------------------------- replay
-def _replay_other_format(args) -> int | None:
-    """DataFlash and Crazyflie logs: batch replay (``--speed max``) through the same loop."""
+def _open_replay(args) -> tuple[Replay, str, str | None]:
+    """A tlog replays through the live receive path; DataFlash and Crazyflie logs through their readers."""
     from drivers.logs.crazyflie import is_crazyflie_log
     from drivers.logs.dataflash import is_dataflash
 
     from .evaluate import load_measurements
-    if not (is_dataflash(args.file) or is_crazyflie_log(args.file)):
-        return None
-    if args.speed != math.inf or args.loop:
-        raise UsageError(f"{args.file}: paced playback is for tlogs; use --speed max for this format")
-    ms, desc, vehicle = load_measurements(args.file)
-    out = Outputs(args, args.declared)
-    print(f"replaying {args.file}: {desc}", flush=True)
-    for m in ms:
-        out.see(m)
-    written = out.close()
-    print(f"done: {out.status.count} measurements" + (f"; {written}" if written else ""), flush=True)
-    return 0
+    if is_dataflash(args.file) or is_crazyflie_log(args.file):
+        ms, desc, vehicle = load_measurements(args.file)
+        rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start, measurements=ms)
+        return rp, f"{desc}, {len(rp.index)} measurements", vehicle
+    rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
+    return rp, f"{len(rp.index)} records, {rp.duration:.1f} s", None
 
 
 async def run_replay(args) -> int:
-    other = _replay_other_format(args)
-    if other is not None:
-        return other
-    rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
+    rp, desc, vehicle = _open_replay(args)
     dash = _start_dashboard(args)
-    out = Outputs(args, args.declared or declared_beside(args.file), dash)
+    out = Outputs(args, args.declared or declared_beside(args.file), dash, vehicle)
     status = out.status
-    print(f"replaying {args.file}: {len(rp.index)} records, {rp.duration:.1f} s at "
+    print(f"replaying {args.file}: {desc} at "
           f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)
     if rp.speed == math.inf and not args.loop and dash is None:
         # Batch: the same receive path, without an event loop round trip per record.

@@ -50,7 +50,8 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
         return ms, desc, "crazyflie"
     if is_dataflash(path):
         log = read_dataflash(path)
-        return log.measurements, f"ArduPilot DataFlash log, {log.duration:.1f} s (clock: {log.clock})", None
+        return log.measurements, (f"ArduPilot DataFlash log, {log.duration:.1f} s (clock: {log.clock})"
+                                  + (f"; {log.damage}" if log.damage else "")), None
     rp = Replay(path)
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()

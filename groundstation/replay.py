@@ -9,6 +9,10 @@ Controls: ``speed`` from 0.1x to 100x or ``math.inf`` (as fast as the
 consumers take it, lossless), :meth:`pause`/:meth:`resume`, :meth:`seek` to a
 time (bisection on the recording's time index, so gaps in the recording do not
 distort it), and ``loop``.
+
+Logs of other formats (DataFlash, Crazyflie) are decoded whole by their
+readers; ``Replay(path, measurements=...)`` paces those records by their
+vehicle time with the same controls.
 """
 from __future__ import annotations
 
@@ -20,7 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
-from drivers.mavlink.receiver import MavlinkReceiver
+import numpy as np
+
+from drivers.mavlink.receiver import LinkCounters, MavlinkReceiver
 from drivers.tlog import TlogIndex
 
 from .broadcast import Broadcast, Subscription
@@ -51,15 +57,65 @@ def check_speed(speed: float) -> float:
     return float(speed)
 
 
+class _MeasurementIndex:
+    """A loaded log's measurements behind the interface of :class:`TlogIndex` (time, seek, item)."""
+
+    skipped: list = []
+    truncated_at = None
+
+    def __init__(self, ms: list[Measurement]) -> None:
+        self.items = sorted(ms, key=lambda m: m.t)
+        self.t = np.array([m.t for m in self.items], dtype=float)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    @property
+    def start(self) -> float:
+        return float(self.t[0]) if len(self.t) else 0.0
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+
+    def seek(self, t_rel: float) -> int:
+        return int(np.searchsorted(self.t, self.start + t_rel, side="left"))
+
+    def frame(self, i: int) -> Measurement:
+        return self.items[i]
+
+
+class _PassThrough:
+    """Stands where the MAVLink receiver stands for a tlog: counts, and hands the record on."""
+
+    def __init__(self) -> None:
+        self.counters = LinkCounters()
+
+    def feed(self, m: Measurement, _t: float) -> list[Measurement]:
+        self.counters.messages += 1
+        self.counters.by_type[m.kind.value] += 1
+        return [m]
+
+    def reset(self) -> None:
+        pass
+
+
 class Replay:
+    """Paced playback of a tlog (through the live receive path) or of a loaded log's measurements."""
+
     def __init__(self, path: str | Path, *, speed: float = 1.0, loop: bool = False,
-                 start: float = 0.0, name: str = "replay", buffer: int = 100_000) -> None:
-        self.index = TlogIndex.scan(path)      # raises TlogError with a one-line message
+                 start: float = 0.0, name: str = "replay", buffer: int = 100_000,
+                 measurements: list[Measurement] | None = None) -> None:
+        if measurements is None:
+            self.index = TlogIndex.scan(path)      # raises TlogError with a one-line message
+            self.receiver = MavlinkReceiver(name)
+        else:                                      # DataFlash, Crazyflie: already decoded by their reader
+            self.index = _MeasurementIndex(measurements)
+            self.receiver = _PassThrough()
         self.path = Path(path)
         self.speed = check_speed(speed)
         self.loop = loop
         self.name = name
-        self.receiver = MavlinkReceiver(name)
         self._measurements: Broadcast[Measurement] = Broadcast(buffer)
         self._status: Broadcast[ReplayStatus] = Broadcast(100)
         self._i = self.index.seek(start)

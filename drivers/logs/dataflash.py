@@ -23,7 +23,11 @@ RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import math
+import os
+import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from pymavlink import DFReader
 
+from drivers.logs.bulk import walk_dataflash
 from groundstation.measurement import Kind, Measurement
 
 CONTROL_RATE = 10.0     # CTUN's rate in logs without a clock [Hz]
@@ -57,10 +62,30 @@ class DataFlashLog:
     counts: Counter = field(default_factory=Counter)
     skipped: Counter = field(default_factory=Counter)
     clock: str = "TimeUS/TimeMS"
+    damage: str = ""            # one line naming the file and the offsets of damage, or ''
 
     @property
     def duration(self) -> float:
         return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
+
+
+@contextlib.contextmanager
+def _quiet():
+    """Silence stdout and stderr, Python's and the C level's (fds 1 and 2)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(null, 1)
+        os.dup2(null, 2)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
+    finally:
+        os.dup2(saved[0], 1)
+        os.dup2(saved[1], 2)
+        for fd in (*saved, null):
+            os.close(fd)
 
 
 def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
@@ -69,23 +94,32 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         raise DataFlashError(f"{p}: cannot read: no such file")
     if not is_dataflash(p):
         raise DataFlashError(f"{p}: not a DataFlash log (no FMT record in the first 4096 bytes)")
-    try:
-        r = DFReader.DFReader_text(str(p)) if not open(p, "rb").read(2) == b"\xa3\x95" else DFReader.DFReader_binary(str(p))
-    except Exception as e:      # DFReader raises assorted errors on foreign data
-        raise DataFlashError(f"{p}: not a readable DataFlash log: {str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    binary = p.read_bytes()[:2] == b"\xa3\x95"
+    damage = walk_dataflash(p.read_bytes()).damage(p) if binary else ""
     msgs = []
-    while True:
+    # DFReader (and its compiled indexer, at the file-descriptor level) prints a
+    # line per bad byte while it resyncs; the walk above has already located the
+    # damage, so that chatter is dropped.
+    with _quiet():
         try:
-            m = r.recv_msg()
-        except Exception as e:  # damage after this point: keep what came before
-            msgs.append(("__damage__", f"{p}: damaged after {len(msgs)} records: {e}"))
-            break
-        if m is None:
-            break
-        msgs.append(m)
+            r = DFReader.DFReader_binary(str(p)) if binary else DFReader.DFReader_text(str(p))
+        except Exception as e:      # DFReader raises assorted errors on foreign data
+            first = str(e).splitlines()[0] if str(e) else type(e).__name__
+            raise DataFlashError(f"{p}: not a readable DataFlash log: {first}") from None
+        while True:
+            try:
+                m = r.recv_msg()
+            except Exception as e:  # damage after this point: keep what came before
+                msgs.append(("__damage__", f"{p}: unreadable after record {len(msgs)}: {e}"))
+                break
+            if m is None:
+                break
+            msgs.append(m)
+    if msgs and isinstance(msgs[-1], tuple):
+        damage = "; ".join(x for x in (damage, msgs[-1][1]) if x)
     types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
     has_baro = types["BARO"] > 0
-    log = DataFlashLog(p, [], types)
+    log = DataFlashLog(p, [], types, damage=damage)
     timed = any(hasattr(m, "TimeUS") or hasattr(m, "TimeMS") for m in msgs
                 if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT"))
     if not timed:

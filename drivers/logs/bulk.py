@@ -1,0 +1,340 @@
+"""Whole logs into numpy arrays, one structured array per message type.
+
+For analysis a log is wanted as columns, not as a stream of objects: ``bulk["HIGHRES_IMU"]["xacc"]``.
+pymavlink builds one Python object per message (``mavutil`` ``recv_match``,
+``DFReader``), which is the slow part. Here the per-record Python work is only
+the walk from one record to the next (the record lengths chain, so the walk is
+sequential); everything else is done per message *type* on whole arrays:
+
+* the frames of one (type, length) are gathered into a 2-D byte array;
+* MAVLink's CRC-16/MCRF4XX (with the type's CRC_EXTRA) is computed column by
+  column for all of them at once (:func:`crc_mcrf4xx_rows`, the same polynomial
+  step as pymavlink's ``x25crc``; no library does it across rows);
+* the payloads (MAVLink 2 zero-truncated ones padded back) are viewed through a
+  numpy structured dtype built from pymavlink's own ``struct`` format and field
+  names (MAVLink) or from the log's FMT records and DFReader's
+  ``FORMAT_TO_STRUCT`` (DataFlash), multipliers applied.
+
+The values are those pymavlink gives (checked field by field in the tests); the
+speed is in ``bench/bulk.py``. Units are the message's own: this is the raw
+analysis view; :mod:`drivers.mavlink.decode` does the SI conversion for the
+measurement stream.
+
+Damage: a tlog is indexed by :class:`drivers.tlog.TlogIndex` (resync over
+garbage, truncated last record); frames that fail the CRC are dropped and
+counted per type. A DataFlash binary log with a bad record header is resynced
+on the next header, and each skipped stretch is kept with its offset.
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pymavlink import DFReader
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from drivers.tlog import TlogIndex
+
+_STRUCT_TO_NUMPY = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8",
+                    "Q": "<u8", "f": "<f4", "d": "<f8", "e": "<f2", "c": "S1"}
+
+
+@dataclass
+class MessageArrays:
+    """All messages of one type: ``fields`` (structured array) and per-record metadata."""
+
+    name: str
+    fields: np.ndarray            # structured, one row per message, field names as in the definition
+    t: np.ndarray                 # tlog: receive time [s, UNIX]; DataFlash: TimeUS/TimeMS [s] or NaN
+    sysid: np.ndarray | None = None
+    compid: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.fields)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.fields[name]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.fields.dtype.names
+
+
+@dataclass
+class BulkLog:
+    path: Path
+    messages: dict[str, MessageArrays]
+    crc_errors: dict[str, int] = field(default_factory=dict)
+    unknown: int = 0                                           # frames of ids outside the dialect
+    skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
+    truncated_at: int | None = None
+
+    def __getitem__(self, name: str) -> MessageArrays:
+        return self.messages[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.messages
+
+    @property
+    def count(self) -> int:
+        return sum(len(m) for m in self.messages.values())
+
+    def damage_summary(self) -> str:
+        parts = []
+        if self.crc_errors:
+            parts.append(f"{sum(self.crc_errors.values())} bad CRC")
+        if self.skipped:
+            parts.append(f"{sum(n for _, n in self.skipped)} bytes skipped at offset {self.skipped[0][0]}"
+                         + (f" and {len(self.skipped) - 1} more places" if len(self.skipped) > 1 else ""))
+        if self.truncated_at is not None:
+            parts.append(f"truncated at offset {self.truncated_at}")
+        return "; ".join(parts)
+
+
+def struct_dtype(fmt: str, names, scale=None) -> np.dtype:
+    """A packed little-endian numpy dtype for a ``struct`` format and its field names."""
+    tokens = re.findall(r"(\d*)([a-zA-Z])", fmt.lstrip("<>=!"))
+    if len(tokens) != len(names):
+        raise ValueError(f"format {fmt!r} has {len(tokens)} fields, names {len(names)}")
+    out = []
+    for name, (count, ch) in zip(names, tokens):
+        n = int(count) if count else 1
+        if ch == "s":
+            out.append((name, f"S{n}"))
+        elif n > 1:
+            out.append((name, _STRUCT_TO_NUMPY[ch], (n,)))
+        else:
+            out.append((name, _STRUCT_TO_NUMPY[ch]))
+    return np.dtype(out)
+
+
+def crc_mcrf4xx_rows(rows: np.ndarray, extra: int | None = None) -> np.ndarray:
+    """CRC-16/MCRF4XX (MAVLink's X.25) of every row of a 2-D uint8 array, vectorised over rows.
+
+    The per-byte step is pymavlink's ``x25crc.accumulate``:
+    ``tmp = b ^ (crc & 0xff); tmp ^= tmp << 4 (8 bit); crc = crc>>8 ^ tmp<<8 ^ tmp<<3 ^ tmp>>4``.
+    """
+    n = rows.shape[0]
+    cols = np.empty((rows.shape[1] + (extra is not None), n), dtype=np.uint16)   # byte columns, contiguous
+    cols[:rows.shape[1]] = rows.T
+    if extra is not None:
+        cols[-1] = extra
+    crc = np.full(n, 0xFFFF, dtype=np.uint16)
+    for b in cols:
+        tmp = (b ^ crc) & 0xFF
+        tmp ^= (tmp << 4) & 0xFF
+        crc = (crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)
+    return crc
+
+
+def _gather(u8: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
+    return u8[starts[:, None] + np.arange(width)]
+
+
+# ------------------------------------------------------------------ tlog
+_MAV_DTYPES: dict[int, np.dtype] = {}
+
+
+def _mav_dtype(cls) -> np.dtype:
+    dt = _MAV_DTYPES.get(cls.id)
+    if dt is None:
+        dt = _MAV_DTYPES[cls.id] = struct_dtype(cls.unpacker.format, cls.ordered_fieldnames)
+    return dt
+
+
+def load_tlog(path: str | Path) -> BulkLog:
+    """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`)."""
+    ix = TlogIndex.scan(path)
+    u8 = np.frombuffer(ix.data, dtype=np.uint8)
+    fo = ix.offset + 8                                   # frame offsets
+    magic = u8[fo]
+    plen = u8[fo + 1].astype(np.int64)
+    v2 = magic == 0xFD
+    msgid = np.where(v2, u8[np.minimum(fo + 7, len(u8) - 1)].astype(np.int64)
+                     | (u8[np.minimum(fo + 8, len(u8) - 1)].astype(np.int64) << 8)
+                     | (u8[np.minimum(fo + 9, len(u8) - 1)].astype(np.int64) << 16),
+                     u8[fo + 5].astype(np.int64))
+    hlen = np.where(v2, 10, 6)
+    sysid = np.where(v2, u8[np.minimum(fo + 5, len(u8) - 1)], u8[fo + 3])
+    compid = np.where(v2, u8[np.minimum(fo + 6, len(u8) - 1)], u8[fo + 4])
+    log = BulkLog(Path(path), {}, skipped=list(ix.skipped), truncated_at=ix.truncated_at)
+
+    # One group per (msgid, version, payload length): fixed-width rows.
+    key = (msgid << 10) | (v2.astype(np.int64) << 9) | plen
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    bounds = np.flatnonzero(np.diff(ks)) + 1
+    per_type: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    for grp in np.split(order, bounds):
+        mid, L, h = int(msgid[grp[0]]), int(plen[grp[0]]), int(hlen[grp[0]])
+        cls = mavlink.mavlink_map.get(mid)
+        if cls is None:
+            log.unknown += len(grp)
+            continue
+        starts = fo[grp]
+        rows = _gather(u8, starts + 1, h - 1 + L + 2)      # header after magic, payload, CRC
+        crc = crc_mcrf4xx_rows(rows[:, :h - 1 + L], cls.crc_extra)
+        got = rows[:, h - 1 + L].astype(np.uint16) | (rows[:, h + L].astype(np.uint16) << 8)
+        ok = crc == got
+        if not ok.all():
+            log.crc_errors[cls.msgname] = log.crc_errors.get(cls.msgname, 0) + int((~ok).sum())
+        dt = _mav_dtype(cls)
+        if not ok.any():
+            continue
+        if L > dt.itemsize:                        # longer than the definition: not this message
+            log.crc_errors[cls.msgname] = log.crc_errors.get(cls.msgname, 0) + int(ok.sum())
+            continue
+        payload = np.zeros((int(ok.sum()), dt.itemsize), dtype=np.uint8)   # zero-padded (MAVLink 2 trim)
+        payload[:, :L] = rows[ok, h - 1:h - 1 + L]
+        per_type.setdefault(mid, []).append((grp[ok], payload))
+    for mid, parts in per_type.items():
+        cls = mavlink.mavlink_map[mid]
+        idx = np.concatenate([g for g, _ in parts])
+        pay = np.concatenate([p for _, p in parts])
+        srt = np.argsort(idx, kind="stable")                 # back to file order
+        idx, pay = idx[srt], pay[srt]
+        fields = np.frombuffer(np.ascontiguousarray(pay).tobytes(), dtype=_mav_dtype(cls))
+        log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid[idx], compid[idx])
+    return log
+
+
+# ------------------------------------------------------------------ DataFlash binary
+_DF_HEAD = b"\xa3\x95"
+_FMT_TYPE = 128
+
+
+class BulkError(ValueError):
+    """Not a log this loader reads (one line naming the file)."""
+
+
+@dataclass
+class DataFlashWalk:
+    """Where every record of a binary DataFlash log starts, and where the damage is."""
+
+    length: dict[int, int]                         # record length per type id (header included)
+    fmts: dict[int, tuple[str, str, list[str]]]    # type id -> (name, format, columns)
+    offsets: dict[int, list[int]]                  # type id -> record offsets
+    skipped: list[tuple[int, int]]                 # (offset, bytes) of bad headers resynced over
+    truncated_at: int | None                       # offset of an incomplete last record
+
+    def damage(self, path) -> str:
+        """One line naming file and offsets, or ''."""
+        parts = []
+        if self.skipped:
+            off, nb = self.skipped[0]
+            parts.append(f"{nb} bytes with bad record headers skipped at offset {off}"
+                         + (f" (and {len(self.skipped) - 1} more places, "
+                            f"{sum(b for _, b in self.skipped)} bytes in all)" if len(self.skipped) > 1 else ""))
+        if self.truncated_at is not None:
+            parts.append(f"last record truncated at offset {self.truncated_at}")
+        return f"{path}: " + "; ".join(parts) if parts else ""
+
+
+def walk_dataflash(data: bytes) -> DataFlashWalk:
+    """Walk the records (lengths from the FMT records as they come); resync on the next header."""
+    n = len(data)
+    length = {_FMT_TYPE: 89}
+    fmts: dict[int, tuple[str, str, list[str]]] = {}
+    offsets: dict[int, list[int]] = {}
+    skipped: list[tuple[int, int]] = []
+    truncated_at = None
+    pos = 0
+    find = data.find
+    while pos + 3 <= n:
+        if data[pos] != 0xA3 or data[pos + 1] != 0x95 or data[pos + 2] not in length:
+            nxt = find(_DF_HEAD, pos + 1)
+            while nxt >= 0 and nxt + 2 < n and data[nxt + 2] not in length:
+                nxt = find(_DF_HEAD, nxt + 1)
+            skipped.append((pos, (nxt if nxt >= 0 else n) - pos))
+            if nxt < 0:
+                break
+            pos = nxt
+            continue
+        typ = data[pos + 2]
+        L = length[typ]
+        if pos + L > n:
+            truncated_at = pos
+            break
+        if typ == _FMT_TYPE:
+            t2, l2 = data[pos + 3], data[pos + 4]
+            name = data[pos + 5:pos + 9].rstrip(b"\0").decode("ascii", "replace")
+            fmt = data[pos + 9:pos + 25].rstrip(b"\0").decode("ascii", "replace")
+            cols = data[pos + 25:pos + 89].rstrip(b"\0").decode("ascii", "replace").split(",")
+            if t2 != _FMT_TYPE:
+                length[t2] = l2
+                fmts[t2] = (name, fmt, cols)
+        else:
+            lst = offsets.get(typ)
+            if lst is None:
+                lst = offsets[typ] = []
+            lst.append(pos)
+        pos += L
+    else:
+        if pos < n:
+            truncated_at = pos
+    return DataFlashWalk(length, fmts, offsets, skipped, truncated_at)
+
+
+def load_dataflash_bin(path: str | Path) -> BulkLog:
+    """Every record of a binary DataFlash log as arrays per type, multipliers applied.
+
+    Time ``t`` is ``TimeUS`` x 1e-6 or ``TimeMS`` x 1e-3 when the type has one, else NaN.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as e:
+        raise BulkError(f"{p}: cannot read: {e.strerror or e}") from None
+    if data[:2] != _DF_HEAD:
+        raise BulkError(f"{p}: not a binary DataFlash log (no record header at offset 0)")
+    walk = walk_dataflash(data)
+    length, fmts, offsets = walk.length, walk.fmts, walk.offsets
+    u8 = np.frombuffer(data, dtype=np.uint8)
+    log = BulkLog(p, {}, skipped=walk.skipped, truncated_at=walk.truncated_at)
+    for typ, offs in offsets.items():
+        if typ not in fmts:
+            continue
+        name, fmt, cols = fmts[typ]
+        try:
+            fields = _df_fields(u8, np.array(offs, dtype=np.int64), length[typ], fmt, cols)
+        except (KeyError, ValueError):
+            log.crc_errors[name] = len(offs)     # an FMT we cannot decode: counted, not guessed
+            continue
+        if "TimeUS" in cols:
+            t = fields["TimeUS"].astype(np.float64) * 1e-6
+        elif "TimeMS" in cols and name != "GPS":  # GPS TimeMS is GPS time of week
+            t = fields["TimeMS"].astype(np.float64) * 1e-3
+        else:
+            t = np.full(len(fields), np.nan)
+        log.messages[name] = MessageArrays(name, fields, t)
+    return log
+
+
+def _df_fields(u8, offs, L, fmt, cols) -> np.ndarray:
+    structs = "".join(DFReader.FORMAT_TO_STRUCT[c][0] for c in fmt)
+    raw_dt = struct_dtype(structs, cols)
+    if raw_dt.itemsize != L - 3:
+        raise ValueError("FMT length disagrees with its format")
+    rows = np.ascontiguousarray(_gather(u8, offs + 3, L - 3))
+    raw = np.frombuffer(rows.tobytes(), dtype=raw_dt)
+    mults = {c: DFReader.FORMAT_TO_STRUCT[ch][1] for c, ch in zip(cols, fmt)}
+    if not any(mults.values()):
+        return raw
+    out_dt = np.dtype([(c, "<f8") if mults[c] else (c, raw_dt[c]) for c in cols])
+    out = np.empty(len(raw), dtype=out_dt)
+    for c in cols:
+        out[c] = raw[c] * mults[c] if mults[c] else raw[c]
+    return out
+
+
+def load(path: str | Path) -> BulkLog:
+    """A tlog or a binary DataFlash log, by content."""
+    p = Path(path)
+    try:
+        with open(p, "rb") as f:
+            head = f.read(2)
+    except OSError as e:
+        raise BulkError(f"{p}: cannot read: {e.strerror or e}") from None
+    return load_dataflash_bin(p) if head == _DF_HEAD else load_tlog(p)
