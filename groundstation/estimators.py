@@ -29,25 +29,36 @@ def declared_effects(path: Path | None) -> list[dict]:
 VEHICLE_CONFIGS = Path(__file__).parent / "vehicles"
 
 
-def vehicle_config(vehicle: str | None, model: str) -> dict:
-    """A vehicle's model parameters (``groundstation/vehicles/<vehicle>.json``), or none."""
-    if not vehicle:
-        return {}
+def _vehicle_file(vehicle: str) -> dict:
     p = VEHICLE_CONFIGS / f"{vehicle}.json"
     if not p.exists():
         known = ", ".join(sorted(x.stem for x in VEHICLE_CONFIGS.glob("*.json")))
         raise ValueError(f"no vehicle configuration {vehicle!r}; known: {known}")
-    return dict(json.loads(p.read_text()).get(model, {}))
+    return json.loads(p.read_text())
+
+
+def vehicle_config(vehicle: str | None, model: str) -> dict:
+    """A vehicle's model parameters (``groundstation/vehicles/<vehicle>.json``), or none."""
+    return dict(_vehicle_file(vehicle).get(model, {})) if vehicle else {}
+
+
+def vehicle_effects(vehicle: str | None) -> list[dict]:
+    """Effects known for a vehicle (its geometry, calibrations): declared like a scenario's."""
+    return list(_vehicle_file(vehicle).get("effects", [])) if vehicle else []
 
 
 def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None,
-                    vehicle: str | None = None) -> KalmanEstimator:
+                    vehicle: str | None = None, *, vehicle_geometry: bool = True) -> KalmanEstimator:
     """``noise``: measurement covariances by sensor (``groundstation noise``'s output);
-    ``vehicle``: a per-vehicle parameter file (noise densities, sensor noise)."""
+    ``vehicle``: a per-vehicle parameter file (noise densities, sensor noise and,
+    unless ``vehicle_geometry=False``, its known effects such as a range sensor's
+    mounting offset)."""
+    declared = list(declared) + (vehicle_effects(vehicle) if vehicle_geometry else [])
     names = {e.get("name") for e in declared}
     params = vehicle_config(vehicle, name)
     if name == "altitude":
-        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, **params))
+        offset = sum(float(e.get("params", {}).get("o", 0.0)) for e in declared if e.get("name") == "range_offset")
+        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, range_offset=offset, **params))
     if name == "heli3dof":
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))

@@ -63,9 +63,10 @@ def test_evaluate_the_altitude_filter_against_vicon(name):
     r = subprocess.run([sys.executable, "-m", "groundstation.cli", "evaluate", str(p)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     lines = {ln.split()[0]: ln.split() for ln in r.stdout.splitlines() if ln.split()}
-    est, tof = float(lines["estimate"][1]), float(lines["range"][2])
-    # Both carry the ToF's ~3.5 cm mounting offset (unobservable with the ToF as the
-    # only precise absolute sensor), so the filter can only remove the noise part:
-    # it is within 15 % of the ToF on every log (beats it on two of three). Beating it
-    # everywhere needs the offset and the IMU misalignment found (the diagnosis).
-    assert tof < 0.05 and est < 1.15 * tof
+    est, tof, tof_o = float(lines["estimate"][1]), float(lines["range"][2]), float(lines["range-o"][2])
+    # The bar: the filter (IMU input, baro and ToF updates) beats the ToF alone.
+    assert tof < 0.05 and est < 0.95 * tof
+    # Against the ToF with the same mounting offset applied the margin is thin: the
+    # IMU input carries rotor vibration, and on traj4 (tilts to 17 deg) the slant is
+    # left in both (see crazyflie.json). Kept here so a regression shows.
+    assert est < 1.15 * tof_o

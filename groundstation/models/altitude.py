@@ -18,6 +18,8 @@ Measurement models, one per sensor (eq. 9.8 is the range sensor's):
 * ``range``: ``d = z`` (H = (1, 0, 0)), the document's eq. 9.8; with
   ``range_tilt=True`` (the catalogue effect, when declared or found) the slant
   ``d = z / (cos(roll) cos(pitch))``, H = (1 / (cos(roll) cos(pitch)), 0, 0);
+  with a mounting offset ``range_offset = o`` [m] (catalogue ``range_offset``,
+  the simulator's ``d_meas = d + o``) the reading is corrected to ``d - o``;
 * ``baro``: pressure altitude (ISA, or the log's own baro altitude) minus its
   value at initialisation, ``= z``;
 * ``gps``: GPS altitude minus its value at initialisation, ``= z``.
@@ -46,7 +48,7 @@ G = 9.80665
 
 def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range: float = 0.0105,
                    sigma_baro: float = 0.345, sigma_gps: float = 2.0, P0_bias: float = 0.04,
-                   range_tilt: bool = False) -> LinearModel:
+                   range_tilt: bool = False, range_offset: float = 0.0) -> LinearModel:
     """The document's 3-state filter with our default noise densities.
 
     ``G_acc`` [(m/s^2)^2 / Hz]: accelerometer white noise (0.08 m/s^2 at
@@ -65,7 +67,7 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
         return np.array([[1.0 / max(c, 0.2), 0.0, 0.0]])
 
     meas = {
-        "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0]]),
+        "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0] - range_offset]),
                                   range_row if range_tilt else (lambda ctx: H), np.array([[sigma_range**2]])),
         "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
                                  relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
