@@ -87,6 +87,7 @@ class KalmanEstimator:
         rule = self.context.get(m.kind)
         if rule is not None:
             f.ctx.values["_x"] = f.kf.x
+            f.ctx.values["_u"] = f.u
             rule(m, f.ctx)
         inp = self.inputs.get(m.kind)
         mms = self._by_kind.get(m.kind)
@@ -205,6 +206,17 @@ def _motor_voltages(m: Measurement, ctx: Context) -> np.ndarray | None:
     return np.array([vf + vb - V_S0, vb - vf])
 
 
+def _estimate_for_accel(m: Measurement, ctx: Context) -> None:
+    """The arm's own acceleration (removed before the gravity direction is read) needs
+    the angles, the rates and the input."""
+    x, u = ctx.values.get("_x"), ctx.values.get("_u")
+    if x is not None:
+        v = ctx.values
+        v["p_hat"], v["p_dot_hat"], v["e_hat"], v["e_dot_hat"], v["lambda_dot_hat"] = (
+            float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[5]))
+        v["u_s"] = float(u[0]) if u is not None and len(u) else 0.0
+
+
 def _estimate_for_gyro(m: Measurement, ctx: Context) -> None:
     """The gyro's Euler-rate transform needs the current pitch and elevation."""
     x = ctx.values.get("_x")
@@ -216,6 +228,6 @@ def heli3dof_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.heli3dof import heli3dof_model
     est = KalmanEstimator(model or heli3dof_model(), inputs={Kind.ACTUATOR: _motor_voltages,
                                                              Kind.MOTOR_VOLTAGE: _motor_voltages},
-                          context={Kind.GYRO: _estimate_for_gyro})
+                          context={Kind.GYRO: _estimate_for_gyro, Kind.ACCEL: _estimate_for_accel})
     est.filter.ctx.values["_x"] = est.filter.kf.x
     return est

@@ -15,7 +15,18 @@ Measurements, each its own model (the lab's C_gyro, eq. 47, and C_IMU, eq. 57):
   transform (the lab's "Euler block"; the IMU sits on the arm, so its rates are
   the Euler rates only when level);
 * ``accel``: (p, e) from the gravity direction (eq. 51, 52:
-  ``p = atan2(-f_y, -f_z)``, ``e = atan2(f_x, sqrt(f_y^2 + f_z^2))`` in FRD);
+  ``p = atan2(-f_y, -f_z)``, ``e = atan2(f_x, sqrt(f_y^2 + f_z^2))`` in FRD).
+  The lab reads eq. 51-52 from the raw specific force, which holds only at rest:
+  the IMU sits ``l_h`` out on the arm, so in flight it also feels the arm's
+  centripetal and tangential accelerations (0.1-0.5 m/s^2, i.e. 0.01-0.05 rad of
+  false attitude, several sigma of the sensor). With ``arm_acceleration=True``
+  (default) they are removed first, from the prior estimate::
+
+      a_N = l_h (-ce (e_d^2 + l_d^2) - se e_dd,  -2 se e_d l_d + ce l_dd,  se e_d^2 - ce e_dd)   (NED, lambda = 0)
+      f_gravity = f - R_IB(p, e, 0)^T a_N,   e_dd = K2 (V_s - V_s0),  l_dd = K3 p
+
+  (the point's acceleration, ``sim_bridge.vehicles.heli3dof``'s kinematics,
+  at travel 0: the body-frame result does not depend on travel);
 * ``encoders``: (p, e, lambda), from the encoder board or MAVLink ATTITUDE.
 
 R: from the covariance of stationary data (``groundstation noise``), as the lab
@@ -77,15 +88,33 @@ def euler_rates(p: float, e: float, w) -> np.ndarray:
     return np.array([wx + (wy * sp + wz * cp) * math.tan(e), wy * cp - wz * sp, (wy * sp + wz * cp) / ce])
 
 
-def heli3dof_model(*, R: dict | None = None, G_acc: float = 2e-3, K_f: float = K_F) -> LinearModel:
+def arm_acceleration_body(p: float, e: float, e_dot: float, l_dot: float, e_dd: float, l_dd: float) -> np.ndarray:
+    """The IMU point's acceleration (l_h out on the arm) in the IMU's FRD frame [m/s^2]."""
+    se, ce, sp, cp = math.sin(e), math.cos(e), math.sin(p), math.cos(p)
+    a = L_H * np.array([-ce * (e_dot**2 + l_dot**2) - se * e_dd,
+                        -2 * se * e_dot * l_dot + ce * l_dd,
+                        se * e_dot**2 - ce * e_dd])
+    # R_IB(roll p, pitch e, yaw 0) = Ry(e) Rx(p); its transpose takes NED to body
+    ay = np.array([ce * a[0] - se * a[2], a[1], se * a[0] + ce * a[2]])          # Ry(e)^T a
+    return np.array([ay[0], cp * ay[1] + sp * ay[2], -sp * ay[1] + cp * ay[2]])   # Rx(p)^T
+
+
+def heli3dof_model(*, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K_F,
+                   arm_acceleration: bool = True) -> LinearModel:
     A, B = matrices(K_f)
+    K1, K2, K3 = gains(K_f)
     R = {**R_DEFAULT, **(R or {})}
 
     def gyro(m, ctx):
         return euler_rates(ctx.get("p_hat"), ctx.get("e_hat"), m.value)
 
     def accel(m, ctx):
-        fx, fy, fz = m.value
+        f = np.asarray(m.value, dtype=float)
+        if arm_acceleration:
+            p_hat = ctx.get("p_hat")
+            f = f - arm_acceleration_body(p_hat, ctx.get("e_hat"), ctx.get("e_dot_hat"), ctx.get("lambda_dot_hat"),
+                                          K2 * ctx.get("u_s"), K3 * p_hat)
+        fx, fy, fz = f
         return np.array([math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))])
 
     def encoders(m, ctx):

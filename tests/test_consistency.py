@@ -1,0 +1,132 @@
+"""Filter consistency over 20 seeded simulated flights (Bar-Shalom's Monte-Carlo test).
+
+For each estimator: per run, the time-averaged NEES (error against the
+simulator's truth, normalised by the filter's own covariance) and NIS; across
+the M = 20 runs, their average must lie in the two-sided 95 % band of
+chi^2(n M) / M. Where the truth is not at the filter's prior mean (thrust
+coefficients, biases, offsets), it is drawn from the prior, so that the test
+asks exactly "is P honest?". The altitude filter's run is in test_estimation.py.
+"""
+import csv
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from groundstation.attitude_drag import DragAttitudeEKF
+from groundstation.estimator import heli3dof_estimator, quad_thrust_estimator
+from groundstation.loop import EstimationLoop
+from groundstation.measurement import Kind
+from groundstation.models.heli3dof import heli3dof_model
+from groundstation.models.quad_thrust import quad_thrust_model
+from groundstation.replay import Replay
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+
+M = 20
+
+
+def band(dof: int) -> tuple[float, float]:
+    lo, hi = chi2.ppf([0.025, 0.975], dof * M) / M
+    return float(lo), float(hi)
+
+
+def nees(E: np.ndarray, P: np.ndarray) -> float:
+    return float(np.mean([e @ np.linalg.solve(p, e) for e, p in zip(E, P)]))
+
+
+def truth_of(csv_path):
+    rows = list(csv.DictReader(open(csv_path)))
+    return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
+
+
+def run_loop(est, tlog):
+    loop = EstimationLoop([est])
+    sub = loop.snapshots.subscribe()
+    for m in Replay(tlog).iter_measurements():
+        loop.push(m)
+    loop.flush()
+    s = sub.get_nowait()
+    return np.array([x.t for x in s]), np.array([x.x for x in s]), np.array([x.P for x in s])
+
+
+@pytest.mark.slow
+def test_quad_thrust_filter_is_consistent(tmp_path):
+    rng = np.random.default_rng(11)
+    runs, nis = [], {"baro": [], "range": []}
+    for k in range(M):
+        m = quad_thrust_model()
+        sd = np.sqrt(np.diag(m.P0))
+        o = float(rng.normal(0.0, sd[5]))                    # ToF offset, from the prior
+        sc = Scenario.from_args("quad", 200 + k, 60.0, ["range_tilt", f"range_offset:o={o}"], [])
+        run_fast(sc, tmp_path / "q.tlog", tmp_path / "q.csv")
+        tr = truth_of(tmp_path / "q.csv")
+        x0 = m.x0.copy()                                     # the prior mean drawn around the truth
+        x0[2], x0[3] = 22.0 + rng.normal(0, sd[2]), -1.2 + rng.normal(0, sd[3])
+        m.x0 = x0
+        est = quad_thrust_estimator(m)
+        t, X, P = run_loop(est, tmp_path / "q.tlog")
+        t_land = tr["t"][np.flatnonzero(tr["h"] > 0.3)[-1]]
+        keep = (t > 15.0) & (t < t_land - 1.0)               # in the air, after take-off
+        T = np.stack([np.interp(t, tr["t"], tr["h"]), -np.interp(t, tr["t"], tr["vd"]), np.full(len(t), 22.0),
+                      np.full(len(t), -1.2), np.full(len(t), o)], 1)
+        idx = [0, 1, 2, 3, 5]                                # d_bar: relative to the filter's own reference
+        runs.append(nees((X[:, idx] - T)[keep], P[keep][:, idx][:, :, idx]))
+        for s in nis:
+            a = est.filter.log.arrays(s)
+            nis[s].append(a["nis"][(a["t"] > 15.0) & (a["t"] < t_land - 1.0)].mean())
+    lo, hi = band(5)
+    assert lo <= np.mean(runs) <= hi, (np.mean(runs), lo, hi)
+    lo, hi = band(1)
+    for s, v in nis.items():
+        assert lo <= np.mean(v) <= hi, (s, np.mean(v), lo, hi)
+
+
+@pytest.mark.slow
+def test_heli3dof_filter_is_consistent_with_the_arm_acceleration_removed(tmp_path):
+    runs, nis = [], {"gyro": [], "accel": []}
+    for k in range(M):
+        run_fast(Scenario("heli3dof", seed=k, duration=24), tmp_path / "h.tlog", tmp_path / "h.csv")
+        tr = truth_of(tmp_path / "h.csv")
+        est = heli3dof_estimator(heli3dof_model())
+        est._by_kind.pop(Kind.ATTITUDE, None)                # the lab's IMU-only filter
+        t, X, P = run_loop(est, tmp_path / "h.tlog")
+        keep = (t > 8.0) & (t < 22.0)
+        T = np.stack([np.interp(t, tr["t"], tr[n]) for n in est.model.states], 1)
+        idx = [0, 1, 2, 3, 5]                                # travel itself is unobservable from the IMU
+        runs.append(nees((X - T)[keep][:, idx], P[keep][:, idx][:, :, idx]))
+        for s in nis:
+            a = est.filter.log.arrays(s)
+            nis[s].append(a["nis"][(a["t"] > 8.0) & (a["t"] < 22.0)].mean())
+    lo, hi = band(5)
+    assert lo <= np.mean(runs) <= hi, (np.mean(runs), lo, hi)
+    for s, dof in (("gyro", 3), ("accel", 2)):
+        lo, hi = band(dof)
+        assert lo <= np.mean(nis[s]) <= hi, (s, np.mean(nis[s]), lo, hi)
+
+
+@pytest.mark.slow
+def test_drag_attitude_ekf_is_consistent_on_a_multirotor(tmp_path):
+    rng = np.random.default_rng(5)
+    runs, nis = [], []
+    for k in range(M):
+        bx, by = rng.normal(0.0, 0.05, 2)                  # gyro biases from the prior (P0_bias = 0.05)
+        run_fast(Scenario.from_args("quad", 300 + k, 50.0, [], [f"gyro_bias:x={bx},y={by},z=0"]),
+                 tmp_path / "q.tlog", tmp_path / "q.csv")
+        tr = truth_of(tmp_path / "q.csv")
+        ekf = DragAttitudeEKF()
+        E, P, n0 = [], [], 0
+        for m in Replay(tmp_path / "q.tlog").iter_measurements():
+            ekf.handle(m)
+            if m.kind is Kind.ACCEL and 10.0 < m.t < 45.0 and ekf.started:
+                if n0 == 0:
+                    n0 = len(ekf.nis)
+                x = np.array([np.interp(m.t, tr["t"], tr["roll"]), np.interp(m.t, tr["t"], tr["pitch"]), bx, by])
+                E.append(ekf.ekf.x[:4] - x)
+                P.append(ekf.P[:4, :4].copy())
+        runs.append(nees(np.array(E), np.array(P)))
+        nis.append(np.mean(ekf.nis[n0:n0 + len(E)]))
+    lo, hi = band(4)
+    assert lo <= np.mean(runs) <= hi, (np.mean(runs), lo, hi)
+    lo, hi = band(2)
+    assert lo <= np.mean(nis) <= hi, (np.mean(nis), lo, hi)
