@@ -33,6 +33,7 @@ from drivers.transports import TransportError
 
 from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
 from .estimators import MODELS, build_estimator, declared_beside, declared_effects
+from .estimator import horizontal_estimator
 from .export import EstimateCsvWriter, MeasurementCsvWriter
 from .loop import EstimationLoop
 from .noise import load_noise, stationary_noise
@@ -194,7 +195,12 @@ class Outputs:
     def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
         self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise),
                                          vehicle=vehicle)
-        self.loop = EstimationLoop([self.estimator])
+        estimators = [self.estimator]
+        if dashboard is not None:
+            # the 3D view needs a horizontal place and its covariance; none of the
+            # documents' models has one (see models/horizontal.py)
+            estimators.append(horizontal_estimator())
+        self.loop = EstimationLoop(estimators)
         self.status = StatusLine()
         self.dashboard = dashboard
         self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None

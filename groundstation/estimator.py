@@ -120,22 +120,26 @@ class KalmanEstimator:
 
 
 # -- the altitude estimator's routing (coaxial document, chapter 9) ---------------------------
-def _set_tilt(ctx: Context, roll: float, pitch: float) -> None:
+def _set_tilt(ctx: Context, roll: float, pitch: float, yaw: float = 0.0) -> None:
     v = ctx.values
-    v["roll"], v["pitch"] = roll, pitch
-    # the third row of A_IB (coaxial doc. eq. 3.10): body -> world-down, kept
-    # with the attitude (50 Hz) rather than recomputed per IMU sample (1 kHz)
-    v["down_row"] = (-math.sin(pitch), math.cos(pitch) * math.sin(roll), math.cos(roll) * math.cos(pitch))
+    v["roll"], v["pitch"], v["yaw"] = roll, pitch, yaw
+    # the rows of A_IB (coaxial doc. eq. 3.10): body -> world, kept with the
+    # attitude (50 Hz) rather than recomputed per IMU sample (1 kHz)
+    sf, cf, st, ct, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch), math.sin(yaw), math.cos(yaw)
+    v["north_row"] = (cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st)
+    v["east_row"] = (ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf)
+    v["down_row"] = (-st, ct * sf, cf * ct)
 
 
 def _attitude(m: Measurement, ctx: Context) -> None:
-    _set_tilt(ctx, float(m.value[0]), float(m.value[1]))
+    _set_tilt(ctx, float(m.value[0]), float(m.value[1]), float(m.value[2]) if len(m.value) > 2 else 0.0)
 
 
 def _quaternion(m: Measurement, ctx: Context) -> None:
     w, x, y, z = m.value
     _set_tilt(ctx, math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-              math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))))
+              math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))),
+              math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 def _throttle(m: Measurement, ctx: Context) -> None:
@@ -165,6 +169,22 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                     Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators})
+
+
+# -- horizontal position (IMU input, GPS updates) -------------------------------------------------
+def horizontal_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """(a_n, a_e) = rows 1 and 2 of A_IB f (gravity has no horizontal component)."""
+    if m.instance != 0:
+        return None
+    f = m.value.tolist()
+    rn, re_ = ctx.values.get("north_row", (1.0, 0.0, 0.0)), ctx.values.get("east_row", (0.0, 1.0, 0.0))
+    return np.array([rn[0] * f[0] + rn[1] * f[1] + rn[2] * f[2], re_[0] * f[0] + re_[1] * f[1] + re_[2] * f[2]])
+
+
+def horizontal_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+    from .models.horizontal import horizontal_model
+    return KalmanEstimator(model or horizontal_model(), inputs={Kind.ACCEL: horizontal_acceleration},
+                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion})
 
 
 # -- the quadcopter thrust-model estimator's routing (quadcopter document) ---------------------

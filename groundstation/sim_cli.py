@@ -125,6 +125,7 @@ async def run_demo(args) -> int:
 
     from .console import StatusLine, print_link_events
 
+    from .estimator import horizontal_estimator
     from .estimators import build_estimator
     from .loop import EstimationLoop
 
@@ -137,7 +138,10 @@ async def run_demo(args) -> int:
         dash = Dashboard(host=args.host, port=args.port)
         print(f"dashboard: {dash.url}", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
-    loop = EstimationLoop([build_estimator(model, [{"name": "range_tilt"}] if model == "altitude" else [])])
+    estimators = [build_estimator(model, [{"name": "range_tilt"}] if model == "altitude" else [])]
+    if dash is not None and args.vehicle != "heli3dof":      # the rig is bolted to the table
+        estimators.append(horizontal_estimator())
+    loop = EstimationLoop(estimators)
     snaps = loop.snapshots.subscribe(lossy=True, maxlen=1000)
     loop.attach_link(link)
     port = link.transport.local_address[1]

@@ -102,3 +102,51 @@ async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
         if proc.returncode is None:
             proc.terminate()
             await proc.wait()
+
+
+@async_test(timeout=60)
+async def test_websocket_updates_arrive_at_the_configured_rates():
+    """What a tab receives, at the protocol level: the scene at scene_hz, the plots at plot_hz,
+    however fast the estimates come (here 200 Hz)."""
+    import time
+
+    from groundstation.loop import Snapshot
+    from web.dashboard import Dashboard
+    from web.probe import ViserProbe, gui_id
+
+    d = Dashboard(port=0, scene_hz=20.0, plot_hz=5.0)
+    pusher = asyncio.create_task(d.run())
+
+    async def estimates():
+        k = 0
+        while True:
+            k += 1
+            d.feed_snapshot(Snapshot(k * 0.005, "altitude", ("z", "vz", "b_acc"), np.array([1.0 + 1e-3 * k, 0, 0]),
+                                     np.eye(3) * 1e-4, None, time.monotonic()))
+            await asyncio.sleep(0.005)
+
+    feeder = asyncio.create_task(estimates())
+    try:
+        scene, plot = [], []
+        plot_id = gui_id(d.plot_z)
+        async with ViserProbe(d.url) as probe:
+            t_end = None
+            async for t, messages in probe.frames():
+                for m in messages:
+                    if m["type"] == "SetPositionMessage" and m["name"] == "/vehicle":
+                        scene.append(t)
+                    elif m["type"] == "GuiUpdateMessage" and m.get("uuid", m.get("id")) == plot_id:
+                        plot.append(t)
+                if scene and t_end is None:
+                    t_end = scene[0] + 4.0                    # four seconds after the first update
+                if t_end is not None and t > t_end:
+                    break
+        scene_hz = (len(scene) - 1) / (scene[-1] - scene[0])
+        plot_hz = (len(plot) - 1) / (plot[-1] - plot[0])
+        assert 0.9 * 20.0 <= scene_hz <= 1.05 * 20.0, scene_hz
+        assert 0.9 * 5.0 <= plot_hz <= 1.05 * 5.0, plot_hz
+    finally:
+        feeder.cancel()
+        pusher.cancel()
+        await asyncio.gather(feeder, pusher, return_exceptions=True)
+        d.stop()

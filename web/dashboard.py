@@ -10,7 +10,9 @@ Shown as x = north, y = west, z = up, i.e. vectors ``(n, -e, -d)`` and body
 quaternions ``(w, x, -y, -z)`` (a half turn about x): a right-handed frame
 in which north/up read naturally and nothing is mirrored.
 
-Scene: the vehicle at its estimated pose (box + axes), the truth as a ghost
+Scene: the vehicle at its estimated pose (box + axes; height from the
+session's model, horizontal place from the IMU + GPS filter of
+``groundstation.models.horizontal``), the truth as a ghost
 when the session has truth, a trail, the position covariance as a 3-sigma
 ellipsoid oriented by its eigenvectors, the range sensor's ray, a ground grid.
 Panels: link status, the state table with +-sigma, time plots (estimate with
@@ -22,6 +24,7 @@ from __future__ import annotations
 import asyncio
 import math
 import socket
+import time
 from collections import deque
 
 import numpy as np
@@ -72,6 +75,7 @@ class Dashboard:
         self.port = free_port(host, port)
         self.host = host
         self.server = viser.ViserServer(host=host, port=self.port, label=title, verbose=False)
+        self.port = self.server.get_port()           # the one bound (``port=0``: the OS's choice)
         self.scene_hz, self.plot_hz, self.window_s = scene_hz, plot_hz, window_s
         self.url = f"http://{host}:{self.port}"
         self.scene_updates = 0
@@ -80,7 +84,7 @@ class Dashboard:
         self._att = (0.0, 0.0, 0.0)
         self._truth: Measurement | None = None
         self._pos_ne = np.zeros(2)
-        self._gps0 = None
+        self._P_ne: np.ndarray | None = None        # horizontal covariance, once estimated
         self._range = math.nan
         self._trail: deque = deque(maxlen=600)
         self._series: deque = deque()       # (t, z, sigma_z)
@@ -143,22 +147,16 @@ class Dashboard:
         elif k is Kind.RANGE:
             self._range = float(m.value[0])
             self._meas.append((m.t, self._range))
-        elif k is Kind.POSITION_NED:
-            self._pos_ne = np.array(m.value[:2], dtype=float)
-        elif k is Kind.GPS:
-            if self._gps0 is None:
-                self._gps0 = (float(m.value[0]), float(m.value[1]))
-            lat0, lon0 = self._gps0
-            ne = np.array([(m.value[0] - lat0) * 111_320.0,
-                           (m.value[1] - lon0) * 111_320.0 * math.cos(math.radians(lat0))])
-            # no estimator here estimates horizontal position: show GPS, smoothed
-            # (time constant ~2 s at 5 Hz) so its metre of noise does not scribble
-            self._pos_ne = self._pos_ne + 0.1 * (ne - self._pos_ne)
         elif k is Kind.TRUTH_POSE:
             self._truth = m
         self._dirty = True
 
     def feed_snapshot(self, snap) -> None:
+        if snap.estimator == "horizontal":          # place and covariance in the horizontal plane
+            self._pos_ne = np.array(snap.x[:2], dtype=float)
+            self._P_ne = np.array(snap.P[:2, :2], dtype=float)
+            self._dirty = True
+            return
         self._snap = snap
         if "z" in snap.states:
             i = snap.states.index("z")
@@ -217,7 +215,10 @@ class Dashboard:
         s = self._snap
         if s is not None:
             sig_z = float(s.sigma[s.states.index("z")]) if "z" in s.states else 0.05
-            cov = np.diag([0.05**2, 0.05**2, sig_z**2])           # horizontal: not estimated here
+            cov = np.diag([0.05**2, 0.05**2, sig_z**2])           # horizontal: until it is estimated
+            if self._P_ne is not None:
+                cov[:2, :2] = self._P_ne
+            cov = cov * np.outer(_FLIP, _FLIP)                      # NED -> view axes
             w, V = np.linalg.eigh(cov)
             if np.linalg.det(V) < 0:
                 V[:, 0] = -V[:, 0]
@@ -269,20 +270,26 @@ class Dashboard:
 
     async def run(self) -> None:
         """Push scene and panels at their rates until cancelled."""
-        async def scene():
-            while True:
-                if self._dirty:
-                    self.update_scene()
-                await asyncio.sleep(1.0 / self.scene_hz)
-
-        async def panels():
-            while True:
-                self.update_panels()
-                await asyncio.sleep(1.0 / self.plot_hz)
-        await asyncio.gather(scene(), panels())
+        def scene():
+            if self._dirty:
+                self.update_scene()
+        await asyncio.gather(_every(1.0 / self.scene_hz, scene), _every(1.0 / self.plot_hz, self.update_panels))
 
     def stop(self) -> None:
         self.server.stop()
+
+
+async def _every(period: float, fn) -> None:
+    """Call ``fn`` on a fixed schedule (not sleep-after-work, which runs slow);
+    after a stall, resume the schedule rather than burst to catch up."""
+    nxt = time.monotonic()
+    while True:
+        fn()
+        nxt += period
+        delay = nxt - time.monotonic()
+        if delay < 0:
+            nxt, delay = time.monotonic(), 0.0
+        await asyncio.sleep(delay)
 
 
 def _f32(*arrays) -> tuple[np.ndarray, ...]:

@@ -1,0 +1,60 @@
+"""A protocol-level viser client: what a browser tab receives, and when.
+
+The dashboard's tests and benchmark need to see the websocket traffic itself
+(update rates, the lag from an estimate to its arrival), which a rendered page
+does not expose. This client speaks viser's wire protocol (its
+``_infra._message_producer``): it connects with the ``viser-v<version>``
+subprotocol and decodes each frame, ``[8 B msgpack size][8 B compressed
+size][zstd(msgpack)][raw buffers]``, into the list of message dicts, each
+with its ``type`` (``SetPositionMessage``, ``GuiUpdateMessage``, ...). It
+only listens, as a passive browser tab does.
+"""
+from __future__ import annotations
+
+import time
+from typing import AsyncIterator
+
+import msgspec
+import viser
+import websockets
+import zstandard
+
+
+class ViserProbe:
+    """``async with ViserProbe(url) as p: async for t, messages in p.frames(): ...``"""
+
+    def __init__(self, url: str) -> None:
+        self.url = url.replace("http://", "ws://").replace("https://", "wss://")
+        self._ws = None
+        self._dz = zstandard.ZstdDecompressor()
+        self.frames_received = 0
+        self.bytes_received = 0
+
+    async def __aenter__(self) -> "ViserProbe":
+        self._ws = await websockets.connect(self.url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self._ws.close()
+
+    def decode(self, raw: bytes) -> list[dict]:
+        size, compressed = int.from_bytes(raw[0:8], "little"), int.from_bytes(raw[8:16], "little")
+        inner = self._dz.decompress(raw[16:16 + compressed], max_output_size=size)
+        return list(msgspec.msgpack.decode(inner)["messages"])
+
+    async def frames(self) -> AsyncIterator[tuple[float, list[dict]]]:
+        """(receive time on ``time.monotonic``, messages) per websocket frame, until closed."""
+        while True:
+            try:
+                raw = await self._ws.recv()
+            except websockets.ConnectionClosed:
+                return
+            t = time.monotonic()
+            self.frames_received += 1
+            self.bytes_received += len(raw)
+            yield t, self.decode(raw)
+
+
+def gui_id(handle) -> str:
+    """The id viser's GuiUpdateMessage carries for a GUI handle."""
+    return handle._impl.uuid
