@@ -33,6 +33,7 @@ bench: setup
 	$(BIN)/python bench/sim_speed.py
 	$(BIN)/python bench/ingest.py
 	$(BIN)/python bench/bulk.py
+	$(BIN)/python bench/dashboard.py
 	$(BIN)/python bench/estimation.py
 
 clean:

@@ -86,7 +86,10 @@ class Dashboard:
         self._pos_ne = np.zeros(2)
         self._P_ne: np.ndarray | None = None        # horizontal covariance, once estimated
         self._range = math.nan
-        self._trail: deque = deque(maxlen=600)
+        self._trail: deque = deque(maxlen=300)
+        self._trail_changed = False
+        self._ellipsoid_shape = None
+        self._ray_shown = math.inf
         self._series: deque = deque()       # (t, z, sigma_z)
         self._meas: deque = deque()         # (t, range)
         self._innov: deque = deque()        # (t, nu, 2 sqrt S, nis)
@@ -106,7 +109,7 @@ class Dashboard:
         self.ellipsoid = sc.add_icosphere("/covariance", radius=1.0, color=(240, 160, 40), opacity=0.25,
                                           scale=(0.05, 0.05, 0.05))
         self.trail = sc.add_line_segments("/trail", points=np.zeros((1, 2, 3)), colors=(90, 90, 90), thickness=0.01)
-        self.ray = sc.add_line_segments("/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50),
+        self.ray = sc.add_line_segments("/vehicle/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50),
                                         thickness=0.015, visible=False)
         with gui.add_folder("Link"):
             self.link_md = gui.add_markdown("waiting for data")
@@ -146,6 +149,8 @@ class Dashboard:
             self._att = (float(m.value[0]), float(m.value[1]), float(m.value[2]))
         elif k is Kind.RANGE:
             self._range = float(m.value[0])
+            if self._meas and m.t < self._meas[-1][0] - 1.0:      # time went back (seek, loop): start over
+                self._meas.clear()
             self._meas.append((m.t, self._range))
         elif k is Kind.TRUTH_POSE:
             self._truth = m
@@ -158,6 +163,11 @@ class Dashboard:
             self._dirty = True
             return
         self._snap = snap
+        if self._series and snap.t < self._series[-1][0] - 1.0:
+            # time went back (a seek, a looping replay, a reboot): the plots start over,
+            # or their windows, pruned by the newest time, would never empty
+            self._series.clear()
+            self._innov.clear()
         if "z" in snap.states:
             i = snap.states.index("z")
             self._series.append((snap.t, float(snap.x[i]), float(snap.sigma[i])))
@@ -209,9 +219,12 @@ class Dashboard:
         self.vehicle.wxyz = frd_quat_to_view(q)
         if not self._trail or np.linalg.norm(self._trail[-1] - p_view) > 0.02:
             self._trail.append(p_view)
-        if len(self._trail) > 1:
+            self._trail_changed = True
+        # the trail is the heaviest scene message: every third frame (10 Hz) is smooth enough
+        if self._trail_changed and len(self._trail) > 1 and self.scene_updates % 3 == 0:
             pts = np.array(self._trail)
             self.trail.points = np.stack([pts[:-1], pts[1:]], axis=1)
+            self._trail_changed = False
         s = self._snap
         if s is not None:
             sig_z = float(s.sigma[s.states.index("z")]) if "z" in s.states else 0.05
@@ -222,14 +235,20 @@ class Dashboard:
             w, V = np.linalg.eigh(cov)
             if np.linalg.det(V) < 0:
                 V[:, 0] = -V[:, 0]
-            self.ellipsoid.scale = tuple(float(x) for x in 3.0 * np.sqrt(np.clip(w, 1e-12, None)))
-            self.ellipsoid.wxyz = matrix_to_quat(V)
+            scale = 3.0 * np.sqrt(np.clip(w, 1e-12, None))
+            q = np.array(matrix_to_quat(V))
+            # each message goes to every client: the shape only when it visibly changed
+            last = self._ellipsoid_shape
+            if last is None or np.max(np.abs(scale / last[0] - 1.0)) > 0.02 or abs(q @ last[1]) < 0.9995:
+                self.ellipsoid.scale = tuple(float(x) for x in scale)
+                self.ellipsoid.wxyz = tuple(float(x) for x in q)
+                self._ellipsoid_shape = (scale, q)
             self.ellipsoid.position = p_view
-        if self._range == self._range:
-            R = _rot(*self._att)
-            end = pos + R @ np.array([0.0, 0.0, self._range])           # along body z (down)
-            self.ray.points = np.array([[ned_to_view(pos), ned_to_view(end)]])
+        if self._range == self._range and abs(self._range - self._ray_shown) > 0.005:
+            # a child of the vehicle frame: along body z (down), i.e. -z in the view's body axes
+            self.ray.points = np.array([[[0.0, 0.0, 0.0], [0.0, 0.0, -self._range]]])
             self.ray.visible = True
+            self._ray_shown = self._range
         if self._truth is not None:
             self.ghost.visible = True
             self.ghost.position = ned_to_view(self._truth.value[:3])
@@ -292,15 +311,20 @@ async def _every(period: float, fn) -> None:
         await asyncio.sleep(delay)
 
 
+#: a plot panel is ~300 px wide: more points than this only cost bytes, per client
+PLOT_POINTS = 400
+
+
 def _f32(*arrays) -> tuple[np.ndarray, ...]:
-    """Plot data as float32: half the bytes per update, and (seen in headless
-    Chromium with viser 1.1.1) float64 series that are constant, like the
-    chi-square bounds, blank the whole control panel, while float32 ones draw."""
-    return tuple(np.ascontiguousarray(a, dtype=np.float32) for a in arrays)
+    """Plot data as float32, at most ``PLOT_POINTS`` samples (every k-th, the
+    newest kept): half the bytes of float64, and (seen in headless Chromium with
+    viser 1.1.1) float64 series that are constant, like the chi-square bounds,
+    blank the whole control panel, while float32 ones draw."""
+    n = len(arrays[0])
+    k = max(1, -(-n // PLOT_POINTS))
+    idx = np.arange(n - 1, -1, -k)[::-1]
+    return tuple(np.ascontiguousarray(np.asarray(a)[idx], dtype=np.float32) for a in arrays)
 
 
-def _rot(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    from sim_bridge.rotation import a_ib
-    return a_ib(roll, pitch, yaw)
 
 
