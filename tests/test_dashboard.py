@@ -53,6 +53,7 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
         async with Browser() as b:
             await b.goto(url)
             await b.wait_for_text("NIS and its 95 % band")          # the panels have arrived
+            await b.wait_for_text("bias / parameter state")
             await b.wait_for_text("±")                              # the state table is live
             a = await b.screenshot(ARTIFACTS / "dashboard_1.png")
             t_first = await _replay_time(b)

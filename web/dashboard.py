@@ -17,7 +17,8 @@ when the session has truth, a trail, the position covariance as a 3-sigma
 ellipsoid oriented by its eigenvectors, the range sensor's ray, a ground grid.
 Panels: link status, the state table with +-sigma, time plots (estimate with
 +-2 sigma against its measurements; innovations with +-2 sqrt(S); NIS with its
-95 % chi-square band), replay controls, and the diagnosis panel.
+95 % chi-square band; a bias or parameter state, chosen in a dropdown, +-2
+sigma), replay controls, and the diagnosis panel.
 """
 from __future__ import annotations
 
@@ -93,6 +94,7 @@ class Dashboard:
         self._series: deque = deque()       # (t, z, sigma_z)
         self._meas: deque = deque()         # (t, range)
         self._innov: deque = deque()        # (t, nu, 2 sqrt S, nis)
+        self._params: deque = deque()       # (t, x[2:], sigma[2:])
         self._dirty = False
         self.status_text = "waiting for data"
         self._build()
@@ -133,6 +135,14 @@ class Dashboard:
                 series=({"label": "t [s]"}, {"label": "NIS", "stroke": "#7a3fc0", "width": 1},
                         {"label": "χ² 2.5 %", "stroke": "#aaa"}, {"label": "χ² 97.5 %", "stroke": "#aaa"}),
                 scales={"x": {"time": False, "auto": True}}, title="NIS and its 95 % band", aspect=1.6)
+            # bias and parameter states (all but the kinematic first two), one at a time:
+            # their scales differ by orders of magnitude (alpha ~ 20, biases ~ 0.01)
+            self.param_choice = gui.add_dropdown("parameter", options=("(none yet)",))
+            self.plot_param = gui.add_uplot(
+                data=(t0, t0, t0, t0),
+                series=({"label": "t [s]"}, {"label": "estimate", "stroke": "#2a8a4a", "width": 2},
+                        {"label": "-2σ", "stroke": "#9fd4b0"}, {"label": "+2σ", "stroke": "#9fd4b0"}),
+                scales={"x": {"time": False, "auto": True}}, title="bias / parameter state ±2σ", aspect=1.6)
         self.replay_folder = gui.add_folder("Replay")
         with self.replay_folder:
             self.play = gui.add_button("pause")
@@ -168,9 +178,12 @@ class Dashboard:
             # or their windows, pruned by the newest time, would never empty
             self._series.clear()
             self._innov.clear()
+            self._params.clear()
         if "z" in snap.states:
             i = snap.states.index("z")
             self._series.append((snap.t, float(snap.x[i]), float(snap.sigma[i])))
+        if len(snap.states) > 2:
+            self._params.append((snap.t, snap.x[2:].copy(), snap.sigma[2:]))
         rec = snap.innovation
         if rec is not None:
             self._innov.append((rec.t, float(rec.nu[0]), 2.0 * math.sqrt(float(rec.S[0, 0])), rec.nis, len(rec.nu)))
@@ -262,7 +275,7 @@ class Dashboard:
             rows = "\n".join(f"| {n} | {v:+.4f} | ±{sg:.4f} |" for n, v, sg in zip(s.states, s.x, s.sigma))
             self.state_md.content = f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}"
         t_now = self._series[-1][0] if self._series else 0.0
-        for buf in (self._series, self._meas, self._innov):
+        for buf in (self._series, self._meas, self._innov, self._params):
             while buf and buf[0][0] < t_now - self.window_s:
                 buf.popleft()
         if len(self._series) > 1:
@@ -282,6 +295,15 @@ class Dashboard:
             lo, hi = chi2.ppf([0.025, 0.975], dof)
             self.plot_nu.data = _f32(a[:, 0], a[:, 1], -a[:, 2], a[:, 2])
             self.plot_nis.data = _f32(a[:, 0], a[:, 3], np.full(len(a), lo), np.full(len(a), hi))
+        if s is not None and len(s.states) > 2 and self.param_choice.options != tuple(s.states[2:]):
+            self.param_choice.options = tuple(s.states[2:])
+            self.param_choice.value = s.states[2]
+        if len(self._params) > 1 and s is not None and self.param_choice.value in s.states[2:]:
+            j = s.states[2:].index(self.param_choice.value)
+            t = np.array([p[0] for p in self._params])
+            v = np.array([p[1][j] for p in self._params])
+            sg = np.array([p[2][j] for p in self._params])
+            self.plot_param.data = _f32(t, v, v - 2 * sg, v + 2 * sg)
         replay = getattr(self, "_replay", None)
         if replay is not None and abs(self.position.value - replay.position) > 0.5:
             self.position.value = round(replay.position, 1)
