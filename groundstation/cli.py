@@ -33,6 +33,7 @@ from drivers.transports import TransportError
 
 from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
 from .estimators import MODELS, build_estimator, declared_beside, declared_effects
+from .diagnosis.cli import add_parser as add_diagnose_parser, cmd_diagnose
 from .estimator import horizontal_estimator
 from .export import EstimateCsvWriter, MeasurementCsvWriter
 from .loop import EstimationLoop
@@ -108,6 +109,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--model", default="altitude", choices=MODELS)
     e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
     add_sim_parser(sub)
+    add_diagnose_parser(sub)
     return ap
 
 
@@ -130,6 +132,8 @@ def _run(args) -> int:
             return 0
         if args.command == "noise":
             return cmd_noise(args)
+        if args.command == "diagnose":
+            return cmd_diagnose(args)
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from .models.base import Context, LinearModel, MeasurementModel, discretize
+from .models.base import Context, LinearModel, MeasurementModel, discretize, discretize_series
 
 
 @dataclass
@@ -105,7 +105,13 @@ class ModelFilter:
         key = (k, tuple(np.round(self.u, 6))) if self._u_dependent else k
         d = self._cache.get(key)
         if d is None:
-            d = discretize(self.model.A(self.u), self.model.B, self.model.Qc, dt)
+            A = self.model.A(self.u)
+            if self._u_dependent and np.abs(A).sum(axis=1).max() * dt < 0.05:
+                # A changes with every input: a third-order series of the same integrals
+                # (error ~ (|A| dt)^4 / 24 < 3e-7), 20x cheaper than two matrix exponentials
+                d = discretize_series(A, self.model.B, self.model.Qc, dt)
+            else:
+                d = discretize(A, self.model.B, self.model.Qc, dt)
             if len(self._cache) > 4096:
                 self._cache.clear()
             self._cache[key] = d

@@ -170,6 +170,24 @@ def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple
     return Phi, G, 0.5 * (Qk + Qk.T)
 
 
+def discretize_series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float):
+    """The integrals of :func:`discretize` by their Taylor series to third order in ``A dt``
+    (for input-dependent A, where each step has its own A and the exponentials dominate)::
+
+        Phi = I + A T + A^2 T^2/2 + A^3 T^3/6
+        G   = (I T + A T^2/2 + A^2 T^3/6) B
+        Q_k = Qc T + (A Qc + Qc A^T) T^2/2 + (A^2 Qc + 2 A Qc A^T + Qc A^T2) T^3/6
+    """
+    n = A.shape[0]
+    AT = A * dt
+    AT2 = AT @ AT
+    Phi = np.eye(n) + AT + AT2 / 2 + AT2 @ AT / 6
+    G = (np.eye(n) + AT / 2 + AT2 / 6) @ B * dt
+    AQ = A @ Qc
+    Qk = Qc * dt + (AQ + AQ.T) * dt**2 / 2 + (A @ AQ + 2 * AQ @ A.T + (A @ AQ).T) * dt**3 / 6
+    return Phi, G, 0.5 * (Qk + Qk.T)
+
+
 def observability_rank(A: np.ndarray, C: np.ndarray) -> int:
     """Rank of [C; CA; ...; CA^{n-1}] (continuous-time observability)."""
     n = A.shape[0]

@@ -1,0 +1,182 @@
+"""The catalogue: each candidate effect as a change to the model (issue 7's canonical names).
+
+A candidate turns the model into an augmented one, the way a person would fix
+it: an extra state for an unknown constant or drift (a random constant, so the
+filter's estimate is the data's best value and its sigma the evidence), a
+regressor on a measurement (its coefficient a state), a changed measurement
+function (slant range), or a delay (the sensor's measurements applied at
+``t - d``, ``d`` on a grid). Its parameters are read from the augmented run.
+
+Which effects a model can show (issue 7, step 4): with the accelerometer as
+the altitude filter's *input*, thrust-side effects cannot appear in it at all
+(``thrust_voltage``, ``thrust_ground_effect``, ``actuator_lag``: the
+quadcopter thrust-model filter is where they show), and a constant offset on
+the range sensor, the only precise absolute height, cannot be told from the
+height itself (:data:`UNOBSERVABLE`). They are reported as such, not guessed.
+
+Sign conventions follow the simulator's effects (``sim_bridge/effects.py``),
+so a parameter found here compares directly with the one injected there.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from ..measurement import Kind, Measurement
+from ..models.base import LinearModel, pad_row
+
+
+@dataclass
+class Candidate:
+    name: str
+    k: int                                            # parameters it adds (BIC penalty)
+    needs: set = field(default_factory=set)           # kinds the log must have
+    sensor: str | None = None                         # the measurement it acts on
+    augment: Callable[[LinearModel], LinearModel] | None = None
+    params: Callable[..., dict] | None = None         # (run) -> {name: value}
+    delays: tuple[float, ...] = ()                    # sensor_delay: the grid
+    geometric: bool = False                           # tilt, latency: RMSE bar 80 %
+
+
+def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,
+                    Q: float = 0.0) -> LinearModel:
+    """One more state c, acting on ``sensor`` as ``y = h(x) + c * regressor(ctx)``."""
+    n = model.n
+    meas = {}
+    for key, mm in model.measurements.items():
+        if mm.name == sensor:
+            old = mm.row
+
+            def row(ctx, old=old):
+                r = pad_row(old(ctx), 1)
+                r[0, n] = regressor(ctx)
+                return r
+            meas[key] = replace(mm, row=row)
+    return model.augmented(states=[state], Qc_extra=[Q], x0_extra=[0.0], P0_extra=[P0], measurements=meas)
+
+
+def _state_param(name: str, state: str, scale: float = 1.0):
+    def read(run) -> dict:
+        v, s = run.final(state)
+        return {name: v * scale, f"sigma_{name}": s * abs(scale)}
+    return read
+
+
+# -- the altitude filter's candidates ----------------------------------------------------------------
+def baro_bias_drift(model: LinearModel) -> LinearModel:
+    """Baro error b with a constant drift rate d: b_dot = d (+ a small walk), y_baro = z + b."""
+    n = model.n
+    meas = {}
+    for key, mm in model.measurements.items():
+        if mm.name == "baro":
+            old = mm.row
+
+            def row(ctx, old=old):
+                r = pad_row(old(ctx), 2)
+                r[0, n] = 1.0
+                return r
+            meas[key] = replace(mm, row=row)
+    A_extra = np.array([[0.0, 1.0], [0.0, 0.0]])
+    return model.augmented(states=["b_baro", "baro_rate"], A_extra=lambda u: A_extra, Qc_extra=[1e-4, 0.0],
+                           x0_extra=[0.0, 0.0], P0_extra=[1e-4, 0.2**2], measurements=meas)
+
+
+def range_tilt(model: LinearModel) -> LinearModel:
+    """Slant range: y = z / (cos(roll) cos(pitch)) (the sensor looks along body z)."""
+    meas = dict(model.measurements)
+    mm = meas["range"]
+    old = mm.row
+
+    def row(ctx):
+        r = np.array(old(ctx), dtype=float)
+        c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
+        r[0, 0] = 1.0 / max(c, 0.2)
+        return r
+    meas["range"] = replace(mm, row=row)
+    return replace(model, measurements=meas)
+
+
+def accel_scale(model: LinearModel) -> LinearModel:
+    """gamma_meas = gamma + s (gamma + g) along the vertical: z_dd = gamma - b - s gamma (s g is in b)."""
+    iv = model.index("vz")
+
+    def coupling(u):
+        c = np.zeros((model.n, 1))
+        c[iv, 0] = -float(u[0]) if u is not None else 0.0
+        return c
+    return model.augmented(states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
+                           P0_extra=[0.05**2])
+
+
+def _temperature(ctx) -> float:
+    t0 = ctx.values.get("temperature_0")
+    return ctx.get("temperature") - t0 if t0 is not None else 0.0
+
+
+def _ground(ctx) -> float:
+    # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate
+    running = ctx.get("throttle") > 0.05 or ctx.get("vibration") > 0.05
+    return math.exp(-max(0.0, ctx.get("z")) / 0.5) if running else 0.0
+
+
+def altitude_catalogue(kinds: set) -> list[Candidate]:
+    """The candidates the altitude filter can show, given the log's kinds."""
+    baro_kinds = {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}
+    has_baro = bool(kinds & baro_kinds)
+    has_throttle = bool(kinds & {Kind.THROTTLE, Kind.ACTUATOR})
+    cands = [
+        Candidate("range_tilt", 0, {Kind.RANGE, Kind.ATTITUDE}, "range", range_tilt, lambda run: {},
+                  geometric=True),
+        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _state_param("s", "accel_scale")),
+        Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2),
+                  geometric=True),
+    ]
+    if has_baro:
+        cands += [
+            Candidate("baro_bias_drift", 2, set(), "baro", baro_bias_drift, _state_param("rate", "baro_rate")),
+            Candidate("sensor_delay", 1, set(), "baro", None, None, delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3),
+                      geometric=True),
+        ]
+        if Kind.TEMPERATURE in kinds:
+            cands.append(Candidate("baro_thermal", 1, {Kind.TEMPERATURE}, "baro",
+                                   lambda m: _with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
+                                   _state_param("k", "k_thermal")))
+        if has_throttle:
+            cands.append(Candidate("baro_thrust", 1, set(), "baro",
+                                   lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.get("throttle_lp"),
+                                                             10.0**2),
+                                   _state_param("k", "k_thrust")))
+        cands.append(Candidate("baro_ground_effect", 1, set(), "baro",
+                               lambda m: _with_regressor(m, "baro", "A_ground", _ground, 3.0**2),
+                               _state_param("A", "A_ground")))
+    return [c for c in cands if c.needs <= kinds]
+
+
+#: effects this model cannot show, and why (reported, not guessed)
+UNOBSERVABLE = {
+    "altitude": {
+        "range_offset": "a constant offset on the range sensor, the only precise absolute height, cannot be told "
+                        "from the height itself (the baro is calibrated against the estimate); it shows only "
+                        "against an external reference (motion capture), where it is measured",
+        "thrust_voltage": "thrust-side: with the accelerometer as input this model never predicts thrust; "
+                          "run the quad_thrust model",
+        "thrust_ground_effect": "thrust-side: run the quad_thrust model",
+        "actuator_lag": "thrust-side: run the quad_thrust model",
+        "gyro_bias": "acts on the attitude, which this model takes as given; the attitude EKF estimates it",
+        "imu_misalignment": "acts on the attitude and on gravity's projection; a small tilt of the vertical "
+                            "looks like an accelerometer bias here",
+    },
+}
+
+
+def shift(ms: list[Measurement], kinds: set, d: float) -> list[Measurement]:
+    """The given kinds' measurements taken as of ``t - d`` (a sensor delay undone), re-sorted."""
+    out = [m._replace(t=m.t - d) if m.kind in kinds else m for m in ms]
+    out.sort(key=lambda m: m.t)
+    return out
+
+
+SENSOR_KINDS = {"range": {Kind.RANGE}, "baro": {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}, "gps": {Kind.GPS}}

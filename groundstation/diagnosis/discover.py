@@ -1,0 +1,119 @@
+"""For what lies outside the catalogue: a sparse regression over the log's signals.
+
+The library holds what the log has, at the sensor's update instants: throttle,
+height, tilt, vertical speed and its square, voltage, current, temperature,
+rotor vibration, time; each also low-passed (0.5 s, 2 s) and delayed (0.1 s,
+0.3 s). Columns are standardised; the target is the sensor's raw innovation
+``nu`` [sensor units]. Orthogonal matching pursuit (the greedy sparse
+regression) picks the columns one at a time while each still lowers the BIC
+of the least-squares fit; the first pick is the strongest correlate, and its
+coefficient is given back in the signal's own units.
+
+Why not regress raw innovations on raw features for the catalogue too: the
+filter absorbs part of every effect (issue 7), so such coefficients are biased
+low; the catalogue's candidates are scored through the filter itself
+(:mod:`.trace`). This regression only *names* what the catalogue does not.
+OMP is written out (30 lines) rather than pulled from scikit-learn, which the
+project does not otherwise need.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .run import Run
+
+#: a discovery must explain this much of the innovation variance: with thousands of
+#: updates a 1 % correlate is "significant" and still not worth a person's time
+MIN_R2 = 0.10
+
+
+@dataclass
+class Discovery:
+    sensor: str
+    expression: str          # the regressor, e.g. "lowpass(throttle, 0.5 s)"
+    coefficient: float       # in the sensor's units per signal unit
+    r2: float                # fraction of the innovation variance it explains
+    terms: list[tuple[str, float]]   # all picked (expression, coefficient)
+
+
+def _lowpass(t: np.ndarray, x: np.ndarray, tc: float) -> np.ndarray:
+    y = np.empty_like(x)
+    acc = x[0]
+    for i in range(len(x)):
+        if i:
+            acc += (x[i] - acc) * (1.0 - math.exp(-max(t[i] - t[i - 1], 0.0) / tc))
+        y[i] = acc
+    return y
+
+
+def library(run: Run, sensor: str) -> dict[str, np.ndarray]:
+    tr = run.sensors[sensor]
+    t = tr.t
+    base: dict[str, np.ndarray] = {}
+    for k, v in tr.signals.items():
+        if k in ("roll", "pitch", "throttle_lp"):
+            continue
+        if np.isfinite(v).mean() > 0.9 and np.nanstd(v) > 1e-9:
+            base[k] = np.where(np.isfinite(v), v, np.nanmean(v))
+    roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
+    if roll is not None and np.isfinite(roll).all():
+        base["tilt"] = 1.0 / np.maximum(np.cos(roll) * np.cos(pitch), 0.2) - 1.0
+    iz = run.model.states.index("z") if "z" in run.model.states else None
+    iv = run.model.states.index("vz") if "vz" in run.model.states else None
+    if iz is not None:
+        base["height"] = np.interp(t, run.t, run.x[:, iz])
+    if iv is not None:
+        vz = np.interp(t, run.t, run.x[:, iv])
+        base["vertical speed"] = vz
+        base["vertical speed^2"] = vz**2
+    base["time"] = t - t[0]
+    lib = dict(base)
+    for name, x in base.items():
+        if name == "time":
+            continue
+        for tc in (0.5, 2.0):
+            lib[f"lowpass({name}, {tc:g} s)"] = _lowpass(t, x, tc)
+        for d in (0.1, 0.3):
+            lib[f"delay({name}, {d:g} s)"] = np.interp(t - d, t, x)
+    return lib
+
+
+def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
+    tr = run.sensors[sensor]
+    y = tr.nu[:, 0].astype(float)
+    keep = tr.t >= tr.t[0] + 5.0
+    y = y[keep]
+    if len(y) < 50:
+        return None
+    lib = {k: v[keep] for k, v in library(run, sensor).items()}
+    names = [k for k, v in lib.items() if np.std(v) > 1e-12]
+    if not names:
+        return None
+    X = np.column_stack([(lib[k] - lib[k].mean()) / lib[k].std() for k in names])
+    n = len(y)
+    yc = y - y.mean()
+    picked: list[int] = []
+    resid = yc.copy()
+    bic = n * math.log(np.mean(yc**2) + 1e-300)
+    coef = np.zeros(0)
+    for _ in range(max_terms):
+        j = int(np.argmax(np.abs(X.T @ resid)))
+        if j in picked:
+            break
+        trial = picked + [j]
+        c, *_ = np.linalg.lstsq(X[:, trial], yc, rcond=None)
+        r = yc - X[:, trial] @ c
+        new_bic = n * math.log(np.mean(r**2) + 1e-300) + len(trial) * math.log(n)
+        if new_bic > bic - 10.0:           # strong evidence only (Kass & Raftery: Delta BIC > 10)
+            break
+        picked, coef, resid, bic = trial, c, r, new_bic
+    if not picked:
+        return None
+    terms = [(names[j], float(c / lib[names[j]].std())) for j, c in zip(picked, coef)]
+    r2 = 1.0 - float(np.mean(resid**2) / np.mean(yc**2))
+    if r2 < MIN_R2:
+        return None
+    return Discovery(sensor, terms[0][0], terms[0][1], r2, terms)

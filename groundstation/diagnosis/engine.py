@@ -1,0 +1,188 @@
+"""The closed loop: residual -> detect -> trace -> add -> repeat, then the error before and after.
+
+:func:`diagnose` runs the model on the measured data (step 1), tests every
+sensor's innovations (step 2, :mod:`.detect`), ranks the catalogue's effects
+through the filter (step 3, :mod:`.trace`) and names what lies outside it
+(:mod:`.discover`), adds the winner to the model with its parameters
+estimated from the data (step 4), and repeats until the residuals pass or no
+candidate improves the criterion by strong evidence (Delta BIC < -10).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..estimator import KalmanEstimator, altitude_estimator
+from ..estimators import vehicle_config
+from ..measurement import Kind, Measurement
+from ..models.altitude import altitude_model
+from .catalogue import UNOBSERVABLE, altitude_catalogue
+from .detect import Finding, detect
+from .discover import Discovery, discover
+from .run import Prepared, Run, prepare, run_model
+from .trace import STRONG, Scored, rank
+
+MAX_EFFECTS = 4
+
+
+@dataclass
+class Truth:
+    """Height truth [m, up] (motion capture or the simulator's sidecar): metrics only."""
+
+    t: np.ndarray
+    h: np.ndarray
+    source: str
+
+    def rmse(self, t: np.ndarray, z: np.ndarray, t0: float, t1: float) -> float:
+        k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
+        return float(np.sqrt(np.mean((z[k] - np.interp(t[k], self.t, self.h)) ** 2))) if k.any() else math.nan
+
+
+@dataclass
+class Effect:
+    name: str
+    params: dict
+    evidence: dict
+
+
+@dataclass
+class Diagnosis:
+    source: str
+    model: str
+    before: Run
+    after: Run
+    effects: list[Effect]
+    findings_before: list[Finding]
+    findings_after: list[Finding]
+    discoveries: list[Discovery]
+    unobservable: dict[str, str]
+    modelled: list[Effect]                       # effects the base model already estimates
+    ranking: list[list[tuple[str, float]]] = field(default_factory=list)   # per iteration
+    truth: Truth | None = None
+    against_truth: list[Effect] = field(default_factory=list)   # measurable only against truth
+
+    def passes(self, findings: list[Finding]) -> bool:
+        return all(f.passed for f in findings if f.test in ("NIS mean", "Ljung-Box whiteness"))
+
+
+def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
+    pose = [m for m in ms if m.kind is Kind.TRUTH_POSE]
+    if pose:
+        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture")
+    p = truth_csv or (log.with_suffix(".csv") if log is not None else None)
+    if p is not None and p.exists():
+        with open(p) as f:
+            rows = list(csv.DictReader(f))
+        if rows and "h" in rows[0]:
+            return Truth(np.array([float(r["t"]) for r in rows]), np.array([float(r["h"]) for r in rows]),
+                         f"simulator sidecar {p.name}")
+    return None
+
+
+def sensor_findings(run: Run) -> list[Finding]:
+    out = []
+    for s, tr in run.sensors.items():
+        k = tr.t >= tr.t[0] + 5.0
+        sig = {n: v[k] for n, v in tr.signals.items() if n not in ("throttle_lp",)}
+        out += detect(s, tr.t[k], tr.nu_normalised[k], tr.nis[k], tr.nu.shape[1], sig)
+    return out
+
+
+def _modelled(run: Run) -> list[Effect]:
+    """Effects the base model estimates itself, when the data say they are there (|x| > 3 sigma)."""
+    out = []
+    if "b_acc" in run.model.states:
+        v, s = run.final("b_acc")
+        if abs(v) > 3 * s and abs(v) > 0.02:
+            # b_acc acts on gamma_z (up); the simulator's accel_bias z is on body z (down)
+            out.append(Effect("accel_bias", {"z": -v, "sigma_z": s},
+                              {"state": "b_acc", "z_over_sigma": round(abs(v) / s, 1),
+                               "note": "already a state of the model: estimated, not added"}))
+    return out
+
+
+def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "altitude",
+             declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    if model_name != "altitude":
+        raise ValueError(f"diagnose: model {model_name!r} is not supported yet (altitude is)")
+    names = {e.get("name") for e in declared}
+    params = vehicle_config(vehicle, "altitude")
+    model = altitude_model(range_tilt="range_tilt" in names, **params)
+    make: Callable[[object], KalmanEstimator] = altitude_estimator
+    prep: Prepared = prepare(ms)
+    say = progress or (lambda _s: None)
+    say("running the model (before)")
+    base = run_model(model, prep, make)
+    first = base
+    findings0 = sensor_findings(base)
+    cands = [c for c in altitude_catalogue(prep.kinds) if c.name not in names]
+    stream = prep.measurements
+    effects: list[Effect] = []
+    ranking = []
+    for _ in range(MAX_EFFECTS):
+        if not cands:
+            break
+        scored = rank(cands, model, base, prep, make, stream, progress=lambda s: say(f"trying {s}"))
+        ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
+        if not scored or scored[0].delta_bic > STRONG:
+            break
+        best: Scored = scored[0]
+        effects.append(Effect(best.name, best.params,
+                              {"delta_bic": round(best.delta_bic, 1), "sensor": best.candidate.sensor,
+                               "loglik_gain": round(best.run.loglik - base.loglik, 1),
+                               "runner_up": _label(scored[1]) if len(scored) > 1 else None,
+                               "runner_up_delta_bic": round(scored[1].delta_bic, 1) if len(scored) > 1 else None}))
+        model, base, stream = best.model, best.run, best.measurements
+        cands = [c for c in cands if not (c.name == best.name and c.sensor == best.candidate.sensor)]
+        if best.name == "baro_bias_drift":
+            cands = [c for c in cands if c.name != "baro_bias_drift"]
+        say(f"added {best.name} ({best.delta_bic:.0f})")
+        if Diagnosis.passes(None, sensor_findings(base)):
+            break
+    findings1 = sensor_findings(base)
+    discoveries = []
+    for s, f_ok in ((s, Diagnosis.passes(None, [f for f in findings1 if f.sensor == s])) for s in base.sensors):
+        if not f_ok:
+            d = discover(base, s)
+            if d is not None:
+                discoveries.append(d)
+    unobs = dict(UNOBSERVABLE.get(model_name, {}))
+    against = []
+    if truth is not None and "range" in base.sensors:
+        against = _range_offset_against_truth(base, truth)
+        if against:
+            unobs.pop("range_offset", None)
+    return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
+                     _modelled(base), ranking, truth, against)
+
+
+def _label(s: Scored) -> str:
+    return s.name + (f"({s.candidate.sensor})" if s.candidate.delays else "")
+
+
+def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
+    """The range sensor's mounting offset, which no sensor of the log can show, measured against truth:
+    o = median(range reading - h_true(t)/c) in flight (h > 0.3 m), the simulator's d_meas = d + o."""
+    tr = run.sensors["range"]
+    h = np.interp(tr.t, truth.t, truth.h)
+    c = np.ones_like(h)
+    roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
+    if roll is not None and np.isfinite(roll).all():
+        c = np.maximum(np.cos(roll) * np.cos(pitch), 0.2)
+    air = h > 0.3
+    if air.sum() < 30:
+        return []
+    # the raw reading: z (the extracted measurement) is the reading minus any offset already modelled
+    d = tr.z[air, 0] - h[air] / c[air]
+    o, s = float(np.median(d)), float(1.2533 * np.std(d) / math.sqrt(air.sum()))
+    if abs(o) < 3 * s or abs(o) < 0.005:
+        return []
+    return [Effect("range_offset", {"o": round(o, 4), "sigma_o": round(s, 4)},
+                   {"against": truth.source, "n": int(air.sum()),
+                    "note": "unobservable from the log's own sensors; measured against the truth"})]

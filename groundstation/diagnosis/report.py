@@ -1,0 +1,192 @@
+"""Step 5, report: ``report.json`` for machines, ``report.html`` for people, estimates before/after.
+
+report.json::
+
+    {"source", "model", "effects": [{"name", "params", "evidence"}, ...],     # in the order added
+     "modelled": [...], "measured_against_truth": [...], "discovered": [...],
+     "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
+     "before": {...}, "after": {...}}
+
+with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
+failed tests; and, when truth exists, ``rmse_vs_truth`` of the height.
+A discovered effect is ``{"name": "discovered", "params": {"regressor",
+"coefficient", "sensor"}, "evidence": {"r2", "terms"}}``.
+Figures are matplotlib (Agg) SVG, inlined so the HTML is one file.
+"""
+from __future__ import annotations
+
+import html
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..evaluate import ljung_box
+from ..export import EstimateCsvWriter
+from .engine import Diagnosis
+from .run import Run
+
+
+def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
+    out = {"sensors": {}}
+    for s, tr in run.sensors.items():
+        k = tr.t >= tr.t[0] + 5.0
+        e = tr.nu_normalised[k]
+        out["sensors"][s] = {
+            "n": int(k.sum()),
+            "innovation_rms": float(np.sqrt(np.mean(tr.nu[k, 0] ** 2))),
+            "nis_mean": float(np.mean(tr.nis[k])),
+            "ljung_box_p": float(ljung_box(e)),
+            "failed": [f.test for f in findings if f.sensor == s and not f.passed],
+        }
+    if truth is not None and "z" in run.model.states:
+        out["rmse_vs_truth"] = truth.rmse(run.t, run.x[:, run.model.index("z")], t0, t1)
+        out["truth"] = truth.source
+    return out
+
+
+def as_json(d: Diagnosis) -> dict:
+    t0, t1 = d.before.t[0] + 5.0, d.before.t[-1]
+    eff = [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.effects]
+    disc = [{"name": "discovered", "params": {"sensor": x.sensor, "regressor": x.expression,
+                                              "coefficient": x.coefficient},
+             "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms]}}
+            for x in d.discoveries]
+    return {
+        "source": d.source, "model": d.model,
+        "effects": eff + disc,
+        "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
+        "measured_against_truth": [{"name": e.name, "params": e.params, "evidence": e.evidence}
+                                   for e in d.against_truth],
+        "unobservable": d.unobservable,
+        "ranking": [[[n, b] for n, b in it] for it in d.ranking],
+        "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
+        "after": _summary(d.after, d.findings_after, d.truth, t0, t1),
+        "findings_before": [f.as_dict() for f in d.findings_before],
+        "findings_after": [f.as_dict() for f in d.findings_after],
+    }
+
+
+def conclusion(d: Diagnosis, j: dict) -> str:
+    parts = []
+    if d.effects:
+        found = "; ".join(f"{e.name} ({_fmt_params(e.params)})" for e in d.effects)
+        parts.append(f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
+                     f"Each was added with its parameters estimated from this log, and each improved the "
+                     f"likelihood of the measurements by very strong evidence (Delta BIC < -10).")
+    else:
+        parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
+                     "can tell, the model is complete.")
+    for e in d.modelled:
+        parts.append(f"The model's own state {e.evidence['state']} carries a {e.name} of {_fmt_params(e.params)}.")
+    for e in d.against_truth:
+        parts.append(f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
+                     f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown.")
+    for x in d.discoveries:
+        parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
+                     f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance).")
+    b, a = j["before"], j["after"]
+    if "rmse_vs_truth" in b:
+        parts.append(f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
+                     f"{a['rmse_vs_truth'] * 100:.2f} cm after.")
+    still = sorted({f.sensor for f in d.findings_after if not f.passed and f.test in ("NIS mean",
+                                                                                       "Ljung-Box whiteness")})
+    parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
+                 if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
+    return " ".join(parts)
+
+
+def _fmt_params(p: dict) -> str:
+    return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
+                     if not k.startswith("sigma_"))
+
+
+def _figures(d: Diagnosis) -> str:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    out = []
+    for s in sorted(set(d.before.sensors) & set(d.after.sensors)):
+        fig, ax = plt.subplots(1, 2, figsize=(11, 3.0))
+        for run, label, col in ((d.before, "before", "#c0392b"), (d.after, "after", "#2e7d32")):
+            tr = run.sensors[s]
+            ax[0].plot(tr.t, tr.nu[:, 0], lw=0.6, color=col, label=label, alpha=0.8)
+            e = tr.nu_normalised[tr.t >= tr.t[0] + 5.0]
+            ec = e - e.mean()
+            lags = min(50, len(e) // 4)
+            acf = [np.dot(ec[:-k], ec[k:]) / np.dot(ec, ec) for k in range(1, lags + 1)]
+            ax[1].plot(range(1, lags + 1), acf, marker=".", lw=0.8, color=col, label=label)
+        n = len(d.after.sensors[s].t)
+        for sign in (-1, 1):
+            ax[1].axhline(sign * 1.96 / math.sqrt(max(n, 1)), color="#888", lw=0.8, ls="--")
+        ax[0].set_title(f"{s}: innovation")
+        ax[0].set_xlabel("t [s]")
+        ax[1].set_title(f"{s}: autocorrelation of the normalised innovation (±1.96/√n)")
+        ax[1].set_xlabel("lag")
+        ax[0].legend(loc="upper right", fontsize=8)
+        fig.tight_layout()
+        buf = io.StringIO()
+        fig.savefig(buf, format="svg")
+        plt.close(fig)
+        out.append(buf.getvalue()[buf.getvalue().index("<svg"):])
+    return "\n".join(out)
+
+
+def _table(rows: list[list], head: list[str]) -> str:
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def write(d: Diagnosis, out: Path) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    j = as_json(d)
+    j["conclusion"] = conclusion(d, j)
+    (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
+    for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
+        w = EstimateCsvWriter(out / name, "x", run.model.states)
+        for t, x, P in zip(run.t, run.x, run.P):
+            w.write(_Snap(t, x, np.sqrt(np.clip(np.diag(P), 0, None))))
+        w.close()
+    rows = []
+    for s in sorted(j["before"]["sensors"]):
+        b, a = j["before"]["sensors"][s], j["after"]["sensors"].get(s, {})
+        rows.append([s, f"{b['innovation_rms']:.4g}", f"{a.get('innovation_rms', math.nan):.4g}",
+                     f"{b['nis_mean']:.2f}", f"{a.get('nis_mean', math.nan):.2f}",
+                     f"{b['ljung_box_p']:.3g}", f"{a.get('ljung_box_p', math.nan):.3g}"])
+    sensors = _table(rows, ["sensor", "innovation RMS before", "after", "NIS before", "after",
+                            "Ljung-Box p before", "after"])
+    effects = _table([[e["name"], _fmt_params(e["params"]), json.dumps(e["evidence"])] for e in j["effects"]]
+                     or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
+    ranking = "".join(f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
+                      for i, it in enumerate(j["ranking"]))
+    failed = _table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
+                     for f in d.findings_before if not f.passed] or [["(none)", "", "", "", ""]],
+                    ["sensor", "test", "statistic", "threshold", "where"])
+    unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
+    truth = ""
+    if "rmse_vs_truth" in j["before"]:
+        truth = (f"<p>Height RMSE against the {html.escape(j['before']['truth'])}: "
+                 f"<b>{j['before']['rmse_vs_truth']:.4f} m</b> before, <b>{j['after']['rmse_vs_truth']:.4f} m</b> "
+                 f"after.</p>")
+    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
+<style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
+th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
+<body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}</p>
+<div class="concl"><p>{html.escape(j['conclusion'])}</p></div>{truth}
+<h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
+<h2>Residuals before and after</h2>{sensors}{_figures(d)}
+<h2>Tests that failed before</h2>{failed}
+<h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
+    (out / "report.html").write_text(page)
+    return j
+
+
+class _Snap:
+    estimator = "x"
+
+    def __init__(self, t, x, sigma) -> None:
+        self.t, self.x, self.sigma = t, x, sigma
