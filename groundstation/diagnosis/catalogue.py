@@ -99,16 +99,27 @@ def range_tilt(model: LinearModel) -> LinearModel:
     return replace(model, measurements=meas)
 
 
+G = 9.80665
+
+
 def accel_scale(model: LinearModel) -> LinearModel:
-    """gamma_meas = gamma + s (gamma + g) along the vertical: z_dd = gamma - b - s gamma (s g is in b)."""
+    """f_meas = (1 + s) f: along the vertical gamma_meas = a + s (a + g), so
+    z_dd = gamma_meas - b - s (gamma_meas + g) to first order in s. The ``s g`` part
+    looks like a bias; only the variation of gamma separates the two."""
     iv = model.index("vz")
 
     def coupling(u):
         c = np.zeros((model.n, 1))
-        c[iv, 0] = -float(u[0]) if u is not None else 0.0
+        c[iv, 0] = -(float(u[0]) + G) if u is not None else -G
         return c
     return model.augmented(states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
                            P0_extra=[0.05**2])
+
+
+def _scale_param(run) -> dict:
+    """The state is c = s / (1 + s) (the exact coefficient of gamma_meas + g): s = c / (1 - c)."""
+    c, sc = run.final("accel_scale")
+    return {"s": c / (1.0 - c), "sigma_s": sc / (1.0 - c) ** 2}
 
 
 def _temperature(ctx) -> float:
@@ -130,7 +141,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
     cands = [
         Candidate("range_tilt", 0, {Kind.RANGE, Kind.ATTITUDE}, "range", range_tilt, lambda run: {},
                   geometric=True),
-        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _state_param("s", "accel_scale")),
+        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _scale_param),
         Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2),
                   geometric=True),
     ]

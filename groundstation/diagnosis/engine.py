@@ -25,7 +25,7 @@ from .catalogue import UNOBSERVABLE, altitude_catalogue
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
-from .trace import STRONG, Scored, rank
+from .trace import Scored, rank
 
 MAX_EFFECTS = 4
 
@@ -130,12 +130,14 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             break
         scored = rank(cands, model, base, prep, make, stream, progress=lambda s: say(f"trying {s}"))
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
-        if not scored or scored[0].delta_bic > STRONG:
+        accepted = [s for s in scored if s.accepted]
+        if not accepted:
             break
-        best: Scored = scored[0]
+        best: Scored = accepted[0]
         effects.append(Effect(best.name, best.params,
                               {"delta_bic": round(best.delta_bic, 1), "sensor": best.candidate.sensor,
                                "loglik_gain": round(best.run.loglik - base.loglik, 1),
+                               "gain_per_update": round(best.gain_per_update, 4),
                                "runner_up": _label(scored[1]) if len(scored) > 1 else None,
                                "runner_up_delta_bic": round(scored[1].delta_bic, 1) if len(scored) > 1 else None}))
         model, base, stream = best.model, best.run, best.measurements

@@ -45,21 +45,21 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
     rest = sorted((m for m in ms if m.kind is not Kind.TRUTH_POSE), key=lambda m: m.t)
     out: list[Measurement] = []
     block: list[np.ndarray] = []
-    block_t = -math.inf
-    last = None
+    first = None
     for m in rest:
         if m.kind is Kind.ACCEL and m.instance == 0:
-            if m.t - block_t >= input_dt and block:
-                out.append(last._replace(value=np.mean(block, axis=0)))
+            if block and m.t - first.t >= input_dt:
+                # stamped at the block's start: with the input held from its time stamp
+                # on, the mean then acts over the very interval it averages
+                out.append(first._replace(value=np.mean(block, axis=0)))
                 block = []
             if not block:
-                block_t = m.t
+                first = m
             block.append(m.value)
-            last = m
             continue
         out.append(m)
     if block:
-        out.append(last._replace(value=np.mean(block, axis=0)))
+        out.append(first._replace(value=np.mean(block, axis=0)))
     out.sort(key=lambda m: m.t)
     kinds = {m.kind for m in out}
     return Prepared(out, truth, kinds, out[0].t if out else 0.0, out[-1].t if out else 0.0)

@@ -1,0 +1,112 @@
+"""The closed loop on data with an undeclared effect in it (the simulator's), and its report.
+
+The fast subset of the sweep (``bench/diagnosis.py`` runs effect x magnitude x
+seed): one seed per effect here, each a 60 s simulated flight and a full
+diagnosis (15-30 s each), so they are marked slow; CI runs them.
+"""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from groundstation.diagnosis.detect import detect
+from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.estimators import declared_effects
+from groundstation.replay import Replay
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+
+
+def run_case(tmp_path, undeclared, *, declared=("range_tilt",), seed=11, vehicle="quad"):
+    sc = Scenario.from_args(vehicle, seed, 60.0, list(declared), list(undeclared))
+    log = tmp_path / f"s{seed}.tlog"
+    run_fast(sc, log, log.with_suffix(".csv"))
+    ms = list(Replay(log).iter_measurements())
+    d = diagnose(ms, source=str(log), declared=declared_effects(log.with_suffix(".declared.json")),
+                 truth=truth_from(ms, log, None))
+    rmse = [d.truth.rmse(r.t, r.x[:, 0], 8.0, 50.0) for r in (d.before, d.after)]
+    return d, rmse
+
+
+def test_detection_flags_a_biased_correlated_sequence_and_passes_a_white_one():
+    rng = np.random.default_rng(1)
+    t = np.arange(2000) * 0.02
+    white = rng.standard_normal(2000)
+    sig = {"throttle": rng.uniform(0.4, 0.6, 2000)}
+    ok = {f.test: f.passed for f in detect("range", t, white, white**2, 1, sig)}
+    assert ok["NIS mean"] and ok["innovation mean"] and ok["Ljung-Box whiteness"] and ok["CUSUM"]
+    bad = white + 0.8 * np.sin(2 * np.pi * 0.5 * t) + 2.0 * (sig["throttle"] - 0.5) * 10
+    res = {f.test: f for f in detect("range", t, bad, bad**2, 1, sig)}
+    assert not res["NIS mean"].passed and not res["Ljung-Box whiteness"].passed
+    assert not res["cross-correlation with throttle"].passed
+    assert not res["spectral peak"].passed and res["spectral peak"].where == "0.50 Hz"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("undeclared,name,param,value,geometric", [
+    (["baro_thrust:k=3.0"], "baro_thrust", "k", 3.0, False),
+    (["sensor_delay:sensor=range,seconds=0.06"], "sensor_delay", "seconds", 0.06, True),
+    ([], "range_tilt", None, None, True),          # range_tilt left undeclared (it is always physical)
+])
+def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undeclared, name, param, value, geometric):
+    declared = () if name == "range_tilt" else ("range_tilt",)
+    d, (before, after) = run_case(tmp_path, undeclared, declared=declared)
+    assert d.effects and d.effects[0].name == name, [e.name for e in d.effects]
+    if param is not None:
+        assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
+    if name != "baro_thrust":           # the range carries the height; a baro effect moves it little
+        assert after < (0.2 if geometric else 0.5) * before, (before, after)
+    else:
+        assert after < before
+    sensor = d.effects[0].evidence["sensor"] or "range"
+    nis = [f for f in d.findings_after if f.sensor == sensor and f.test == "NIS mean"][0]
+    assert nis.passed, nis
+
+
+@pytest.mark.slow
+def test_a_clean_flight_claims_nothing(tmp_path):
+    d, (before, after) = run_case(tmp_path, [], seed=12)
+    assert d.effects == [] and d.discoveries == [] and d.modelled == []
+    assert before == after
+
+
+@pytest.mark.slow
+def test_two_effects_at_once_are_both_found(tmp_path):
+    d, (before, after) = run_case(tmp_path, ["baro_thermal:k=0.5", "sensor_delay:sensor=range,seconds=0.05"],
+                                  seed=13)
+    names = {e.name: e for e in d.effects}
+    assert {"baro_thermal", "sensor_delay"} <= set(names), list(names)
+    assert names["baro_thermal"].params["k"] == pytest.approx(0.5, rel=0.15)
+    assert names["sensor_delay"].params["seconds"] == pytest.approx(0.05, rel=0.15)
+    assert after < 0.5 * before
+
+
+@pytest.mark.slow
+def test_diagnose_command_writes_the_reports(tmp_path):
+    log = tmp_path / "q.tlog"
+    run_fast(Scenario.from_args("quad", 14, 40.0, ["range_tilt"], ["baro_thrust:k=2.5"]), log, tmp_path / "q.csv")
+    out = tmp_path / "rep"
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log), "--out", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    j = json.loads((out / "report.json").read_text())
+    assert j["effects"][0]["name"] == "baro_thrust" and j["effects"][0]["params"]["k"] == pytest.approx(2.5, rel=0.15)
+    for side in ("before", "after"):
+        assert set(j[side]["sensors"]) >= {"range", "baro"} and "rmse_vs_truth" in j[side]
+        assert {"innovation_rms", "nis_mean", "ljung_box_p"} <= set(j[side]["sensors"]["baro"])
+    assert j["after"]["sensors"]["baro"]["nis_mean"] < j["before"]["sensors"]["baro"]["nis_mean"]
+    assert "range_offset" in j["unobservable"]
+    page = (out / "report.html").read_text()
+    assert "baro_thrust" in page and "<svg" in page and "autocorrelation" in page
+    head = (out / "estimates_after.csv").read_text().splitlines()[0].split(",")
+    assert head[:2] == ["t", "z"] and "k_thrust" in head and "sigma_k_thrust" in head
+    assert (out / "estimates_before.csv").read_text().splitlines()[0].split(",")[:4] == ["t", "z", "vz", "b_acc"]
+
+
+def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
+    p = tmp_path / "x.tlog"
+    p.write_bytes(b"not a log" * 100)
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("groundstation: error:") and "Traceback" not in r.stderr
