@@ -37,6 +37,7 @@ class Truth:
     t: np.ndarray
     h: np.ndarray
     source: str
+    cos_tilt: np.ndarray | None = None      # cos(roll) cos(pitch) of the truth's attitude, when it has one
 
     def rmse(self, t: np.ndarray, z: np.ndarray, t0: float, t1: float) -> float:
         k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
@@ -73,7 +74,11 @@ class Diagnosis:
 def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
     pose = [m for m in ms if m.kind is Kind.TRUTH_POSE]
     if pose:
-        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture")
+        q = np.array([m.value[3:7] for m in pose])
+        w, x, y, z = q.T
+        # the body z axis's vertical component, R_IB[2, 2] = cos(roll) cos(pitch)
+        c = 1.0 - 2.0 * (x * x + y * y)
+        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c)
     p = truth_csv or (log.with_suffix(".csv") if log is not None else None)
     if p is not None and p.exists():
         with open(p) as f:
@@ -159,7 +164,14 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
     if truth is not None and "range" in base.sensors:
         against = _range_offset_against_truth(base, truth)
         if against:
+            # a mounting offset measured once against motion capture is a calibration a
+            # user applies from then on: the "after" model reads the range corrected
             unobs.pop("range_offset", None)
+            o = against[0].params["o"]
+            stream = [m._replace(value=m.value - o) if m.kind is Kind.RANGE else m for m in stream]
+            say("applying the range offset measured against truth")
+            base = run_model(model, prep, make, measurements=stream)
+            findings1 = sensor_findings(base)
     return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
                      _modelled(base), ranking, truth, against)
 
@@ -174,9 +186,12 @@ def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
     tr = run.sensors["range"]
     h = np.interp(tr.t, truth.t, truth.h)
     c = np.ones_like(h)
-    roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
-    if roll is not None and np.isfinite(roll).all():
-        c = np.maximum(np.cos(roll) * np.cos(pitch), 0.2)
+    if truth.cos_tilt is not None:            # the truth's own attitude, not the log's estimate
+        c = np.maximum(np.interp(tr.t, truth.t, truth.cos_tilt), 0.2)
+    else:
+        roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
+        if roll is not None and np.isfinite(roll).all():
+            c = np.maximum(np.cos(roll) * np.cos(pitch), 0.2)
     air = h > 0.3
     if air.sum() < 30:
         return []
