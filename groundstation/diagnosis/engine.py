@@ -84,8 +84,10 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
         with open(p) as f:
             rows = list(csv.DictReader(f))
         if rows and "h" in rows[0]:
+            c = (np.array([math.cos(float(r["roll"])) * math.cos(float(r["pitch"])) for r in rows])
+                 if "roll" in rows[0] else None)
             return Truth(np.array([float(r["t"]) for r in rows]), np.array([float(r["h"]) for r in rows]),
-                         f"simulator sidecar {p.name}")
+                         f"simulator sidecar {p.name}", c)
     return None
 
 
