@@ -110,3 +110,10 @@ def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
     p.write_bytes(b"not a log" * 100)
     r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p)], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("groundstation: error:") and "Traceback" not in r.stderr
+
+
+def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
+    from .conftest import real_file
+    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p)], capture_output=True, text=True)
+    assert r.returncode == 2 and "takes the accelerometer as its input" in r.stderr and "Traceback" not in r.stderr

@@ -68,6 +68,7 @@ class BulkLog:
     messages: dict[str, MessageArrays]
     crc_errors: dict[str, int] = field(default_factory=dict)
     unknown: int = 0                                           # frames of ids outside the dialect
+    undecodable: dict[str, int] = field(default_factory=dict)  # DataFlash types whose FMT we cannot decode
     skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
     truncated_at: int | None = None
 
@@ -90,6 +91,8 @@ class BulkLog:
                          + (f" and {len(self.skipped) - 1} more places" if len(self.skipped) > 1 else ""))
         if self.truncated_at is not None:
             parts.append(f"truncated at offset {self.truncated_at}")
+        if self.undecodable:
+            parts.append(f"records of undecodable formats skipped: {dict(self.undecodable)}")
         return "; ".join(parts)
 
 
@@ -300,7 +303,7 @@ def load_dataflash_bin(path: str | Path) -> BulkLog:
         try:
             fields = _df_fields(u8, np.array(offs, dtype=np.int64), length[typ], fmt, cols)
         except (KeyError, ValueError):
-            log.crc_errors[name] = len(offs)     # an FMT we cannot decode: counted, not guessed
+            log.undecodable[name] = len(offs)    # an FMT we cannot decode: counted, not guessed
             continue
         if "TimeUS" in cols:
             t = fields["TimeUS"].astype(np.float64) * 1e-6

@@ -67,7 +67,9 @@ class Diagnosis:
     truth: Truth | None = None
     against_truth: list[Effect] = field(default_factory=list)   # measurable only against truth
 
-    def passes(self, findings: list[Finding]) -> bool:
+    @staticmethod
+    def passes(findings: list[Finding]) -> bool:
+        """The residuals pass: NIS in its band and white (the loop's stopping rule)."""
         return all(f.passed for f in findings if f.test in ("NIS mean", "Ljung-Box whiteness"))
 
 
@@ -123,6 +125,11 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
     model = altitude_model(range_tilt="range_tilt" in names, **params)
     make: Callable[[object], KalmanEstimator] = altitude_estimator
     prep: Prepared = prepare(ms)
+    if Kind.ACCEL not in prep.kinds:
+        raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this log "
+                         "has none (the thrust-model diagnosis, which needs only throttle, is not built yet)")
+    if not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+        raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
     say = progress or (lambda _s: None)
     say("running the model (before)")
     base = run_model(model, prep, make)
@@ -152,11 +159,11 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
         if best.name == "baro_bias_drift":
             cands = [c for c in cands if c.name != "baro_bias_drift"]
         say(f"added {best.name} ({best.delta_bic:.0f})")
-        if Diagnosis.passes(None, sensor_findings(base)):
+        if Diagnosis.passes(sensor_findings(base)):
             break
     findings1 = sensor_findings(base)
     discoveries = []
-    for s, f_ok in ((s, Diagnosis.passes(None, [f for f in findings1 if f.sensor == s])) for s in base.sensors):
+    for s, f_ok in ((s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors):
         if not f_ok:
             d = discover(base, s)
             if d is not None:
