@@ -37,6 +37,11 @@ class RecursiveLeastSquares:
         self.P = np.eye(n) * P0
         self.k = 0
 
+    def covariance(self, sigma2: float) -> np.ndarray:
+        """Cov(theta) = sigma^2 P for white measurement noise of variance sigma^2 and an exact
+        regressor (lambda = 1, P0 large): what NEES is measured against."""
+        return sigma2 * self.P
+
     def update(self, phi, y: float) -> float:
         """One sample; returns the a-priori residual y - phi^T theta(k-1)."""
         phi = np.asarray(phi, dtype=float)

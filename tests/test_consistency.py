@@ -130,3 +130,31 @@ def test_drag_attitude_ekf_is_consistent_on_a_multirotor(tmp_path):
     assert lo <= np.mean(runs) <= hi, (np.mean(runs), lo, hi)
     lo, hi = band(2)
     assert lo <= np.mean(nis) <= hi, (np.mean(nis), lo, hi)
+
+
+def test_recursive_least_squares_is_consistent_under_its_own_assumptions():
+    """Chapter 7's RLS: white noise on y, an exact regressor. (With the noisy pressure as the
+    regressor, as in flight, least squares is biased by regression dilution: rls.py says so.)"""
+    from groundstation.rls import RecursiveLeastSquares
+    rng = np.random.default_rng(21)
+    sigma = 0.02
+    nees_runs, nis_runs = [], []
+    for _ in range(M):
+        theta = np.array([rng.normal(-0.083, 0.01), rng.normal(0.0, 1.0)])     # m/Pa, m
+        rls = RecursiveLeastSquares(2)
+        nees_k, nis_k = [], []
+        for k in range(400):
+            phi = np.array([rng.uniform(-40, 40), 1.0])                         # Pa about the reference
+            y = float(phi @ theta + rng.normal(0.0, sigma))
+            s = sigma**2 * (1.0 + phi @ rls.P @ phi)
+            e = rls.update(phi, y)
+            if k >= 10:                                                         # after the diffuse start
+                nis_k.append(e**2 / s)
+                d = rls.theta - theta
+                nees_k.append(d @ np.linalg.solve(rls.covariance(sigma**2), d))
+        nees_runs.append(np.mean(nees_k))
+        nis_runs.append(np.mean(nis_k))
+    lo, hi = band(2)
+    assert lo <= np.mean(nees_runs) <= hi, (np.mean(nees_runs), lo, hi)
+    lo, hi = band(1)
+    assert lo <= np.mean(nis_runs) <= hi, (np.mean(nis_runs), lo, hi)
