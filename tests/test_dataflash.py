@@ -68,3 +68,13 @@ def test_replay_export_and_evaluate_on_dataflash(tmp_path):
                         "--speed", "100"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert int(re.search(r"done: (\d+) measurements", r.stdout).group(1)) == n_max
+
+
+def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero():
+    """DataFlash BARO carries Press and Alt for one sample: the filter reads it once (it once
+    read it twice, the two against one shared zero, and NIS came out at 5e5)."""
+    from groundstation.evaluate import evaluate
+    p = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin")
+    n_baro = sum(1 for m in read_dataflash(p).measurements if m.kind is Kind.BARO_PRESSURE)
+    row = {r.sensor: r for r in evaluate(p).rows}["baro"]
+    assert n_baro - 60 <= row.n <= n_baro and row.nis < 10.0

@@ -21,7 +21,8 @@ Measurement models, one per sensor (eq. 9.8 is the range sensor's):
   with a mounting offset ``range_offset = o`` [m] (catalogue ``range_offset``,
   the simulator's ``d_meas = d + o``) the reading is corrected to ``d - o``;
 * ``baro``: pressure altitude (ISA, or the log's own baro altitude) minus its
-  value at initialisation, ``= z``;
+  value at initialisation, ``= z``; each has its own zero, and a log that gives
+  both for one sample (DataFlash BARO) is read once, from the pressure;
 * ``gps``: GPS altitude minus its value at initialisation, ``= z``.
 
 Corrections to the document, made knowingly:
@@ -66,18 +67,28 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
         c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
         return np.array([[1.0 / max(c, 0.2), 0.0, 0.0]])
 
+    from_pressure = relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50)
+    from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)
+
+    def baro_pressure(m, ctx):
+        ctx.values["baro_has_pressure"] = 1.0
+        return from_pressure(m, ctx)
+
+    def baro_altitude(m, ctx):
+        # One barometer, one update: a log that gives the same sample as a pressure
+        # and as an altitude (DataFlash BARO: Press and Alt) is read from the pressure.
+        return None if ctx.values.get("baro_has_pressure") else from_altitude(m, ctx)
+
     meas = {
         "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0] - range_offset]),
                                   range_row if range_tilt else (lambda ctx: H), np.array([[sigma_range**2]])),
-        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
-                                 relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
-                                 lambda ctx: H, np.array([[sigma_baro**2]])),
+        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, lambda ctx: H,
+                                 np.array([[sigma_baro**2]])),
         "gps": MeasurementModel("gps", Kind.GPS, relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
                                 lambda ctx: H, np.array([[sigma_gps**2]])),
         # logs that give the barometer as an altitude (DataFlash BARO.Alt, Crazyflie baro.asl)
-        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE,
-                                     relative_to_estimate(lambda m: float(m.value[0]), "baro_ref", 25),
-                                     lambda ctx: H, np.array([[sigma_baro**2]])),
+        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, lambda ctx: H,
+                                     np.array([[sigma_baro**2]])),
     }
     if not use_gps:
         # GPS altitude errors are correlated over tens of seconds (2 m over 20 s in the
