@@ -24,6 +24,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from groundstation.diagnosis.catalogue import GEOMETRIC  # noqa: E402
 
 #: effect -> (parameter checked, magnitudes spread over the realistic range, extra spec)
 SWEEP = {
@@ -36,7 +37,6 @@ SWEEP = {
     "accel_scale": ("s", (0.01, 0.02, 0.04), ""),
     "clean": (None, (None,), ""),
 }
-GEOMETRIC = {"range_tilt", "sensor_delay"}
 
 
 def one(job: tuple) -> dict:

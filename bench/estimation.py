@@ -100,9 +100,12 @@ async def live(seconds: float, d: Path) -> dict:
                     lat_upd.append(dt)
     link.sinks.append(sink)
 
+    drained = 0
+
     async def drain():                    # an ordinary subscriber too, as the dashboard would be
+        nonlocal drained
         async for _ in sub:
-            pass
+            drained += 1
 
     task = asyncio.create_task(drain())
     try:
@@ -116,7 +119,8 @@ async def live(seconds: float, d: Path) -> dict:
     a, u, pr = np.array(lat_all), np.array(lat_upd), np.array(cost)
     return {"n": len(a), "p50": np.percentile(a, 50), "p99": np.percentile(a, 99), "max": a.max(),
             "proc_p99": np.percentile(pr, 99), "proc_p50": np.percentile(pr, 50),
-            "upd_p99": np.percentile(u, 99) if len(u) else float("nan"), "imu_hz": est.counters.predictions / seconds}
+            "upd_p99": np.percentile(u, 99) if len(u) else float("nan"), "imu_hz": est.counters.predictions / seconds,
+            "drained": drained}
 
 
 def main() -> int:
@@ -141,6 +145,7 @@ def main() -> int:
             print(f"{'  (measurement updates only, p99 [ms])':<58}{r['upd_p99']:>14.3f}")
             print(f"{'  (max [ms]; samples)':<58}{r['max']:>14.3f}  {r['n']} samples")
             print(f"{'  of which the loop and filter, p50 / p99 [ms]':<58}{r['proc_p50']:>7.3f} /{r['proc_p99']:>5.3f}")
+            print(f"{'  (a second, ordinary subscriber received; measurements)':<58}{r['drained']:>14}")
     return 0
 
 

@@ -40,10 +40,13 @@ def close_watched_socket(sock: socket.socket | None) -> None:
     """Stop the event loop watching ``sock`` and close it (None: nothing to do)."""
     if sock is None:
         return
+    fd = sock.fileno()
     try:
-        asyncio.get_running_loop().remove_reader(sock.fileno())
-    except (RuntimeError, ValueError):
-        pass
+        loop = asyncio.get_running_loop()
+    except RuntimeError:          # closed outside the event loop: nothing watches it
+        loop = None
+    if loop is not None and fd >= 0:
+        loop.remove_reader(fd)
     sock.close()
 
 

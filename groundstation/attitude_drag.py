@@ -35,6 +35,7 @@ import math
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 
+from .attitude import accel_attitude, euler_rates
 from .measurement import Kind, Measurement
 
 G = 9.80665
@@ -78,8 +79,7 @@ class DragAttitudeEKF:
         if m.kind is Kind.ACCEL:
             if not self.started:
                 # at rest: gravity gives the attitude, the vehicle is still
-                fx, fy, fz = m.value
-                self.ekf.x = np.array([math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz)), 0, 0, 0, 0.0])
+                self.ekf.x = np.array([*accel_attitude(m.value), 0.0, 0.0, 0.0, 0.0])
                 self.t, self.started = m.t, True
             else:
                 e = self.ekf
@@ -97,7 +97,7 @@ class DragAttitudeEKF:
         p, q, r = w[0] - bp, w[1] - bq, w[2]
         sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
         tt, sec2 = st / ct, 1.0 / ct**2
-        xd = np.array([p + (q * sf + r * cf) * tt, q * cf - r * sf, 0.0, 0.0,
+        xd = np.array([*euler_rates(phi, theta, (p, q, r)), 0.0, 0.0,
                        -G * st + r * v - mu * u, G * sf * ct - r * u - mu * v])
         J = np.zeros((6, 6))
         J[0, 0], J[0, 1], J[0, 2], J[0, 3] = (q * cf - r * sf) * tt, (q * sf + r * cf) * sec2, -1.0, -sf * tt

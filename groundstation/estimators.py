@@ -47,6 +47,11 @@ def vehicle_effects(vehicle: str | None) -> list[dict]:
     return list(_vehicle_file(vehicle).get("effects", [])) if vehicle else []
 
 
+def range_offset(effects: list[dict]) -> float:
+    """The range sensor's mounting offset ``o`` [m] among declared effects (d_meas = d + o)."""
+    return sum(float(e.get("params", {}).get("o", 0.0)) for e in effects if e.get("name") == "range_offset")
+
+
 def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None,
                     vehicle: str | None = None, *, vehicle_geometry: bool = True) -> KalmanEstimator:
     """``noise``: measurement covariances by sensor (``groundstation noise``'s output);
@@ -57,8 +62,8 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     names = {e.get("name") for e in declared}
     params = vehicle_config(vehicle, name)
     if name == "altitude":
-        offset = sum(float(e.get("params", {}).get("o", 0.0)) for e in declared if e.get("name") == "range_offset")
-        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, range_offset=offset, **params))
+        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared),
+                                                 **params))
     if name == "heli3dof":
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))

@@ -21,7 +21,7 @@ from drivers.logs.dataflash import is_dataflash, read_dataflash
 
 from .atmosphere import altitude_at
 from .derived import with_attitude
-from .estimators import build_estimator, vehicle_effects
+from .estimators import build_estimator, range_offset, vehicle_effects
 from .loop import EstimationLoop
 from .measurement import Kind, Measurement
 from .replay import Replay
@@ -95,8 +95,7 @@ def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
              t_window: tuple[float, float] | None = None) -> Evaluation:
     ms, desc, implied = load_measurements(path)
     est = build_estimator(model, vehicle=vehicle or implied)
-    offset = sum(float(e.get("params", {}).get("o", 0.0)) for e in vehicle_effects(vehicle or implied)
-                 if e.get("name") == "range_offset")
+    offset = range_offset(vehicle_effects(vehicle or implied))
     loop = EstimationLoop([est])
     snaps = loop.snapshots.subscribe()
     truth_t, truth_z, raw = [], [], {"range": [], "baro": []}

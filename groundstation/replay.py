@@ -97,7 +97,8 @@ class _PassThrough:
         return [m]
 
     def reset(self) -> None:
-        pass
+        """Nothing to forget on a seek: each record is a whole measurement (the tlog
+        receiver, in this place, drops a frame cut in half)."""
 
 
 class Replay:

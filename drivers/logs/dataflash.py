@@ -94,8 +94,10 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         raise DataFlashError(f"{p}: cannot read: no such file")
     if not is_dataflash(p):
         raise DataFlashError(f"{p}: not a DataFlash log (no FMT record in the first 4096 bytes)")
-    binary = p.read_bytes()[:2] == b"\xa3\x95"
-    damage = walk_dataflash(p.read_bytes()).damage(p) if binary else ""
+    data = p.read_bytes()
+    binary = data[:2] == b"\xa3\x95"
+    damage = walk_dataflash(data).damage(p) if binary else ""
+    del data                       # DFReader maps the file itself
     msgs = []
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
