@@ -56,3 +56,9 @@ PAYLOADS: dict[int, tuple[str, struct.Struct]] = {
 def crc16_ccitt(data: bytes) -> int:
     """CRC-16/CCITT-FALSE (``fastcrc``'s ibm_3740; check value 0x29B1 for b"123456789")."""
     return crc16.ibm_3740(data)
+
+
+def frame(msg_id: int, seq: int, payload: bytes) -> bytes:
+    """One frame (ground -> board commands; the boards' own framing lives in their firmware)."""
+    body = struct.pack("<BBBB", VERSION, msg_id, seq & 0xFF, len(payload)) + payload
+    return SYNC + body + struct.pack("<H", crc16_ccitt(body))

@@ -29,7 +29,9 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from drivers.board import BinaryBoardReceiver
 from drivers.transports import close_watched_socket
+from groundstation.measurement import Kind
 
 from .board_out import BoardEncoder
 from .fast import EPOCH
@@ -75,6 +77,7 @@ class SimBridge:
         #: or an NMEA GPS receiver (quadcopter, coaxial helicopter)
         self.board = board
         self.board_encoder = BoardEncoder(scenario.vehicle, EPOCH) if board is not None else None
+        self._board_rx = BinaryBoardReceiver("motor_board")
         self.faults = faults or LinkFaults()
         self.speed = speed
         self._rng = random.Random(scenario.seed + 7)
@@ -105,8 +108,10 @@ class SimBridge:
             self.pty.on_data = self._incoming
             if self.pty.master is None:
                 self.pty.plug()
-        if self.board is not None and self.board.master is None:
-            self.board.plug()
+        if self.board is not None:
+            self.board.on_data = self._board_incoming
+            if self.board.master is None:
+                self.board.plug()
         if self.faults.burst_every > 0:
             self._next_burst = self._rng.expovariate(1.0 / self.faults.burst_every)
 
@@ -166,6 +171,15 @@ class SimBridge:
             handler = getattr(self, "_on_" + t.lower(), None)
             if handler is not None:
                 handler(m)
+
+    def _board_incoming(self, data: bytes) -> None:
+        """The motor board's side: MOTORS frames (ground -> board) set the voltages
+        while they keep coming (3-DOF helicopter); anything else is counted."""
+        for m in self._board_rx.feed(data, time.time()):
+            if m.kind is Kind.MOTOR_VOLTAGE and self.scenario.vehicle == "heli3dof":
+                self.received["MOTORS"] = self.received.get("MOTORS", 0) + 1
+                self.commands_received += 1
+                self.sim.command(Heli3dofCommand(float(m.value[0]), float(m.value[1])))
 
     def _ack(self, command: int, result: int) -> None:
         self._send(self.encoder.packer.pack("COMMAND_ACK", command=command, result=result))

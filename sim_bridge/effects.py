@@ -313,6 +313,22 @@ class Vibration(Effect):
         return f + self.A * sim.vehicle.throttle * np.sin(2 * math.pi * self.freq * sim.t + self.phase)
 
 
+@register
+class MotorOffset(Effect):
+    """A constant disturbance for the control tests: the 3-DOF rig's motor board
+    adds a voltage to each motor (a miscalibrated driver; the same as a moved
+    counterweight or a heavier rotor). Other vehicles are not affected."""
+
+    name = "motor_offset"
+    equation = "V_applied = V_cmd + offset  (3-DOF helicopter, each motor)"
+    params = {"front": Param(0.0, "V", -2.0, 2.0), "back": Param(0.5, "V", -2.0, 2.0)}
+
+    def command(self, cmd, dt, sim):
+        if sim.scenario.vehicle != "heli3dof":
+            return cmd
+        return type(cmd)(cmd.V_f + self.front, cmd.V_b + self.back)
+
+
 def parse_effect(text: str) -> Effect:
     """``NAME`` or ``NAME:k=v,k=v`` -> an effect instance (one-line errors)."""
     name, _, rest = text.partition(":")

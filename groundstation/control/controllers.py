@@ -1,0 +1,275 @@
+"""The controllers: each reads a named state and reference, returns a saturated command.
+
+3-DOF helicopter (lab document, part 2 and 3), input ``u = (V_s - V_s0, V_d)``
+turned into motor voltages ``V_f = (V_s - V_d)/2``, ``V_b = (V_s + V_d)/2``
+(eq. 9-10 with ``V_s = V_f + V_b``, ``V_d = V_b - V_f``):
+
+* :class:`PitchPD`: ``V_d = K_pp (p_c - p) - K_pd p_dot`` (sec. 2.1);
+* :class:`LQRFeedForward`: ``u = F r - K x``, x = (p, p_dot, e_dot), r = (p_c, e_dot_c) (eq. 33, 37);
+* :class:`LQRIntegral`: the same with ``gamma``, ``zeta`` integrating the tracking error (eq. 39-41).
+
+Saturation: each motor takes 0 .. V_max. Lift comes first: V_s is clipped to
+0 .. 2 V_max, then V_d to what both motors can still give at that V_s,
+``|V_d| <= min(V_s, 2 V_max - V_s)``. The lab's document is silent on it; an
+arm that keeps its lift and loses some pitch authority is what the lab's
+flight shows when the joystick is pushed hard.
+
+Anti-windup (:class:`LQRIntegral`, :class:`AltitudeHold`): conditional
+integration. While the command is saturated the integrators stop, unless the
+error would drive them back out of saturation.
+
+Altitude hold (:class:`AltitudeHold`), on the altitude filter's (z, vz): LQR
+with integral action on ``z_dd = a`` (the double integrator of the altitude
+documents' kinematics), then the thrust model inverted for the collective:
+``tau = (g + a - beta) / (alpha cos(roll) cos(pitch))`` (quadcopter document,
+eq. 2), or for the coaxial helicopter ``(1 + k_w) k_F i / m = g + a``
+(coaxial document, eq. 5.21 and 5.29 at equal inputs).
+"""
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..models.heli3dof import V_S0
+from . import design
+
+G = 9.80665
+V_MAX = 12.0
+
+
+@dataclass(frozen=True)
+class Output:
+    command: np.ndarray       # what is sent: (V_f, V_b) [V], or (collective,) 0..1
+    u: np.ndarray             # the controller's own input, after saturation
+    saturated: bool
+
+
+class Controller(abc.ABC):
+    """``update(x, r, dt)``: state and reference by name -> :class:`Output`."""
+
+    name = "controller"
+    #: the state components it reads
+    needs: tuple[str, ...] = ()
+    #: reference names and their defaults
+    references: dict[str, float] = {}
+    #: names of the command components (export and plots)
+    command_names: tuple[str, ...] = ()
+
+    @abc.abstractmethod
+    def update(self, x: Mapping[str, float], r: Mapping[str, float], dt: float) -> Output:
+        """One control step of ``dt`` seconds."""
+
+    def reset(self) -> None:
+        """Forget integrator state (at arming)."""
+
+    def describe(self) -> dict:
+        return {"name": self.name}
+
+
+# -- 3-DOF helicopter -------------------------------------------------------------------------
+
+def motor_voltages(u_s: float, V_d: float, V_s0: float = V_S0, V_max: float = V_MAX) -> tuple[np.ndarray, np.ndarray, bool]:
+    """(V_f, V_b), the applied (V_s - V_s0, V_d), and whether anything was clipped."""
+    V_s = V_s0 + u_s
+    V_s_c = min(2 * V_max, max(0.0, V_s))
+    lim = min(V_s_c, 2 * V_max - V_s_c)
+    V_d_c = min(lim, max(-lim, V_d))
+    sat = V_s_c != V_s or V_d_c != V_d
+    return (np.array([(V_s_c - V_d_c) / 2, (V_s_c + V_d_c) / 2]), np.array([V_s_c - V_s0, V_d_c]), sat)
+
+
+class _Heli3dof(Controller):
+    command_names = ("V_f", "V_b")
+
+    def __init__(self, *, V_s0: float = V_S0, V_max: float = V_MAX) -> None:
+        self.V_s0, self.V_max = V_s0, V_max
+
+    def _out(self, u_s: float, V_d: float) -> Output:
+        cmd, u, sat = motor_voltages(u_s, V_d, self.V_s0, self.V_max)
+        return Output(cmd, u, sat)
+
+
+class PitchPD(_Heli3dof):
+    """PD on pitch by pole placement (lab sec. 2.1-2.3, eq. 21-27).
+
+    The lab flew elevation by hand with the joystick's V_s; here a PD on
+    elevation (its own pole pair, on K2) stands in for the operator, so a
+    pitch step can be flown hands-off.
+    """
+
+    name = "pd"
+    needs = ("p", "p_dot", "e", "e_dot")
+    references = {"p_c": 0.0, "e_c": 0.0}
+
+    def __init__(self, K_pp: float, K_pd: float, *, K_ep: float | None = None, K_ed: float | None = None,
+                 K_f: float = design.K_F, **kw) -> None:
+        super().__init__(**kw)
+        self.K_pp, self.K_pd = K_pp, K_pd
+        _, K2 = design.k1_k2(K_f)
+        # elevation: a critically damped pair at 2 rad/s unless given
+        self.K_ep = K_ep if K_ep is not None else 4.0 / K2
+        self.K_ed = K_ed if K_ed is not None else 4.0 / K2
+
+    @classmethod
+    def place(cls, omega0: float, zeta: float, *, K_f: float = design.K_F, **kw) -> "PitchPD":
+        """Gains for omega_0 and zeta on the plant with motor constant K_f (eq. 25-26)."""
+        K1, _ = design.k1_k2(K_f)
+        return cls(*design.pd_gains(K1, omega0, zeta), K_f=K_f, **kw)
+
+    @classmethod
+    def from_poles(cls, l1: complex, l2: complex, *, K_f: float = design.K_F, **kw) -> "PitchPD":
+        K1, _ = design.k1_k2(K_f)
+        return cls(*design.pd_from_poles(K1, l1, l2), K_f=K_f, **kw)
+
+    def update(self, x, r, dt):
+        V_d = self.K_pp * (r["p_c"] - x["p"]) - self.K_pd * x["p_dot"]          # sec. 2.1
+        u_s = self.K_ep * (r["e_c"] - x["e"]) - self.K_ed * x["e_dot"]
+        return self._out(u_s, V_d)
+
+    def describe(self):
+        return {"name": self.name, "K_pp": self.K_pp, "K_pd": self.K_pd, "K_ep": self.K_ep, "K_ed": self.K_ed}
+
+
+class LQRFeedForward(_Heli3dof):
+    """u = F r - K x (eq. 33), K from LQR on (A, B) of eq. 31, F from eq. 37."""
+
+    name = "lqr"
+    needs = ("p", "p_dot", "e_dot")
+    references = {"p_c": 0.0, "e_dot_c": 0.0}
+
+    def __init__(self, Q: np.ndarray = design.LAB_Q_FF, R: np.ndarray = design.LAB_R_FF, *,
+                 K_f: float = design.K_F, **kw) -> None:
+        super().__init__(**kw)
+        A, B, C = design.pitch_model(K_f)
+        self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
+        self.K = design.lqr(A, B, self.Q, self.R)
+        self.F = design.reference_feedforward(A, B, C, self.K)
+
+    def update(self, x, r, dt):
+        xs = np.array([x["p"], x["p_dot"], x["e_dot"]])
+        u = self.F @ np.array([r["p_c"], r["e_dot_c"]]) - self.K @ xs
+        return self._out(u[0], u[1])
+
+    def describe(self):
+        return {"name": self.name, "Q": np.diag(self.Q).tolist(), "R": np.diag(self.R).tolist(),
+                "K": self.K.round(4).tolist(), "F": self.F.round(4).tolist()}
+
+
+class LQRIntegral(_Heli3dof):
+    """LQR on the augmented model of eq. 41; u = F r - K (x, gamma, zeta).
+
+    ``gamma_dot = p - p_c``, ``zeta_dot = e_dot - e_dot_c`` (eq. 39), integrated
+    with the controller's own step. F: see :mod:`.design` (eq. 43 leaves it free).
+    """
+
+    name = "lqr_i"
+    needs = ("p", "p_dot", "e_dot")
+    references = {"p_c": 0.0, "e_dot_c": 0.0}
+
+    def __init__(self, Q: np.ndarray = design.LAB_Q_I, R: np.ndarray = design.LAB_R_I, *,
+                 K_f: float = design.K_F, integral_limit: float = 5.0, anti_windup: bool = True, **kw) -> None:
+        super().__init__(**kw)
+        self.anti_windup = anti_windup
+        A, B, _ = design.integral_model(K_f)
+        A3, B3, C3 = design.pitch_model(K_f)
+        self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
+        self.K = design.lqr(A, B, self.Q, self.R)
+        self.F = design.reference_feedforward(A3, B3, C3, self.K[:, :3])
+        self.integral_limit = integral_limit
+        self.z = np.zeros(2)           # gamma, zeta
+
+    def reset(self):
+        self.z = np.zeros(2)
+
+    def update(self, x, r, dt):
+        xs = np.array([x["p"], x["p_dot"], x["e_dot"]])
+        ref = np.array([r["p_c"], r["e_dot_c"]])
+        err = np.array([xs[0] - ref[0], xs[2] - ref[1]])                         # eq. 39
+        u = self.F @ ref - self.K @ np.concatenate([xs, self.z])
+        out = self._out(u[0], u[1])
+        # conditional integration: stop while saturated, unless the error unwinds it
+        dz = err * dt
+        if out.saturated and self.anti_windup:
+            excess = u - out.u                         # how far past the limits, per input
+            push = -(self.K[:, 3:] @ dz)               # what integrating would add to u
+            if np.any(excess * push > 0):
+                dz = np.zeros(2)
+        self.z = np.clip(self.z + dz, -self.integral_limit, self.integral_limit)
+        return out
+
+    def describe(self):
+        return {"name": self.name, "Q": np.diag(self.Q).tolist(), "R": np.diag(self.R).tolist(),
+                "K": self.K.round(4).tolist(), "F": self.F.round(4).tolist()}
+
+
+# -- altitude hold ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class ThrustMap:
+    """Collective -> vertical specific force along the body axis: ``a_T = gain * c + offset``."""
+
+    gain: float
+    offset: float
+    limit: tuple[float, float] = (0.0, 1.0)
+
+    def collective(self, a_T: float) -> float:
+        return (a_T - self.offset) / self.gain
+
+
+#: quadcopter document eq. 2 with the simulated airframe's coefficients (alpha, beta)
+QUAD_THRUST = ThrustMap(22.0, -1.2)
+#: coaxial document: (1 + k_w) k_F i / m with k_F = 4.4 N (5.21), k_w = 0.84 (5.29), m = 0.5 kg
+COAX_THRUST = ThrustMap((1 + 0.84) * 4.4 / 0.5, 0.0)
+
+
+class AltitudeHold(Controller):
+    """Height hold on the altitude filter's state: LQR + integral on z_dd = a, thrust model inverted.
+
+    States ``(z - z_c, vz, integral of z - z_c)``; Q, R default to a loop of about
+    1.2 rad/s, gentle enough for the altitude filter's few-cm noise. When the
+    feedback carries the thrust filter's own ``alpha`` and ``beta`` (quadcopter
+    model), those replace the nominal thrust map: the loop adapts as the
+    battery sags.
+    """
+
+    name = "altitude_hold"
+    needs = ("z", "vz")
+    references = {"z_c": 1.0}
+    command_names = ("collective",)
+
+    def __init__(self, thrust: ThrustMap = QUAD_THRUST, *, Q=np.diag([2.0, 1.0, 0.5]), R=np.array([[1.0]]),
+                 a_limit: float = 0.5 * G, integral_limit: float = 3.0) -> None:
+        A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+        B = np.array([[0.0], [1.0], [0.0]])
+        self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
+        self.K = design.lqr(A, B, self.Q, self.R)[0]
+        self.thrust, self.a_limit, self.integral_limit = thrust, a_limit, integral_limit
+        self.i = 0.0
+
+    def reset(self):
+        self.i = 0.0
+
+    def update(self, x, r, dt):
+        e = x["z"] - r["z_c"]
+        a = -float(self.K @ np.array([e, x["vz"], self.i]))
+        a_c = min(self.a_limit, max(-self.a_limit, a))
+        tilt = max(0.5, math.cos(x.get("roll", 0.0)) * math.cos(x.get("pitch", 0.0)))
+        gain = x.get("alpha", self.thrust.gain)
+        offset = x.get("beta", self.thrust.offset)
+        c = (G + a_c - offset) / (gain * tilt)
+        lo, hi = self.thrust.limit
+        c_c = min(hi, max(lo, c))
+        sat = a_c != a or c_c != c
+        # conditional integration: while saturated, only what unwinds it
+        excess = (a - a_c) if a_c != a else (c - c_c)
+        push = -self.K[2] * e * dt
+        if not sat or excess * push <= 0:
+            self.i = min(self.integral_limit, max(-self.integral_limit, self.i + e * dt))
+        return Output(np.array([c_c]), np.array([a_c]), sat)
+
+    def describe(self):
+        return {"name": self.name, "K": self.K.round(4).tolist(), "thrust": [self.thrust.gain, self.thrust.offset]}
