@@ -12,7 +12,6 @@ import time
 
 import numpy as np
 import pytest
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from scipy import signal
 
 from drivers import board_protocol as bp
@@ -73,6 +72,19 @@ def test_pole_placement_puts_the_poles_where_asked():
         assert design.omega_zeta(K1, pd.K_pp, pd.K_pd) == pytest.approx((w, z))
     pd = PitchPD.from_poles(-17.1, -3.2)
     assert np.sort(np.roots([1.0, K1 * pd.K_pd, K1 * pd.K_pp]).real) == pytest.approx([-17.1, -3.2])
+
+
+def test_responses_are_named_as_the_lab_names_them():
+    t = np.linspace(0.0, 8.0, 801)
+    names = []
+    for zeta in (0.0, 0.5, 1.0, 1.38):
+        _, y = signal.step(signal.lti([16.0], [1.0, 8.0 * zeta, 16.0]), T=t)
+        names.append(classify(t + 1.0, 0.2 * y, 1.0, 0.0, 0.2))
+    growing = 0.2 - 0.2 * np.exp(0.15 * t) * np.cos(4 * t)        # stays within the limit, grows
+    names.append(classify(t, growing, 0.0, 0.0, 0.2))
+    assert names == ["undamped", "underdamped", "critically damped", "overdamped", "unstable"]
+    w, z, _ = step_fit(t + 1.0, 0.2 * signal.step(signal.lti([16.0], [1.0, 5.6, 16.0]), T=t)[1], 1.0, 0.0, 0.2)
+    assert (w, z) == pytest.approx((4.0, 0.7), rel=0.02)
 
 
 def test_saturation_keeps_lift_first():

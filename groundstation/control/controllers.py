@@ -64,7 +64,8 @@ class Controller(abc.ABC):
         """One control step of ``dt`` seconds."""
 
     def reset(self) -> None:
-        """Forget integrator state (at arming)."""
+        """Forget integrator state (at arming); a controller without one has nothing to do."""
+        return None
 
     def describe(self) -> dict:
         return {"name": self.name}
@@ -226,6 +227,11 @@ QUAD_THRUST = ThrustMap(22.0, -1.2)
 COAX_THRUST = ThrustMap((1 + 0.84) * 4.4 / 0.5, 0.0)
 
 
+#: height error, vertical speed, integral: a loop of about 1.2 rad/s
+HOLD_Q = np.diag([2.0, 1.0, 0.5])
+HOLD_R = np.array([[1.0]])
+
+
 class AltitudeHold(Controller):
     """Height hold on the altitude filter's state: LQR + integral on z_dd = a, thrust model inverted.
 
@@ -241,7 +247,7 @@ class AltitudeHold(Controller):
     references = {"z_c": 1.0}
     command_names = ("collective",)
 
-    def __init__(self, thrust: ThrustMap = QUAD_THRUST, *, Q=np.diag([2.0, 1.0, 0.5]), R=np.array([[1.0]]),
+    def __init__(self, thrust: ThrustMap = QUAD_THRUST, *, Q=HOLD_Q, R=HOLD_R,
                  a_limit: float = 0.5 * G, integral_limit: float = 3.0) -> None:
         A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
         B = np.array([[0.0], [1.0], [0.0]])
