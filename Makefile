@@ -35,6 +35,7 @@ bench: setup
 	$(BIN)/python bench/bulk.py
 	$(BIN)/python bench/dashboard.py
 	$(BIN)/python bench/estimation.py
+	$(BIN)/python bench/control.py
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

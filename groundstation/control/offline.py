@@ -15,6 +15,7 @@ applying it (a serial link and a USB frame: a few ms).
 from __future__ import annotations
 
 import collections
+import inspect
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -69,9 +70,15 @@ class _Wire:
 
 
 def fly(scenario: Scenario, controller: Controller, feedback: Feedback, *, seconds: float,
-        rate: float = 100.0, arm_at: float = 0.5, reference: Callable[[float], dict] | None = None,
+        rate: float = 100.0, arm_at: float = 0.5, reference: Callable[..., dict] | None = None,
         latency: float = 0.004, stale_after: float = 0.25) -> Flight:
-    """Fly ``seconds`` of simulated time; control is armed at ``arm_at``."""
+    """Fly ``seconds`` of simulated time; control is armed at ``arm_at``.
+
+    ``reference(t)`` or ``reference(t, truth)``: the reference at time t; the
+    second form sees the vehicle's true state, as an operator watching the rig
+    does (the lab's joystick closes the elevation loop by eye).
+    """
+    sees_truth = reference is not None and len(inspect.signature(reference).parameters) >= 2
     bridge = SimBridge(scenario, command_timeout=0.5)
     sim = bridge.sim
     sim.keep_truth = False
@@ -107,7 +114,7 @@ def fly(scenario: Scenario, controller: Controller, feedback: Feedback, *, secon
                 except Exception:     # noqa: BLE001 - not ready yet: retried at the next tick
                     pass
             if reference is not None:
-                cmd.set_reference(**reference(sim.t))
+                cmd.set_reference(**(reference(sim.t, sim.vehicle.truth()) if sees_truth else reference(sim.t)))
             rec = cmd.tick()
             if rec is not None:
                 records.append(rec)

@@ -56,6 +56,7 @@ class Heli3dofParams:
     K_f: float = 0.1248        # [N/V], see the module docstring
     V_max: float = 12.0        # motor voltage limit [V]
     e_min: float = -0.5        # elevation end stop (resting on the table) [rad]
+    e_max: float = 1.0         # elevation end stop above (the rig's frame) [rad]
     p_max: float = 1.2         # pitch end stops [rad]
 
     @property
@@ -106,9 +107,11 @@ class Heli3dof(Vehicle):
         k3 = self.derivatives(x + 0.5 * dt * k2, self.cmd)
         k4 = self.derivatives(x + dt * k3, self.cmd)
         self.x = x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        # end stops: the table under the arm, the pitch limits
+        # end stops: the table under the arm, the frame above it, the pitch limits
         if self.x[2] < P.e_min:
             self.x[2], self.x[3] = P.e_min, max(0.0, self.x[3])
+        elif self.x[2] > P.e_max:
+            self.x[2], self.x[3] = P.e_max, min(0.0, self.x[3])
         if abs(self.x[0]) > P.p_max:
             self.x[0] = math.copysign(P.p_max, self.x[0])
             self.x[1] = 0.0
