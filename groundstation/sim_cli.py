@@ -47,6 +47,9 @@ def add_sim_parser(sub) -> None:
     d.add_argument("--no-web", action="store_true", help="no dashboard")
     d.add_argument("--host", default="127.0.0.1")
     d.add_argument("--port", type=int, default=8080)
+    d.add_argument("--control", action="store_true",
+                   help="fly it from the ground station: the dashboard's Control panel arms the vehicle's controllers "
+                        "(the 3-DOF rig's motor board on a pseudo-terminal)")
 
 
 def scenario_from(args) -> Scenario:
@@ -146,8 +149,30 @@ async def run_demo(args) -> int:
     loop.attach_link(link)
     port = link.transport.local_address[1]
     scenario = Scenario(vehicle=args.vehicle, seed=args.seed, duration=args.duration)
-    bridge = SimBridge(scenario, udp_to=("127.0.0.1", port))
+    board_port = board = station = None
+    if getattr(args, "control", False) and args.vehicle == "heli3dof":
+        board_port = PtyPort()
+    bridge = SimBridge(scenario, udp_to=("127.0.0.1", port), board=board_port)
     await bridge.open()
+    control_tasks = []
+    if getattr(args, "control", False):
+        from .control.station import ControlStation
+        if board_port is not None:
+            from drivers.board import BoardLink
+            board = BoardLink(f"{board_port.path},921600", "binary", lost_after=0.3)
+            board_sub = board.measurements()
+            await board.open()
+            station = ControlStation("heli3dof", board, on_command=loop.push)
+            control_tasks.append(asyncio.create_task(station.follow(board_sub)))
+            print(f"demo: motor board on {board_port.path}", flush=True)
+        else:
+            station = ControlStation(args.vehicle, link)
+            control_tasks.append(asyncio.create_task(station.follow(link.measurements())))
+        control_tasks.append(asyncio.create_task(station.run()))
+        if dash is not None:
+            dash.add_control(station)
+        print(f"demo: control ready ({', '.join(station.controllers)}); arm it from the dashboard's Control panel",
+              flush=True)
     print(f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}",
           flush=True)
     status = StatusLine()
@@ -177,10 +202,15 @@ async def run_demo(args) -> int:
     try:
         await bridge.run(args.duration)
     finally:
+        if station is not None:
+            station.stop()
         bridge.close()
         for t in tasks[2:]:
             t.cancel()
+        if board is not None:
+            await board.close()
         await link.close()
+        await asyncio.gather(*control_tasks, return_exceptions=True)
         await asyncio.gather(*tasks, return_exceptions=True)
         if dash is not None:
             dash.stop()

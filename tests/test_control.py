@@ -342,3 +342,65 @@ def test_motors_frame_is_what_the_board_protocol_says():
     (m,) = rx.feed(sink.data[0], 0.0)
     assert m.kind is Kind.MOTOR_VOLTAGE and m.t == pytest.approx(12.5) and list(m.value) == [4.25, 3.5]
     assert sink.data[0][:2] == bp.SYNC and sink.data[0][3] == bp.MOTORS
+
+
+@async_test(timeout=60)
+async def test_dashboard_control_panel_arms_sets_references_and_disarms():
+    """A tab (protocol-level client) presses ARM, moves the z_c slider, tries to change the
+    feedback while armed (refused), and presses DISARM; the commander follows each."""
+    from groundstation.control.station import ControlStation
+    from web.dashboard import Dashboard
+    from web.probe import ViserProbe, gui_id
+
+    port = free_udp_port()
+    bridge = SimBridge(Scenario("quad", seed=6), udp_to=("127.0.0.1", port))
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", lost_after=1.0)
+    station = ControlStation("quad", link)
+    sub = link.measurements()
+    await link.open()
+    await bridge.open()
+    dash = Dashboard(port=0, plot_hz=10.0)
+    panel = dash.add_control(station)
+    tasks = [asyncio.create_task(c) for c in (bridge.run(), dash.run(), station.follow(sub), station.run())]
+    notes = station.commander.notes.subscribe()
+    try:
+        probe_sub = link.measurements()
+        k = 0
+        async for _ in probe_sub:                 # a live link with fresh estimates
+            k += 1
+            if k >= 500:
+                break
+        probe_sub.close()
+        async with ViserProbe(dash.url) as probe:
+            await probe.set_gui(gui_id(panel.arm), value=True)
+            assert (await asyncio.wait_for(notes.__anext__(), 5.0)).startswith("armed")
+            await probe.set_gui(gui_id(panel.sliders["z_c"]), value=1.5)
+            await probe.set_gui(gui_id(panel.feedback), value="quad_thrust")
+            records = station.commander.records.subscribe()
+
+            async def reference_applied():
+                async for rec in records:
+                    if rec.reference["z_c"] == 1.5:
+                        return rec
+            rec = await asyncio.wait_for(reference_applied(), 5.0)
+            assert rec.command[0] > 0 and station.feedback_name == "altitude"      # refused while armed
+            assert "disarm before" in panel.message
+            plot_id = gui_id(panel.plot)
+
+            async def plotted():
+                async for _, messages in probe.frames():
+                    for m in messages:
+                        if m["type"] == "GuiUpdateMessage" and m.get("uuid") == plot_id:
+                            return m
+            await asyncio.wait_for(plotted(), 5.0)
+            await probe.set_gui(gui_id(panel.disarm), value=True)
+            assert (await asyncio.wait_for(notes.__anext__(), 5.0)).startswith("disarmed: by the user")
+        assert bridge.commands_received > 0
+    finally:
+        station.stop()
+        bridge.close()
+        await link.close()
+        for t in tasks[:2]:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        dash.stop()

@@ -192,13 +192,21 @@ class Dashboard:
     def set_link_status(self, text: str) -> None:
         self.status_text = text
 
+    def add_control(self, station):
+        """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`)."""
+        from .control_panel import ControlPanel
+        self.control = ControlPanel(self.server.gui, station, window_s=self.window_s)
+        return self.control
+
     def attach_replay(self, replay) -> None:
         """Show the replay controls and wire them to ``replay`` (pause/resume, speed, seek)."""
         self.replay_folder.visible = True
         self.position.max = max(0.1, round(replay.duration, 1))
 
+        # async callbacks run on the event loop the replay runs on (plain ones go to
+        # viser's thread pool)
         @self.play.on_click
-        def _(_e) -> None:
+        async def _(_e) -> None:
             if replay.status.state.value == "paused":
                 replay.resume()
                 self.play.label = "pause"
@@ -207,11 +215,11 @@ class Dashboard:
                 self.play.label = "play"
 
         @self.speed.on_update
-        def _(_e) -> None:
+        async def _(_e) -> None:
             replay.set_speed(float(self.speed.value))
 
         @self.position.on_update
-        def _(_e) -> None:
+        async def _(_e) -> None:
             if abs(self.position.value - replay.position) > 0.5:
                 replay.seek(float(self.position.value))
         self._replay = replay
@@ -304,6 +312,9 @@ class Dashboard:
             v = np.array([p[1][j] for p in self._params])
             sg = np.array([p[2][j] for p in self._params])
             self.plot_param.data = _f32(t, v, v - 2 * sg, v + 2 * sg)
+        control = getattr(self, "control", None)
+        if control is not None:
+            control.update()
         replay = getattr(self, "_replay", None)
         if replay is not None and abs(self.position.value - replay.position) > 0.5:
             self.position.value = round(replay.position, 1)
