@@ -87,6 +87,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-record", action="store_true", help="do not record the session")
     c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
     c.add_argument("--duration", type=float, help="stop after this many seconds")
+    c.add_argument("--control", choices=("quad", "coax"),
+                   help="offer altitude hold for this vehicle in the dashboard's Control panel (armed only there)")
     _add_output_options(c)
 
     r = sub.add_parser("replay", help="play a recorded .tlog through the live path")
@@ -312,6 +314,13 @@ async def run_connect(args) -> int:
 
     tasks = [asyncio.create_task(_consume(sub, out)),
              asyncio.create_task(print_link_events(events)), asyncio.create_task(print_status())]
+    station = None
+    if getattr(args, "control", None):
+        from .control.station import ControlStation
+        station = ControlStation(args.control, link)
+        tasks += [asyncio.create_task(station.follow(link.measurements())), asyncio.create_task(station.run())]
+        if dash is not None:
+            dash.add_control(station)
     if dash is not None:
         tasks.append(asyncio.create_task(dash.run()))
     try:
@@ -323,6 +332,8 @@ async def run_connect(args) -> int:
         else:
             await stop.wait()
     finally:
+        if station is not None:
+            station.stop()
         for t in tasks[2:]:
             t.cancel()
         await link.close()
