@@ -12,8 +12,11 @@ Towards the ground station it behaves like an autopilot: HEARTBEAT at 1 Hz;
 ``SET_MESSAGE_INTERVAL`` changes a stream's rate (COMMAND_ACK ACCEPTED, or
 UNSUPPORTED for a message it does not send); ``REQUEST_DATA_STREAM`` sets the
 rates of the ArduPilot stream groups; ``MANUAL_CONTROL`` and
-``SET_ATTITUDE_TARGET`` fly the vehicle while they keep coming, and it falls
-back to its own autopilot ``command_timeout`` seconds after the last one.
+``SET_ATTITUDE_TARGET`` fly the vehicle while they keep coming (stabilised: x, y
+are attitude setpoints for the quad and the coax; for the 3-DOF rig z and y are
+the sum and difference voltages), and it falls back to its own autopilot
+``command_timeout`` seconds after the last one. On the 3-DOF rig's board port,
+``MOTORS`` frames set the motor voltages the same way.
 
 Link faults on demand (:class:`LinkFaults`): random frame loss, corrupted
 bytes, loss bursts, and :meth:`SimBridge.disconnect` for a while.
@@ -39,7 +42,6 @@ from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
 from .pty_port import PtyPort
 from .scenario import Scenario
 from .simulator import Simulator
-from .vehicles.coax import CoaxCommand
 from .vehicles.heli3dof import Heli3dofCommand
 from .vehicles.quad import QuadCommand
 
@@ -215,8 +217,12 @@ class SimBridge:
         if v == "quad":
             cmd = QuadCommand(z, y * MAX_TILT, -x * MAX_TILT, r * 2.0)
         elif v == "coax":
-            p = self.sim.vehicle.p
-            cmd = CoaxCommand(z - 0.1 * r, z + 0.1 * r, -x * p.max_flap, y * p.max_flap)
+            # stabilised, as an autopilot flies MANUAL_CONTROL: collective, roll and pitch
+            # setpoints, yaw rate; the coax's own inner loop turns them into flapping angles
+            ap = self.sim.autopilot
+            self.commands_received += 1
+            self.sim.command(lambda t, dt: ap.stabilised(z, y * MAX_TILT, -x * MAX_TILT, r * 2.0))
+            return
         else:
             P = self.sim.vehicle.p
             vs, vd = 2 * P.V_max * z, P.V_max * y

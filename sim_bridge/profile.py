@@ -107,7 +107,7 @@ class CoaxAutopilot:
         self.i = 0.0
 
     def __call__(self, t: float, dt: float) -> CoaxCommand:
-        v, p, k = self.c, self.c.p, self.c.kin
+        p, k = self.c.p, self.c.kin
         sp = self.profile(t)
         if not sp.armed:
             self.i = 0.0
@@ -124,6 +124,13 @@ class CoaxAutopilot:
         ae = -0.5 * k.pos[1] - 1.0 * k.vel[1]
         pitch_sp = max(-0.3, min(0.3, -an / G + sp.pitch))
         roll_sp = max(-0.3, min(0.3, ae / G + sp.roll))
+        return self.stabilised(i_col, roll_sp, pitch_sp, 0.0)
+
+    def stabilised(self, i_col: float, roll_sp: float, pitch_sp: float, yaw_rate_sp: float) -> CoaxCommand:
+        """The inner attitude loop: collective as given, flapping angles for roll and
+        pitch, the rotors' differential for the yaw rate (as MANUAL_CONTROL flies it)."""
+        v, p, k = self.c, self.c.p, self.c.kin
+        roll, pitch, _ = euler_from_matrix(k.R)
         # torques about x / y come from the lower rotor: (l_L b F_L, l_L a F_L) for small a, b
         f_l = max(0.5, v.F_L)
         Ix, Iy, Iz = p.inertia
@@ -131,7 +138,7 @@ class CoaxAutopilot:
         ty = Iy * (36.0 * (pitch_sp - pitch) - 12.0 * k.omega[1])
         b = tx / (p.l_L * f_l)
         a = ty / (p.l_L * f_l)
-        dyaw = Iz * (-4.0 * k.omega[2]) / p.k_T
+        dyaw = Iz * (4.0 * (yaw_rate_sp - k.omega[2])) / p.k_T
         return CoaxCommand(i_col - dyaw, i_col + dyaw, a, b)
 
 

@@ -77,13 +77,17 @@ class Simulator:
         self.autopilot_every = max(1, int(round(self.rate / 250.0)))
         self._auto_cmd = None
         self._external = None
+        self._external_cmd = None
         self._external_until = -1.0
         self.last_command = None
 
     # -- ground-station commands -------------------------------------------------------
     def command(self, cmd) -> None:
-        """Fly this command (the vehicle's own command type) until it goes stale."""
+        """Fly this command until it goes stale: the vehicle's own command type, or a
+        callable ``(t, dt) -> command`` evaluated at the autopilot's rate (a stabilised
+        mode: the ground station sets attitude and collective, the inner loop flies them)."""
         self._external = cmd
+        self._external_cmd = None
         self._external_until = self.t + self.command_timeout
 
     @property
@@ -94,7 +98,13 @@ class Simulator:
     def step(self) -> list[Sample]:
         dt, v = self.dt, self.vehicle
         if self.externally_commanded:
-            cmd = self._external
+            ext = self._external
+            if callable(ext):
+                if self._external_cmd is None or self.step_count % self.autopilot_every == 0:
+                    self._external_cmd = ext(self.t, dt * self.autopilot_every)
+                cmd = self._external_cmd
+            else:
+                cmd = ext
         elif self.step_count % self.autopilot_every == 0:
             cmd = self._auto_cmd = self.autopilot(self.t, dt * self.autopilot_every)
         else:

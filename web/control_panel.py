@@ -7,7 +7,8 @@ Built on a :class:`groundstation.control.station.ControlStation`:
 * controller and feedback dropdowns (changing either disarms nothing: it is
   refused while armed, and the dropdown goes back);
 * one slider per reference of the controller in charge;
-* a plot of reference, state and command over the last ``window_s`` seconds.
+* a plot of one reference (chosen), the state it tracks and the command (V_d
+  for the 3-DOF rig, the collective otherwise) over the last ``window_s`` seconds.
 
 A gamepad is not wired: viser's GUI offers no Gamepad API hook, and the
 sliders give the same references.
@@ -46,6 +47,8 @@ class ControlPanel:
                                    visible=False)
                 s.on_update(self._reference_changed(name))
                 self.sliders[name] = s
+            refs = tuple(station.commander.reference)
+            self.plot_choice = gui.add_dropdown("plot", options=refs, initial_value=refs[0])
             self.plot = gui.add_uplot(
                 data=(np.zeros(2, np.float32),) * 4,
                 series=({"label": "t [s]"}, {"label": "reference", "stroke": "green"},
@@ -62,6 +65,10 @@ class ControlPanel:
         async def _(_e) -> None:
             self.station.commander.disarm("by the user (dashboard)")
             self.status_md.content = self._status()
+
+        @self.plot_choice.on_update
+        async def _(_e) -> None:
+            self._rows.clear()
 
         @self.controller.on_update
         async def _(_e) -> None:
@@ -105,6 +112,9 @@ class ControlPanel:
 
     def _show_references(self) -> None:
         ref = self.station.commander.reference
+        if tuple(ref) != self.plot_choice.options:
+            self.plot_choice.options = tuple(ref)
+            self.plot_choice.value = next(iter(ref))
         for name, s in self.sliders.items():
             s.visible = name in ref
             if name in ref:
@@ -121,7 +131,7 @@ class ControlPanel:
         """Status and plot (called at the dashboard's panel rate)."""
         self.status_md.content = self._status()
         for rec in self._records.get_nowait():
-            ref_name = next(iter(rec.reference))
+            ref_name = self.plot_choice.value if self.plot_choice.value in rec.reference else next(iter(rec.reference))
             state = rec.state.get(TRACKS.get(ref_name, ""), np.nan)
             cmd = float(rec.command[-1] - rec.command[0]) if len(rec.command) > 1 else float(rec.command[0])
             self._rows.append((rec.t, rec.reference[ref_name], state, cmd))

@@ -38,6 +38,8 @@ class Candidate:
     augment: Callable[[LinearModel], LinearModel] | None = None
     params: Callable[..., dict] | None = None         # (run) -> {name: value}
     delays: tuple[float, ...] = ()                    # sensor_delay: the grid
+    #: (measurements, grid value) -> measurements; default: the sensor's readings shifted by the delay
+    reshape: Callable | None = None
 
 
 def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,
@@ -66,7 +68,12 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 # -- the altitude filter's candidates ----------------------------------------------------------------
 def baro_bias_drift(model: LinearModel) -> LinearModel:
-    """Baro error b with a constant drift rate d: b_dot = d (+ a small walk), y_baro = z + b."""
+    """Baro error b with a constant drift rate d: b_dot = d, y_baro = z + b.
+
+    Deterministic (no random walk on b): a walk would absorb any slow error, and a
+    temperature that rises ever more slowly in flight (baro_thermal) would be taken
+    for a drift; a straight line against the temperature's own curve tells them apart.
+    """
     n = model.n
     meas = {}
     for key, mm in model.measurements.items():
@@ -79,7 +86,7 @@ def baro_bias_drift(model: LinearModel) -> LinearModel:
                 return r
             meas[key] = replace(mm, row=row)
     A_extra = np.array([[0.0, 1.0], [0.0, 0.0]])
-    return model.augmented(states=["b_baro", "baro_rate"], A_extra=lambda u: A_extra, Qc_extra=[1e-4, 0.0],
+    return model.augmented(states=["b_baro", "baro_rate"], A_extra=lambda u: A_extra, Qc_extra=[0.0, 0.0],
                            x0_extra=[0.0, 0.0], P0_extra=[1e-4, 0.2**2], measurements=meas)
 
 

@@ -25,6 +25,7 @@ from .catalogue import UNOBSERVABLE, altitude_catalogue
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
+from .thrust import UNOBSERVABLE_THRUST, thrust_catalogue, thrust_estimator, thrust_model
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4
@@ -118,16 +119,26 @@ def _modelled(run: Run) -> list[Effect]:
 def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "altitude",
              declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
-    if model_name != "altitude":
-        raise ValueError(f"diagnose: model {model_name!r} is not supported yet (altitude is)")
     names = {e.get("name") for e in declared}
-    params = vehicle_config(vehicle, "altitude")
-    model = altitude_model(range_tilt="range_tilt" in names, **params)
-    make: Callable[[object], KalmanEstimator] = altitude_estimator
     prep: Prepared = prepare(ms)
-    if Kind.ACCEL not in prep.kinds:
-        raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this log "
-                         "has none (the thrust-model diagnosis, which needs only throttle, is not built yet)")
+    if model_name == "altitude":
+        params = vehicle_config(vehicle, "altitude")
+        model = altitude_model(range_tilt="range_tilt" in names, **params)
+        make: Callable[[object], KalmanEstimator] = altitude_estimator
+        catalogue = altitude_catalogue
+        if Kind.ACCEL not in prep.kinds:
+            raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
+                             "log has none; the thrust model needs only the throttle: --model quad_thrust")
+    elif model_name == "quad_thrust":
+        params = vehicle_config(vehicle, "quad_thrust")
+        model = thrust_model(range_tilt="range_tilt" in names, **params)
+        make = thrust_estimator
+        catalogue = thrust_catalogue
+        if not prep.kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
+            raise ValueError(f"{source or 'log'}: the thrust model takes the throttle as its input and this log "
+                             "has none (no THROTTLE, SERVO_OUTPUT_RAW or RCOU)")
+    else:
+        raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude or quad_thrust)")
     if not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
     say = progress or (lambda _s: None)
@@ -135,7 +146,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
     base = run_model(model, prep, make)
     first = base
     findings0 = sensor_findings(base)
-    cands = [c for c in altitude_catalogue(prep.kinds) if c.name not in names]
+    cands = [c for c in catalogue(prep.kinds) if c.name not in names]
     stream = prep.measurements
     effects: list[Effect] = []
     ranking = []
@@ -168,7 +179,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             d = discover(base, s)
             if d is not None:
                 discoveries.append(d)
-    unobs = dict(UNOBSERVABLE.get(model_name, {}))
+    unobs = dict(UNOBSERVABLE.get(model_name, UNOBSERVABLE_THRUST))
     against = []
     if truth is not None and "range" in base.sensors:
         against = _range_offset_against_truth(base, truth)

@@ -53,13 +53,13 @@ class Scored:
 def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms) -> Scored | None:
     n = max(base.n_scored, 1)
     if cand.delays:
-        kinds = SENSOR_KINDS[cand.sensor]
+        kinds = SENSOR_KINDS.get(cand.sensor, set())
         tried: dict[float, tuple] = {}
 
         def at(d: float):
             d = round(float(d), 4)
             if d not in tried:
-                shifted = shift(ms, kinds, d)
+                shifted = cand.reshape(ms, d) if cand.reshape else shift(ms, kinds, d)
                 tried[d] = (run_model(model, prep, make, measurements=shifted), shifted)
             return tried[d][0].loglik
 
@@ -85,7 +85,8 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
             return Scored(cand, model, r, math.inf, {"sensor": cand.sensor, "seconds": d,
                                                      "note": "at the edge of the search range"}, shifted)
         dbic = -2.0 * (r.loglik - base.loglik) + cand.k * math.log(n)
-        return Scored(cand, model, r, dbic, {"sensor": cand.sensor, "seconds": round(float(d), 4)}, shifted)
+        p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
+        return Scored(cand, model, r, dbic, p, shifted)
     aug = cand.augment(model)
     r = run_model(aug, prep, make, measurements=ms)
     dbic = -2.0 * (r.loglik - base.loglik) + cand.k * math.log(n)

@@ -1,0 +1,169 @@
+"""The thrust-model filter as a diagnosis model: where thrust-side effects can show.
+
+The altitude filter takes the accelerometer as its input, so it never predicts
+thrust and cannot see thrust loss. The quadcopter document's filter predicts
+the vertical acceleration from the throttle, ``a = alpha tau + beta`` (eq. 2,
+along the body axis, times ``c = cos(roll) cos(pitch)``), so anything that
+changes the thrust the throttle buys leaves a residual in the baro and range
+innovations. For diagnosis its coefficients are constants estimated from the
+log (alpha, beta, the baro and ToF offsets: zero process noise): as random
+walks (the live filter's setting) they would absorb a slow thrust loss, which
+is exactly what is looked for here.
+
+Input ``u = (tau c, c, g, V, h, alpha_hat tau + beta_hat)``: the document's three,
+then what the effects' couplings read (battery voltage, the height and the
+current thrust estimate), linearised about the current estimate as an EKF does.
+
+Candidates (names as in the issue's catalogue):
+
+* ``thrust_voltage``: no voltage compensation in the ESCs, ``a_T = a_T0 (V / V_ref)^n``;
+  to first order ``a_T0 (1 + n (V - V_ref) / V_ref)``, one state n with
+  ``vz_dot += n a_T c (V - V_ref) / V_ref`` (V_ref: the voltage when the rotors
+  first carry the vehicle);
+* ``thrust_ground_effect``: Cheeseman-Bennett, ``a_T / (1 - (R / 4h)^2)`` to first order
+  ``a_T (1 + R^2 / (16 h^2))``, one state q = R^2 (h >= 0.1 m, rotors carrying);
+* ``actuator_lag``: the thrust follows the throttle through a first-order lag,
+  profiled over its time constant like a sensor delay;
+* the barometer's effects of the altitude catalogue, which act on the same
+  baro measurement.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..estimator import TAU_GROUND, KalmanEstimator, _actuators, _attitude, _quaternion, _throttle
+from ..measurement import Kind, Measurement
+from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
+from ..models.quad_thrust import quad_thrust_model
+from .catalogue import Candidate, _state_param, altitude_catalogue
+
+G = 9.80665
+_LEVEL = np.array([0.0, 0.0, 1.0])
+GE_MIN_H = 0.1           # m: below this the first-order ground-effect term is not used
+
+
+def thrust_model(**params) -> LinearModel:
+    """The quadcopter document's filter with constant coefficients, a baro given as an
+    altitude too, and the input widened for the effects' couplings."""
+    m = quad_thrust_model(G_alpha=0.0, G_beta=0.0, G_bar=0.0, G_tof=0.0, **params)
+    meas = dict(m.measurements)
+    from_altitude = relative_to_estimate(lambda mm: float(mm.value[0]), "baro_alt_ref", 25)
+    pressure = meas["baro"].extract
+
+    def baro_pressure(mm, ctx):
+        ctx.values["baro_has_pressure"] = 1.0
+        return pressure(mm, ctx)
+
+    def baro_altitude(mm, ctx):
+        # one barometer, one update (DataFlash BARO gives Press and Alt of the same sample)
+        return None if ctx.values.get("baro_has_pressure") else from_altitude(mm, ctx)
+    row = meas["baro"].row
+    R = meas["baro"].R
+    meas["baro"] = MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R)
+    meas["baro_alt"] = MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)
+    B = np.hstack([m.B, np.zeros((m.n, 3))])
+    from dataclasses import replace
+    return replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T"], measurements=meas)
+
+
+def _input(m: Measurement, ctx: Context) -> np.ndarray:
+    tau = ctx.get("throttle")
+    v = ctx.values
+    volt = v.get("voltage", 0.0)            # 0 until a reading: u must stay finite (B u)
+    if not math.isfinite(volt):
+        volt = 0.0
+    x = v.get("_x")
+    h = float(x[0]) if x is not None else 0.0
+    if tau < TAU_GROUND:
+        return np.array([0.0, 0.0, 0.0, volt, h, 0.0])
+    c = v.get("down_row", _LEVEL)[2]
+    if "voltage_ref" not in v and volt > 0:
+        v["voltage_ref"] = volt          # the voltage when the rotors first carry the vehicle
+    a_t = float(x[2]) * tau + float(x[3]) if x is not None else G
+    return np.array([tau * c, c, G, volt, h, a_t])
+
+
+def thrust_estimator(model: LinearModel) -> KalmanEstimator:
+    return KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
+                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
+                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle})
+
+
+# -- the thrust-side candidates ------------------------------------------------------------------
+def thrust_voltage(model: LinearModel) -> LinearModel:
+    iv = model.index("vz")
+    v_ref = {"V": None}
+
+    def coupling(u):
+        c = np.zeros((model.n, 1))
+        if u is None or len(u) < 6 or u[1] == 0.0 or u[3] <= 0.0:
+            return c
+        if v_ref["V"] is None:
+            v_ref["V"] = float(u[3])
+        c[iv, 0] = u[5] * u[1] * (u[3] - v_ref["V"]) / v_ref["V"]
+        return c
+    return model.augmented(states=["n_voltage"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
+                           P0_extra=[3.0**2])
+
+
+def thrust_ground_effect(model: LinearModel) -> LinearModel:
+    iv = model.index("vz")
+
+    def coupling(u):
+        c = np.zeros((model.n, 1))
+        if u is None or len(u) < 6 or u[1] == 0.0 or u[4] < GE_MIN_H:
+            return c
+        c[iv, 0] = u[5] * u[1] / (16.0 * u[4] ** 2)
+        return c
+    return model.augmented(states=["R2_rotor"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
+                           P0_extra=[0.1**2])
+
+
+def _rotor_radius(run) -> dict:
+    q, s = run.final("R2_rotor")
+    r = math.sqrt(max(q, 0.0))
+    return {"R": r, "sigma_R": s / (2 * r) if r > 0 else math.inf}
+
+
+def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
+    """The throttle as the rotors follow it: first-order low-pass with time constant tc."""
+    if tc <= 0:
+        return ms
+    out, y, t_last = [], None, None
+    for m in ms:
+        if m.kind in (Kind.THROTTLE, Kind.ACTUATOR):
+            x = np.asarray(m.value, dtype=float)
+            if y is None or not np.all(np.isfinite(y)) or len(y) != len(x):
+                y = x.copy()
+            else:
+                y = y + (x - y) * (1.0 - math.exp(-max(m.t - t_last, 0.0) / tc))
+            t_last = m.t
+            m = m._replace(value=y.copy())
+        out.append(m)
+    return out
+
+
+def thrust_catalogue(kinds: set) -> list[Candidate]:
+    has_throttle = bool(kinds & {Kind.THROTTLE, Kind.ACTUATOR})
+    cands = []
+    if has_throttle:
+        if Kind.BATTERY_VOLTAGE in kinds:
+            cands.append(Candidate("thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage,
+                                   _state_param("n", "n_voltage")))
+        cands.append(Candidate("thrust_ground_effect", 1, set(), None, thrust_ground_effect, _rotor_radius))
+        cands.append(Candidate("actuator_lag", 1, set(), "throttle", None, None,
+                               delays=(0.0, 0.03, 0.06, 0.12, 0.24, 0.4), reshape=lag_throttle))
+    # the barometer's own effects act on the same measurement in this model
+    cands += [c for c in altitude_catalogue(kinds) if c.sensor == "baro"]
+    return [c for c in cands if c.needs <= kinds]
+
+
+UNOBSERVABLE_THRUST = {
+    "accel_bias": "the thrust model does not use the accelerometer",
+    "accel_scale": "the thrust model does not use the accelerometer",
+    "gyro_bias": "acts on the attitude, which this model takes as given; the attitude EKF estimates it",
+    "imu_misalignment": "acts on the IMU, which this model does not use",
+    "range_offset": "a state of this model (d_tof): estimated, not added, and only relative to the baro's zero",
+}
