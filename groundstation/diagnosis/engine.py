@@ -25,7 +25,7 @@ from .catalogue import UNOBSERVABLE, altitude_catalogue
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
-from .thrust import UNOBSERVABLE_THRUST, thrust_catalogue, thrust_estimator, thrust_model
+from .thrust import LANDED, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4
@@ -97,6 +97,8 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
 def sensor_findings(run: Run) -> list[Finding]:
     out = []
     for s, tr in run.sensors.items():
+        if s == LANDED:
+            continue
         k = tr.t >= tr.t[0] + 5.0
         sig = {n: v[k] for n, v in tr.signals.items() if n not in ("throttle_lp",)}
         out += detect(s, tr.t[k], tr.nu_normalised[k], tr.nis[k], tr.nu.shape[1], sig)
@@ -120,6 +122,11 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
              declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
     names = {e.get("name") for e in declared}
+    window = None
+    if model_name == "quad_thrust":
+        window = main_flight(ms)
+        if window is not None:
+            ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
     prep: Prepared = prepare(ms)
     if model_name == "altitude":
         params = vehicle_config(vehicle, "altitude")
@@ -131,6 +138,9 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
                              "log has none; the thrust model needs only the throttle: --model quad_thrust")
     elif model_name == "quad_thrust":
         params = vehicle_config(vehicle, "quad_thrust")
+        if "range_limits" in params:
+            params["range_limits"] = tuple(params["range_limits"])
+        params = {**hover_prior(prep), **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator
         catalogue = thrust_catalogue
@@ -174,7 +184,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             break
     findings1 = sensor_findings(base)
     discoveries = []
-    for s, f_ok in ((s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors):
+    for s, f_ok in ((s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors if s != LANDED):
         if not f_ok:
             d = discover(base, s)
             if d is not None:

@@ -10,9 +10,10 @@ log (alpha, beta, the baro and ToF offsets: zero process noise): as random
 walks (the live filter's setting) they would absorb a slow thrust loss, which
 is exactly what is looked for here.
 
-Input ``u = (tau c, c, g, V, h, alpha_hat tau + beta_hat)``: the document's three,
-then what the effects' couplings read (battery voltage, the height and the
-current thrust estimate), linearised about the current estimate as an EKF does.
+Input ``u = (tau c, c, g, V, h, alpha_hat tau + beta_hat, V_ref)``: the document's
+three, then what the effects' couplings read (battery voltage, the height, the
+current thrust estimate, the voltage at take-off), linearised about the current
+estimate as an EKF does.
 
 Candidates (names as in the issue's catalogue):
 
@@ -30,6 +31,7 @@ Candidates (names as in the issue's catalogue):
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -42,6 +44,8 @@ from .catalogue import Candidate, _state_param, altitude_catalogue
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
 GE_MIN_H = 0.1           # m: below this the first-order ground-effect term is not used
+#: the on-ground constraint's pseudo-sensor (vz = 0 while landed): not a sensor to diagnose
+LANDED = "landed"
 
 
 def thrust_model(**params) -> LinearModel:
@@ -59,13 +63,69 @@ def thrust_model(**params) -> LinearModel:
     def baro_altitude(mm, ctx):
         # one barometer, one update (DataFlash BARO gives Press and Alt of the same sample)
         return None if ctx.values.get("baro_has_pressure") else from_altitude(mm, ctx)
+    rng = meas["range"]
+
+    def range_airborne(mm, ctx, extract=rng.extract):
+        # landed (rotors not carrying): a sonar reads its floor or its no-echo maximum
+        return None if ctx.get("throttle") < TAU_GROUND else extract(mm, ctx)
+    meas["range"] = replace(rng, extract=range_airborne)
+
+    def landed(mm, ctx):
+        # landed: the vehicle does not move (an autopilot's on-ground constraint); read
+        # from the throttle message itself, so no extra sensor is needed
+        if ctx.get("throttle") >= TAU_GROUND:
+            return None
+        return np.array([0.0])
+
+    def vz_row(ctx):
+        r = np.zeros((1, m.n))
+        r[0, 1] = 1.0
+        return r
+    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, landed, vz_row, np.array([[0.05**2]]))
     row = meas["baro"].row
     R = meas["baro"].R
     meas["baro"] = MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R)
     meas["baro_alt"] = MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)
-    B = np.hstack([m.B, np.zeros((m.n, 3))])
-    from dataclasses import replace
-    return replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T"], measurements=meas)
+    B = np.hstack([m.B, np.zeros((m.n, 4))])
+    return replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
+
+
+def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) -> tuple[float, float] | None:
+    """The longest stretch with the rotors carrying the vehicle (throttle at or above
+    ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
+    of it (the spin-up) to its end. Ground handling around it (motor tests, hops, a
+    sonar reading its floor or nothing on the ground) says nothing about thrust."""
+    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:4])))
+          for m in ms if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+    best, start, last_up = None, None, None
+    for t, v in th:
+        if v >= TAU_GROUND:
+            if start is None or (last_up is not None and t - last_up > gap):
+                start = t
+            last_up = t
+            if best is None or last_up - start > best[1] - best[0]:
+                best = (start, last_up)
+    if best is None:
+        return None
+    return best[0] - before, best[1]
+
+
+def hover_prior(prep) -> dict:
+    """The a priori thrust coefficients (document sec. 1: "estimated offline"), from the log
+    itself: alpha0 = g / tau_hover, the median throttle over the first 10 s with the rotors
+    carrying the vehicle, and beta fixed near 0 (the document's own way out of alpha and
+    beta's near-collinearity). Without it a slow thrust loss is fitted as "thrust does
+    not depend on the throttle" (alpha -> 0, beta -> g)."""
+    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:4])))
+          for m in prep.measurements if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+    flying = [(t, v) for t, v in th if v >= TAU_GROUND]
+    if len(flying) < 10:
+        return {}
+    t0 = flying[0][0]
+    tau_h = float(np.median([v for t, v in flying if t <= t0 + 10.0]))
+    alpha0 = G / tau_h
+    return {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
 
 
 def _input(m: Measurement, ctx: Context) -> np.ndarray:
@@ -77,12 +137,12 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     x = v.get("_x")
     h = float(x[0]) if x is not None else 0.0
     if tau < TAU_GROUND:
-        return np.array([0.0, 0.0, 0.0, volt, h, 0.0])
+        return np.array([0.0, 0.0, 0.0, volt, h, 0.0, v.get("voltage_ref", 0.0)])
     c = v.get("down_row", _LEVEL)[2]
     if "voltage_ref" not in v and volt > 0:
         v["voltage_ref"] = volt          # the voltage when the rotors first carry the vehicle
     a_t = float(x[2]) * tau + float(x[3]) if x is not None else G
-    return np.array([tau * c, c, G, volt, h, a_t])
+    return np.array([tau * c, c, G, volt, h, a_t, v.get("voltage_ref", 0.0)])
 
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
@@ -94,15 +154,13 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
 # -- the thrust-side candidates ------------------------------------------------------------------
 def thrust_voltage(model: LinearModel) -> LinearModel:
     iv = model.index("vz")
-    v_ref = {"V": None}
 
     def coupling(u):
+        # a pure function of u: the filter probes A with test inputs
         c = np.zeros((model.n, 1))
-        if u is None or len(u) < 6 or u[1] == 0.0 or u[3] <= 0.0:
+        if u is None or len(u) < 7 or u[1] == 0.0 or u[3] <= 0.0 or u[6] <= 0.0:
             return c
-        if v_ref["V"] is None:
-            v_ref["V"] = float(u[3])
-        c[iv, 0] = u[5] * u[1] * (u[3] - v_ref["V"]) / v_ref["V"]
+        c[iv, 0] = u[5] * u[1] * (u[3] - u[6]) / u[6]
         return c
     return model.augmented(states=["n_voltage"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
                            P0_extra=[3.0**2])
@@ -113,7 +171,7 @@ def thrust_ground_effect(model: LinearModel) -> LinearModel:
 
     def coupling(u):
         c = np.zeros((model.n, 1))
-        if u is None or len(u) < 6 or u[1] == 0.0 or u[4] < GE_MIN_H:
+        if u is None or len(u) < 7 or u[1] == 0.0 or u[4] < GE_MIN_H:
             return c
         c[iv, 0] = u[5] * u[1] / (16.0 * u[4] ** 2)
         return c

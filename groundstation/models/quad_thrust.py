@@ -64,7 +64,8 @@ def _A(u) -> np.ndarray:
 def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float = 0.006,
                       G_alpha: float = 1e-3, G_beta: float = 1e-3, G_bar: float = 1e-4, G_tof: float = 1e-8,
                       sigma_range: float = 0.0105, sigma_baro: float = 0.345, sigma_gps: float = 2.0,
-                      range_tilt: bool = True, use_gps: bool = False) -> LinearModel:
+                      range_tilt: bool = True, use_gps: bool = False, sigma_alpha0: float = 4.0,
+                      sigma_beta0: float = 2.0, range_limits: tuple[float, float] = (0.0, math.inf)) -> LinearModel:
     """``alpha0``/``beta0``: a priori thrust coefficients (document sec. 1: estimated offline).
 
     ``G_acc`` [(m/s^2)^2/Hz]: what the thrust model misses (drag, rotor dynamics),
@@ -78,7 +79,18 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
     the common mode while the filter grows overconfident (seen on simulated
     flights: 0.2 m of height error at a reported sigma of 0.04 m). Without
     GPS that direction stays at its prior (the vehicle starts on the ground).
+
+    ``sigma_alpha0``/``sigma_beta0``: the prior's spread. Alpha and beta separate only
+    through the throttle's variation (document: "we may need to set a value for
+    alpha or beta"); a tight ``sigma_beta0`` does that. ``range_limits``: readings
+    outside the sensor's range (a sonar's 0.2 m floor and its no-echo maximum) are
+    skipped, counted.
     """
+    lo, hi = range_limits
+
+    def range_value(m, ctx):
+        d = float(m.value[0])
+        return np.array([d]) if lo < d < hi else None
     B = np.zeros((6, 3))
     B[1, 2] = -1.0                     # gravity, as a known input g
 
@@ -97,7 +109,7 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
         return r
 
     meas = {
-        "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0]]), tof_row,
+        "range": MeasurementModel("range", Kind.RANGE, range_value, tof_row,
                                   np.array([[sigma_range**2]])),
         "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
                                  relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
@@ -111,7 +123,7 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
         name="quad_thrust", states=list(STATES), inputs=["tau_c", "c", "g"], A=_A, B=B,
         Qc=np.diag([0.0, G_acc, G_alpha, G_beta, G_bar, G_tof]),
         x0=np.array([0.0, 0.0, alpha0, beta0, 0.0, 0.0]),
-        P0=np.diag([0.02**2, 0.05**2, 4.0**2, 2.0**2, 0.3**2, 0.02**2]),
+        P0=np.diag([0.02**2, 0.05**2, sigma_alpha0**2, sigma_beta0**2, 0.3**2, 0.02**2]),
         measurements=meas, doc=__doc__)
 
 
