@@ -146,10 +146,25 @@ def _throttle(m: Measurement, ctx: Context) -> None:
     ctx.values["throttle"] = float(m.value[0])
 
 
+#: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
+#: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which
+MOTOR_OUTPUTS = {2: 4, 3: 4, 4: 1, 13: 6, 14: 8, 15: 3, 21: 2}
+
+
+def motor_outputs(ctx: Context) -> int:
+    return int(ctx.values.get("motor_outputs", 4))
+
+
+def _vehicle_status(m: Measurement, ctx: Context) -> None:
+    """The vehicle's type (HEARTBEAT): which outputs are motors."""
+    if len(m.value) > 3 and np.isfinite(m.value[3]):
+        ctx.values["motor_outputs"] = MOTOR_OUTPUTS.get(int(m.value[3]), 4)
+
+
 def _actuators(m: Measurement, ctx: Context) -> None:
     v = m.value[np.isfinite(m.value)]
     if len(v):
-        ctx.values["throttle"] = float(np.mean(v[:4]))
+        ctx.values["throttle"] = float(np.mean(v[:motor_outputs(ctx)]))
 
 
 def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
@@ -168,7 +183,8 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.altitude import altitude_model
     return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators})
+                                    Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators,
+                                    Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- horizontal position (IMU input, GPS updates) -------------------------------------------------
@@ -209,7 +225,8 @@ def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
                            inputs={Kind.ACTUATOR: thrust_input, Kind.THROTTLE: thrust_input,
                                    Kind.ATTITUDE: thrust_input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle})
+                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle,
+                                    Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the 3-DOF helicopter's routing (lab document) ---------------------------------------------

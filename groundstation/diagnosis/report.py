@@ -27,11 +27,14 @@ from ..evaluate import ljung_box
 from ..export import EstimateCsvWriter
 from .engine import Diagnosis
 from .run import Run
+from .thrust import LANDED
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
     out = {"sensors": {}}
     for s, tr in run.sensors.items():
+        if s == LANDED:              # the on-ground constraint, not a sensor
+            continue
         k = tr.t >= tr.t[0] + 5.0
         e = tr.nu_normalised[k]
         out["sensors"][s] = {
@@ -108,7 +111,7 @@ def _figures(d: Diagnosis) -> str:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     out = []
-    for s in sorted(set(d.before.sensors) & set(d.after.sensors)):
+    for s in sorted((set(d.before.sensors) & set(d.after.sensors)) - {LANDED}):
         fig, ax = plt.subplots(1, 2, figsize=(11, 3.0))
         for run, label, col in ((d.before, "before", "#c0392b"), (d.after, "after", "#2e7d32")):
             tr = run.sensors[s]

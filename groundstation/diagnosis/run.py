@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator
+from ..estimator import KalmanEstimator, motor_outputs
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel
 
@@ -215,7 +215,7 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         vals = m.value[np.isfinite(m.value)]
         if not len(vals):
             return
-        tau = float(vals[0]) if m.kind is Kind.THROTTLE else float(np.mean(vals[:4]))
+        tau = float(vals[0]) if m.kind is Kind.THROTTLE else float(np.mean(vals[:motor_outputs(ctx)]))
         ctx.values["throttle"] = tau
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
 

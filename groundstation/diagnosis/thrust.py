@@ -35,7 +35,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimator import TAU_GROUND, KalmanEstimator, _actuators, _attitude, _quaternion, _throttle
+from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _attitude, _quaternion, _throttle,
+                         _vehicle_status, motor_outputs)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
 from ..models.quad_thrust import quad_thrust_model
@@ -91,12 +92,22 @@ def thrust_model(**params) -> LinearModel:
     return replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
 
 
+def _motor_outputs_of(ms: list[Measurement]) -> int:
+    for m in ms:
+        if m.kind is Kind.VEHICLE_STATUS:
+            ctx = Context({})
+            _vehicle_status(m, ctx)
+            return motor_outputs(ctx)
+    return 4
+
+
 def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) -> tuple[float, float] | None:
     """The longest stretch with the rotors carrying the vehicle (throttle at or above
     ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
     of it (the spin-up) to its end. Ground handling around it (motor tests, hops, a
     sonar reading its floor or nothing on the ground) says nothing about thrust."""
-    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:4])))
+    n = _motor_outputs_of(ms)
+    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
           for m in ms if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
     best, start, last_up = None, None, None
     for t, v in th:
@@ -117,7 +128,8 @@ def hover_prior(prep) -> dict:
     carrying the vehicle, and beta fixed near 0 (the document's own way out of alpha and
     beta's near-collinearity). Without it a slow thrust loss is fitted as "thrust does
     not depend on the throttle" (alpha -> 0, beta -> g)."""
-    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:4])))
+    n = _motor_outputs_of(prep.measurements)
+    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
           for m in prep.measurements if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
     flying = [(t, v) for t, v in th if v >= TAU_GROUND]
     if len(flying) < 10:
@@ -148,7 +160,8 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     return KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle})
+                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle,
+                                    Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the thrust-side candidates ------------------------------------------------------------------
