@@ -199,7 +199,10 @@ class Outputs:
     """The estimation loop and the files a command writes, fed measurement by measurement."""
 
     def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
-        self.estimator = build_estimator(args.model, declared_effects(declared_path), load_noise(args.noise),
+        declared = declared_effects(declared_path)
+        if dashboard is not None:
+            dashboard.declared = declared          # what its Diagnosis panel may assume
+        self.estimator = build_estimator(args.model, declared, load_noise(args.noise),
                                          vehicle=vehicle)
         estimators = [self.estimator]
         if dashboard is not None:

@@ -141,7 +141,10 @@ async def run_demo(args) -> int:
         dash = Dashboard(host=args.host, port=args.port)
         print(f"dashboard: {dash.url}", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
-    estimators = [build_estimator(model, [{"name": "range_tilt"}] if model == "altitude" else [])]
+    declared = [{"name": "range_tilt"}] if model == "altitude" else []
+    if dash is not None:
+        dash.declared = declared
+    estimators = [build_estimator(model, declared)]
     if dash is not None and args.vehicle != "heli3dof":      # the rig is bolted to the table
         estimators.append(horizontal_estimator())
     loop = EstimationLoop(estimators)

@@ -151,3 +151,39 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
         pusher.cancel()
         await asyncio.gather(feeder, pusher, return_exceptions=True)
         d.stop()
+
+
+@async_test(timeout=400)
+async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
+    """The dashboard's Diagnosis panel, pressed by a tab: the last 60 s of a session with an
+    undeclared rotor-wash baro error, diagnosed in a worker process while the page stays live
+    (its text arrives as the markdown's ``_markdown`` property)."""
+    from groundstation.replay import Replay
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+    from web.dashboard import Dashboard
+    from web.probe import ViserProbe, gui_id
+
+    log = tmp_path / "s.tlog"
+    run_fast(Scenario.from_args("quad", 7, 40.0, ["range_tilt"], ["baro_thrust:k=4"]), log)
+    d = Dashboard(port=0)
+    d.declared = [{"name": "range_tilt"}]                 # as the session's declared file says
+    pusher = asyncio.create_task(d.run())
+    try:
+        for m in Replay(log).iter_measurements():
+            d.feed_measurement(m)
+        md_id = gui_id(d.diagnosis_md)
+        async with ViserProbe(d.url) as probe:
+            await probe.set_gui(gui_id(d.diagnosis_window), value=40.0)
+            await probe.set_gui(gui_id(d.diagnose_button), value=True)
+            async for _, messages in probe.frames():
+                texts = [m["updates"].get("_markdown", "") for m in messages
+                         if m["type"] == "GuiUpdateMessage" and m.get("uuid") == md_id]
+                if any("baro_thrust" in t for t in texts):
+                    break
+        assert d.last_diagnosis["effects"][0]["name"] == "baro_thrust"
+        assert 3.0 < d.last_diagnosis["effects"][0]["params"]["k"] < 5.0
+    finally:
+        pusher.cancel()
+        await asyncio.gather(pusher, return_exceptions=True)
+        d.stop()

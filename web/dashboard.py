@@ -97,6 +97,13 @@ class Dashboard:
         self._params: deque = deque()       # (t, x[2:], sigma[2:])
         self._dirty = False
         self.status_text = "waiting for data"
+        from groundstation.diagnosis.live import SessionBuffer
+        self.session = SessionBuffer()
+        self._diagnosing = False
+        self._pool = None
+        self.last_diagnosis: dict | None = None
+        #: effects the session declares (the diagnosis does not look for them)
+        self.declared: list[dict] = []
         self._build()
         self._tasks: list[asyncio.Task] = []
 
@@ -151,9 +158,45 @@ class Dashboard:
         self.replay_folder.visible = False
         with gui.add_folder("Diagnosis"):
             self.diagnosis_md = gui.add_markdown("No diagnosis has been run on this session.")
+            self.diagnosis_model = gui.add_dropdown("model", options=("altitude", "quad_thrust"),
+                                                    initial_value="altitude")
+            self.diagnosis_window = gui.add_slider("last [s]", min=20.0, max=600.0, step=10.0, initial_value=120.0)
+            self.diagnose_button = gui.add_button("Diagnose")
+
+        @self.diagnose_button.on_click
+        async def _(_e) -> None:
+            await self.run_diagnosis()
+
+    async def run_diagnosis(self) -> dict | None:
+        """Diagnose the last ``diagnosis_window`` seconds in a worker process; show the result."""
+        from groundstation.diagnosis.live import diagnose_window, markdown
+        if self._diagnosing:
+            return None
+        seconds = float(self.diagnosis_window.value)
+        ms = self.session.window(seconds)
+        if len(ms) < 100:
+            self.diagnosis_md.content = "Not enough data yet to diagnose."
+            return None
+        self._diagnosing = True
+        self.diagnose_button.disabled = True
+        self.diagnosis_md.content = f"Diagnosing the last {seconds:.0f} s ({len(ms)} measurements)…"
+        try:
+            if self._pool is None:
+                import concurrent.futures
+                import multiprocessing
+                self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            j = await asyncio.get_running_loop().run_in_executor(self._pool, diagnose_window, ms,
+                                                                 str(self.diagnosis_model.value), self.declared)
+            self.diagnosis_md.content = markdown(j, seconds)
+            self.last_diagnosis = j
+            return j
+        finally:
+            self._diagnosing = False
+            self.diagnose_button.disabled = False
 
     # -- feeding (cheap: store only) ----------------------------------------------------------
     def feed_measurement(self, m: Measurement) -> None:
+        self.session.add(m)
         k = m.kind
         if k is Kind.ATTITUDE:
             self._att = (float(m.value[0]), float(m.value[1]), float(m.value[2]))
@@ -328,6 +371,8 @@ class Dashboard:
         await asyncio.gather(_every(1.0 / self.scene_hz, scene), _every(1.0 / self.plot_hz, self.update_panels))
 
     def stop(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
         self.server.stop()
 
 

@@ -1,0 +1,65 @@
+"""Diagnosis on a live session: the last minutes of measurements, in a worker process.
+
+The dashboard keeps a bounded buffer of what the link delivered (:class:`SessionBuffer`)
+and, when asked, hands a window of it to :func:`diagnose_window` in its own process,
+so the estimation loop never waits on the tens of seconds a diagnosis takes. The
+worker returns report.json's content with its plain-language conclusion (the
+Diagnosis object itself holds filter closures that do not cross processes).
+"""
+from __future__ import annotations
+
+from collections import deque
+
+from ..measurement import Kind, Measurement
+
+
+class SessionBuffer:
+    """The latest measurements, bounded by count, IMU already thinned to ``imu_hz``
+    (the diagnosis averages the IMU over 10 ms blocks anyway)."""
+
+    def __init__(self, maxlen: int = 300_000, imu_hz: float = 200.0) -> None:
+        self.items: deque[Measurement] = deque(maxlen=maxlen)
+        self._imu_dt = 1.0 / imu_hz
+        self._last_imu: dict[Kind, float] = {}
+
+    def add(self, m: Measurement) -> None:
+        if self.items and m.t < self.items[-1].t - 1.0:       # time went back (seek, loop): start over
+            self.items.clear()
+            self._last_imu.clear()
+        if m.kind in (Kind.ACCEL, Kind.GYRO):
+            last = self._last_imu.get(m.kind)
+            if last is not None and m.t - last < self._imu_dt:
+                return
+            self._last_imu[m.kind] = m.t
+        self.items.append(m)
+
+    def window(self, seconds: float) -> list[Measurement]:
+        if not self.items:
+            return []
+        t1 = self.items[-1].t
+        return [m for m in self.items if m.t >= t1 - seconds]
+
+
+def diagnose_window(ms: list[Measurement], model: str = "altitude", declared: list[dict] = ()) -> dict:
+    """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion."""
+    from .engine import diagnose
+    from .report import as_json, conclusion
+    try:
+        d = diagnose(ms, source="live session", model_name=model, declared=list(declared))
+    except ValueError as e:
+        return {"error": str(e)}
+    j = as_json(d)
+    j["conclusion"] = conclusion(d, j)
+    return j
+
+
+def markdown(j: dict, seconds: float) -> str:
+    """The panel's text: effects found, the conclusion, NIS before and after."""
+    if "error" in j:
+        return f"**cannot diagnose:** {j['error']}"
+    rows = "\n".join(f"| {e['name']} | {', '.join(f'{k} = {v:.4g}' for k, v in e['params'].items() if not k.startswith('sigma') and isinstance(v, (int, float)))} |"
+                     for e in j.get("effects", []))
+    table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
+    nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
+                     for s in j["after"]["sensors"] if s in j["before"]["sensors"])
+    return f"**last {seconds:.0f} s, model {j.get('model', '')}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"
