@@ -29,7 +29,7 @@ from sim_bridge.bridge import SimBridge
 from sim_bridge.fast import EPOCH
 from sim_bridge.scenario import Scenario
 
-from .commander import Commander, ControlRecord
+from .commander import ArmRefused, Commander, ControlRecord
 from .controllers import Controller
 from .feedback import Feedback
 from .uplink import AttitudeTarget, BoardMotors, ManualControl
@@ -111,7 +111,7 @@ def fly(scenario: Scenario, controller: Controller, feedback: Feedback, *, secon
             if not cmd.armed and sim.t >= arm_at and not cmd.history:
                 try:
                     cmd.arm()
-                except Exception:     # noqa: BLE001 - not ready yet: retried at the next tick
+                except ArmRefused:      # no fresh feedback yet: retried at the next tick
                     pass
             if reference is not None:
                 cmd.set_reference(**(reference(sim.t, sim.vehicle.truth()) if sees_truth else reference(sim.t)))
