@@ -220,6 +220,26 @@ async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_pat
 
 
 @async_test(timeout=60)
+async def test_live_integral_action_removes_a_constant_disturbance(tmp_path):
+    """Over the pty: the rig's motor board adds +0.4 V / -0.4 V (undeclared); the integral
+    LQR holds the commanded pitch anyway, its integrator carrying the imbalance."""
+    sc = Scenario("heli3dof", seed=3, undeclared=[parse_effect("motor_offset:front=0.4,back=-0.4")])
+    c = LQRIntegral(np.diag([30.0, 10.0, 10.0, 10.0, 10.0]))
+    async with Live3dof(tmp_path, c, EncoderFeedback(), scenario=sc) as live:
+        await live.arm()
+        await live.until(lambda r: live.bridge.sim.t > 4.0)             # off the table
+        live.cmd.set_reference(p_c=0.1)
+        t0 = live.bridge.sim.t
+        await live.until(lambda r: live.bridge.sim.t > t0 + 6.0, timeout=20.0)
+        assert live.cmd.armed
+    t = np.array([row["t"] for row in live.truth])
+    p = np.array([row["p"] for row in live.truth])
+    late = t > t0 + 5.0
+    assert abs(np.mean(p[late]) - 0.1) < 0.005
+    assert abs(c.z[0]) > 0.05                       # the integrator holds what the model lacks
+
+
+@async_test(timeout=60)
 async def test_live_link_loss_stops_commanding_within_half_a_second(tmp_path):
     async with Live3dof(tmp_path, LQRFeedForward(), KalmanFeedback()) as live:
         await live.arm()
