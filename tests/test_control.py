@@ -145,7 +145,47 @@ def test_altitude_hold_flies_the_altitude_filter_to_the_reference(vehicle, thrus
 
 # -- live, over the real transports --------------------------------------------------------------
 
-class Live3dof:
+class _Live:
+    """A live loop: the simulated vehicle, the ground station's link and commander, each
+    task stopped on exit; waits are on what the loop publishes."""
+
+    async def _start(self, link, commander) -> None:
+        """The bridge is open already (a pty must exist before the link opens it)."""
+        self.link, self.cmd = link, commander
+        sub = link.measurements()
+        self.records = commander.records.subscribe()
+        await link.open()
+        self.tasks = [asyncio.create_task(self.bridge.run()), asyncio.create_task(commander.run()),
+                      asyncio.create_task(commander.follow(sub))]
+
+    async def __aexit__(self, *exc):
+        self.cmd.stop()
+        self.bridge.close()
+        await self.link.close()
+        await asyncio.gather(*self.tasks)
+
+    async def measurements(self, n):
+        """Wait for n more measurements from the link."""
+        sub = self.link.measurements()
+        try:
+            k = 0
+            async for _ in sub:
+                k += 1
+                if k >= n:
+                    return
+        finally:
+            sub.close()
+
+    async def until(self, cond, timeout=15.0):
+        """Wait on the commander's records until cond(record) holds."""
+        async def go():
+            async for rec in self.records:
+                if cond(rec):
+                    return rec
+        return await asyncio.wait_for(go(), timeout)
+
+
+class Live3dof(_Live):
     """The simulated 3-DOF rig on a pty; the ground station's board link, commander and feedback."""
 
     def __init__(self, tmp_path, controller, feedback, scenario=None):
@@ -157,48 +197,17 @@ class Live3dof:
 
     async def __aenter__(self):
         await self.bridge.open()
-        self.link = BoardLink(f"{self.port.path},921600", "binary", lost_after=0.3)
-        self.cmd = Commander(self.controller, self.feedback, BoardMotors(self.link), link=self.link)
-        sub = self.link.measurements()
-        self.records = self.cmd.records.subscribe()
-        await self.link.open()
-        self.tasks = [asyncio.create_task(self.bridge.run()), asyncio.create_task(self.cmd.run()),
-                      asyncio.create_task(self.cmd.follow(sub))]
+        link = BoardLink(f"{self.port.path},921600", "binary", lost_after=0.3)
+        await self._start(link, Commander(self.controller, self.feedback, BoardMotors(link), link=link))
         return self
 
-    async def __aexit__(self, *exc):
-        self.cmd.stop()
-        self.bridge.close()
-        await self.link.close()
-        await asyncio.gather(*self.tasks)
-
     async def arm(self):
-        while True:
-            try:
-                self.cmd.arm()
-                return
-            except ArmRefused:
-                await self.next_record_or_data()
+        while self.cmd.arm_refusal() is not None:
+            await self.next_record_or_data()
+        self.cmd.arm()
 
     async def next_record_or_data(self):
-        await asyncio.sleep(0)          # yield to the readers; arming is retried as data arrives
-        await asyncio.wait_for(self._one_measurement(), 5.0)
-
-    async def _one_measurement(self):
-        sub = self.link.measurements()
-        try:
-            async for _ in sub:
-                return
-        finally:
-            sub.close()
-
-    async def until(self, cond, timeout=15.0):
-        """Wait on the commander's records until cond(record) holds."""
-        async def go():
-            async for rec in self.records:
-                if cond(rec):
-                    return rec
-        return await asyncio.wait_for(go(), timeout)
+        await asyncio.wait_for(self.measurements(1), 5.0)
 
 
 @async_test(timeout=60)
@@ -269,40 +278,18 @@ async def test_live_link_loss_stops_commanding_within_half_a_second(tmp_path):
         assert not live.cmd.armed
 
 
-class LiveQuad:
+class LiveQuad(_Live):
     def __init__(self, controller=None):
         self.port = free_udp_port()
         self.bridge = SimBridge(Scenario("quad", seed=2), udp_to=("127.0.0.1", self.port))
         self.controller = controller or AltitudeHold()
 
     async def __aenter__(self):
-        self.link = MavlinkLink(f"udpin:127.0.0.1:{self.port}", lost_after=1.0)
-        self.cmd = Commander(self.controller, EstimatorFeedback(altitude_estimator()), AttitudeTarget(self.link),
-                             link=self.link)
-        sub = self.link.measurements()
-        self.records = self.cmd.records.subscribe()
-        await self.link.open()
         await self.bridge.open()
-        self.tasks = [asyncio.create_task(self.bridge.run()), asyncio.create_task(self.cmd.run()),
-                      asyncio.create_task(self.cmd.follow(sub))]
+        link = MavlinkLink(f"udpin:127.0.0.1:{self.port}", lost_after=1.0)
+        cmd = Commander(self.controller, EstimatorFeedback(altitude_estimator()), AttitudeTarget(link), link=link)
+        await self._start(link, cmd)
         return self
-
-    async def __aexit__(self, *exc):
-        self.cmd.stop()
-        self.bridge.close()
-        await self.link.close()
-        await asyncio.gather(*self.tasks)
-
-    async def measurements(self, n):
-        sub = self.link.measurements()
-        try:
-            k = 0
-            async for _ in sub:
-                k += 1
-                if k >= n:
-                    return
-        finally:
-            sub.close()
 
 
 @async_test(timeout=40)

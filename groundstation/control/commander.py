@@ -96,16 +96,23 @@ class Commander:
             self.reference[k] = float(v)
 
     # -- arming ----------------------------------------------------------------------------------
-    def arm(self) -> None:
+    def arm_refusal(self) -> str | None:
+        """Why arming would be refused now, or None when it would be accepted."""
         if self.link is not None and getattr(self.link, "state", LinkState.ALIVE) is not LinkState.ALIVE:
-            raise ArmRefused(f"link is {self.link.state.value}, not alive")
+            return f"link is {self.link.state.value}, not alive"
         age = self._age()
         if age is None or age > self.stale_after:
-            raise ArmRefused(f"no fresh {self.feedback.name} feedback"
-                             + ("" if age is None else f" (last measurement {age:.2f} s ago)"))
+            return (f"no fresh {self.feedback.name} feedback"
+                    + ("" if age is None else f" (last measurement {age:.2f} s ago)"))
         x = self.feedback.state()
         if x is None or any(k not in x for k in self.controller.needs):
-            raise ArmRefused(f"{self.feedback.name} feedback has no state for {self.controller.name} yet")
+            return f"{self.feedback.name} feedback has no state for {self.controller.name} yet"
+        return None
+
+    def arm(self) -> None:
+        why = self.arm_refusal()
+        if why is not None:
+            raise ArmRefused(why)
         self.controller.reset()
         self.armed = True
         self._note(f"armed: {self.controller.name} on {self.feedback.name}")

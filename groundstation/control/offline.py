@@ -29,7 +29,7 @@ from sim_bridge.bridge import SimBridge
 from sim_bridge.fast import EPOCH
 from sim_bridge.scenario import Scenario
 
-from .commander import ArmRefused, Commander, ControlRecord
+from .commander import Commander, ControlRecord
 from .controllers import Controller
 from .feedback import Feedback
 from .uplink import AttitudeTarget, BoardMotors, ManualControl
@@ -108,11 +108,9 @@ def fly(scenario: Scenario, controller: Controller, feedback: Feedback, *, secon
                 for m in rx.feed(fr, t_rx):
                     cmd.feed(m)
         if k % every == 0:
-            if not cmd.armed and sim.t >= arm_at and not cmd.history:
-                try:
-                    cmd.arm()
-                except ArmRefused:      # no fresh feedback yet: retried at the next tick
-                    pass
+            # armed once, as soon as the feedback has a state (then it stays the user's call)
+            if not cmd.armed and sim.t >= arm_at and not cmd.history and cmd.arm_refusal() is None:
+                cmd.arm()
             if reference is not None:
                 cmd.set_reference(**(reference(sim.t, sim.vehicle.truth()) if sees_truth else reference(sim.t)))
             rec = cmd.tick()
