@@ -137,7 +137,8 @@ class PredictorFeedback(Feedback):
         self._M[:n, :n], self._M[:n, n:] = self.A, self.B
         self.x = np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0]) if x0 is None else np.asarray(x0, float)
         self.u = np.zeros(k)
-        self.t: float | None = None
+        self.t: float | None = None          # time of self.x
+        self._t_now: float | None = None     # newest time a measurement gave
 
     def _propagate(self, t: float) -> None:
         if self.t is None:
@@ -154,14 +155,18 @@ class PredictorFeedback(Feedback):
     def feed(self, m):
         if m.kind not in self.kinds:
             return
-        self._propagate(m.t)           # any measurement only tells the time
+        # measurements only tell the time; the model is integrated when the input
+        # changes or the state is asked for (not at every IMU sample)
+        self._t_now = m.t if self._t_now is None else max(self._t_now, m.t)
         if m.kind is Kind.MOTOR_VOLTAGE:
+            self._propagate(m.t)
             vf, vb = float(m.value[0]), float(m.value[1])
             self.u = np.array([vf + vb - V_S0, vb - vf])
 
     def state(self):
-        if self.t is None:
+        if self._t_now is None:
             return None
+        self._propagate(self._t_now)
         return dict(zip(STATES, map(float, self.x)))
 
 
