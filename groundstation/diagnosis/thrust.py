@@ -101,14 +101,19 @@ def _motor_outputs_of(ms: list[Measurement]) -> int:
     return 4
 
 
+def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
+    """(t, collective 0..1) from THROTTLE, or the mean of the motor outputs (ACTUATOR)."""
+    n = _motor_outputs_of(ms)
+    return [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
+            for m in ms if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+
+
 def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) -> tuple[float, float] | None:
     """The longest stretch with the rotors carrying the vehicle (throttle at or above
     ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
     of it (the spin-up) to its end. Ground handling around it (motor tests, hops, a
     sonar reading its floor or nothing on the ground) says nothing about thrust."""
-    n = _motor_outputs_of(ms)
-    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
-          for m in ms if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+    th = throttle_series(ms)
     best, start, last_up = None, None, None
     for t, v in th:
         if v >= TAU_GROUND:
@@ -128,9 +133,7 @@ def hover_prior(prep) -> dict:
     carrying the vehicle, and beta fixed near 0 (the document's own way out of alpha and
     beta's near-collinearity). Without it a slow thrust loss is fitted as "thrust does
     not depend on the throttle" (alpha -> 0, beta -> g)."""
-    n = _motor_outputs_of(prep.measurements)
-    th = [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
-          for m in prep.measurements if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+    th = throttle_series(prep.measurements)
     flying = [(t, v) for t, v in th if v >= TAU_GROUND]
     if len(flying) < 10:
         return {}
