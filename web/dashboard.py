@@ -110,13 +110,18 @@ class Dashboard:
     # -- layout -----------------------------------------------------------------------------
     def _build(self) -> None:
         sc, gui = self.server.scene, self.server.gui
+        # viser's default camera puts a vehicle hovering near the origin behind the control panel;
+        # this one frames the flight volume (0-3 m up, a few metres around) left of the panel
+        self.server.initial_camera.position = (-5.0, -3.0, 3.5)
+        self.server.initial_camera.look_at = (0.0, 1.2, 1.0)
         sc.add_grid("/ground", width=20.0, height=20.0, cell_size=0.5, section_size=2.0)
         self.vehicle = sc.add_frame("/vehicle", axes_length=0.3, axes_radius=0.012)
         sc.add_box("/vehicle/body", color=(40, 110, 220), dimensions=(0.35, 0.35, 0.08))
         self.ghost = sc.add_box("/truth", color=(60, 200, 90), dimensions=(0.35, 0.35, 0.08), opacity=0.35,
                                 visible=False)
+        # an uncertainty is not a solid: no shadow on the ground (it read as a grey disc)
         self.ellipsoid = sc.add_icosphere("/covariance", radius=1.0, color=(240, 160, 40), opacity=0.25,
-                                          scale=(0.05, 0.05, 0.05))
+                                          scale=(0.05, 0.05, 0.05), cast_shadow=False, receive_shadow=False)
         self.trail = sc.add_line_segments("/trail", points=np.zeros((1, 2, 3)), colors=(90, 90, 90), thickness=0.01)
         self.ray = sc.add_line_segments("/vehicle/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50),
                                         thickness=0.015, visible=False)
