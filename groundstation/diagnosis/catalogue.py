@@ -66,6 +66,24 @@ def _state_param(name: str, state: str, scale: float = 1.0):
     return read
 
 
+# -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
+#: the baro's zero is the mean of its first 50 readings against the estimate (models.base.
+#: relative_to_estimate): 4 Pa of noise per reading leave it 5 cm off (1 sigma), more when the
+#: estimate itself moves on the ground with no range reading yet. Frozen, that error is a constant
+#: baro offset over thousands of updates, which any candidate with a constant part (a thrust-linked
+#: term at hover throttle, a drift line) is then credited with: a clean simulated coax "had"
+#: baro_thrust k = 0.2 at Delta BIC = -247 from a 10 cm zero error.
+BARO_ZERO_SIGMA = 0.15
+
+
+def baro_zero(model: LinearModel) -> LinearModel:
+    """The baro's zero as a random constant, y_baro = z + b0 (prior: the calibration's own error).
+
+    Only where another absolute height (the range sensor) can show it: from the barometer alone
+    b0 and z cannot be told apart, and the calibration stays what it was."""
+    return _with_regressor(model, "baro", "baro_zero", lambda ctx: 1.0, BARO_ZERO_SIGMA**2)
+
+
 # -- the altitude filter's candidates ----------------------------------------------------------------
 def baro_bias_drift(model: LinearModel) -> LinearModel:
     """Baro error b with a constant drift rate d: b_dot = d, y_baro = z + b.

@@ -21,7 +21,7 @@ from ..estimator import KalmanEstimator, altitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
-from .catalogue import UNOBSERVABLE, altitude_catalogue
+from .catalogue import UNOBSERVABLE, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
@@ -118,11 +118,22 @@ def _modelled(run: Run) -> list[Effect]:
     return out
 
 
-def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "altitude",
-             declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
+@dataclass
+class Setup:
+    """What a diagnosis runs: the measurements it uses, prepared, and the base model."""
+
+    prep: Prepared
+    model: object
+    make: Callable[[object], KalmanEstimator]
+    catalogue: Callable
+    declared: set
+
+
+def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitude", declared: list[dict] = (),
+          vehicle: str | None = None) -> Setup:
+    """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
+    cannot feed it)."""
     names = {e.get("name") for e in declared}
-    window = None
     if model_name == "quad_thrust":
         window = main_flight(ms)
         if window is not None:
@@ -133,6 +144,8 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
         model = altitude_model(range_tilt="range_tilt" in names, **params)
         make: Callable[[object], KalmanEstimator] = altitude_estimator
         catalogue = altitude_catalogue
+        if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+            model = baro_zero(model)
         if Kind.ACCEL not in prep.kinds:
             raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
                              "log has none; the thrust model needs only the throttle: --model quad_thrust")
@@ -151,6 +164,14 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude or quad_thrust)")
     if not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
+    return Setup(prep, model, make, catalogue, names)
+
+
+def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "altitude",
+             declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
+    su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle)
+    prep, model, make, catalogue, names = su.prep, su.model, su.make, su.catalogue, su.declared
     say = progress or (lambda _s: None)
     say("running the model (before)")
     base = run_model(model, prep, make)
