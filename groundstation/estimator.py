@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 from .filters import InnovationRecord, ModelFilter
 from .measurement import Kind, Measurement
@@ -147,8 +148,10 @@ def _throttle(m: Measurement, ctx: Context) -> None:
 
 
 #: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
-#: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which
-MOTOR_OUTPUTS = {2: 4, 3: 4, 4: 1, 13: 6, 14: 8, 15: 3, 21: 2}
+#: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which.
+#: Named from pymavlink: the numbers were once typed by hand, and a coax (3) got four.
+MOTOR_OUTPUTS = {mavlink.MAV_TYPE_QUADROTOR: 4, mavlink.MAV_TYPE_COAXIAL: 2, mavlink.MAV_TYPE_HELICOPTER: 1,
+                 mavlink.MAV_TYPE_HEXAROTOR: 6, mavlink.MAV_TYPE_OCTOROTOR: 8, mavlink.MAV_TYPE_TRICOPTER: 3}
 
 
 def motor_outputs(ctx: Context) -> int:

@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from ..measurement import Kind, Measurement
-from ..models.base import LinearModel, pad_row
+from ..models.base import LinearModel, MeasurementModel, pad_row
 
 
 @dataclass
@@ -74,6 +74,33 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 #: term at hover throttle, a drift line) is then credited with: a clean simulated coax "had"
 #: baro_thrust k = 0.2 at Delta BIC = -247 from a 10 cm zero error.
 BARO_ZERO_SIGMA = 0.15
+
+
+#: the on-ground constraint's pseudo-sensor (vz = 0 while landed): not a sensor to diagnose
+LANDED = "landed"
+
+
+def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
+    """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the throttle is below
+    ``tau_ground`` (an autopilot's on-ground constraint), read from the throttle message itself.
+
+    Without it the height floats on the ground wherever the range sensor reads nothing (below its
+    minimum), and the baro readings taken there cannot pin the baro's zero: a thrust-linked baro
+    error is then told from the zero only by the throttle's few-percent variations in flight
+    (a simulated coax with k = 1 read k = 1.6)."""
+    iv = model.index("vz")
+
+    def landed(mm, ctx):
+        return None if ctx.get("throttle") >= tau_ground else np.array([0.0])
+
+    def vz_row(ctx):
+        r = np.zeros((1, model.n))
+        r[0, iv] = 1.0
+        return r
+    meas = dict(model.measurements)
+    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, landed, vz_row, np.array([[0.05**2]]))
+    return replace(model, measurements=meas)
 
 
 def baro_zero(model: LinearModel) -> LinearModel:

@@ -17,11 +17,11 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, altitude_estimator
+from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
-from .catalogue import UNOBSERVABLE, altitude_catalogue, baro_zero
+from .catalogue import UNOBSERVABLE, altitude_catalogue, baro_zero, on_ground
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
@@ -144,6 +144,8 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         model = altitude_model(range_tilt="range_tilt" in names, **params)
         make: Callable[[object], KalmanEstimator] = altitude_estimator
         catalogue = altitude_catalogue
+        if prep.kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
+            model = on_ground(model, TAU_GROUND)
         if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
             model = baro_zero(model)
         if Kind.ACCEL not in prep.kinds:

@@ -70,6 +70,12 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
     if not any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest):
         out += motors_from_vibration(vib) or airborne_from_range(rest)
     out.sort(key=lambda m: m.t)
+    status = next((m for m in out if m.kind is Kind.VEHICLE_STATUS), None)
+    if status is not None and out:
+        # the vehicle's type (which outputs are motors) holds for the whole log: known from the
+        # first sample on, not from the first 1 Hz HEARTBEAT (before it a coax's four outputs,
+        # two of them swash-plate servos at mid-range, averaged to a 0.25 throttle on the ground)
+        out.insert(0, status._replace(t=out[0].t))
     kinds = {m.kind for m in out}
     return Prepared(out, truth, kinds, out[0].t if out else 0.0, out[-1].t if out else 0.0)
 

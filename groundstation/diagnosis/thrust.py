@@ -40,13 +40,11 @@ from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _attitude, _qu
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
 from ..models.quad_thrust import quad_thrust_model
-from .catalogue import Candidate, _state_param, altitude_catalogue
+from .catalogue import LANDED, Candidate, _state_param, altitude_catalogue, on_ground  # noqa: F401 (LANDED: re-export)
 
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
 GE_MIN_H = 0.1           # m: below this the first-order ground-effect term is not used
-#: the on-ground constraint's pseudo-sensor (vz = 0 while landed): not a sensor to diagnose
-LANDED = "landed"
 
 
 def thrust_model(**params) -> LinearModel:
@@ -71,25 +69,13 @@ def thrust_model(**params) -> LinearModel:
         return None if ctx.get("throttle") < TAU_GROUND else extract(mm, ctx)
     meas["range"] = replace(rng, extract=range_airborne)
 
-    def landed(mm, ctx):
-        # landed: the vehicle does not move (an autopilot's on-ground constraint); read
-        # from the throttle message itself, so no extra sensor is needed
-        if ctx.get("throttle") >= TAU_GROUND:
-            return None
-        return np.array([0.0])
-
-    def vz_row(ctx):
-        r = np.zeros((1, m.n))
-        r[0, 1] = 1.0
-        return r
-    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
-        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, landed, vz_row, np.array([[0.05**2]]))
     row = meas["baro"].row
     R = meas["baro"].R
     meas["baro"] = MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R)
     meas["baro_alt"] = MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)
     B = np.hstack([m.B, np.zeros((m.n, 4))])
-    return replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
+    m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
+    return on_ground(m, TAU_GROUND)
 
 
 def _motor_outputs_of(ms: list[Measurement]) -> int:
