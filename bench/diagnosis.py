@@ -133,7 +133,7 @@ def main() -> int:
                   f"{','.join(r['claimed'] + ['discovered:' + x for x in r['discovered']]) or '-'}", flush=True)
     print("\nper effect (issue 7's bars)")
     print(f"{'effect':<20}{'runs':>5}{'first':>8}{'param ok':>10}{'RMSE down (median)':>20}"
-          f"{'of its own error':>18}{'NIS ok':>8}{'LB p>0.05':>10}")
+          f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}")
     for effect in args.effects.split(","):
         rs = [r for r in rows if r["effect"] == effect]
         if effect.startswith("clean"):
@@ -150,7 +150,7 @@ def main() -> int:
         own = f"{100 * np.median(share):.0f}% of {len(moved)}" if moved else "- (height unmoved)"
         bar = 0.8 if effect in GEOMETRIC else 0.5
         print(f"{effect:<20}{len(rs):>5}{100 * first:>7.0f}%{(f'{100 * np.mean(pok):.0f}%' if pok else '-'):>10}"
-              f"{100 * down:>13.0f}% (>= {100 * bar:.0f}%){own:>18}"
+              f"{100 * down:>13.0f}% (>= {100 * bar:.0f}%){own:>20}"
               f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):>7.0f}%{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):>9.0f}%")
     print(f"\nmedian diagnosis time {np.median([r['wall'] for r in rows]):.1f} s per 60 s flight")
     return 0

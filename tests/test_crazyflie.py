@@ -79,9 +79,11 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     and the height error against Vicon before and after. A few minutes: 50 s of 1 kHz IMU, every
     candidate a full filter run."""
     from groundstation.diagnosis.engine import diagnose, truth_from
+    from groundstation.evaluate import load_measurements
     p = real_file("crazyflie_util/0422-log00")
-    ms = measurements(read_crazyflie(p))
-    d = diagnose(ms, source=str(p), truth=truth_from(ms, None, None))
+    ms, _desc, vehicle = load_measurements(p)                  # as `groundstation diagnose` reads it
+    assert vehicle == "crazyflie"
+    d = diagnose(ms, source=str(p), vehicle=vehicle, truth=truth_from(ms, None, None))
     found = {e.name: e.params for e in d.effects}
     assert list(found)[:2] == ["baro_thrust", "baro_bias_drift"], list(found)
     assert 6.0 < found["baro_thrust"]["k"] < 11.0            # per unit throttle; ~0.9 at hover here

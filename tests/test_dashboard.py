@@ -58,7 +58,7 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
             await b.wait_for_text("NIS and its 95 % band")          # the panels have arrived
             await b.wait_for_text("bias / parameter state")
             await b.wait_for_text("±")                              # the state table is live
-            a = await b.screenshot(ARTIFACTS / "dashboard_1.png")
+            a = await _drawn(b, ARTIFACTS / "dashboard_1.png")
             t_first, z_first = await _replay_state(b)
             t, z = t_first, z_first
             while not abs(z - z_first) >= 0.3:                      # until the vehicle has visibly moved
@@ -66,18 +66,34 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
                 await asyncio.sleep(0.1)
                 t, z = await _replay_state(b)
             await asyncio.sleep(0.3)                                # a few scene frames (30 Hz) later
-            c = await b.screenshot(ARTIFACTS / "dashboard_2.png")
-        scene_a, scene_c = a[:, :860], c[:, :860]                   # the 3D view (left of the panel)
-        assert non_white(scene_a) > 0.01 and non_white(scene_c) > 0.01     # grid, trail, ray drawn
-        # the vehicle (a 35 cm box, in view with the dashboard's camera) moved by >= 0.3 m
-        moved = np.mean(np.abs(scene_a - scene_c).max(axis=2) > 20)
-        assert moved > 5e-4, f"{moved:.1e} of the view changed between t = {t_first} s and {t} s"
+            c = await _drawn(b, ARTIFACTS / "dashboard_2.png")
+        scene_a, scene_c = _scene(a), _scene(c)
+        # the vehicle (a 35 cm box, in view with the dashboard's camera) moved by >= 0.3 m: some
+        # 0.3 % of the view. Software WebGL redraws a still scene to the same pixels, so any change
+        # counts; the covariance disc, seen from above, can veil it to a few grey levels.
+        diff = np.abs(scene_a - scene_c).max(axis=2)
+        moved = np.mean(diff > 2)
+        assert moved > 5e-4, (f"{moved:.1e} of the view changed (largest by {diff.max():.0f} levels) "
+                              f"between t = {t_first} s and {t} s")
         for img in (a, c):
             assert dark_pixels(img[:, -380:]) > 1000                # panels: text, tables, plot axes
     finally:
         if proc.returncode is None:
             proc.terminate()
             await proc.wait()
+
+
+def _scene(img: np.ndarray) -> np.ndarray:
+    """The 3D view: left of the panel, below viser's "software WebGL" notice (it may fade)."""
+    return img[160:, :860]
+
+
+async def _drawn(b: Browser, path: Path) -> np.ndarray:
+    """A screenshot once the 3D view shows its grid, trail and ray: software WebGL fades the
+    canvas in over several seconds (a frame at a time), and a veiled view shows nothing."""
+    while non_white(_scene(img := await b.screenshot(path))) < 0.01:
+        await asyncio.sleep(0.2)
+    return img
 
 
 async def _replay_state(b: Browser) -> tuple[float, float]:
