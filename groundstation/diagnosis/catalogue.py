@@ -67,15 +67,6 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 
 # -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
-#: the baro's zero is the mean of its first 50 readings against the estimate (models.base.
-#: relative_to_estimate): 4 Pa of noise per reading leave it 5 cm off (1 sigma), more when the
-#: estimate itself moves on the ground with no range reading yet. Frozen, that error is a constant
-#: baro offset over thousands of updates, which any candidate with a constant part (a thrust-linked
-#: term at hover throttle, a drift line) is then credited with: a clean simulated coax "had"
-#: baro_thrust k = 0.2 at Delta BIC = -247 from a 10 cm zero error.
-BARO_ZERO_SIGMA = 0.15
-
-
 #: the on-ground constraint's pseudo-sensor (vz = 0 while landed): not a sensor to diagnose
 LANDED = "landed"
 
@@ -85,9 +76,8 @@ def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
     ``tau_ground`` (an autopilot's on-ground constraint), read from the throttle message itself.
 
     Without it the height floats on the ground wherever the range sensor reads nothing (below its
-    minimum), and the baro readings taken there cannot pin the baro's zero: a thrust-linked baro
-    error is then told from the zero only by the throttle's few-percent variations in flight
-    (a simulated coax with k = 1 read k = 1.6)."""
+    minimum; a simulated coax's estimate wandered 0.24 m in the 2 s before take-off), and the baro
+    readings taken there say nothing about the baro's zero."""
     iv = model.index("vz")
 
     def landed(mm, ctx):
@@ -101,6 +91,15 @@ def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
         meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, landed, vz_row, np.array([[0.05**2]]))
     return replace(model, measurements=meas)
+
+
+#: the baro's zero is the mean of its first 50 readings against the estimate (models.base.
+#: relative_to_estimate): 4 Pa of noise per reading leave it 5 cm off (1 sigma), more when the
+#: estimate itself moves on the ground with no range reading yet. Frozen, that error is a constant
+#: baro offset over thousands of updates, which any candidate with a constant part (a thrust-linked
+#: term at hover throttle, a drift line) is then credited with: a clean simulated coax "had"
+#: baro_thrust k = 0.2 at Delta BIC = -247 from a 10 cm zero error.
+BARO_ZERO_SIGMA = 0.15
 
 
 def baro_zero(model: LinearModel) -> LinearModel:

@@ -21,11 +21,11 @@ from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
-from .catalogue import UNOBSERVABLE, altitude_catalogue, baro_zero, on_ground
+from .catalogue import LANDED, UNOBSERVABLE, altitude_catalogue, baro_zero, on_ground
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model
-from .thrust import LANDED, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
+from .thrust import UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4

@@ -40,7 +40,7 @@ from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _attitude, _qu
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
 from ..models.quad_thrust import quad_thrust_model
-from .catalogue import LANDED, Candidate, _state_param, altitude_catalogue, on_ground  # noqa: F401 (LANDED: re-export)
+from .catalogue import Candidate, _state_param, altitude_catalogue, on_ground
 
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
