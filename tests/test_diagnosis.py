@@ -155,3 +155,12 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_a_thrust_lin
     assert 0.005 < found["baro_bias_drift"]["rate"] < 0.03
     assert found["baro_thrust"]["k"] > 1.0
     assert "landed" not in j["before"]["sensors"]
+
+
+def test_diagnose_on_a_log_too_short_to_score_is_one_line(tmp_path):
+    """A 3 s log (a recording cut short): nothing would be scored, so nothing may be concluded."""
+    log = tmp_path / "short.tlog"
+    run_fast(Scenario.from_args("quad", 1, 3.0, ["range_tilt"], []), log)
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log)], capture_output=True, text=True)
+    assert r.returncode == 2 and "a diagnosis needs at least 10 s" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "short.tlog.diagnosis" / "report.json").exists()

@@ -21,6 +21,7 @@ from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
+from ..models.base import LinearModel
 from .catalogue import LANDED, UNOBSERVABLE, altitude_catalogue, baro_zero, on_ground
 from .detect import Finding, detect
 from .discover import Discovery, discover
@@ -29,6 +30,7 @@ from .thrust import UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalo
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4
+MIN_SECONDS = 10.0
 
 
 @dataclass
@@ -123,8 +125,8 @@ class Setup:
     """What a diagnosis runs: the measurements it uses, prepared, and the base model."""
 
     prep: Prepared
-    model: object
-    make: Callable[[object], KalmanEstimator]
+    model: LinearModel
+    make: Callable[[LinearModel], KalmanEstimator]
     catalogue: Callable
     declared: set
 
@@ -144,8 +146,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         model = altitude_model(range_tilt="range_tilt" in names, **params)
         make: Callable[[object], KalmanEstimator] = altitude_estimator
         catalogue = altitude_catalogue
-        if any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and not m.source.startswith("derived/")
-               for m in prep.measurements):
+        if prep.logged_throttle:
             # a logged throttle only: a stand-in derived from the range or the vibration would feed
             # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
             # "throttle" pattern in the range innovations)
@@ -170,6 +171,11 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude or quad_thrust)")
     if not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
+    if prep.duration < MIN_SECONDS:
+        # the likelihood is scored from 5 s in (the filter settling): a shorter log scores nothing,
+        # and "no effect improves the model" would be said of no data at all
+        raise ValueError(f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
+                         f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)")
     return Setup(prep, model, make, catalogue, names)
 
 

@@ -34,6 +34,8 @@ class Prepared:
     kinds: set[Kind]
     t0: float
     t1: float
+    #: the log has a throttle of its own (else THROTTLE is a stand-in derived from vibration or range)
+    logged_throttle: bool = False
 
     @property
     def duration(self) -> float:
@@ -67,7 +69,8 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
         out.append(m)
     if block:
         close_block()
-    if not any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest):
+    logged_throttle = any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest)
+    if not logged_throttle:
         out += motors_from_vibration(vib) or airborne_from_range(rest)
     out.sort(key=lambda m: m.t)
     status = next((m for m in out if m.kind is Kind.VEHICLE_STATUS), None)
@@ -77,7 +80,7 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
         # two of them swash-plate servos at mid-range, averaged to a 0.25 throttle on the ground)
         out.insert(0, status._replace(t=out[0].t))
     kinds = {m.kind for m in out}
-    return Prepared(out, truth, kinds, out[0].t if out else 0.0, out[-1].t if out else 0.0)
+    return Prepared(out, truth, kinds, out[0].t if out else 0.0, out[-1].t if out else 0.0, logged_throttle)
 
 
 def motors_from_vibration(vib: list[tuple[float, float]]) -> list[Measurement]:
