@@ -190,6 +190,19 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
                                     Kind.VEHICLE_STATUS: _vehicle_status})
 
 
+# -- the multirotor attitude (gyro input, accelerometer updates: models.attitude_drag) ----------
+def gyro_rates(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """u = (p_m, q_m, r_m): the gyro as measured, body FRD."""
+    return np.asarray(m.value[:3], dtype=float) if m.instance == 0 else None
+
+
+def attitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+    from .models.attitude_drag import attitude_drag_model
+    return KalmanEstimator(model or attitude_drag_model(), inputs={Kind.GYRO: gyro_rates},
+                           context={Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators,
+                                    Kind.VEHICLE_STATUS: _vehicle_status})
+
+
 # -- horizontal position (IMU input, GPS updates) -------------------------------------------------
 def horizontal_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     """(a_n, a_e) = rows 1 and 2 of A_IB f (gravity has no horizontal component)."""

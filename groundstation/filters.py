@@ -60,9 +60,10 @@ class ModelFilter:
         self.log = InnovationLog()
         self.updates = 0
         self._cache: dict = {}
-        # time-invariant models discretise once per step length
+        # time-invariant models discretise once per step length; a nonlinear one at every step
         u0 = np.zeros(len(model.inputs))
-        self._u_dependent = not np.array_equal(model.A(u0), model.A(u0 + 1.0))
+        self._nonlinear = model.f is not None
+        self._u_dependent = self._nonlinear or not np.array_equal(model.A(u0), model.A(u0 + 1.0))
         self.reset(t0)
 
     def reset(self, t0: float) -> None:
@@ -117,10 +118,28 @@ class ModelFilter:
             self._cache[key] = d
         return d
 
+    def _predict_nonlinear(self, dt: float) -> None:
+        """The extended filter's step: linearised at the estimate, x_dot ~ f(x^, u) + F (x - x^)
+        with F = df/dx, and that held over dt exactly as a linear model is:
+        x <- x^ + Gamma f(x^, u),  Gamma = int_0^dt e^{F s} ds;  P <- Phi P Phi^T + Q_k."""
+        m, kf = self.model, self.kf
+        F = m.jacobian(kf.x, self.u)
+        eye = np.eye(m.n)
+        if np.abs(F).sum(axis=1).max() * dt < 0.2:
+            Phi, Gam, Qk = discretize_series(F, eye, m.Qc, dt)
+        else:
+            Phi, Gam, Qk = discretize(F, eye, m.Qc, dt)
+        kf.x = kf.x + Gam @ m.f(kf.x, self.u)
+        kf.P = Phi @ kf.P @ Phi.T + Qk
+
     def predict_to(self, t: float) -> None:
         """Propagate x and P to time t with the held input (zero-order hold)."""
         dt = t - self.t
         if dt <= 0.0:
+            return
+        if self._nonlinear:
+            self._predict_nonlinear(dt)
+            self.t = t
             return
         Phi, G, Qk = self._discrete(dt)
         # x = F x + B u every step; P = F P F^T + Q deferred (see _apply_pending).

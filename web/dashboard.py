@@ -163,7 +163,7 @@ class Dashboard:
         self.replay_folder.visible = False
         with gui.add_folder("Diagnosis"):
             self.diagnosis_md = gui.add_markdown("No diagnosis has been run on this session.")
-            self.diagnosis_model = gui.add_dropdown("model", options=("altitude", "quad_thrust"),
+            self.diagnosis_model = gui.add_dropdown("model", options=("altitude", "quad_thrust", "attitude"),
                                                     initial_value="altitude")
             self.diagnosis_window = gui.add_slider("last [s]", min=20.0, max=600.0, step=10.0, initial_value=120.0)
             self.diagnose_button = gui.add_button("Diagnose")

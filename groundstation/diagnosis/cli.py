@@ -12,8 +12,9 @@ from ..evaluate import load_measurements
 def add_parser(sub) -> None:
     d = sub.add_parser("diagnose", help="find the effects the model lacks, add them, report before/after")
     d.add_argument("file", type=Path)
-    d.add_argument("--model", default="altitude", choices=("altitude", "quad_thrust"),
-                   help="altitude (accelerometer as input; default) or quad_thrust (throttle as input: thrust-side effects)")
+    d.add_argument("--model", default="altitude", choices=("altitude", "quad_thrust", "attitude"),
+                   help="altitude (accelerometer as input; default), quad_thrust (throttle as input: thrust-side "
+                        "effects) or attitude (raw IMU of a multirotor: gyro bias, IMU mounting)")
     d.add_argument("--out", type=Path, help="report directory (default: LOG.diagnosis/)")
     d.add_argument("--declared", type=Path, help="effects the model is told of (default: LOG.declared.json)")
     d.add_argument("--vehicle", help="vehicle parameter file for the noise (its known effects are NOT applied: "

@@ -17,11 +17,13 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator
+from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator, attitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
+from ..models.attitude_drag import attitude_drag_model
 from ..models.base import LinearModel
+from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import LANDED, UNOBSERVABLE, altitude_catalogue, baro_zero, on_ground
 from .detect import Finding, detect
 from .discover import Discovery, discover
@@ -35,16 +37,39 @@ MIN_SECONDS = 10.0
 
 @dataclass
 class Truth:
-    """Height truth [m, up] (motion capture or the simulator's sidecar): metrics only."""
+    """Height truth [m, up] and, when the source has it, roll and pitch [rad] (motion capture or
+    the simulator's sidecar): metrics only."""
 
     t: np.ndarray
     h: np.ndarray
     source: str
     cos_tilt: np.ndarray | None = None      # cos(roll) cos(pitch) of the truth's attitude, when it has one
+    roll: np.ndarray | None = None
+    pitch: np.ndarray | None = None
 
     def rmse(self, t: np.ndarray, z: np.ndarray, t0: float, t1: float) -> float:
         k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
         return float(np.sqrt(np.mean((z[k] - np.interp(t[k], self.t, self.h)) ** 2))) if k.any() else math.nan
+
+    def error(self, run: Run, t0: float, t1: float) -> float:
+        """RMSE against truth of what the run estimates: the height [m], or roll and pitch
+        together [rad] (the attitude model)."""
+        states = run.model.states
+        if "z" in states:
+            return self.rmse(run.t, run.x[:, states.index("z")], t0, t1)
+        if "roll" in states and self.roll is not None:
+            k = (run.t >= max(t0, self.t[0])) & (run.t <= min(t1, self.t[-1]))
+            if not k.any():
+                return math.nan
+            e = np.concatenate([run.x[k, 0] - np.interp(run.t[k], self.t, self.roll),
+                                run.x[k, 1] - np.interp(run.t[k], self.t, self.pitch)])
+            e = (e + math.pi) % (2 * math.pi) - math.pi
+            return float(np.sqrt(np.mean(e**2)))
+        return math.nan
+
+    @staticmethod
+    def quantity(run: Run) -> str:
+        return "height [m]" if "z" in run.model.states else "roll and pitch [rad]"
 
 
 @dataclass
@@ -83,16 +108,22 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
         w, x, y, z = q.T
         # the body z axis's vertical component, R_IB[2, 2] = cos(roll) cos(pitch)
         c = 1.0 - 2.0 * (x * x + y * y)
-        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c)
+        roll = np.arctan2(2 * (w * x + y * z), c)
+        pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c,
+                     roll, pitch)
     p = truth_csv or (log.with_suffix(".csv") if log is not None else None)
     if p is not None and p.exists():
         with open(p) as f:
             rows = list(csv.DictReader(f))
         if rows and "h" in rows[0]:
-            c = (np.array([math.cos(float(r["roll"])) * math.cos(float(r["pitch"])) for r in rows])
-                 if "roll" in rows[0] else None)
+            roll = pitch = c = None
+            if "roll" in rows[0]:
+                roll = np.array([float(r["roll"]) for r in rows])
+                pitch = np.array([float(r["pitch"]) for r in rows])
+                c = np.cos(roll) * np.cos(pitch)
             return Truth(np.array([float(r["t"]) for r in rows]), np.array([float(r["h"]) for r in rows]),
-                         f"simulator sidecar {p.name}", c)
+                         f"simulator sidecar {p.name}", c, roll, pitch)
     return None
 
 
@@ -167,9 +198,16 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         if not prep.kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
             raise ValueError(f"{source or 'log'}: the thrust model takes the throttle as its input and this log "
                              "has none (no THROTTLE, SERVO_OUTPUT_RAW or RCOU)")
+    elif model_name == "attitude":
+        model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
+        make = attitude_estimator
+        catalogue = attitude_catalogue
+        if not {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
+            raise ValueError(f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
+                             "and this log has no raw IMU")
     else:
-        raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude or quad_thrust)")
-    if not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+        raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude, quad_thrust or attitude)")
+    if model_name != "attitude" and not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
     if prep.duration < MIN_SECONDS:
         # the likelihood is scored from 5 s in (the filter settling): a shorter log scores nothing,
@@ -222,7 +260,8 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             d = discover(base, s)
             if d is not None:
                 discoveries.append(d)
-    unobs = dict(UNOBSERVABLE.get(model_name, UNOBSERVABLE_THRUST))
+    unobs = dict({"altitude": UNOBSERVABLE["altitude"], "quad_thrust": UNOBSERVABLE_THRUST,
+                  "attitude": UNOBSERVABLE_ATTITUDE}[model_name])
     against = []
     if truth is not None and "range" in base.sensors:
         against = _range_offset_against_truth(base, truth)

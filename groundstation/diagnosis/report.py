@@ -8,7 +8,8 @@ report.json::
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
-failed tests; and, when truth exists, ``rmse_vs_truth`` of the height.
+failed tests; and, when truth exists, ``rmse_vs_truth`` of the height [m] or, for the
+attitude model, of roll and pitch together [rad] (``rmse_of`` says which).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
 "coefficient", "sensor"}, "evidence": {"r2", "terms"}}``.
 Figures are matplotlib (Agg) SVG, inlined so the HTML is one file.
@@ -44,9 +45,12 @@ def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
             "ljung_box_p": float(ljung_box(e)),
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
-    if truth is not None and "z" in run.model.states:
-        out["rmse_vs_truth"] = truth.rmse(run.t, run.x[:, run.model.index("z")], t0, t1)
-        out["truth"] = truth.source
+    if truth is not None:
+        e = truth.error(run, t0, t1)
+        if math.isfinite(e):
+            out["rmse_vs_truth"] = e
+            out["rmse_of"] = truth.quantity(run)
+            out["truth"] = truth.source
     return out
 
 
@@ -91,9 +95,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
                      f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance).")
     b, a = j["before"], j["after"]
-    if "rmse_vs_truth" in b:
+    if "rmse_vs_truth" in b and b["rmse_of"].startswith("height"):
         parts.append(f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
                      f"{a['rmse_vs_truth'] * 100:.2f} cm after.")
+    elif "rmse_vs_truth" in b:
+        parts.append(f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
+                     f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after.")
     still = sorted({f.sensor for f in d.findings_after if not f.passed and f.test in ("NIS mean",
                                                                                        "Ljung-Box whiteness")})
     parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
@@ -171,8 +178,11 @@ def write(d: Diagnosis, out: Path) -> dict:
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
     truth = ""
     if "rmse_vs_truth" in j["before"]:
-        truth = (f"<p>Height RMSE against the {html.escape(j['before']['truth'])}: "
-                 f"<b>{j['before']['rmse_vs_truth']:.4f} m</b> before, <b>{j['after']['rmse_vs_truth']:.4f} m</b> "
+        b, a = j["before"], j["after"]
+        what, unit, scale = (("Height", "m", 1.0) if b["rmse_of"].startswith("height")
+                             else ("Roll and pitch", "deg", math.degrees(1.0)))
+        truth = (f"<p>{what} RMSE against the {html.escape(b['truth'])}: "
+                 f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
                  f"after.</p>")
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
 <style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}

@@ -1,9 +1,9 @@
 """Running a model over a log, fast enough to run it dozens of times.
 
 The diagnosis runs the model once per candidate effect (and per delay on a
-grid), so the log is prepared once: sorted, truth set aside, and the
-accelerometer (the altitude filter's *input*, at 500-1000 Hz) averaged over
-``input_dt`` blocks. With a zero-order-hold input the filter integrates the
+grid), so the log is prepared once: sorted, truth set aside, and the IMU
+(accelerometer and gyro, at 500-1000 Hz: the altitude and attitude filters'
+*inputs*) averaged over ``input_dt`` blocks. With a zero-order-hold input the filter integrates the
 held value over each step anyway; the block mean is that integral's best
 value, so the estimate barely changes while the run is 5-10 times cheaper.
 
@@ -46,29 +46,32 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
     truth = [m for m in ms if m.kind is Kind.TRUTH_POSE]
     rest = sorted((m for m in ms if m.kind is not Kind.TRUTH_POSE), key=lambda m: m.t)
     out: list[Measurement] = []
-    block: list[np.ndarray] = []
-    first = None
+    #: the IMU's kinds, block-averaged (the gyro is the attitude model's input)
+    blocks: dict[Kind, list] = {Kind.ACCEL: [], Kind.GYRO: []}
+    first: dict[Kind, Measurement] = {}
     vib: list[tuple[float, float]] = []          # (t, spread of |f| within the block)
 
-    def close_block():
-        out.append(first._replace(value=np.mean(block, axis=0)))
-        if len(block) > 2:
-            vib.append((first.t, float(np.std(np.linalg.norm(block, axis=1)))))
+    def close_block(kind):
+        block = blocks[kind]
+        out.append(first[kind]._replace(value=np.mean(block, axis=0)))
+        if kind is Kind.ACCEL and len(block) > 2:
+            vib.append((first[kind].t, float(np.std(np.linalg.norm(block, axis=1)))))
+        blocks[kind] = []
 
     for m in rest:
-        if m.kind is Kind.ACCEL and m.instance == 0:
-            if block and m.t - first.t >= input_dt:
+        if m.kind in blocks and m.instance == 0:
+            if blocks[m.kind] and m.t - first[m.kind].t >= input_dt:
                 # stamped at the block's start: with the input held from its time stamp
                 # on, the mean then acts over the very interval it averages
-                close_block()
-                block = []
-            if not block:
-                first = m
-            block.append(m.value)
+                close_block(m.kind)
+            if not blocks[m.kind]:
+                first[m.kind] = m
+            blocks[m.kind].append(m.value)
             continue
         out.append(m)
-    if block:
-        close_block()
+    for kind in blocks:
+        if blocks[kind]:
+            close_block(kind)
     logged_throttle = any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest)
     if not logged_throttle:
         out += motors_from_vibration(vib) or airborne_from_range(rest)

@@ -223,7 +223,7 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
 UNOBSERVABLE_THRUST = {
     "accel_bias": "the thrust model does not use the accelerometer",
     "accel_scale": "the thrust model does not use the accelerometer",
-    "gyro_bias": "acts on the attitude, which this model takes as given; the attitude EKF estimates it",
-    "imu_misalignment": "acts on the IMU, which this model does not use",
+    "gyro_bias": "acts on the attitude, which this model takes as given: run the attitude model",
+    "imu_misalignment": "acts on the IMU, which this model does not use: run the attitude model",
     "range_offset": "a state of this model (d_tof): estimated, not added, and only relative to the baro's zero",
 }

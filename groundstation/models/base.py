@@ -6,7 +6,10 @@ system ::
     x_dot = A(u) x + B u + w,    E[w w^T] = Qc delta(t)        (coaxial doc. eq. 9.2, 9.20)
     y     = H(m, ctx) x + h0(m, ctx) + v,  E[v v^T] = R         (eq. 9.3)
 
-with named states and inputs. The filter discretises it exactly for each step
+with named states and inputs. A nonlinear model (the multirotor attitude) gives
+its dynamics ``x_dot = f(x, u)`` and their Jacobian instead of ``A``; the
+filter then relinearises at every step, an extended Kalman filter (the
+measurement stays linear in the state, ``H(ctx)``). The filter discretises it exactly for each step
 (:func:`discretize`, Van Loan's method), so a model is written as its equations
 and never as hand-discretised matrices, and it can be **augmented**
 (:meth:`LinearModel.augmented`) with extra states, regressors on a
@@ -72,6 +75,12 @@ class LinearModel:
     doc: str = ""
     #: states whose values cannot be known from the sensors (reported, not guessed)
     notes: list[str] = field(default_factory=list)
+    #: nonlinear dynamics x_dot = f(x, u) and their Jacobian df/dx (an EKF; ``A`` unused)
+    f: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    jacobian: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None
+    #: the builder's keyword arguments: a model that cannot be :meth:`augmented` (a nonlinear
+    #: one) is rebuilt with one more effect from them
+    options: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -91,6 +100,8 @@ class LinearModel:
         models, whose rows must then have ``n_old + k`` columns (see
         :func:`pad_row` to extend an old row).
         """
+        if self.f is not None:
+            raise ValueError(f"{self.name}: a nonlinear model is rebuilt from its options, not augmented")
         k = len(states)
         n0 = self.n
         A_old = self.A

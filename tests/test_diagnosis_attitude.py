@@ -1,0 +1,116 @@
+"""The IMU's own effects (gyro bias, IMU mounting), found by the attitude model on the raw IMU.
+
+Each case is a 60 s simulated quadcopter flight with the effect undeclared and a
+full ``diagnose --model attitude`` (about 10 s together). The sweep over 5 seeds
+and 3 magnitudes is ``bench/diagnosis.py --effects gyro_bias,imu_misalignment,clean_attitude``.
+"""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.models.attitude_drag import attitude_drag_model
+from groundstation.replay import Replay
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+
+
+def fly(tmp_path, undeclared, seed):
+    log = tmp_path / f"a{seed}.tlog"
+    run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], list(undeclared)), log, log.with_suffix(".csv"))
+    return log, list(Replay(log).iter_measurements())
+
+
+def test_the_jacobian_is_the_derivative_of_the_dynamics():
+    """The EKF relinearises with the hand-written Jacobian: it must be df/dx, misalignment and
+    gyro-bias columns included (central differences at a tilted, rotating, moving state)."""
+    m = attitude_drag_model(gyro_bias=True, misalignment=True)
+    x = np.array([0.3, -0.2, 1.5, -0.7, 0.02, -0.01, 0.03, -0.04])
+    u = np.array([0.4, -0.3, 0.8])
+    J = m.jacobian(x, u)
+    num = np.zeros_like(J)
+    for i in range(len(x)):
+        dx = np.zeros_like(x)
+        dx[i] = 1e-6
+        num[:, i] = (m.f(x + dx, u) - m.f(x - dx, u)) / 2e-6
+    assert np.allclose(J, num, atol=1e-6), np.round(J - num, 6)
+
+
+@pytest.mark.parametrize("undeclared,name,expect,seed", [
+    (["gyro_bias:x=0.015,y=-0.01,z=0"], "gyro_bias", {"x": 0.015, "y": -0.01}, 41),
+    (["imu_misalignment:roll=2.5,pitch=-1.5,yaw=0"], "imu_misalignment", {"roll": 2.5, "pitch": -1.5}, 42),
+])
+def test_an_undeclared_imu_effect_is_found_with_its_parameters(tmp_path, undeclared, name, expect, seed):
+    log, ms = fly(tmp_path, undeclared, seed)
+    d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
+    assert [e.name for e in d.effects] == [name]
+    for k, v in expect.items():
+        assert d.effects[0].params[k] == pytest.approx(v, rel=0.15), d.effects[0].params
+    before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
+    assert after < 0.2 * before, (math.degrees(before), math.degrees(after))      # a geometric effect: >= 80 %
+    nis = {f.test: f for f in d.findings_after if f.sensor == "accel"}["NIS mean"]
+    assert 1.8 < nis.statistic < 2.2, nis          # two components: consistent again
+
+
+def test_a_clean_flight_claims_nothing_in_the_attitude_model(tmp_path):
+    log, ms = fly(tmp_path, [], 43)
+    d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
+    assert d.effects == [] and d.discoveries == []
+    assert math.degrees(d.truth.error(d.after, 8.0, 50.0)) < 0.1
+
+
+def test_a_gyro_bias_and_a_mounting_error_at_once_are_both_found(tmp_path):
+    log, ms = fly(tmp_path, ["gyro_bias:x=0.01,y=-0.02,z=0", "imu_misalignment:roll=-2,pitch=3,yaw=0"], 31)
+    d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
+    found = {e.name: e.params for e in d.effects}
+    assert set(found) == {"gyro_bias", "imu_misalignment"}
+    assert found["gyro_bias"]["y"] == pytest.approx(-0.02, rel=0.15)
+    assert found["imu_misalignment"]["pitch"] == pytest.approx(3.0, rel=0.15)
+    assert d.truth.error(d.after, 8.0, 50.0) < 0.1 * d.truth.error(d.before, 8.0, 50.0)
+
+
+def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
+    log, _ = fly(tmp_path, ["gyro_bias:x=0.02,y=0,z=0"], 44)
+    out = tmp_path / "rep"
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log), "--model", "attitude",
+                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    j = json.loads((out / "report.json").read_text())
+    assert j["effects"][0]["name"] == "gyro_bias" and j["after"]["rmse_of"] == "roll and pitch [rad]"
+    assert "baro_thrust" in j["unobservable"] and "accel_bias" in j["unobservable"]
+    assert "Roll and pitch error against the simulator sidecar" in j["conclusion"]
+    assert "deg</b> before" in (out / "report.html").read_text()
+    head = (out / "estimates_after.csv").read_text().splitlines()[0].split(",")
+    assert head[:3] == ["t", "roll", "pitch"] and "b_p" in head
+
+
+def test_attitude_diagnosis_needs_a_raw_imu():
+    from .conftest import real_file
+    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p), "--model", "attitude"],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "no raw IMU" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
+    """The dashboard's diagnosis sees the same 10 ms IMU block means as a log's: the attitude
+    model's accelerometer noise is that of a block mean."""
+    from groundstation.diagnosis.live import SessionBuffer
+    from groundstation.diagnosis.run import prepare
+    from groundstation.measurement import Kind
+    log = tmp_path / "b.tlog"
+    run_fast(Scenario.from_args("quad", 45, 12.0, ["range_tilt"], []), log)
+    ms = list(Replay(log).iter_measurements())
+    buf = SessionBuffer()
+    for m in ms:
+        buf.add(m)
+    for kind in (Kind.ACCEL, Kind.GYRO):
+        live = [m for m in buf.window(1e9) if m.kind is kind]
+        logged = [m for m in prepare(ms).measurements if m.kind is kind]
+        assert len(live) == len(logged) - 1 > 1000          # the last block is still open
+        assert np.allclose([m.t for m in live], [m.t for m in logged[:-1]])
+        assert np.allclose([m.value for m in live], [m.value for m in logged[:-1]])
