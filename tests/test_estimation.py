@@ -10,7 +10,7 @@ from groundstation.estimator import altitude_estimator
 from groundstation.loop import EstimationLoop
 from groundstation.measurement import Kind, Measurement
 from groundstation.models.altitude import altitude_model
-from groundstation.models.base import discretize, observability_rank
+from groundstation.models.base import discretize, discretize_series, observability_rank
 from groundstation.replay import Replay
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
@@ -27,6 +27,19 @@ def test_exact_discretisation_reproduces_the_documents_closed_forms():
         [T**2 / 2 * Ga + T**4 / 8 * Gb, T * Ga + T**3 / 3 * Gb, -T**2 / 2 * Gb],
         [-T**3 / 6 * Gb, -T**2 / 2 * Gb, T * Gb]])
     np.testing.assert_allclose(Qk, Q924, rtol=1e-9, atol=1e-18)                                      # (9.24)
+
+
+def test_the_series_discretisation_matches_the_exponentials_where_the_filter_uses_it():
+    """Input-dependent and nonlinear models sum the integrals as a series while |A| dt < 0.2
+    (filters.SERIES_LIMIT): there it must agree with Van Loan's exponentials."""
+    from groundstation.filters import SERIES_LIMIT
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        A = rng.standard_normal((6, 6))
+        A *= SERIES_LIMIT / np.abs(A).sum(axis=1).max()
+        B, Qc = rng.standard_normal((6, 2)), np.diag(rng.uniform(0.0, 1.0, 6))
+        for exact, series, tol in zip(discretize(A, B, Qc, 1.0), discretize_series(A, B, Qc, 1.0), (1e-6, 1e-6, 5e-5)):
+            assert np.abs(series - exact).max() <= tol * np.abs(exact).max()
 
 
 def test_altitude_model_is_observable_from_the_range_sensor():

@@ -182,20 +182,27 @@ def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple
 
 
 def discretize_series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float):
-    """The integrals of :func:`discretize` by their Taylor series to third order in ``A dt``
+    """The integrals of :func:`discretize` by their Taylor series to fourth order in ``A dt``
     (for input-dependent A, where each step has its own A and the exponentials dominate)::
 
-        Phi = I + A T + A^2 T^2/2 + A^3 T^3/6
-        G   = (I T + A T^2/2 + A^2 T^3/6) B
-        Q_k = Qc T + (A Qc + Qc A^T) T^2/2 + (A^2 Qc + 2 A Qc A^T + Qc A^T2) T^3/6
+        Phi = sum_{k=0..4} (A T)^k / k!
+        G   = sum_{k=0..3} A^k T^{k+1} / (k+1)!  B
+        Q_k = sum_{k=0..3} T^{k+1} / (k+1)!  sum_j C(k, j) A^j Qc A^T^{k-j}
+
+    Truncation error ~ (|A| T)^5 / 120: below 3e-6 of the step's terms for |A| T < 0.2.
     """
     n = A.shape[0]
     AT = A * dt
     AT2 = AT @ AT
-    Phi = np.eye(n) + AT + AT2 / 2 + AT2 @ AT / 6
-    G = (np.eye(n) + AT / 2 + AT2 / 6) @ B * dt
-    AQ = A @ Qc
-    Qk = Qc * dt + (AQ + AQ.T) * dt**2 / 2 + (A @ AQ + 2 * AQ @ A.T + (A @ AQ).T) * dt**3 / 6
+    AT3 = AT2 @ AT
+    Phi = np.eye(n) + AT + AT2 / 2 + AT3 / 6 + AT3 @ AT / 24
+    G = (np.eye(n) + AT / 2 + AT2 / 6 + AT3 / 24) @ B * dt
+    # the covariance integral's series: M_k = A M_{k-1} + M_{k-1} A^T, M_0 = Qc
+    M1 = A @ Qc
+    M1 = M1 + M1.T
+    M2 = A @ M1 + M1 @ A.T
+    M3 = A @ M2 + M2 @ A.T
+    Qk = Qc * dt + M1 * dt**2 / 2 + M2 * dt**3 / 6 + M3 * dt**4 / 24
     return Phi, G, 0.5 * (Qk + Qk.T)
 
 
