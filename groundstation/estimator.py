@@ -85,6 +85,7 @@ class KalmanEstimator:
             self.counters.skip("not_finite")
             return None
         f = self.filter
+        f.ctx.values["t"] = m.t
         rule = self.context.get(m.kind)
         if rule is not None:
             f.ctx.values["_x"] = f.kf.x
@@ -134,6 +135,13 @@ def _set_tilt(ctx: Context, roll: float, pitch: float, yaw: float = 0.0) -> None
 
 def _attitude(m: Measurement, ctx: Context) -> None:
     _set_tilt(ctx, float(m.value[0]), float(m.value[1]), float(m.value[2]) if len(m.value) > 2 else 0.0)
+    ctx.values["attitude_t"] = m.t
+
+
+def _angular_rate(m: Measurement, ctx: Context) -> None:
+    """The attitude message's body rates: the held attitude is carried forward with them
+    (models.base.tilt_now; p, q are the Euler rates to first order in the tilt)."""
+    ctx.values["roll_rate"], ctx.values["pitch_rate"] = float(m.value[0]), float(m.value[1])
 
 
 def _quaternion(m: Measurement, ctx: Context) -> None:
@@ -141,6 +149,7 @@ def _quaternion(m: Measurement, ctx: Context) -> None:
     _set_tilt(ctx, math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
               math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))),
               math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    ctx.values["attitude_t"] = m.t
 
 
 def _throttle(m: Measurement, ctx: Context) -> None:
@@ -186,8 +195,8 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.altitude import altitude_model
     return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators,
-                                    Kind.VEHICLE_STATUS: _vehicle_status})
+                                    Kind.ANGULAR_RATE: _angular_rate, Kind.THROTTLE: _throttle,
+                                    Kind.ACTUATOR: _actuators, Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the multirotor attitude (gyro input, accelerometer updates: models.attitude_drag) ----------
@@ -241,8 +250,8 @@ def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
                            inputs={Kind.ACTUATOR: thrust_input, Kind.THROTTLE: thrust_input,
                                    Kind.ATTITUDE: thrust_input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle,
-                                    Kind.VEHICLE_STATUS: _vehicle_status})
+                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _actuators,
+                                    Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the 3-DOF helicopter's routing (lab document) ---------------------------------------------

@@ -26,7 +26,8 @@ from typing import Callable
 import numpy as np
 
 from ..measurement import Kind, Measurement
-from ..models.base import LinearModel, MeasurementModel, pad_row
+from ..models.base import LinearModel, MeasurementModel, pad_row, slant
+from .run import in_time_order
 
 
 @dataclass
@@ -142,8 +143,7 @@ def range_tilt(model: LinearModel) -> LinearModel:
 
     def row(ctx):
         r = np.array(old(ctx), dtype=float)
-        c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
-        r[0, 0] = 1.0 / max(c, 0.2)
+        r[0, 0] = slant(ctx)
         return r
     meas["range"] = replace(mm, row=row)
     return replace(model, measurements=meas)
@@ -233,7 +233,7 @@ UNOBSERVABLE = {
 def shift(ms: list[Measurement], kinds: set, d: float) -> list[Measurement]:
     """The given kinds' measurements taken as of ``t - d`` (a sensor delay undone), re-sorted."""
     out = [m._replace(t=m.t - d) if m.kind in kinds else m for m in ms]
-    out.sort(key=lambda m: m.t)
+    out.sort(key=in_time_order)
     return out
 
 

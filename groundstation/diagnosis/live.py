@@ -10,33 +10,33 @@ from __future__ import annotations
 
 from collections import deque
 
-import numpy as np
-
 from ..measurement import Kind, Measurement
+from .run import block_mean
 
 
 class SessionBuffer:
     """The latest measurements, bounded by count, the IMU already averaged over ``imu_dt`` blocks
-    exactly as :func:`.run.prepare` averages a log's (stamped at the block's start), so a live
+    exactly as :func:`.run.prepare` averages a log's (:func:`.run.block_mean`), so a live
     diagnosis sees the same input as one of the recorded session, at a fifth of the memory."""
 
     def __init__(self, maxlen: int = 300_000, imu_dt: float = 0.01) -> None:
         self.items: deque[Measurement] = deque(maxlen=maxlen)
         self._imu_dt = imu_dt
-        self._block: dict[Kind, tuple[Measurement, list]] = {}
+        self._block: dict[Kind, tuple[Measurement, float, list]] = {}
 
     def add(self, m: Measurement) -> None:
         if self.items and m.t < self.items[-1].t - 1.0:       # time went back (seek, loop): start over
             self.items.clear()
             self._block.clear()
         if m.kind in (Kind.ACCEL, Kind.GYRO) and m.instance == 0:
-            first, values = self._block.get(m.kind, (None, None))
+            first, t_last, values = self._block.get(m.kind, (None, 0.0, None))
             if first is not None and m.t - first.t < self._imu_dt:
                 values.append(m.value)
+                self._block[m.kind] = (first, m.t, values)
                 return
             if first is not None:
-                self.items.append(first._replace(value=np.mean(values, axis=0)))
-            self._block[m.kind] = (m, [m.value])
+                self.items.append(block_mean(first, t_last, values))
+            self._block[m.kind] = (m, m.t, [m.value])
             return
         self.items.append(m)
 

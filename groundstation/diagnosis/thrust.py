@@ -35,8 +35,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _attitude, _quaternion, _throttle,
-                         _vehicle_status, motor_outputs)
+from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion,
+                         _throttle, _vehicle_status, motor_outputs)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
 from ..models.quad_thrust import quad_thrust_model
@@ -149,8 +149,8 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     return KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.ACTUATOR: _actuators, Kind.THROTTLE: _throttle,
-                                    Kind.VEHICLE_STATUS: _vehicle_status})
+                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _actuators,
+                                    Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the thrust-side candidates ------------------------------------------------------------------

@@ -36,13 +36,11 @@ Corrections to the document, made knowingly:
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel, relative_to_estimate
+from .base import LinearModel, MeasurementModel, relative_to_estimate, slant
 
 G = 9.80665
 
@@ -64,8 +62,7 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
     H = np.array([[1.0, 0.0, 0.0]])
 
     def range_row(ctx):
-        c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
-        return np.array([[1.0 / max(c, 0.2), 0.0, 0.0]])
+        return np.array([[slant(ctx), 0.0, 0.0]])
 
     from_pressure = relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50)
     from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)

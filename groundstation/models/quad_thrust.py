@@ -46,7 +46,7 @@ from scipy.linalg import expm
 
 from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel, observability_rank, relative_to_estimate
+from .base import LinearModel, MeasurementModel, observability_rank, relative_to_estimate, slant
 
 G = 9.80665
 STATES = ["z", "vz", "alpha", "beta", "d_bar", "d_tof"]
@@ -104,8 +104,7 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
     def tof_row(ctx):
         r = row(0, 5)
         if range_tilt:
-            c = math.cos(ctx.get("roll")) * math.cos(ctx.get("pitch"))
-            r[0, 0] = 1.0 / max(c, 0.2)
+            r[0, 0] = slant(ctx)
         return r
 
     meas = {
