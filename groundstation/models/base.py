@@ -141,8 +141,9 @@ def tilt_now(ctx: Context) -> tuple[float, float]:
     """Roll and pitch at the measurement's time ``ctx["t"]``: the latest attitude message
     carried forward by its body rates (first order; an autopilot sends attitude at 10-50 Hz
     and a range sensor reads in between). Held as it came, a 50 Hz attitude is on average
-    10 ms old: on simulated flights that made the range look 5-6 ms early, and a true 30 ms
-    range delay was measured as 22-28 ms."""
+    10 ms old. With the IMU blocks' stamping (diagnosis.run.block_mean), this made the range
+    of clean simulated flights look 5.5 ms early (now 2.5 ms), and a true 30 ms range delay
+    was measured as 22-28 ms."""
     v = ctx.values
     roll, pitch = v.get("roll", 0.0), v.get("pitch", 0.0)
     t_att = v.get("attitude_t")
