@@ -164,3 +164,24 @@ def test_diagnose_on_a_log_too_short_to_score_is_one_line(tmp_path):
     r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log)], capture_output=True, text=True)
     assert r.returncode == 2 and "a diagnosis needs at least 10 s" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "short.tlog.diagnosis" / "report.json").exists()
+
+
+def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
+    """The diagnosis' thrust model on a clean simulated flight that ends with a 0.8 m/s touchdown,
+    the throttle still at 0.36: the ground carries the vehicle (the model's inputs switch off), so
+    the constant thrust coefficients are those of the flight, the simulator's alpha = 22, beta = -1.2.
+    Flown through the ground, the model fitted 14.2 and 2.8."""
+    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.thrust import hover_prior, thrust_model
+    log = tmp_path / "land.tlog"
+    run_fast(Scenario.from_args("quad", 1000, 60.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
+    ms = list(Replay(log).iter_measurements())
+    su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")))
+    # beta free (the diagnosis holds it near 0): what the flight itself says about both
+    model = thrust_model(range_tilt=True, **{**hover_prior(su.prep), "sigma_beta0": 1.5})
+    run = run_model(model, su.prep, su.make)
+    alpha, beta = run.final("alpha")[0], run.final("beta")[0]
+    assert alpha == pytest.approx(22.0, rel=0.05) and beta == pytest.approx(-1.2, abs=0.4), (alpha, beta)
+    landed = run.sensors["landed"]
+    assert (landed.t > ms[0].t + 55.8).sum() > 50       # the touchdown is held as landed

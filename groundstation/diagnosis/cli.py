@@ -21,6 +21,8 @@ def add_parser(sub) -> None:
                                      "finding them is the point)")
     d.add_argument("--truth", type=Path, help="truth CSV (t, h) for the error before/after (default: LOG.csv "
                                               "when it is a simulator sidecar; motion capture in the log is used)")
+    d.add_argument("--no-truth-veto", action="store_true",
+                   help="keep an effect even when its fix makes the error against truth worse (default: rejected)")
 
 
 class Progress:
@@ -37,7 +39,7 @@ class Progress:
             bar = "#" * (20 * k // self.total) + "." * (20 - 20 * k // self.total)
             print(f"\r[{bar}] {time.monotonic() - self.t0:5.1f} s  {what[:50]:<50}", end="", file=sys.stderr,
                   flush=True)
-        elif what.startswith("added"):
+        elif what.startswith(("added", "rejected")):
             print(f"  {what}", file=sys.stderr, flush=True)
 
     def done(self) -> None:
@@ -54,7 +56,8 @@ def cmd_diagnose(args) -> int:
     print(f"diagnosing {args.file}: {desc}", flush=True)
     bar = Progress()
     d = diagnose(ms, source=str(args.file), model_name=args.model, declared=declared,
-                 vehicle=args.vehicle or vehicle, truth=truth_from(ms, args.file, args.truth), progress=bar)
+                 vehicle=args.vehicle or vehicle, truth=truth_from(ms, args.file, args.truth), progress=bar,
+                 veto_with_truth=not args.no_truth_veto)
     bar.done()
     j = report.write(d, out)
     print(j["conclusion"])

@@ -4,6 +4,7 @@ report.json::
 
     {"source", "model", "effects": [{"name", "params", "evidence"}, ...],     # in the order added
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
+     "rejected": [...],                  # fitted better, made the error against truth worse
      "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
      "before": {...}, "after": {...}}
 
@@ -11,7 +12,9 @@ with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
 failed tests; and, when truth exists, ``rmse_vs_truth`` of the height [m] or, for the
 attitude model, of roll and pitch together [rad] (``rmse_of`` says which).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
-"coefficient", "sensor"}, "evidence": {"r2", "terms"}}``.
+"coefficient", "sensor"}, "evidence": {"r2", "terms"}}``; a rejected one's evidence
+has ``delta_bic``, ``against`` (the truth's source), ``quantity``, ``error_before`` and
+``error_with`` (in the quantity's SI unit).
 Figures are matplotlib (Agg) SVG, inlined so the HTML is one file.
 """
 from __future__ import annotations
@@ -67,6 +70,7 @@ def as_json(d: Diagnosis) -> dict:
         "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
         "measured_against_truth": [{"name": e.name, "params": e.params, "evidence": e.evidence}
                                    for e in d.against_truth],
+        "rejected": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.rejected],
         "unobservable": d.unobservable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
@@ -86,6 +90,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
+    for e in d.rejected:
+        ev = e.evidence
+        k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
+        parts.append(f"{e.name} ({_fmt_params(e.params)}) fitted the measurements better (Delta BIC "
+                     f"{ev['delta_bic']:.0f}) but was rejected: with it, the error against the {ev['against']} went "
+                     f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
+                     f"comes from something the model lacks, not from {e.name}.")
     for e in d.modelled:
         parts.append(f"The model's own state {e.evidence['state']} carries a {e.name} of {_fmt_params(e.params)}.")
     for e in d.against_truth:
@@ -109,8 +120,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
 
 
 def _fmt_params(p: dict) -> str:
-    return ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
-                     if not k.startswith("sigma_"))
+    """``k = v`` for each parameter; a ``unit`` entry is printed after the numbers it applies to."""
+    unit = f" {p['unit']}" if "unit" in p else ""
+    return ", ".join(f"{k} = {v:.4g}{unit}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
+                     if not k.startswith("sigma_") and k != "unit")
 
 
 def _figures(d: Diagnosis) -> str:
@@ -170,6 +183,10 @@ def write(d: Diagnosis, out: Path) -> dict:
                             "Ljung-Box p before", "after"])
     effects = _table([[e["name"], _fmt_params(e["params"]), json.dumps(e["evidence"])] for e in j["effects"]]
                      or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
+    if j["rejected"]:
+        effects += "<h3>Rejected: a better fit, a worse estimate against truth</h3>" + _table(
+            [[e["name"], _fmt_params(e["params"]), json.dumps(e["evidence"])] for e in j["rejected"]],
+            ["effect", "parameters", "evidence"])
     ranking = "".join(f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
                       for i, it in enumerate(j["ranking"]))
     failed = _table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]

@@ -130,7 +130,7 @@ class LinearModel:
         meas.update(measurements or {})
         return LinearModel(name or self.name, self.states + list(states), list(self.inputs), A, B, Qc,
                            np.concatenate([self.x0, np.asarray(x0_extra, dtype=float)]), P0, meas,
-                           self.doc, list(self.notes))
+                           self.doc, list(self.notes), options=dict(self.options))
 
 
 #: longest the held attitude is carried forward by its rates (a dropout holds it instead)
