@@ -38,7 +38,7 @@ MIN_SECONDS = 10.0
 #: with truth, an effect whose fix makes the estimate's error against it this much worse (by a factor,
 #: and by more than :data:`VETO_FLOOR`) is rejected: its better fit to the measurements comes from
 #: something the model lacks, not from this effect (on a real Crazyflie log a "mounting error" of
-#: -11 deg fitted the accelerometer's vibration and took roll and pitch from 0.7 deg to 5.9 deg off)
+#: -11 deg fitted the accelerometer's vibration and took roll and pitch from 0.66 deg to 6.45 deg off)
 VETO_FACTOR = 1.2
 VETO_FLOOR = {"height [m]": 0.01, "roll and pitch [rad]": math.radians(0.5)}
 

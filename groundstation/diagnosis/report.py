@@ -83,7 +83,7 @@ def as_json(d: Diagnosis) -> dict:
 def conclusion(d: Diagnosis, j: dict) -> str:
     parts = []
     if d.effects:
-        found = "; ".join(f"{e.name} ({_fmt_params(e.params)})" for e in d.effects)
+        found = "; ".join(_named(e) for e in d.effects)
         parts.append(f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
                      f"Each was added with its parameters estimated from this log, and each improved the "
                      f"likelihood of the measurements by very strong evidence (Delta BIC < -10).")
@@ -93,12 +93,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     for e in d.rejected:
         ev = e.evidence
         k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
-        parts.append(f"{e.name} ({_fmt_params(e.params)}) fitted the measurements better (Delta BIC "
+        parts.append(f"{_named(e)} fitted the measurements better (Delta BIC "
                      f"{ev['delta_bic']:.0f}) but was rejected: with it, the error against the {ev['against']} went "
                      f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
                      f"comes from something the model lacks, not from {e.name}.")
     for e in d.modelled:
-        parts.append(f"The model's own state {e.evidence['state']} carries a {e.name} of {_fmt_params(e.params)}.")
+        parts.append(f"The model's own state {e.evidence['state']} carries {e.name}: {_fmt_params(e.params)}.")
     for e in d.against_truth:
         parts.append(f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
                      f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown.")
@@ -117,6 +117,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
                  if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
     return " ".join(parts)
+
+
+def _named(e) -> str:
+    """``name (k = v, ...)``, or the name alone for an effect without parameters (range_tilt)."""
+    p = _fmt_params(e.params)
+    return f"{e.name} ({p})" if p else e.name
 
 
 def _fmt_params(p: dict) -> str:

@@ -12,8 +12,8 @@ is exactly what is looked for here.
 
 Input ``u = (tau c, c, g, V, h, alpha_hat tau + beta_hat, V_ref)``: the document's
 three, then what the effects' couplings read (battery voltage, the height, the
-current thrust estimate, the voltage at take-off), linearised about the current
-estimate as an EKF does.
+current thrust estimate, the voltage alpha's prior was read at), linearised about
+the current estimate as an EKF does.
 
 **Airframe drag, added to the document's model.** Eq. (1)-(2) have no drag: the
 vertical acceleration is the thrust alone. A multirotor climbing or sinking at
@@ -208,11 +208,12 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     if tau < TAU_GROUND or v["in_contact"]:
         # on the ground: its reaction cancels thrust and weight (eq. 1-2 do not say so); driven
         # by them, the model would fly through the ground, and the constant thrust coefficients
-        # would be fitted to that (a clean simulated quad's touchdown with the throttle at 0.36
-        # took alpha, beta from 22.2, -1.32 to 14.2, 2.78; the simulator's are 22, -1.2)
+        # would be fitted to that (a clean simulated quad's 0.8 m/s touchdown with the throttle
+        # at 0.36: alpha, beta = 13.7, 3.0 without the ground, 22.02, -1.20 with it, beta left
+        # free; the simulator's are 22, -1.2)
         return np.array([0.0, 0.0, 0.0, volt, h, 0.0, v.get("voltage_ref", 0.0)])
     if "voltage_ref" not in v and volt > 0:
-        v["voltage_ref"] = volt          # the voltage when the rotors first carry the vehicle
+        v["voltage_ref"] = volt          # without a prior's: when the rotors first carry the vehicle
     return np.array([tau * c, c, G, volt, h, a_t, v.get("voltage_ref", 0.0)])
 
 
