@@ -228,23 +228,30 @@ async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_pat
     assert live.bridge.received.get("MOTORS", 0) > 200
 
 
-@async_test(timeout=60)
+@async_test(timeout=90)
 async def test_live_integral_action_removes_a_constant_disturbance(tmp_path):
     """Over the pty: the rig's motor board adds +0.4 V / -0.4 V (undeclared); the integral
-    LQR holds the commanded pitch anyway, its integrator carrying the imbalance."""
+    LQR holds the commanded pitch anyway, its integrator carrying the imbalance.
+
+    The integrator's slow mode settles in a few seconds of rig time, later when the machine is
+    loaded (the pty adds latency), so the test waits for the settling itself (the mean pitch of
+    the last second within 3 mrad of the command), not for a fixed time after the step."""
     sc = Scenario("heli3dof", seed=3, undeclared=[parse_effect("motor_offset:front=0.4,back=-0.4")])
     c = LQRIntegral(np.diag([30.0, 10.0, 10.0, 10.0, 10.0]))
+
+    def tail_error(since):
+        t_now = live.bridge.sim.t
+        tail = [row["p"] for row in reversed(live.truth[-2000:]) if row["t"] > t_now - 1.0]
+        return abs(np.mean(tail) - 0.1) if t_now > since + 3.0 and tail else np.inf
+
     async with Live3dof(tmp_path, c, EncoderFeedback(), scenario=sc) as live:
         await live.arm()
         await live.until(lambda r: live.bridge.sim.t > 4.0)             # off the table
         live.cmd.set_reference(p_c=0.1)
         t0 = live.bridge.sim.t
-        await live.until(lambda r: live.bridge.sim.t > t0 + 6.0, timeout=20.0)
+        await live.until(lambda r: tail_error(t0) < 0.003 or live.bridge.sim.t > t0 + 20.0, timeout=60.0)
         assert live.cmd.armed
-    t = np.array([row["t"] for row in live.truth])
-    p = np.array([row["p"] for row in live.truth])
-    late = t > t0 + 5.0
-    assert abs(np.mean(p[late]) - 0.1) < 0.005
+        assert tail_error(t0) < 0.003, f"pitch still {tail_error(t0):.4f} rad off 20 s after the step"
     assert abs(c.z[0]) > 0.05                       # the integrator holds what the model lacks
 
 
