@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import csv
+import datetime as _dt
 import json
 from pathlib import Path
 
@@ -43,7 +44,9 @@ def add_sim_parser(sub) -> None:
     d.add_argument("--duration", type=float, default=60.0)
     d.add_argument("--vehicle", choices=VEHICLES, default="quad")
     d.add_argument("--seed", type=int, default=1)
-    d.add_argument("--record", type=Path, default=Path("out/demo.tlog"))
+    d.add_argument("--record", type=Path,
+                   help="tlog path (default out/demo-<date-time>.tlog: a fresh file per run, as connect does; "
+                        "an existing file is appended to)")
     d.add_argument("--no-web", action="store_true", help="no dashboard")
     d.add_argument("--host", default="127.0.0.1")
     d.add_argument("--port", type=int, default=8080)
@@ -122,6 +125,15 @@ async def _run_realtime(args, scenario: Scenario) -> int:
     return 0
 
 
+def _fresh_path(p: Path) -> Path:
+    """``p``, or ``p`` with ``-2``, ``-3``, ... before the suffix when a file of that name exists."""
+    candidate, n = p, 1
+    while candidate.exists():
+        n += 1
+        candidate = p.with_name(f"{p.stem}-{n}{p.suffix}")
+    return candidate
+
+
 async def run_demo(args) -> int:
     """Bridge and ground station in one process, over real loopback UDP."""
     from drivers.mavlink.link import MavlinkLink
@@ -132,6 +144,8 @@ async def run_demo(args) -> int:
     from .estimators import build_estimator
     from .loop import EstimationLoop
 
+    if args.record is None:     # one run per file: a tlog appended to run after run reads as one flight with gaps
+        args.record = _fresh_path(Path("out") / f"demo-{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog")
     link = MavlinkLink("udpin:127.0.0.1:0", record=args.record)
     sub, events = link.measurements(), link.events()
     await link.open()

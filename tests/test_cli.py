@@ -183,3 +183,23 @@ def test_sim_lists_its_effects():
 def test_sim_bad_arguments_are_one_line(tmp_path, args, text):
     r = run("sim", "--fast", "--log", str(tmp_path / "x.tlog"), *args)
     assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr
+
+
+def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
+    """`make demo`'s command, twice, headless: exit 0, messages without loss, and each run in a
+    file of its own (a tlog appended run after run would read as one flight with hours of gaps)."""
+    recorded = []
+    for _ in range(2):
+        r = subprocess.run(GS + ["demo", "--duration", "2", "--no-web"], capture_output=True, text=True,
+                           timeout=120, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert "Traceback" not in r.stderr
+        summary = r.stdout.strip().splitlines()[-1]
+        assert summary.startswith("demo: ") and "loss 0.00%" in summary, r.stdout
+        recorded.append(summary.rsplit("recorded ", 1)[1])
+    assert recorded[0] != recorded[1]
+    for rec in recorded:
+        info = run("info", str(tmp_path / rec))
+        assert info.returncode == 0, info.stderr
+        seconds = float(info.stdout.split(" records, ")[1].split(" s")[0])
+        assert 1.0 < seconds < 4.0, info.stdout
