@@ -92,6 +92,12 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     assert -0.042 < offset < -0.030
     before, after = (d.truth.rmse(r.t, r.x[:, 0], r.t[0] + 5.0, r.t[-1]) for r in (d.before, d.after))
     assert after < 0.3 * before, (before, after)
+    # the baro's innovations stay coloured (vibration, the throttle's shape): the report says how much
+    # of the evidence survives counting them at their effective sample size
+    drift = {e.name: e.evidence for e in d.effects}["baro_bias_drift"]
+    assert drift["innovation_colour"]["baro"] > 10 and drift["delta_bic_effective"] > drift["delta_bic"]
+    from groundstation.diagnosis.report import as_json, conclusion
+    assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
 
 
 @pytest.mark.slow

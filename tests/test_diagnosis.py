@@ -138,6 +138,21 @@ def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp
 
 
 @pytest.mark.slow
+def test_a_clean_flight_claims_nothing_in_the_thrust_model(tmp_path):
+    """A clean simulated quad (the sweep's seed 1036), the thrust model: nothing to find. When the
+    on-ground constraint's pseudo-measurements were scored with the sensors, thrust_ground_effect
+    (R = 0.28 m, Delta BIC -240) was claimed for what the constraint alone "gained", and the height
+    error went up (1.03 -> 1.35 cm); scored on the baro and range alone it is not."""
+    log = tmp_path / "clean.tlog"
+    run_fast(Scenario.from_args("quad", 1036, 60.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
+    ms = list(Replay(log).iter_measurements())
+    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
+                 truth=truth_from(ms, log, None))
+    assert d.effects == [] and d.discoveries == [], [e.name for e in d.effects]
+    assert "landed" in d.before.sensors and "landed" not in d.before.loglik_by
+
+
+@pytest.mark.slow
 def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_a_thrust_linked_baro(tmp_path):
     """ArduPilot's underpowered.log (no IMU): the thrust model on the throttle finds the
     thrust the throttle buys falling with the voltage (the data README: throttle 645 -> 924

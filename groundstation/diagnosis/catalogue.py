@@ -27,7 +27,7 @@ import numpy as np
 
 from ..measurement import Kind, Measurement
 from ..models.base import LinearModel, MeasurementModel, pad_row, slant
-from .run import in_time_order
+from .run import LANDED, in_time_order
 
 
 @dataclass
@@ -68,10 +68,6 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 
 # -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
-#: the on-ground constraint's pseudo-sensor (vz = 0 while landed): not a sensor to diagnose
-LANDED = "landed"
-
-
 def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
     """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the throttle is below
     ``tau_ground`` (an autopilot's on-ground constraint), read from the throttle message itself.

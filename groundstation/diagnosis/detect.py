@@ -40,7 +40,9 @@ class Finding:
         return asdict(self)
 
 
-def _n_eff(e: np.ndarray) -> float:
+def effective_size(e: np.ndarray) -> float:
+    """How many independent samples ``e`` is worth, from its lag-1 autocorrelation r
+    (AR(1): n (1 - r) / (1 + r); negative r counts as 0)."""
     if len(e) < 3:
         return float(len(e))
     r1 = float(np.corrcoef(e[:-1], e[1:])[0, 1])
@@ -58,7 +60,7 @@ def detect(sensor: str, t: np.ndarray, e: np.ndarray, nis: np.ndarray, dim: int,
     lo, hi = chi2.ppf([0.025, 0.975], dim * n) / n
     m_nis = float(np.mean(nis))
     out.append(Finding(sensor, "NIS mean", bool(lo <= m_nis <= hi), m_nis, f"[{lo:.2f}, {hi:.2f}]"))
-    ne = _n_eff(e)
+    ne = effective_size(e)
     z = float(np.mean(e) * np.sqrt(ne))
     out.append(Finding(sensor, "innovation mean", bool(abs(z) < norm.ppf(0.995)), z, "|z| < 2.58"))
     p = ljung_box(e)

@@ -260,12 +260,16 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             cands = [c for c in cands if c is not s.candidate]
         if best is None:
             break
+        runner_up = next(iter(scored[scored.index(best) + 1:]), None)      # the next one down, not a rejected one
         effects.append(Effect(best.name, best.params,
                               {"delta_bic": round(best.delta_bic, 1), "sensor": best.candidate.sensor,
                                "loglik_gain": round(best.run.loglik - base.loglik, 1),
                                "gain_per_update": round(best.gain_per_update, 4),
-                               "runner_up": _label(scored[1]) if len(scored) > 1 else None,
-                               "runner_up_delta_bic": round(scored[1].delta_bic, 1) if len(scored) > 1 else None}))
+                               # the evidence at the innovations' effective sample size (trace's docstring)
+                               "delta_bic_effective": round(best.delta_bic_effective, 1),
+                               "innovation_colour": {k: round(v, 2) for k, v in best.run.inflation.items()},
+                               "runner_up": _label(runner_up) if runner_up else None,
+                               "runner_up_delta_bic": round(runner_up.delta_bic, 1) if runner_up else None}))
         model, base, stream = best.model, best.run, best.measurements
         cands = [c for c in cands if not (c.name == best.name and c.sensor == best.candidate.sensor)]
         if best.name == "baro_bias_drift":
@@ -306,8 +310,9 @@ def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:
     floor = VETO_FLOOR.get(truth.quantity(base), 0.0)
     if not (math.isfinite(e0) and math.isfinite(e1)) or e1 <= VETO_FACTOR * e0 or e1 - e0 <= floor:
         return None
-    return Effect(s.name, s.params, {"delta_bic": round(s.delta_bic, 1), "sensor": s.candidate.sensor,
-                                     "against": truth.source, "quantity": truth.quantity(base),
+    return Effect(s.name, s.params, {"delta_bic": round(s.delta_bic, 1),
+                                     "delta_bic_effective": round(s.delta_bic_effective, 1),
+                                     "sensor": s.candidate.sensor, "against": truth.source, "quantity": truth.quantity(base),
                                      "error_before": e0, "error_with": e1})
 
 

@@ -87,6 +87,15 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
                      f"Each was added with its parameters estimated from this log, and each improved the "
                      f"likelihood of the measurements by very strong evidence (Delta BIC < -10).")
+        coloured = [(e, e.evidence["innovation_colour"].get(e.evidence.get("sensor") or "", 1.0)) for e in d.effects
+                    if "innovation_colour" in e.evidence]
+        coloured = [(e, f) for e, f in coloured if f >= COLOURED]
+        if coloured:
+            parts.append("That evidence assumes white innovations. Counted at their effective sample size, " +
+                         "; ".join(f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
+                                   f"each {e.evidence['sensor']} innovation is worth 1/{f:.0f} of an independent "
+                                   f"sample)" for e, f in coloured) +
+                         ". Weigh those findings with care: the colour comes from something the model still lacks.")
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
@@ -117,6 +126,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
                  if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
     return " ".join(parts)
+
+
+#: n / n_eff from which the conclusion says an effect's sensor innovations are coloured
+COLOURED = 3.0
 
 
 def _named(e) -> str:
