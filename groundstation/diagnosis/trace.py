@@ -27,8 +27,8 @@ f = 45 with the rotor-wash term (Delta BIC -3854, effective -78) and f = 72 with
 the baro drift the data README and Vicon confirm (0.097 m/s; Delta BIC -1133,
 effective +0.3). The colour comes from what the catalogue lacks (after both, the
 discovery step names the low-passed throttle, 60 % of the baro residual's
-variance), and discounting by it would hide real effects with spurious ones. A large f says: weigh this
-effect's Delta BIC with care.
+variance), and discounting by it would hide real effects with spurious ones.
+A large f says: weigh this effect's Delta BIC with care.
 """
 from __future__ import annotations
 
