@@ -65,13 +65,14 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
                       G_alpha: float = 1e-3, G_beta: float = 1e-3, G_bar: float = 1e-4, G_tof: float = 1e-8,
                       sigma_range: float = 0.0105, sigma_baro: float = 0.345, sigma_gps: float = 2.0,
                       range_tilt: bool = True, use_gps: bool = False, sigma_alpha0: float = 4.0,
-                      sigma_beta0: float = 2.0, range_limits: tuple[float, float] = (0.0, math.inf)) -> LinearModel:
+                      sigma_beta0: float = 2.0, sigma_tof0: float = 0.02,
+                      range_limits: tuple[float, float] = (0.0, math.inf)) -> LinearModel:
     """``alpha0``/``beta0``: a priori thrust coefficients (document sec. 1: estimated offline).
 
     ``G_acc`` [(m/s^2)^2/Hz]: what the thrust model misses (drag, rotor dynamics),
     set so that NEES and NIS sit in their chi-square bands over 20 simulated
     flights (``tests/test_consistency.py``); P0: the vehicle starts on the ground
-    (height known to 2 cm, ToF offset a priori within 2 cm).
+    (height known to 2 cm, ToF offset a priori within ``sigma_tof0``, 2 cm).
 
     GPS is left out unless ``use_gps``: with both sensor biases as states, the
     common mode of (z, d_bar, d_tof) is seen by GPS alone, and GPS altitude
@@ -122,7 +123,7 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float 
         name="quad_thrust", states=list(STATES), inputs=["tau_c", "c", "g"], A=_A, B=B,
         Qc=np.diag([0.0, G_acc, G_alpha, G_beta, G_bar, G_tof]),
         x0=np.array([0.0, 0.0, alpha0, beta0, 0.0, 0.0]),
-        P0=np.diag([0.02**2, 0.05**2, sigma_alpha0**2, sigma_beta0**2, 0.3**2, 0.02**2]),
+        P0=np.diag([0.02**2, 0.05**2, sigma_alpha0**2, sigma_beta0**2, 0.3**2, sigma_tof0**2]),
         measurements=meas, doc=__doc__)
 
 
