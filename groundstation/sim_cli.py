@@ -11,6 +11,7 @@ from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
 from sim_bridge.pty_port import PtyPort
+from sim_bridge.profile import FLIGHTS
 from sim_bridge.scenario import VEHICLES, Scenario
 
 from .signals import on_stop_signal
@@ -20,6 +21,9 @@ def add_sim_parser(sub) -> None:
     s = sub.add_parser("sim", help="run a simulated vehicle (real time on UDP/serial, or --fast into a tlog)")
     s.add_argument("--vehicle", choices=VEHICLES, default="quad")
     s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--flight", choices=FLIGHTS, default="standard",
+                   help="the built-in flight: standard, or thrust_test (a low hover in ground effect and "
+                        "throttle steps instead of the altitude sine)")
     s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
     s.add_argument("--effect", action="append", default=[], metavar="NAME:k=v,...",
                    help="a declared effect (the ground station may be told); repeatable")
@@ -57,7 +61,8 @@ def add_sim_parser(sub) -> None:
 
 def scenario_from(args) -> Scenario:
     duration = args.duration if args.duration else 60.0
-    return Scenario.from_args(args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario)
+    return Scenario.from_args(args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario,
+                              args.flight)
 
 
 def cmd_sim(args) -> int:

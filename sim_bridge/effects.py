@@ -67,6 +67,10 @@ class Effect:
     def describe(self) -> dict:
         return {"name": self.name, "params": dict(self.values), **({"delay": self.delay} if self.delay else {})}
 
+    #: True for an effect in the motors themselves: it acts after the outputs (PWM) that the log
+    #: records, so the log shows the command and not what the motors made of it
+    in_the_motors = False
+
     # stages (identity by default)
     def command(self, cmd, dt, sim):
         return cmd
@@ -268,6 +272,7 @@ class ActuatorLag(Effect):
     name = "actuator_lag"
     equation = "u_applied' = (u_cmd - u_applied) / tc  (first order, on every actuator input)"
     params = {"tc": Param(0.08, "s", 0.01, 0.3)}
+    in_the_motors = True       # ESC and rotor spin-up: the logged outputs are the commands
 
     def setup(self, kw):
         self.state = None

@@ -6,6 +6,13 @@ manoeuvres, descent and landing (and repeats the middle part for long runs).
 The seed varies heights, periods and tilt amplitudes so that nothing
 downstream gets tuned to one trajectory.
 
+``flight="thrust_test"`` flies what a thrust identification flight flies
+instead of the altitude sine: a hover low in ground effect (0.15-0.3 m, where a
+rotor of R = 0.1-0.25 m adds 1-7 % of thrust) and a train of height steps whose
+throttle steps show a lag in the actuators (the standard flight's lowest hover
+is 0.6 m and its throttle is smooth: ground effect and actuator lag act there
+only during take-off and touchdown).
+
 The controllers stand for the vehicle's own autopilot. They fly on the true
 state (a real autopilot flies on its estimate; the simulator's point is the
 sensors, not the autopilot) and on the *nominal* vehicle parameters, so an
@@ -32,12 +39,19 @@ class Setpoint:
     roll: float = 0.0          # [rad] (feed-forward tilt manoeuvres)
     pitch: float = 0.0
     armed: bool = False
+    rate: float = 0.0          # [m/s] the height's rate and
+    accel: float = 0.0         # [m/s^2] acceleration, fed forward (only thrust_test's ramp sets them)
+
+
+FLIGHTS = ("standard", "thrust_test")
 
 
 class FlightProfile:
     """Height and tilt references over time, varied by the seed."""
 
-    def __init__(self, seed: int = 0, duration: float = 60.0) -> None:
+    def __init__(self, seed: int = 0, duration: float = 60.0, flight: str = "standard") -> None:
+        if flight not in FLIGHTS:
+            raise ValueError(f"unknown flight {flight!r}; use one of {', '.join(FLIGHTS)}")
         rng = np.random.default_rng(seed + 1000)
         self.h1 = rng.uniform(1.0, 2.0)            # hover height
         self.h_hi = self.h1 + rng.uniform(0.8, 1.6)
@@ -47,6 +61,11 @@ class FlightProfile:
         self.tilt = math.radians(rng.uniform(8.0, 20.0))
         self.tilt_period = rng.uniform(2.0, 4.0)
         self.duration = duration
+        self.flight = flight
+        # thrust_test (drawn after the standard's draws, which stay as they were)
+        self.h_ground = rng.uniform(0.15, 0.3)
+        self.step = rng.uniform(0.3, 0.6)
+        self.step_period = rng.uniform(1.5, 2.5)
 
     def __call__(self, t: float) -> Setpoint:
         land_at = max(20.0, self.duration - 7.0)
@@ -64,6 +83,18 @@ class FlightProfile:
             return Setpoint(self.h1, armed=True)
         if u < 16.0:
             return Setpoint(self.h_hi if u < 11.0 else self.h_lo, armed=True)
+        if u < 28.0 and self.flight == "thrust_test":
+            if u < 21.0:
+                # a smooth ramp down, its rate and acceleration fed forward: a step, or a ramp
+                # without, overshoots into the ground
+                w, dh = math.pi / 5.0, self.h_lo - self.h_ground
+                x = w * (u - 16.0)
+                return Setpoint(self.h_ground + dh * (1 + math.cos(x)) / 2, armed=True,
+                                rate=-dh * w / 2 * math.sin(x), accel=-dh * w * w / 2 * math.cos(x))
+            if u < 25.0:
+                return Setpoint(self.h_ground, armed=True)             # low hover, in ground effect
+            sign = 1.0 if int((u - 25.0) / self.step_period) % 2 == 0 else -1.0
+            return Setpoint(self.h1 + sign * self.step, armed=True)     # throttle steps
         if u < 28.0:
             return Setpoint(self.h1 + self.sine_amp * math.sin(2 * math.pi * (u - 16.0) / self.sine_period), armed=True)
         w = 2 * math.pi / self.tilt_period
@@ -86,7 +117,7 @@ class QuadAutopilot:
         h, vz = -q.d, -q.vd
         err = sp.height - h
         self.i = max(-3.0, min(3.0, self.i + err * dt * 1.2))
-        a_cmd = 4.0 * err - 3.2 * vz + self.i
+        a_cmd = 4.0 * err + 3.2 * (sp.rate - vz) + self.i + sp.accel
         tilt = max(0.5, math.cos(q.phi) * math.cos(q.theta))
         tau = (a_cmd + G - p.beta) / (p.alpha * tilt)
         # horizontal: hold the origin (tilt setpoints from a PD on position)
@@ -116,7 +147,7 @@ class CoaxAutopilot:
         h, vz = k.height, -k.vel[2]
         err = sp.height - h
         self.i = max(-3.0, min(3.0, self.i + err * dt * 1.0))
-        a_cmd = 3.0 * err - 2.5 * vz + self.i
+        a_cmd = 3.0 * err + 2.5 * (sp.rate - vz) + self.i + sp.accel
         tilt = max(0.5, math.cos(roll) * math.cos(pitch))
         i_col = p.mass * (G + a_cmd) / ((1 + p.k_w) * p.k_F * tilt)
         # position hold -> attitude setpoints

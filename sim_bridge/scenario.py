@@ -2,7 +2,7 @@
 
 Scenario files are JSON::
 
-    {"vehicle": "quad", "seed": 3, "duration": 60,
+    {"vehicle": "quad", "seed": 3, "duration": 60, "flight": "standard",
      "effects":    [{"name": "baro_thrust", "params": {"k": 3.0}}],
      "undeclared": [{"name": "sensor_delay", "params": {"sensor": "range", "seconds": 0.04}}],
      "sensors": {"rates": {"imu": 250}}}
@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .effects import Effect, parse_effect
+from .profile import FLIGHTS
 from .sensors import SensorConfig
 
 VEHICLES = ("quad", "coax", "heli3dof")
@@ -37,10 +38,13 @@ class Scenario:
     declared: list[Effect] = field(default_factory=list)
     undeclared: list[Effect] = field(default_factory=list)
     sensors: SensorConfig = field(default_factory=SensorConfig)
+    flight: str = "standard"     # the built-in flight's manoeuvres (sim_bridge/profile.py)
 
     def __post_init__(self) -> None:
         if self.vehicle not in VEHICLES:
             raise ScenarioError(f"unknown vehicle {self.vehicle!r}; use one of {', '.join(VEHICLES)}")
+        if self.flight not in FLIGHTS:
+            raise ScenarioError(f"unknown flight {self.flight!r}; use one of {', '.join(FLIGHTS)}")
 
     @property
     def effects(self) -> list[Effect]:
@@ -48,15 +52,13 @@ class Scenario:
 
     @classmethod
     def from_args(cls, vehicle: str, seed: int, duration: float, effects: list[str], undeclared: list[str],
-                  file: str | Path | None = None) -> "Scenario":
-        base = cls.load(file) if file else cls(vehicle=vehicle, seed=seed, duration=duration)
+                  file: str | Path | None = None, flight: str = "standard") -> "Scenario":
+        base = cls.load(file) if file else cls(vehicle=vehicle, seed=seed, duration=duration, flight=flight)
         try:
             base.declared += [parse_effect(s) for s in effects]
             base.undeclared += [parse_effect(s) for s in undeclared]
         except ValueError as e:
             raise ScenarioError(str(e)) from None
-        if not file:
-            return base
         return base
 
     @classmethod
@@ -86,7 +88,7 @@ class Scenario:
                     raise ScenarioError(f"{p}: unknown sensor setting {k!r}")
             return cls(vehicle=d.get("vehicle", "quad"), seed=int(d.get("seed", 0)),
                        duration=float(d.get("duration", 60.0)), declared=effects("effects"),
-                       undeclared=effects("undeclared"), sensors=cfg)
+                       undeclared=effects("undeclared"), sensors=cfg, flight=d.get("flight", "standard"))
         except (KeyError, ValueError, TypeError) as e:
             raise ScenarioError(f"{p}: {e}") from None
 
@@ -95,6 +97,6 @@ class Scenario:
         return {"vehicle": self.vehicle, "effects": [e.describe() for e in self.declared]}
 
     def truth_json(self) -> dict:
-        return {"vehicle": self.vehicle, "seed": self.seed, "duration": self.duration,
+        return {"vehicle": self.vehicle, "seed": self.seed, "duration": self.duration, "flight": self.flight,
                 "declared": [e.describe() for e in self.declared],
                 "undeclared": [e.describe() for e in self.undeclared]}

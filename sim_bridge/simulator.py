@@ -42,7 +42,7 @@ class Simulator:
     def __init__(self, scenario: Scenario, *, truth_rate: float = 100.0, command_timeout: float = 0.5) -> None:
         self.scenario = scenario
         self.rng = np.random.default_rng(scenario.seed)
-        self.profile = FlightProfile(scenario.seed, scenario.duration)
+        self.profile = FlightProfile(scenario.seed, scenario.duration, scenario.flight)
         name = scenario.vehicle
         if name == "quad":
             self.vehicle = Quad()
@@ -79,7 +79,8 @@ class Simulator:
         self._external = None
         self._external_cmd = None
         self._external_until = -1.0
-        self.last_command = None
+        self.output_command = None         # what the outputs (PWM) show
+        self.last_command = None           # what the vehicle was given (after the motors' effects)
 
     # -- ground-station commands -------------------------------------------------------
     def command(self, cmd) -> None:
@@ -110,7 +111,12 @@ class Simulator:
         else:
             cmd = self._auto_cmd
         for e in self.effects:
-            cmd = e.command(cmd, dt, self)
+            if not e.in_the_motors:
+                cmd = e.command(cmd, dt, self)
+        self.output_command = cmd
+        for e in self.effects:
+            if e.in_the_motors:
+                cmd = e.command(cmd, dt, self)
         self.last_command = cmd
         factor = 1.0
         for e in self.effects:
@@ -152,17 +158,26 @@ class Simulator:
 
     # -- outputs --------------------------------------------------------------------------
     def actuator_outputs(self) -> list[float]:
-        """What the outputs show, normalised 0..1 (PWM (us - 1000) / 1000 on the wire)."""
-        c = self.last_command
-        v = self.vehicle
+        """What the outputs show, normalised 0..1 (PWM (us - 1000) / 1000 on the wire), clipped as
+        the vehicle clips them: the commands as sent. An effect in the motors (``actuator_lag``)
+        acts after them, as on a real vehicle, whose log records the PWM the rotors then follow."""
+        c, v = self.output_command, self.vehicle
+
+        def clip(x: float, hi: float = 1.0) -> float:
+            return min(hi, max(0.0, x))
+
         if isinstance(v, Quad):
-            return [v.tau] * 4
+            return [clip(c.throttle) if c is not None else v.tau] * 4
         if isinstance(v, Coax):
             if c is None:
                 return [0.0, 0.0, 0.5, 0.5]
             # flapping angles through the swash-plate servos, centred at 0.5
-            return [v.cmd.i_L, v.cmd.i_U, 0.5 + v.cmd.a / (2 * v.p.max_flap), 0.5 + v.cmd.b / (2 * v.p.max_flap)]
-        return [v.cmd.V_f / v.p.V_max, v.cmd.V_b / v.p.V_max]
+            m = v.p.max_flap
+            a, b = max(-m, min(m, c.a)), max(-m, min(m, c.b))
+            return [clip(c.i_L), clip(c.i_U), 0.5 + a / (2 * m), 0.5 + b / (2 * m)]
+        if c is None:
+            return [v.cmd.V_f / v.p.V_max, v.cmd.V_b / v.p.V_max]
+        return [clip(c.V_f, v.p.V_max) / v.p.V_max, clip(c.V_b, v.p.V_max) / v.p.V_max]
 
     def truth(self) -> dict[str, float]:
         row = {"t": self.t, "h": self.vehicle.kin.height}

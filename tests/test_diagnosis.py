@@ -200,3 +200,27 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     assert alpha == pytest.approx(22.0, rel=0.05) and beta == pytest.approx(-1.2, abs=0.4), (alpha, beta)
     landed = run.sensors["landed"]
     assert (landed.t > ms[0].t + 55.8).sum() > 50       # the touchdown is held as landed
+
+
+def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan():
+    """actuator_lag's reshaping of the inputs. It once shared one state between the throttle and
+    the PWM outputs (reset at every switch) and reset on any NaN (a quad's unused outputs), so it
+    never lagged anything and no lag was ever found."""
+    from groundstation.diagnosis.thrust import lag_throttle
+    from groundstation.measurement import Kind, Measurement
+    ms = []
+    for k in range(50):
+        t = 0.02 * k
+        u = 0.0 if t < 0.2 else 1.0                                     # a step at 0.2 s
+        ms.append(Measurement(t, Kind.ACTUATOR, np.array([u, u, u, u, np.nan, np.nan]), "sim"))
+        if k % 5 == 0:
+            ms.append(Measurement(t, Kind.THROTTLE, np.array([u]), "sim"))
+    out = lag_throttle(ms, 0.1)
+    pwm = {round(m.t, 2): m.value for m in out if m.kind is Kind.ACTUATOR}
+    assert np.isnan(pwm[0.5][4:]).all()
+    # a first-order lag, the new output held since the sample before (0.18 s): 1 - exp(-(t - 0.18) / 0.1)
+    assert pwm[0.3][0] == pytest.approx(1 - np.exp(-1.2), abs=1e-6)
+    assert pwm[0.5][0] == pytest.approx(1 - np.exp(-3.2), abs=1e-6)
+    thr = {round(m.t, 2): m.value[0] for m in out if m.kind is Kind.THROTTLE}
+    assert thr[0.3] == pytest.approx(1 - np.exp(-2.0), abs=1e-6)      # its own samples, 0.1 s apart
+    assert lag_throttle(ms, 0.0) is ms

@@ -119,10 +119,13 @@ def test_thrust_ground_effect_and_actuator_lag():
     sim, _ = fly(["thrust_ground_effect:R=0.15"], seconds=8)
     low = [r for r in sim.truth_rows if 0.1 < r["h"] < 0.3 and r["throttle"] > 0.1]
     assert low and all(r["a_thrust"] > 22.0 * r["throttle"] - 1.2 + 1e-6 for r in low)
-    sim, _ = fly(["actuator_lag:tc=0.1"], seconds=8)
+    sim, rows = fly(["actuator_lag:tc=0.1"], seconds=8)
     applied = [r["throttle"] for r in sim.truth_rows]
     steps = np.abs(np.diff(applied))
     assert steps.max() < 0.1                                          # no jumps: the motors lag
+    # the lag is in the motors: the outputs the log records (PWM) are the commands, which jump at arming
+    pwm = [s.values[0] for s, *_ in rows if s.sensor == "actuators"]
+    assert np.abs(np.diff(pwm)).max() > 0.3
 
 
 def test_imu_misalignment_rotates_and_vibration_shakes():

@@ -121,3 +121,26 @@ def test_3dof_imu_reads_gravity_on_the_table():
     v = Heli3dof()
     f = v.kin.specific_force
     assert np.linalg.norm(f) == pytest.approx(9.81, rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", [3, 1001])
+def test_the_thrust_test_flight_hovers_in_ground_effect_without_touching_down(seed):
+    """flight="thrust_test": a low hover (0.15-0.3 m) reached without touching the ground (a step
+    to it, or a ramp without feed-forward, overshot into the ground), then throttle steps."""
+    from sim_bridge.profile import FlightProfile
+    from sim_bridge.scenario import Scenario
+    from sim_bridge.simulator import Simulator
+    sim = Simulator(Scenario("quad", seed=seed, duration=60.0, flight="thrust_test"))
+    prof = sim.profile
+    for _ in sim.run(34.0):
+        pass
+    truth = [r for r in sim.truth_rows if 6.0 <= r["t"] <= 33.0]      # take-off done, before the tilts
+    low = [r["h"] for r in truth if 27.0 <= r["t"] <= 30.0]            # the low hover's settled part
+    assert min(r["h"] for r in truth) > 0.08                           # airborne throughout
+    assert abs(np.median(low) - prof.h_ground) < 0.03 and 0.15 <= prof.h_ground <= 0.3
+    thr = np.array([r["throttle"] for r in truth if 30.0 <= r["t"] <= 33.0])
+    assert thr.max() - thr.min() > 0.1                                 # the steps move the throttle
+    # the standard flight's draws are unchanged by the thrust test's (drawn after them)
+    a, b = FlightProfile(seed, 60.0), FlightProfile(seed, 60.0, "thrust_test")
+    assert (a.h1, a.h_hi, a.h_lo, a.tilt) == (b.h1, b.h_hi, b.h_lo, b.tilt)
+    assert a(20.0) == b(20.0) and a(23.0) != b(23.0)

@@ -83,6 +83,16 @@ def as_json(d: Diagnosis) -> dict:
     }
 
 
+def _colour(e) -> tuple[str, float]:
+    """The effect's sensor and its innovations' colour n / n_eff; for an effect on several
+    sensors (sensor None, e.g. thrust_voltage), the most coloured of them."""
+    colour = e.evidence["innovation_colour"]
+    sensor = e.evidence.get("sensor")
+    if sensor in colour:
+        return sensor, colour[sensor]
+    return max(colour.items(), key=lambda kv: kv[1])
+
+
 def conclusion(d: Diagnosis, j: dict) -> str:
     parts = []
     if d.effects:
@@ -90,14 +100,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
                      f"Each was added with its parameters estimated from this log, and each improved the "
                      f"likelihood of the measurements by very strong evidence (Delta BIC < -10).")
-        coloured = [(e, e.evidence["innovation_colour"].get(e.evidence.get("sensor") or "", 1.0)) for e in d.effects
-                    if "innovation_colour" in e.evidence]
-        coloured = [(e, f) for e, f in coloured if f >= COLOURED]
+        coloured = [(e, *_colour(e)) for e in d.effects if e.evidence.get("innovation_colour")]
+        coloured = [(e, s, f) for e, s, f in coloured if f >= COLOURED]
         if coloured:
             parts.append("That evidence assumes white innovations. Counted at their effective sample size, " +
                          "; ".join(f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
-                                   f"each {e.evidence['sensor']} innovation is worth 1/{f:.0f} of an independent "
-                                   f"sample)" for e, f in coloured) +
+                                   f"each {s} innovation is worth 1/{f:.0f} of an independent "
+                                   f"sample)" for e, s, f in coloured) +
                          ". Weigh those findings with care: the colour comes from something the model still lacks.")
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "

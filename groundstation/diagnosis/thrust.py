@@ -271,18 +271,23 @@ def _rotor_radius(run) -> dict:
 
 
 def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
-    """The throttle as the rotors follow it: first-order low-pass with time constant tc."""
+    """The throttle as the rotors follow it: first-order low-pass with time constant tc, for each
+    stream of outputs (a throttle and the PWM outputs each their own: one state shared between
+    them was reset at every switch) and each output within it (unused outputs are NaN and stay
+    so: one NaN once reset the whole filter at every sample, and no lag was ever found)."""
     if tc <= 0:
         return ms
-    out, y, t_last = [], None, None
+    out, state = [], {}
     for m in ms:
         if m.kind in (Kind.THROTTLE, Kind.ACTUATOR):
             x = np.asarray(m.value, dtype=float)
-            if y is None or not np.all(np.isfinite(y)) or len(y) != len(x):
+            y, t_last = state.get(m.kind, (None, None))
+            if y is None or len(y) != len(x):
                 y = x.copy()
             else:
-                y = y + (x - y) * (1.0 - math.exp(-max(m.t - t_last, 0.0) / tc))
-            t_last = m.t
+                a = 1.0 - math.exp(-max(m.t - t_last, 0.0) / tc)
+                y = np.where(np.isfinite(y) & np.isfinite(x), y + (x - y) * a, x)
+            state[m.kind] = (y, m.t)
             m = m._replace(value=y.copy())
         out.append(m)
     return out

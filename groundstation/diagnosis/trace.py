@@ -77,6 +77,13 @@ def delta_bic_effective(aug: Run, base: Run, k: int, n: int) -> float:
     return -2.0 * gain + k * math.log(n)
 
 
+def scored(cand: Candidate, model: LinearModel, r: Run, base: Run, n: int, params: dict, ms) -> Scored:
+    """The candidate's run ``r`` against the base run: Delta BIC on white innovations and at
+    their effective size (module docstring)."""
+    dbic = -2.0 * (r.loglik - base.loglik) + cand.k * math.log(n)
+    return Scored(cand, model, r, dbic, params, ms, delta_bic_effective=delta_bic_effective(r, base, cand.k, n))
+
+
 def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms) -> Scored | None:
     n = max(base.n_scored, 1)
     if cand.delays:
@@ -111,15 +118,11 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
             # located, something else is being fitted; not a finding
             return Scored(cand, model, r, math.inf, {"sensor": cand.sensor, "seconds": d,
                                                      "note": "at the edge of the search range"}, shifted)
-        dbic = -2.0 * (r.loglik - base.loglik) + cand.k * math.log(n)
         p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
-        return Scored(cand, model, r, dbic, p, shifted,
-                      delta_bic_effective=delta_bic_effective(r, base, cand.k, n))
+        return scored(cand, model, r, base, n, p, shifted)
     aug = cand.augment(model)
     r = run_model(aug, prep, make, measurements=ms)
-    dbic = -2.0 * (r.loglik - base.loglik) + cand.k * math.log(n)
-    return Scored(cand, aug, r, dbic, cand.params(r) if cand.params else {}, ms,
-                  delta_bic_effective=delta_bic_effective(r, base, cand.k, n))
+    return scored(cand, aug, r, base, n, cand.params(r) if cand.params else {}, ms)
 
 
 def rank(cands: list[Candidate], model: LinearModel, base: Run, prep: Prepared, make, ms,
