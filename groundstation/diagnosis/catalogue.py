@@ -41,6 +41,10 @@ class Candidate:
     delays: tuple[float, ...] = ()                    # sensor_delay: the grid
     #: (measurements, grid value) -> measurements; default: the sensor's readings shifted by the delay
     reshape: Callable | None = None
+    #: (its run, scored from) -> the updates it can act on, for the materiality per update (trace.MATERIAL);
+    #: default: its sensor's, or all. An effect that acts in part of a flight only (rotor ground
+    #: effect, near the ground) would else have its gain spread over updates it cannot change
+    support: Callable | None = None
 
 
 def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,

@@ -264,6 +264,20 @@ def thrust_ground_effect(model: LinearModel) -> LinearModel:
                            P0_extra=[0.1**2])
 
 
+def _near_the_ground(run, t_from: float) -> int:
+    """thrust_ground_effect's support: the scored baro and range updates below two fitted rotor
+    radii (there the first-order term adds >= 1.6 % of thrust; above, it fades as 1/h^2)."""
+    r = math.sqrt(max(run.final("R2_rotor")[0], 0.0))
+    iz = run.model.index("z")
+    n = 0
+    for name in ("baro", "range"):
+        tr = run.sensors.get(name)
+        if tr is not None and len(tr.t):
+            z = np.interp(tr.t, run.t, run.x[:, iz])
+            n += int(((tr.t >= t_from) & (z >= GE_MIN_H) & (z < 2.0 * r)).sum())
+    return n
+
+
 def _rotor_radius(run) -> dict:
     q, s = run.final("R2_rotor")
     r = math.sqrt(max(q, 0.0))
@@ -300,7 +314,8 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
         if Kind.BATTERY_VOLTAGE in kinds:
             cands.append(Candidate("thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage,
                                    _state_param("n", "n_voltage")))
-        cands.append(Candidate("thrust_ground_effect", 1, set(), None, thrust_ground_effect, _rotor_radius))
+        cands.append(Candidate("thrust_ground_effect", 1, set(), None, thrust_ground_effect, _rotor_radius,
+                               support=_near_the_ground))
         cands.append(Candidate("actuator_lag", 1, set(), "throttle", None, None,
                                delays=(0.0, 0.03, 0.06, 0.12, 0.24, 0.4), reshape=lag_throttle))
     # the barometer's own effects act on the same measurement in this model

@@ -46,6 +46,8 @@ STRONG = -10.0       # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: slight mismatch between the model and the world: a clean simulated flight "had"
 #: 0.08 m of baro_thrust (1/40 of a realistic one) at Delta BIC = -28.
 MATERIAL = 0.02
+#: the fewest updates a gain is spread over (a candidate's ``support``): ~2 s of baro and range
+MIN_SUPPORT = 150
 
 
 @dataclass
@@ -138,6 +140,8 @@ def rank(cands: list[Candidate], model: LinearModel, base: Run, prep: Prepared, 
         sensor = s.candidate.sensor
         tr = base.sensors.get(sensor) if sensor else None
         n = int((tr.t >= prep.t0 + 5.0).sum()) if tr is not None else base.n_scored
+        if s.candidate.support:
+            n = min(n, max(s.candidate.support(s.run, prep.t0 + 5.0), MIN_SUPPORT))
         s.gain_per_update = (s.run.loglik - base.loglik) / max(n, 1)
     out.sort(key=lambda s: s.delta_bic)
     return out
