@@ -6,14 +6,15 @@ For every run: a simulated flight (vehicle alternating quad / coax, the seed
 changing the flight), the effect acting but not declared, then ``diagnose``
 with the altitude model; thrust-side effects with the thrust model, on the
 quadcopter flying the thrust test flight, and the IMU's own (gyro bias,
-mounting) with the attitude model, on the quadcopter. Printed per run: the true effect's rank, its parameter error, RMSE
-against truth before/after (height [m]; roll and pitch [rad] for the attitude
-model), the affected sensor's NIS and Ljung-Box p after. Then per effect the issue's bars: ranked
+mounting) with the attitude model, on the quadcopter. Printed per run: the
+true effect's rank, its parameter error, RMSE against truth before/after
+(height [m]; roll and pitch [rad] for the attitude model), the affected
+sensor's NIS and Ljung-Box p after. Then per effect the issue's bars: ranked
 first in >= 90 % of runs, parameter within +-15 %, RMSE down >= 50 % (>= 80 %
-for tilt and latency), and for the clean runs nothing claimed in >= 95 %. The truth
-(the simulator's sidecar) is used for the errors only: ``diagnose``'s veto of an
-effect that makes the error against truth worse is off, so what is measured is
-the diagnosis from the log's own sensors.
+for tilt and latency), and for the clean runs nothing claimed in >= 95 %. The
+truth (the simulator's sidecar) is used for the errors only: ``diagnose``'s
+veto of an effect that makes the error against truth worse is off, so what is
+measured is the diagnosis from the log's own sensors.
 The fast subset is ``tests/test_diagnosis.py``.
 """
 from __future__ import annotations

@@ -8,8 +8,8 @@ downstream gets tuned to one trajectory.
 
 ``flight="thrust_test"`` flies what a thrust identification flight flies
 instead of the altitude sine: a hover low in ground effect (0.15-0.3 m, where a
-rotor of R = 0.1-0.25 m adds 1-7 % of thrust) and a train of height steps whose
-throttle steps show a lag in the actuators (the standard flight's lowest hover
+rotor of R = 0.1-0.25 m adds 1-7 % of thrust) and height steps, whose throttle
+steps show a lag in the actuators (the standard flight's lowest hover
 is 0.6 m and its throttle is smooth: ground effect and actuator lag act there
 only during take-off and touchdown).
 
