@@ -161,23 +161,18 @@ class Simulator:
         """What the outputs show, normalised 0..1 (PWM (us - 1000) / 1000 on the wire), clipped as
         the vehicle clips them: the commands as sent. An effect in the motors (``actuator_lag``)
         acts after them, as on a real vehicle, whose log records the PWM the rotors then follow."""
-        c, v = self.output_command, self.vehicle
-
-        def clip(x: float, hi: float = 1.0) -> float:
-            return min(hi, max(0.0, x))
-
+        v = self.vehicle
+        c = v.clipped(self.output_command) if self.output_command is not None else None
         if isinstance(v, Quad):
-            return [clip(c.throttle) if c is not None else v.tau] * 4
+            return [c.throttle if c is not None else v.tau] * 4
         if isinstance(v, Coax):
             if c is None:
                 return [0.0, 0.0, 0.5, 0.5]
             # flapping angles through the swash-plate servos, centred at 0.5
             m = v.p.max_flap
-            a, b = max(-m, min(m, c.a)), max(-m, min(m, c.b))
-            return [clip(c.i_L), clip(c.i_U), 0.5 + a / (2 * m), 0.5 + b / (2 * m)]
-        if c is None:
-            return [v.cmd.V_f / v.p.V_max, v.cmd.V_b / v.p.V_max]
-        return [clip(c.V_f, v.p.V_max) / v.p.V_max, clip(c.V_b, v.p.V_max) / v.p.V_max]
+            return [c.i_L, c.i_U, 0.5 + c.a / (2 * m), 0.5 + c.b / (2 * m)]
+        c = c or v.cmd
+        return [c.V_f / v.p.V_max, c.V_b / v.p.V_max]
 
     def truth(self) -> dict[str, float]:
         row = {"t": self.t, "h": self.vehicle.kin.height}

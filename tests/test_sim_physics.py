@@ -132,12 +132,14 @@ def test_the_thrust_test_flight_hovers_in_ground_effect_without_touching_down(se
     from sim_bridge.simulator import Simulator
     sim = Simulator(Scenario("quad", seed=seed, duration=60.0, flight="thrust_test"))
     prof = sim.profile
-    for _ in sim.run(34.0):
-        pass
+    samples = list(sim.run(34.0))
     truth = [r for r in sim.truth_rows if 6.0 <= r["t"] <= 33.0]      # take-off done, before the tilts
     low = [r["h"] for r in truth if 27.0 <= r["t"] <= 30.0]            # the low hover's settled part
     assert min(r["h"] for r in truth) > 0.08                           # airborne throughout
     assert abs(np.median(low) - prof.h_ground) < 0.03 and 0.15 <= prof.h_ground <= 0.3
+    # and the ToF reads it there, above the 0.1 m below which the thrust model ignores the range
+    tof = [s.values[0] for s in samples if s.sensor == "range" and 27.0 <= s.t <= 30.0]
+    assert len(tof) > 50 and np.percentile(tof, 5) > 0.1
     thr = np.array([r["throttle"] for r in truth if 30.0 <= r["t"] <= 33.0])
     assert thr.max() - thr.min() > 0.1                                 # the steps move the throttle
     # the standard flight's draws are unchanged by the thrust test's (drawn after them)

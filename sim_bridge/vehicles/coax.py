@@ -102,11 +102,15 @@ class Coax(Vehicle):
         tau = np.cross([0.0, 0.0, -p.l_L], f_l) + g * self.T_L + np.array([0.0, 0.0, self.T_U])
         return (f_l + f_u) * self.thrust_factor, tau
 
+    def clipped(self, cmd: CoaxCommand) -> CoaxCommand:
+        """The command within the actuators' range (what the outputs can show)."""
+        m = self.p.max_flap
+        return CoaxCommand(min(1.0, max(0.0, cmd.i_L)), min(1.0, max(0.0, cmd.i_U)),
+                           max(-m, min(m, cmd.a)), max(-m, min(m, cmd.b)))
+
     def step(self, dt: float, cmd: CoaxCommand) -> None:
         p, k = self.p, self.kin
-        self.cmd = CoaxCommand(min(1.0, max(0.0, cmd.i_L)), min(1.0, max(0.0, cmd.i_U)),
-                               max(-p.max_flap, min(p.max_flap, cmd.a)),
-                               max(-p.max_flap, min(p.max_flap, cmd.b)))
+        self.cmd = self.clipped(cmd)
         # rotor first-order lags, exact for a held input over dt
         e = math.exp(-dt / p.T)
         self.F_L = p.k_F * self.cmd.i_L + (self.F_L - p.k_F * self.cmd.i_L) * e

@@ -96,9 +96,14 @@ class Heli3dof(Vehicle):
         ldd = P.l_h * math.cos(e) * (F_f + F_b) * math.sin(p) / P.J_l
         return np.array([pd, pdd, ed, edd, lamd, ldd])
 
+    def clipped(self, cmd: Heli3dofCommand) -> Heli3dofCommand:
+        """The command within the motors' range (what the outputs can show)."""
+        v_max = self.p.V_max
+        return Heli3dofCommand(min(v_max, max(0.0, cmd.V_f)), min(v_max, max(0.0, cmd.V_b)))
+
     def step(self, dt: float, cmd: Heli3dofCommand) -> None:
         P = self.p
-        self.cmd = Heli3dofCommand(min(P.V_max, max(0.0, cmd.V_f)), min(P.V_max, max(0.0, cmd.V_b)))
+        self.cmd = self.clipped(cmd)
         x = self.x
         # classical Runge-Kutta 4: the lab samples at 500 Hz; RK4 keeps the
         # integration error far below the linearisation error it is compared with

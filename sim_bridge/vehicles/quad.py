@@ -126,10 +126,15 @@ class Quad(Vehicle):
         self.on_ground = False
         self._kin = None
 
+    @staticmethod
+    def clipped(cmd: QuadCommand) -> QuadCommand:
+        """The command within the actuators' range (what the outputs can show)."""
+        return QuadCommand(min(1.0, max(0.0, cmd.throttle)), cmd.roll, cmd.pitch, cmd.yaw_rate)
+
     def step(self, dt: float, cmd: QuadCommand) -> None:
         p = self.p
         self._kin = None
-        self.tau_cmd = min(1.0, max(0.0, cmd.throttle))
+        self.tau_cmd = self.clipped(cmd).throttle
         self.tau = tau = self.tau_cmd
         # attitude inner loop (first-order) and Euler rates -> body rates
         if self.on_ground:
