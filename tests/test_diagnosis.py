@@ -247,3 +247,36 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     thr = {round(m.t, 2): m.value[0] for m in out if m.kind is Kind.THROTTLE}
     assert thr[0.3] == pytest.approx(1 - np.exp(-2.0), abs=1e-6)      # its own samples, 0.1 s apart
     assert lag_throttle(ms, 0.0) is ms
+
+
+def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
+    """The thrust test flight's descent from 3.6 m (seed 1002) cuts the throttle below ground idle
+    (TAU_GROUND) for 40 ms. Taken as landed, the model's inputs switched off (no thrust, no gravity)
+    and its vz was held at 0 in mid-air; a 20 ms "actuator lag", smoothing the dip away, then gained
+    50 in log-likelihood on this clean flight. Landed now also needs the estimate near the ground."""
+    import csv
+
+    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.thrust import lag_throttle
+    from groundstation.estimator import H_LANDED, TAU_GROUND, landed
+    from groundstation.models.base import Context
+    assert landed(Context({"throttle": 0.1, "_x": np.array([0.05, 0.0])}))
+    assert not landed(Context({"throttle": 0.1, "_x": np.array([3.0, -2.0])}))
+    assert not landed(Context({"throttle": 0.5, "_x": np.array([0.0, 0.0])}))
+    log = tmp_path / "dip.tlog"
+    run_fast(Scenario.from_args("quad", 1002, 60.0, ["range_tilt"], [], flight="thrust_test"), log,
+             log.with_suffix(".csv"))
+    with open(log.with_suffix(".csv")) as f:
+        rows = list(csv.DictReader(f))
+    h = np.array([float(r["h"]) for r in rows])
+    th = np.array([float(r["throttle"]) for r in rows])
+    assert (th[h > 1.0] < TAU_GROUND).sum() >= 2           # the dip is in this flight, well above the ground
+    ms = list(Replay(log).iter_measurements())
+    su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")))
+    base = run_model(su.model, su.prep, su.make)
+    truth = truth_from(ms, log, None)
+    held = base.sensors["landed"].t
+    assert len(held) > 50 and np.interp(held, truth.t, truth.h).max() < H_LANDED
+    lagged = run_model(su.model, su.prep, su.make, measurements=lag_throttle(su.prep.measurements, 0.02))
+    assert lagged.loglik < base.loglik, (lagged.loglik, base.loglik)

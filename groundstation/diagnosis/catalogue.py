@@ -25,6 +25,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..estimator import landed
 from ..measurement import Kind, Measurement
 from ..models.base import LinearModel, MeasurementModel, pad_row, slant
 from .run import LANDED, in_time_order
@@ -72,17 +73,18 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 
 # -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
-def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
+def on_ground(model: LinearModel) -> LinearModel:
     """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the throttle is below
-    ``tau_ground`` (an autopilot's on-ground constraint), read from the throttle message itself.
+    ground idle with the estimate near the ground (an autopilot's on-ground constraint;
+    :func:`groundstation.estimator.landed`), read at the throttle message itself.
 
     Without it the height floats on the ground wherever the range sensor reads nothing (below its
     minimum; a simulated coax's estimate wandered 0.24 m in the 2 s before take-off), and the baro
     readings taken there say nothing about the baro's zero."""
     iv = model.index("vz")
 
-    def landed(mm, ctx):
-        return None if ctx.get("throttle") >= tau_ground else np.array([0.0])
+    def still(mm, ctx):
+        return np.array([0.0]) if landed(ctx) else None
 
     def vz_row(ctx):
         r = np.zeros((1, model.n))
@@ -90,7 +92,7 @@ def on_ground(model: LinearModel, tau_ground: float) -> LinearModel:
         return r
     meas = dict(model.measurements)
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
-        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, landed, vz_row, np.array([[0.05**2]]))
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, vz_row, np.array([[0.05**2]]))
     return replace(model, measurements=meas)
 
 

@@ -19,7 +19,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import TAU_GROUND, KalmanEstimator, altitude_estimator, attitude_estimator
+from ..estimator import KalmanEstimator, altitude_estimator, attitude_estimator
 from ..estimators import vehicle_config
 from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
@@ -190,7 +190,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
             # a logged throttle only: a stand-in derived from the range or the vibration would feed
             # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
             # "throttle" pattern in the range innovations)
-            model = on_ground(model, TAU_GROUND)
+            model = on_ground(model)
         if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
             model = baro_zero(model)
         if Kind.ACCEL not in prep.kinds:

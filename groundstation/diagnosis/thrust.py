@@ -47,7 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion,
+from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion, landed,
                          _throttle, _vehicle_status, motor_outputs)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
@@ -97,7 +97,7 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, **param
 
     def range_airborne(mm, ctx, extract=rng.extract):
         # landed (rotors not carrying): a sonar reads its floor or its no-echo maximum
-        if ctx.get("throttle") < TAU_GROUND:
+        if landed(ctx):
             return None
         z = extract(mm, ctx)
         if z is not None and z[0] > CONTACT_H + CONTACT_MARGIN:
@@ -111,7 +111,7 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, **param
     meas["baro_alt"] = MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)
     B = np.hstack([m.B, np.zeros((m.n, 4))])
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
-    m = ground_contact(on_ground(airframe_drag(m, drag), TAU_GROUND))
+    m = ground_contact(on_ground(airframe_drag(m, drag)))
     return replace(m, options={"voltage_ref": voltage_ref} if voltage_ref else {})
 
 
@@ -214,7 +214,7 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     # flicker let the model fall for a step)
     lifts = a_t * c > G         # or a range reading above the ground (thrust_model's range_airborne)
     v["in_contact"] = x is not None and not lifts and (h <= CONTACT_H or bool(v.get("in_contact")))
-    if tau < TAU_GROUND or v["in_contact"]:
+    if v["in_contact"] or landed(ctx):
         # on the ground: its reaction cancels thrust and weight (eq. 1-2 do not say so); driven
         # by them, the model would fly through the ground, and the constant thrust coefficients
         # would be fitted to that (a clean simulated quad's 0.8 m/s touchdown with the throttle
