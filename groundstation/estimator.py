@@ -237,13 +237,23 @@ TAU_GROUND = 0.15
 #: taken as landed, the model stopped the vehicle in mid-air (no thrust, no gravity, vz held at 0),
 #: and a 20 ms "actuator lag", smoothing the dip away, gained 50 in log-likelihood on a clean flight
 H_LANDED = 0.5
+#: below this the motors are stopped (disarmed, spinning down): landed wherever the estimate is. An
+#: autopilot does not stop them in flight, and an estimate may be far off at touchdown (ArduPilot's
+#: underpowered.log: 5 m, on the baro alone before its effects are known); flying that estimate on
+#: with the motors off dropped it through the last seconds and moved the fitted thrust_voltage n
+#: from 1.31 to 0.81
+TAU_STOPPED = 0.05
 
 
 def landed(ctx: Context) -> bool:
-    """The vehicle stands on the ground: the throttle below ground idle and the estimated height
-    (the state vector's first element, ``_x``, kept in the context) within :data:`H_LANDED`."""
-    if ctx.get("throttle") >= TAU_GROUND:
+    """The vehicle stands on the ground: the motors stopped, or the throttle below ground idle with
+    the estimated height (the state vector's first element, ``_x``, kept in the context) within
+    :data:`H_LANDED`."""
+    tau = ctx.get("throttle")
+    if tau >= TAU_GROUND:
         return False
+    if tau < TAU_STOPPED:
+        return True
     x = ctx.values.get("_x")
     return x is None or float(x[0]) <= H_LANDED
 

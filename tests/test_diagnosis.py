@@ -264,6 +264,7 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     assert landed(Context({"throttle": 0.1, "_x": np.array([0.05, 0.0])}))
     assert not landed(Context({"throttle": 0.1, "_x": np.array([3.0, -2.0])}))
     assert not landed(Context({"throttle": 0.5, "_x": np.array([0.0, 0.0])}))
+    assert landed(Context({"throttle": 0.0, "_x": np.array([5.0, 0.0])}))      # motors stopped: landed
     log = tmp_path / "dip.tlog"
     run_fast(Scenario.from_args("quad", 1002, 60.0, ["range_tilt"], [], flight="thrust_test"), log,
              log.with_suffix(".csv"))
