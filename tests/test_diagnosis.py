@@ -253,7 +253,8 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     """The thrust test flight's descent from 3.6 m (seed 1002) cuts the throttle below ground idle
     (TAU_GROUND) for 40 ms. Taken as landed, the model's inputs switched off (no thrust, no gravity)
     and its vz was held at 0 in mid-air; a 20 ms "actuator lag", smoothing the dip away, then gained
-    50 in log-likelihood on this clean flight. Landed now also needs the estimate near the ground."""
+    50 in log-likelihood on this clean flight. Landed now also needs the estimate near the ground, unless
+    the motors are stopped."""
     import csv
 
     from groundstation.diagnosis.engine import setup

@@ -74,9 +74,9 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 # -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
 def on_ground(model: LinearModel) -> LinearModel:
-    """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the throttle is below
-    ground idle with the estimate near the ground (an autopilot's on-ground constraint;
-    :func:`groundstation.estimator.landed`), read at the throttle message itself.
+    """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the motors are stopped, or the
+    throttle is below ground idle with the estimate near the ground (an autopilot's on-ground
+    constraint; :func:`groundstation.estimator.landed`), read at the throttle message itself.
 
     Without it the height floats on the ground wherever the range sensor reads nothing (below its
     minimum; a simulated coax's estimate wandered 0.24 m in the 2 s before take-off), and the baro
