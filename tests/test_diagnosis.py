@@ -282,3 +282,18 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     assert len(held) > 50 and np.interp(held, truth.t, truth.h).max() < H_LANDED
     lagged = run_model(su.model, su.prep, su.make, measurements=lag_throttle(su.prep.measurements, 0.02))
     assert lagged.loglik < base.loglik, (lagged.loglik, base.loglik)
+
+
+@pytest.mark.slow
+def test_the_thrust_model_names_an_undeclared_slant_range(tmp_path):
+    """The thrust test flight with nothing declared (as `groundstation sim --flight thrust_test` records
+    it): the ToF reads the slant under the flight's tilts. The thrust catalogue once held only the
+    baro's effects, so the slant went unnamed and the height error stayed at 1.8 cm (8-50 s)."""
+    log = tmp_path / "slant.tlog"
+    run_fast(Scenario.from_args("quad", 1002, 60.0, [], [], flight="thrust_test"), log, log.with_suffix(".csv"))
+    ms = list(Replay(log).iter_measurements())
+    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
+                 truth=truth_from(ms, log, None))
+    assert [e.name for e in d.effects][:1] == ["range_tilt"], [e.name for e in d.effects]
+    before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
+    assert after < 0.5 * before, (before, after)
