@@ -1,6 +1,7 @@
 """The diagnosis sweep: effect x magnitude x seed, each effect undeclared, on simulated flights.
 
     python bench/diagnosis.py [--seeds 5] [--effects baro_thrust,sensor_delay] [--jobs 2] [--seconds 60]
+                              [--airframe sim_quad]
 
 For every run: a simulated flight (vehicle alternating quad / coax, the seed
 changing the flight), the effect acting but not declared, then ``diagnose``
@@ -14,7 +15,10 @@ first in >= 90 % of runs, parameter within +-15 %, RMSE down >= 50 % (>= 80 %
 for tilt and latency), and for the clean runs nothing claimed in >= 95 %. The
 truth (the simulator's sidecar) is used for the errors only: ``diagnose``'s
 veto of an effect that makes the error against truth worse is off, so what is
-measured is the diagnosis from the log's own sensors.
+measured is the diagnosis from the log's own sensors. ``--airframe sim_quad``
+gives the thrust model the simulated quadcopter's thrust curve and drag
+(``groundstation/vehicles/sim_quad.json``, as ``diagnose --vehicle``); without it
+they come from the log (alpha from the hover throttle, beta held near 0).
 The fast subset is ``tests/test_diagnosis.py``.
 """
 from __future__ import annotations
@@ -77,7 +81,7 @@ def one(job: tuple) -> dict:
     from groundstation.replay import Replay
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
-    effect, param, mag, extra, seed, vehicle, seconds = job
+    effect, param, mag, extra, seed, vehicle, seconds, airframe = job
     declared = [] if effect == "range_tilt" else ["range_tilt"]
     model, flight = model_for(effect), flight_for(effect)
     und = []
@@ -90,7 +94,7 @@ def one(job: tuple) -> dict:
         ms = list(Replay(log).iter_measurements())
         t0 = time.perf_counter()
         dg = diagnose(ms, model_name=model, declared=declared_effects(log.with_suffix(".declared.json")),
-                      truth=truth_from(ms, log, None), veto_with_truth=False)
+                      truth=truth_from(ms, log, None), veto_with_truth=False, vehicle=airframe)
         wall = time.perf_counter() - t0
     names = [e.name for e in dg.effects]
     found = dg.effects + dg.modelled          # an effect the base model estimates counts as found
@@ -99,7 +103,7 @@ def one(job: tuple) -> dict:
     est = found[rank - 1].params.get(param) if rank and param else None
     err = abs(est - mag) / abs(mag) if est is not None else None
     rb, ra = (dg.truth.error(r, 8.0, seconds - 10.0) for r in (dg.before, dg.after))
-    floor = clean_twin_rmse(vehicle, seed, seconds, declared, model, flight) if und else rb
+    floor = clean_twin_rmse(vehicle, seed, seconds, declared, model, flight, airframe) if und else rb
     sensor = found[rank - 1].evidence.get("sensor") if rank else None
     if sensor not in {f.sensor for f in dg.findings_after}:      # none, or an input (a lagged throttle)
         sensor = "accel" if model == "attitude" else "range"
@@ -112,7 +116,7 @@ def one(job: tuple) -> dict:
 
 
 def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str], model: str,
-                    flight: str = "standard") -> float:
+                    flight: str = "standard", airframe: str | None = None) -> float:
     """The height RMSE the base model reaches on the same flight without the effect: the floor no
     diagnosis can go below (range noise, the filter's own lag). Where a range sensor carries the
     height, a baro effect adds a few millimetres to a ~3 mm floor, and "RMSE down >= 50 %" is out of
@@ -128,7 +132,7 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
         log = Path(d) / "s.tlog"
         run_fast(Scenario.from_args(vehicle, seed, seconds, declared, [], flight=flight), log, log.with_suffix(".csv"))
         ms = list(Replay(log).iter_measurements())
-        su = setup(ms, model_name=model, declared=declared_effects(log.with_suffix(".declared.json")))
+        su = setup(ms, model_name=model, declared=declared_effects(log.with_suffix(".declared.json")), vehicle=airframe)
         r = run_model(su.model, su.prep, su.make)
         return truth_from(ms, log, None).error(r, 8.0, seconds - 10.0)
 
@@ -139,6 +143,8 @@ def main() -> int:
     ap.add_argument("--effects", default=",".join(SWEEP))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--airframe", default=None, help="a vehicle file for the thrust model (sim_quad: the simulated "
+                    "quadcopter's thrust curve and drag); default: from the log")
     args = ap.parse_args()
     jobs = []
     for effect in args.effects.split(","):
@@ -147,7 +153,8 @@ def main() -> int:
             for s in range(args.seeds):
                 seed = 1000 + 17 * s + len(jobs)
                 vehicle = "quad" if effect in THRUST | ATTITUDE else ("quad", "coax")[s % 2]
-                jobs.append((effect, param, mag, extra, seed, vehicle, args.seconds))
+                airframe = args.airframe if model_for(effect) == "quad_thrust" else None
+                jobs.append((effect, param, mag, extra, seed, vehicle, args.seconds, airframe))
     print(f"{'effect':<20}{'mag':>7}{'seed':>6}{'veh':>6}{'rank':>5}{'param':>10}{'err':>7}"
           f"{'RMSE before':>13}{'after':>9}{'floor':>8}{'NIS ok':>7}{'LB p':>8}  claimed", flush=True)
     rows = []

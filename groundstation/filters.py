@@ -176,13 +176,45 @@ class ModelFilter:
         self.ctx.values = dict(ctx)
         del self.log.records[n_log:]
 
+    def _update_only(self, mm: MeasurementModel, z: np.ndarray, H: np.ndarray) -> None:
+        """The Schmidt-Kalman ("consider") update: the gain's rows for the states not in
+        ``mm.corrects`` set to zero, P by the Joseph form, which holds for any gain (Simon, Optimal
+        State Estimation, 2006, sec. 7.3); or, with ``mm.reset``, those states set to the measured
+        value. filterpy has neither."""
+        kf = self.kf
+        R = np.atleast_2d(mm.R)
+        y = np.atleast_1d(z).astype(float) - H @ kf.x
+        PHt = kf.P @ H.T
+        S = H @ PHt + R
+        K = np.zeros_like(PHt)
+        idx = list(mm.corrects)
+        if mm.reset:
+            # the states measured one to one (H picks them): set, with variance R, uncorrelated
+            kf.x = kf.x.copy()
+            kf.x[idx] = np.atleast_1d(z).astype(float)
+            P = kf.P.copy()
+            P[idx, :] = 0.0
+            P[:, idx] = 0.0
+            P[np.ix_(idx, idx)] = R
+            kf.P = P
+            kf.y, kf.S, kf.K = y, S, K
+            return
+        K[idx] = PHt[idx] @ np.linalg.inv(S)
+        kf.x = kf.x + K @ y
+        I_KH = np.eye(len(kf.x)) - K @ H
+        kf.P = I_KH @ kf.P @ I_KH.T + K @ R @ K.T
+        kf.y, kf.S, kf.K = y, S, K
+
     def update(self, mm: MeasurementModel, z: np.ndarray) -> InnovationRecord:
         self._apply_pending()
         kf = self.kf
         H = np.atleast_2d(mm.row(self.ctx))
         if mm.offset is not None:
             z = z - mm.offset(self.ctx)
-        kf.update(z, R=mm.R, H=H)
+        if mm.corrects is None:
+            kf.update(z, R=mm.R, H=H)
+        else:
+            self._update_only(mm, z, H)
         nu = np.atleast_1d(kf.y).astype(float).copy()
         S = np.atleast_2d(kf.S).astype(float).copy()
         nis = float(nu @ np.linalg.solve(S, nu))

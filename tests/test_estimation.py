@@ -193,3 +193,30 @@ def test_non_finite_measurements_are_counted_and_skipped(bad):
     loop.push(_m(0.01, Kind.RANGE, [bad]))
     loop.flush()
     assert est.counters.skipped.get("not_finite") == 1 and np.all(np.isfinite(est.filter.x))
+
+
+def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():
+    """MeasurementModel.corrects (Schmidt-Kalman): the gain's other rows are zero, so the other states and
+    their covariance are what they were; with reset, the states are set with variance R and uncorrelated.
+    The thrust model's ground contact uses both (diagnosis.thrust.ground_contact)."""
+    from dataclasses import replace
+
+    from groundstation.filters import ModelFilter
+    from groundstation.models.base import MeasurementModel
+    model = altitude_model()
+    f = ModelFilter(model)
+    f.kf.P = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, 0.003], [0.002, 0.003, 0.01]])
+    f.kf.x = np.array([0.3, -0.8, 0.05])
+    x0, P0 = f.kf.x.copy(), f.kf.P.copy()
+    vz = MeasurementModel("landed", Kind.THROTTLE, lambda m, c: np.array([0.0]),
+                          lambda c: np.array([[0.0, 1.0, 0.0]]), np.array([[0.05**2]]), corrects=(1,))
+    f.update(vz, np.array([0.0]))
+    k = 0.09 / (0.09 + 0.05**2)
+    assert f.kf.x[1] == pytest.approx(-0.8 * (1 - k))
+    assert f.kf.x[[0, 2]] == pytest.approx(x0[[0, 2]])                       # a full update moves z by P_zv/S*nu
+    assert f.kf.P[np.ix_([0, 2], [0, 2])] == pytest.approx(P0[np.ix_([0, 2], [0, 2])])
+    assert f.kf.P[1, 1] == pytest.approx(0.09 * (1 - k))
+    assert np.allclose(f.kf.P, f.kf.P.T) and np.all(np.linalg.eigvalsh(f.kf.P) > 0)
+    f.update(replace(vz, reset=True), np.array([0.0]))
+    assert f.kf.x[1] == 0.0 and f.kf.P[1, 1] == pytest.approx(0.05**2)
+    assert f.kf.P[1, [0, 2]] == pytest.approx([0.0, 0.0]) and f.kf.x[[0, 2]] == pytest.approx(x0[[0, 2]])

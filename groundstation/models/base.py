@@ -56,6 +56,14 @@ class MeasurementModel:
     R: np.ndarray
     offset: Callable[[Context], np.ndarray] | None = None
     instance: int | None = None          # None: any instance
+    #: state indices the update may correct; None: all. A constraint that describes an impulse the
+    #: model lacks (the ground stopping a touchdown) corrects only the states it acts on, and the
+    #: others keep what the data told them: a Schmidt ("consider") update
+    corrects: tuple[int, ...] | None = None
+    #: with ``corrects``: the update sets those states to the measured value with variance R and
+    #: independent of the rest (a reset: the ground holds the vehicle whatever the other states are).
+    #: Repeated at every input on the ground, an update's information would pile up instead
+    reset: bool = False
 
     @property
     def dim(self) -> int:
