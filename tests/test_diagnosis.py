@@ -178,8 +178,8 @@ def test_with_the_airframe_known_thrust_effects_are_sized_within_15_percent(tmp_
                                                                              value, seed):
     """The airframe's thrust curve from its vehicle file (as from a thrust stand): the lag and the voltage
     exponent within 15 %. With beta held near 0 instead (no vehicle file: alpha 19.8 for the simulator's 22)
-    these read 0.079-0.083 s and 1.18-1.26, 17-21 % low: each effect was sized against a throttle that buys
-    10 % too little thrust."""
+    these read 0.083-0.085 s and 1.23 over the sweep's seeds, 15-18 % low: each effect was sized against a
+    throttle that buys 10 % too little thrust."""
     log = tmp_path / "t.tlog"
     run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"), log,
              log.with_suffix(".csv"))
