@@ -16,8 +16,8 @@ for tilt and latency), and for the clean runs nothing claimed in >= 95 %. The
 truth (the simulator's sidecar) is used for the errors only: ``diagnose``'s
 veto of an effect that makes the error against truth worse is off, so what is
 measured is the diagnosis from the log's own sensors. ``--airframe sim_quad``
-gives the thrust model the simulated quadcopter's thrust curve and drag
-(``groundstation/vehicles/sim_quad.json``, as ``diagnose --vehicle``); without it
+gives the thrust model the simulated quadcopter's thrust curve, drag and
+acceleration noise (``groundstation/vehicles/sim_quad.json``, as ``diagnose --vehicle``); without it
 they come from the log (alpha from the hover throttle, beta held near 0).
 The fast subset is ``tests/test_diagnosis.py``.
 """
@@ -144,7 +144,7 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--airframe", default=None, help="a vehicle file for the thrust model (sim_quad: the simulated "
-                    "quadcopter's thrust curve and drag); default: from the log")
+                    "quadcopter's thrust curve, drag and acceleration noise); default: from the log")
     args = ap.parse_args()
     jobs = []
     for effect in args.effects.split(","):

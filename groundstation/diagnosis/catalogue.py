@@ -27,7 +27,7 @@ import numpy as np
 
 from ..estimator import landed
 from ..measurement import Kind, Measurement
-from ..models.base import LinearModel, MeasurementModel, pad_row, slant
+from ..models.base import LinearModel, MeasurementModel, pad_row, slant, unit_row
 from .run import LANDED, in_time_order
 
 
@@ -86,13 +86,10 @@ def on_ground(model: LinearModel) -> LinearModel:
     def still(mm, ctx):
         return np.array([0.0]) if landed(ctx) else None
 
-    def vz_row(ctx):
-        r = np.zeros((1, model.n))
-        r[0, iv] = 1.0
-        return r
     meas = dict(model.measurements)
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
-        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, vz_row, np.array([[0.05**2]]))
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
+                                                        np.array([[0.05**2]]))
     return replace(model, measurements=meas)
 
 

@@ -50,7 +50,7 @@ import numpy as np
 from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion, landed,
                          _throttle, _vehicle_status, motor_outputs)
 from ..measurement import Kind, Measurement
-from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate
+from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.quad_thrust import quad_thrust_model
 from .catalogue import LANDED, UNOBSERVABLE, Candidate, _state_param, altitude_catalogue, on_ground
 
@@ -118,7 +118,7 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, **param
         z = extract(mm, ctx)
         if z is not None:
             # a reading at all (on the ground the sensor reads below its floor, and none is used)
-            ctx.values["range_off_ground_at"] = ctx.values.get("t", mm.t)
+            ctx.values["range_off_ground_at"] = mm.t
             if z[0] > CONTACT_H + CONTACT_MARGIN:
                 ctx.values["in_contact"] = False        # the range sees the vehicle off the ground
         return z
@@ -155,15 +155,9 @@ def ground_contact(model: LinearModel) -> LinearModel:
                 np.array([0.0]) if ctx.values.get("in_contact") else idle(m, ctx)), corrects=(iv,), reset=True)
             meas[f"contact_{mm.kind.value}"] = replace(
                 mm, extract=lambda m, ctx: np.array([0.0]) if ctx.values.get("in_contact") else None,
-                row=lambda ctx, n=model.n: _unit_row(n, iz), R=np.array([[CONTACT_SIGMA**2]]), corrects=(iz,),
+                row=lambda ctx, n=model.n: unit_row(n, iz), R=np.array([[CONTACT_SIGMA**2]]), corrects=(iz,),
                 reset=True)
     return replace(model, measurements=meas)
-
-
-def _unit_row(n: int, i: int) -> np.ndarray:
-    r = np.zeros((1, n))
-    r[0, i] = 1.0
-    return r
 
 
 def airframe_drag(model: LinearModel, mu_z: float) -> LinearModel:

@@ -188,6 +188,13 @@ def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_c
     return extract
 
 
+def unit_row(n: int, i: int) -> np.ndarray:
+    """H for a measurement of state i alone, of an n-state model."""
+    r = np.zeros((1, n))
+    r[0, i] = 1.0
+    return r
+
+
 def pad_row(row: np.ndarray, k: int) -> np.ndarray:
     """Extend measurement rows with k zero columns (for augmented states)."""
     r = np.atleast_2d(row)
