@@ -57,3 +57,30 @@ def test_thrust_loss_with_battery_sag_shows_in_this_filter(tmp_path):
     full_early = _at(snaps, 30.0).x[2] + _at(snaps, 30.0).x[3]      # acceleration at full throttle
     full_late = _at(snaps, 150.0).x[2] + _at(snaps, 150.0).x[3]
     assert full_late < 0.85 * full_early
+
+
+def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_readings():
+    """battery.py: V = V_oc(t) - k tau^2, readings at 5 Hz and the throttle at 50 Hz."""
+    from groundstation.diagnosis.battery import load_line, loaded_voltage
+    from groundstation.measurement import Kind, Measurement
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 60.0, 0.02)
+    tau = 0.45 + 0.1 * np.sin(2 * np.pi * 0.7 * t) + 0.05 * rng.standard_normal(len(t))
+    k = 4.8
+    v_oc = 12.6 - 0.03 * t                                   # the pack discharging
+    ms = [Measurement(ti, Kind.ACTUATOR, np.array([x] * 4), "sim") for ti, x in zip(t, tau)]
+    ms += [Measurement(ti, Kind.BATTERY_VOLTAGE, np.array([v_oc[i] - k * tau[i] ** 2 + rng.normal(0, 0.02)]), "sim")
+           for i, ti in enumerate(t) if i % 10 == 0]
+    ms.sort(key=lambda m: m.t)
+    throttle = [(ti, x) for ti, x in zip(t, tau)]
+    fit, sigma = load_line(ms, throttle)
+    assert abs(fit - k) < 0.15 and 0 < sigma < 0.1
+    # a pack that does not sag under load (or ESCs holding the voltage): nothing is claimed
+    flat = [m._replace(value=np.array([12.0 + rng.normal(0, 0.02)])) if m.kind is Kind.BATTERY_VOLTAGE else m
+            for m in ms]
+    assert load_line(flat, throttle) is None
+    assert load_line([m for m in ms if m.kind is not Kind.BATTERY_VOLTAGE], throttle) is None
+    # between readings: the reading taken at tau = 0.4, the throttle now 0.5
+    values = {"voltage_sag": k, "voltage_tau2": 0.4 ** 2}
+    assert loaded_voltage(11.0, 0.5, values) == pytest.approx(11.0 - k * (0.25 - 0.16))
+    assert loaded_voltage(11.0, 0.5, {}) == 11.0            # no load line: the reading held

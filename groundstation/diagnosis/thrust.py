@@ -52,6 +52,7 @@ from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate,
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.quad_thrust import quad_thrust_model
+from .battery import load_line, loaded_voltage
 from .catalogue import LANDED, UNOBSERVABLE, Candidate, _state_param, altitude_catalogue, on_ground
 
 G = 9.80665
@@ -91,7 +92,8 @@ RANGE_SAYS_AIRBORNE = 0.2
 TOF_HELD = 0.002
 
 
-def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, **params) -> LinearModel:
+def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, voltage_sag: float | None = None,
+                 **params) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
     module's docstring), a baro given as an altitude too, and the input widened for the
     couplings."""
@@ -131,7 +133,8 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, **param
     B = np.hstack([m.B, np.zeros((m.n, 4))])
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref"], measurements=meas)
     m = ground_contact(on_ground(airframe_drag(m, drag)))
-    return replace(m, options={"voltage_ref": voltage_ref} if voltage_ref else {})
+    options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag}
+    return replace(m, options={k: v for k, v in options.items() if v})
 
 
 def ground_contact(model: LinearModel) -> LinearModel:
@@ -230,6 +233,9 @@ def hover_prior(prep) -> dict:
         # rotors carrying the vehicle (a lighter load, a higher voltage), it put a constant
         # (V_ref' / V_ref)^n between alpha0 and the thrust at hover, which n then absorbed
         prior["voltage_ref"] = float(np.median(volts))
+    sag = load_line(prep.measurements, th)
+    if sag is not None:
+        prior["voltage_sag"] = sag[0]      # the voltage between the battery's readings (battery.py)
     return prior
 
 
@@ -239,6 +245,7 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     volt = v.get("voltage", 0.0)            # 0 until a reading: u must stay finite (B u)
     if not math.isfinite(volt):
         volt = 0.0
+    volt = loaded_voltage(volt, tau, v)     # between the battery's readings
     x = v.get("_x")
     h = float(x[0]) if x is not None else 0.0
     c = v.get("down_row", _LEVEL)[2]
@@ -277,13 +284,22 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     return np.array([tau * c, c, G, volt, h, a_t, v.get("voltage_ref", 0.0)])
 
 
+def _battery_voltage(m: Measurement, ctx: Context) -> None:
+    """The throttle at the battery's reading: its load line carries the reading forward from there."""
+    tau = ctx.values.get("throttle")
+    if tau is not None and math.isfinite(tau):
+        ctx.values["voltage_tau2"] = tau * tau
+
+
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     est = KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _actuators,
-                                   Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})
-    if model.options.get("voltage_ref"):
-        est.filter.ctx.values["voltage_ref"] = model.options["voltage_ref"]
+                                   Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status,
+                                   Kind.BATTERY_VOLTAGE: _battery_voltage})
+    for key in ("voltage_ref", "voltage_sag"):
+        if model.options.get(key):
+            est.filter.ctx.values[key] = model.options[key]
     return est
 
 
