@@ -84,3 +84,23 @@ def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_reading
     values = {"voltage_sag": k, "voltage_tau2": 0.4 ** 2}
     assert loaded_voltage(11.0, 0.5, values) == pytest.approx(11.0 - k * (0.25 - 0.16))
     assert loaded_voltage(11.0, 0.5, {}) == 11.0            # no load line: the reading held
+
+
+def test_thrust_voltage_is_the_exact_power_law_at_its_estimate():
+    """thrust.thrust_voltage: a_V (the input) + n^ times the coupling's column give a_T c ((V/V_ref)^n^ - 1),
+    and the column is the derivative in n there."""
+    from groundstation.diagnosis.thrust import _voltage_terms, thrust_model, thrust_voltage
+    m = thrust_voltage(thrust_model(alpha0=22.0, beta0=-1.2))
+    i_n, iv = m.index("n_voltage"), m.index("vz")
+    x = np.zeros(m.n)
+    x[i_n] = 1.7
+    a_tc, volt, v_ref = 9.0, 10.2, 12.1
+    n_hat, a_v = _voltage_terms(x, i_n, volt, v_ref, a_tc)
+    u = np.array([0.45, 1.0, 9.80665, volt, 1.0, a_tc, v_ref, n_hat, a_v])
+    col = m.A(u)[iv, i_n]
+    r = volt / v_ref
+    assert a_v + n_hat * col == pytest.approx(a_tc * (r ** 1.7 - 1.0))
+    assert col == pytest.approx(a_tc * (r ** 1.7 * np.log(r)))
+    b = m.B[:, m.inputs.index("a_V")]                    # a_V enters vz_dot as an input, 1:1
+    assert b[iv] == 1.0 and np.count_nonzero(b) == 1
+    assert _voltage_terms(x, None, volt, v_ref, a_tc) == (0.0, 0.0)      # the base model: no term
