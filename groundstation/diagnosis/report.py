@@ -13,7 +13,9 @@ failed tests; and, when truth exists, ``rmse_vs_truth`` of the height [m] or, fo
 attitude model, of roll and pitch together [rad] (``rmse_of`` says which).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
-trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update``, ``runner_up`` and its ΔBIC.
+trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update``, ``runner_up`` and its ΔBIC, and,
+when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
+model's joint estimate: engine._joint_params).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
 "coefficient", "sensor"}, "evidence": {"r2", "terms"}}``; a rejected one's evidence
 has ``delta_bic``, ``against`` (the truth's source), ``quantity``, ``error_before`` and
