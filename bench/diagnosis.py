@@ -103,7 +103,11 @@ def one(job: tuple) -> dict:
     est = found[rank - 1].params.get(param) if rank and param else None
     err = abs(est - mag) / abs(mag) if est is not None else None
     rb, ra = (dg.truth.error(r, 8.0, seconds - 10.0) for r in (dg.before, dg.after))
-    floor = clean_twin_rmse(vehicle, seed, seconds, declared, model, flight, airframe) if und else rb
+    if effect == "range_tilt":
+        # the slant is always simulated: the twin is the same flight with it declared
+        floor = clean_twin_rmse(vehicle, seed, seconds, ["range_tilt"], model, flight, airframe)
+    else:
+        floor = clean_twin_rmse(vehicle, seed, seconds, declared, model, flight, airframe) if und else rb
     sensor = found[rank - 1].evidence.get("sensor") if rank else None
     if sensor not in {f.sensor for f in dg.findings_after}:      # none, or an input (a lagged throttle)
         sensor = "accel" if model == "attitude" else "range"

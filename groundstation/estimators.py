@@ -12,6 +12,7 @@ from pathlib import Path
 
 from .estimator import KalmanEstimator, altitude_estimator, heli3dof_estimator, quad_thrust_estimator
 from .models.altitude import altitude_model
+from .models.ground import on_ground
 from .models.quad_thrust import quad_thrust_model
 
 MODELS = ("altitude", "quad_thrust", "heli3dof")
@@ -62,8 +63,9 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     names = {e.get("name") for e in declared}
     params = vehicle_config(vehicle, name)
     if name == "altitude":
-        return altitude_estimator(altitude_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared),
-                                                 **params))
+        # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one)
+        return altitude_estimator(on_ground(altitude_model(range_tilt="range_tilt" in names,
+                                                           range_offset=range_offset(declared), **params)))
     if name == "heli3dof":
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))

@@ -24,6 +24,7 @@ from .derived import with_attitude
 from .estimators import build_estimator, range_offset, vehicle_effects
 from .loop import EstimationLoop
 from .measurement import Kind, Measurement
+from .models.ground import LANDED
 from .replay import Replay
 
 
@@ -122,6 +123,8 @@ def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
 
     rows = []
     for sensor in est.filter.log.sensors():
+        if sensor == LANDED:            # the ground's pseudo-sensor (models.ground), not a sensor
+            continue
         a = est.filter.log.arrays(sensor)
         nu = a["nu"][:, 0] / np.sqrt(a["S"][:, 0, 0])
         r = np.array(raw.get(sensor, []))

@@ -76,5 +76,7 @@ def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero()
     from groundstation.evaluate import evaluate
     p = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin")
     n_baro = sum(1 for m in read_dataflash(p).measurements if m.kind is Kind.BARO_PRESSURE)
-    row = {r.sensor: r for r in evaluate(p).rows}["baro"]
+    rows = {r.sensor: r for r in evaluate(p).rows}
+    row = rows["baro"]
     assert n_baro - 60 <= row.n <= n_baro and row.nis < 10.0
+    assert "landed" not in rows         # the ground's pseudo-sensor (models.ground) is not a sensor's row

@@ -220,3 +220,29 @@ def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():
     f.update(replace(vz, reset=True), np.array([0.0]))
     assert f.kf.x[1] == 0.0 and f.kf.P[1, 1] == pytest.approx(0.05**2)
     assert f.kf.P[1, [0, 2]] == pytest.approx([0.0, 0.0]) and f.kf.x[[0, 2]] == pytest.approx(x0[[0, 2]])
+
+
+@pytest.mark.parametrize("range_reads_on", [False, True])
+def test_landed_the_filter_holds_still_and_a_quiet_range_puts_it_on_the_ground(range_reads_on):
+    """models.ground: a hover at 0.3 m on the range, then the motors stop. With the range quiet (below
+    its minimum) the landed vehicle is set on the ground (z = 0); with the range still reading, the
+    range carries the height and the ground constraint only holds it still."""
+    from groundstation.estimators import build_estimator
+    from groundstation.models.ground import LANDED
+    est = build_estimator("altitude")
+    ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -9.80665]) for k in range(600)]
+    ms += [_m(k * 0.02, Kind.THROTTLE, 0.5 if k * 0.02 < 2.0 else 0.0) for k in range(300)]
+    ms += [_m(0.005 + k * 0.04, Kind.RANGE, 0.30) for k in range(150) if range_reads_on or k * 0.04 < 2.0]
+    ms.sort(key=lambda m: m.t)
+    z = {}
+    for m in ms:
+        est.handle(m)
+        z[round(m.t, 3)] = float(est.filter.kf.x[0])
+    assert z[1.98] == pytest.approx(0.30, abs=0.01)
+    landed = est.filter.log.arrays(LANDED)
+    assert len(landed["t"]) > 0 and landed["t"].min() >= 2.0          # only once the motors stopped
+    if range_reads_on:
+        assert z[5.98] == pytest.approx(0.30, abs=0.01)
+    else:
+        assert abs(z[5.98]) < 0.02, z[5.98]
+        assert z[2.2] > 0.25                # held still while the range may only have missed a reading

@@ -33,6 +33,7 @@ import viser
 from scipy.stats import chi2
 
 from groundstation.measurement import Kind, Measurement
+from groundstation.models.ground import LANDED
 
 _FLIP = np.array([1.0, -1.0, -1.0])
 
@@ -233,7 +234,7 @@ class Dashboard:
         if len(snap.states) > 2:
             self._params.append((snap.t, snap.x[2:].copy(), snap.sigma[2:]))
         rec = snap.innovation
-        if rec is not None:
+        if rec is not None and rec.sensor != LANDED:     # the ground's pseudo-sensor (models.ground)
             self._innov.append((rec.t, float(rec.nu[0]), 2.0 * math.sqrt(float(rec.S[0, 0])), rec.nis, len(rec.nu)))
         self._dirty = True
 

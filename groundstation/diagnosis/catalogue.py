@@ -25,10 +25,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import landed
 from ..measurement import Kind, Measurement
-from ..models.base import LinearModel, MeasurementModel, pad_row, slant, unit_row
-from .run import LANDED, in_time_order
+from ..models.base import LinearModel, pad_row, slant
+from .run import in_time_order
 
 
 @dataclass
@@ -73,26 +72,6 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 
 
 # -- what the diagnosis adds to the altitude filter before any candidate -----------------------------
-def on_ground(model: LinearModel) -> LinearModel:
-    """Landed, the vehicle does not move: vz = 0 (sigma 5 cm/s) while the motors are stopped, or the
-    throttle is below ground idle with the estimate near the ground (an autopilot's on-ground
-    constraint; :func:`groundstation.estimator.landed`), read at the throttle message itself.
-
-    Without it the height floats on the ground wherever the range sensor reads nothing (below its
-    minimum; a simulated coax's estimate wandered 0.24 m in the 2 s before take-off), and the baro
-    readings taken there say nothing about the baro's zero."""
-    iv = model.index("vz")
-
-    def still(mm, ctx):
-        return np.array([0.0]) if landed(ctx) else None
-
-    meas = dict(model.measurements)
-    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
-        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
-                                                        np.array([[0.05**2]]))
-    return replace(model, measurements=meas)
-
-
 #: the baro's zero is the mean of its first 50 readings against the estimate (models.base.
 #: relative_to_estimate): 4 Pa of noise per reading leave it 5 cm off (1 sigma), more when the
 #: estimate itself moves on the ground with no range reading yet. Frozen, that error is a constant
@@ -177,8 +156,11 @@ def _temperature(ctx) -> float:
 
 
 def _ground(ctx) -> float:
-    # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate
-    running = ctx.get("throttle") > 0.05 or ctx.get("vibration") > 0.05
+    # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate. A logged
+    # throttle says when they run; the vibration (low-passed 0.3 s) only stands in for one, as it
+    # lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35)
+    v = ctx.values
+    running = v["throttle"] > 0.05 if "throttle" in v else ctx.get("vibration") > 0.05
     return math.exp(-max(0.0, ctx.get("z")) / 0.5) if running else 0.0
 
 

@@ -26,7 +26,8 @@ from ..models.altitude import altitude_model
 from ..models.attitude_drag import attitude_drag_model
 from ..models.base import LinearModel
 from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from .catalogue import LANDED, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero, on_ground
+from ..models.ground import LANDED, on_ground
+from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, prepare, run_model

@@ -36,7 +36,7 @@ from ..evaluate import ljung_box
 from ..export import EstimateCsvWriter
 from .engine import Diagnosis
 from .run import Run
-from .catalogue import LANDED
+from ..models.ground import LANDED
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:

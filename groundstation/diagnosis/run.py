@@ -23,6 +23,11 @@ import numpy as np
 from ..estimator import KalmanEstimator, motor_outputs
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel
+# the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
+# scored. Its innovations are smooth (n / n_eff = 199 on a simulated flight): a clean quad's
+# diagnosis credited thrust_ground_effect (R = 0.28 m, Delta BIC -240) for what the constraint
+# alone "gained", and made the height error worse (1.03 -> 1.35 cm)
+from ..models.ground import LANDED
 from .detect import effective_size
 
 
@@ -142,14 +147,6 @@ def airborne_from_range(ms: list[Measurement], clearance: float = 0.05) -> list[
     rest = float(np.median([r for _, r in rng[:10]]))
     return [Measurement(t, Kind.THROTTLE, np.array([1.0 if r > rest + clearance else 0.0]), "derived/range", t)
             for t, r in rng]
-
-
-#: the on-ground constraint's pseudo-sensor (vz = 0 while landed, catalogue.on_ground): not a
-#: sensor to diagnose, and not scored. Its innovations say how well a model keeps to an assumption,
-#: not to a measurement, and they are smooth (n / n_eff = 199 on a simulated flight): a clean
-#: quad's diagnosis credited thrust_ground_effect (R = 0.28 m, Delta BIC -240) for what the
-#: constraint alone "gained", and made the height error worse (1.03 -> 1.35 cm)
-LANDED = "landed"
 
 
 @dataclass

@@ -54,7 +54,8 @@ from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.quad_thrust import quad_thrust_model
 from .battery import load_line, loaded_voltage
-from .catalogue import LANDED, UNOBSERVABLE, Candidate, _state_param, altitude_catalogue, on_ground
+from ..models.ground import LANDED, on_ground
+from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
@@ -134,7 +135,7 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, voltage
     B = np.hstack([m.B, np.zeros((m.n, 6))])
     B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)
-    m = ground_contact(on_ground(airframe_drag(m, drag)))
+    m = ground_contact(on_ground(airframe_drag(m, drag), height=False))
     options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag}
     return replace(m, options={k: v for k, v in options.items() if v})
 

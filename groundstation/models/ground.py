@@ -1,0 +1,73 @@
+"""The ground under a landed vehicle, as pseudo-measurements of the height filters.
+
+None of the design documents models the ground: their equations of motion hold in
+flight. On the ground an autopilot's estimator holds the vehicle still instead.
+This module gives the altitude filter the same two constraints, read at each
+throttle message (:func:`groundstation.estimator.landed` says when):
+
+* ``vz = 0`` (sigma 5 cm/s) while landed: the vehicle does not move;
+* ``z = 0`` (sigma 3 cm) while landed *and* the range sensor has gone quiet after
+  reading at least once: below its minimum distance it reports nothing (the
+  MAVLink drivers drop a DISTANCE_SENSOR reading outside [min, max]). The height is
+  then between 0 and that minimum. This is PX4 EKF2's on-ground range: with the
+  range sensor sending but invalid on the ground, it synthesises a reading at the
+  ground clearance (``EKF2_MIN_RNG``). In this model z is the height the range
+  sensor measures, so the ground is z = 0 wherever the vehicle lands.
+
+Without the first, the height floats on the ground wherever the range sensor reads
+nothing (a simulated coax's estimate wandered 0.24 m in the 2 s before take-off);
+without the second, a landing's last half-metre is integrated from the
+accelerometer and held there on the baro alone (the demo's live estimate stood at
+-0.115 m after landing). Both are pseudo-sensors named :data:`LANDED`: their
+innovations say how well the model keeps to an assumption, not to a measurement,
+and they are not scored, tested or plotted as a sensor's.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from ..estimator import landed
+from ..measurement import Kind
+from .base import LinearModel, MeasurementModel, unit_row
+
+#: the pseudo-sensor's name (in the filter's innovation log, beside the sensors')
+LANDED = "landed"
+#: [m/s] the landed vehicle's vertical speed, and [m] its height with the range sensor quiet
+SIGMA_STILL = 0.05
+SIGMA_ON_GROUND = 0.03
+#: [s] no range reading for this long: the sensor reads below its minimum (it sends at 10-50 Hz)
+RANGE_QUIET = 0.3
+
+
+def on_ground(model: LinearModel, *, height: bool = True) -> LinearModel:
+    """``model`` with the landed constraints (module docstring); ``height=False`` leaves out z = 0
+    (the thrust model has its own ground contact, :func:`groundstation.diagnosis.thrust.ground_contact`)."""
+    iz, iv = model.index("z"), model.index("vz")
+    meas = dict(model.measurements)
+
+    def still(m, ctx):
+        return np.array([0.0]) if landed(ctx) else None
+
+    def on_the_ground(m, ctx):
+        t_range = ctx.values.get("range_read_at")
+        quiet = t_range is not None and m.t - t_range > RANGE_QUIET
+        return np.array([0.0]) if quiet and landed(ctx) else None
+
+    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
+                                                        np.array([[SIGMA_STILL**2]]))
+        if height and "range" in meas:
+            meas[f"on_ground_{kind.value}"] = MeasurementModel(
+                LANDED, kind, on_the_ground, lambda ctx, n=model.n: unit_row(n, iz), np.array([[SIGMA_ON_GROUND**2]]))
+    if height and "range" in meas:
+        rng = meas["range"]
+
+        def range_read(m, ctx, extract=rng.extract):
+            z = extract(m, ctx)
+            if z is not None:
+                ctx.values["range_read_at"] = m.t
+            return z
+        meas["range"] = replace(rng, extract=range_read)
+    return replace(model, measurements=meas)
