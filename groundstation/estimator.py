@@ -95,6 +95,9 @@ class KalmanEstimator:
         mms = self._by_kind.get(m.kind)
         if inp is None and not mms:
             return None
+        if inp is None and all(mm.untimed for mm in mms):
+            # constraints on the state as it is (MeasurementModel.untimed): the filter's clock stays
+            return self._update(m, mms) if self.started else None
         if not self._time(m.t):
             self.counters.skip("out_of_order")
             return None
@@ -104,8 +107,12 @@ class KalmanEstimator:
             u = inp(m, f.ctx)
             if u is not None:
                 f.u = u
+        return self._update(m, mms or ())
+
+    def _update(self, m: Measurement, mms: list) -> InnovationRecord | None:
+        f = self.filter
         rec = None
-        for mm in mms or ():
+        for mm in mms:
             if mm.instance is not None and m.instance != mm.instance:
                 continue
             f.ctx.values["z"] = float(f.x[0])

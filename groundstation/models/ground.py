@@ -3,7 +3,8 @@
 None of the design documents models the ground: their equations of motion hold in
 flight. On the ground an autopilot's estimator holds the vehicle still instead.
 This module gives the altitude filter the same two constraints, read at each
-throttle message (:func:`groundstation.estimator.landed` says when):
+throttle message (:func:`groundstation.estimator.landed` says when), at the filter's own time
+(``MeasurementModel.untimed``: a throttle message's time may lead the sensors'):
 
 * ``vz = 0`` (sigma 5 cm/s) while landed: the vehicle does not move;
 * ``z = 0`` (sigma 3 cm) while landed *and* the range sensor has gone quiet after
@@ -57,10 +58,11 @@ def on_ground(model: LinearModel, *, height: bool = True) -> LinearModel:
 
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
         meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
-                                                        np.array([[SIGMA_STILL**2]]))
+                                                        np.array([[SIGMA_STILL**2]]), untimed=True)
         if height and "range" in meas:
             meas[f"on_ground_{kind.value}"] = MeasurementModel(
-                LANDED, kind, on_the_ground, lambda ctx, n=model.n: unit_row(n, iz), np.array([[SIGMA_ON_GROUND**2]]))
+                LANDED, kind, on_the_ground, lambda ctx, n=model.n: unit_row(n, iz), np.array([[SIGMA_ON_GROUND**2]]),
+                untimed=True)
     if height and "range" in meas:
         rng = meas["range"]
 
