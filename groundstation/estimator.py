@@ -56,6 +56,9 @@ class KalmanEstimator:
         self._by_kind: dict[Kind, list] = {}
         for mm in model.measurements.values():
             self._by_kind.setdefault(mm.kind, []).append(mm)
+        # kinds that only carry constraints on the state as it is (MeasurementModel.untimed): they
+        # leave the filter's clock alone, unless the kind is an input as well
+        self._untimed = {k for k, mms in self._by_kind.items() if k not in inputs and all(mm.untimed for mm in mms)}
 
     @property
     def kinds(self) -> set[Kind]:
@@ -95,8 +98,7 @@ class KalmanEstimator:
         mms = self._by_kind.get(m.kind)
         if inp is None and not mms:
             return None
-        if inp is None and all(mm.untimed for mm in mms):
-            # constraints on the state as it is (MeasurementModel.untimed): the filter's clock stays
+        if m.kind in self._untimed:
             return self._update(m, mms) if self.started else None
         if not self._time(m.t):
             self.counters.skip("out_of_order")

@@ -7,8 +7,9 @@ autopilot logs the voltage at 1-10 Hz (the simulator's SYS_STATUS: 5 Hz) and the
 throttle at 50 Hz and more; held between readings, the voltage misses each sag as
 the throttle rises. For ``thrust_voltage`` that miss was most of its residue: on a
 simulated n = 2 thrust test flight the held reading put 0.30 m/s^2 RMS of error in
-the thrust it predicts, against 0.022 m/s^2 for the first-order expansion in
-``(V - V_ref) / V_ref`` (thrust.py) with the true voltage.
+the thrust it predicts, against 0.022 m/s^2 with the true voltage (and the first-order
+expansion in ``(V - V_ref) / V_ref`` that thrust.py then used; it now linearises
+``(V / V_ref)^n`` about the estimate of n).
 
 So the thrust model carries the latest reading forward by the throttle's change
 since it, ``V(t) = V_k - k (tau(t)^2 - tau_k^2)``, with ``k`` fitted here from

@@ -25,8 +25,8 @@ from ..measurement import Kind, Measurement
 from ..models.altitude import altitude_model
 from ..models.attitude_drag import attitude_drag_model
 from ..models.base import LinearModel
-from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from ..models.ground import LANDED, on_ground
+from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover

@@ -52,9 +52,9 @@ from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate,
                          _throttle, _vehicle_status, motor_outputs)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
+from ..models.ground import LANDED, on_ground
 from ..models.quad_thrust import quad_thrust_model
 from .battery import load_line, loaded_voltage
-from ..models.ground import LANDED, on_ground
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 
 G = 9.80665
