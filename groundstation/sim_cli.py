@@ -22,8 +22,9 @@ def add_sim_parser(sub) -> None:
     s.add_argument("--vehicle", choices=VEHICLES, default="quad")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--flight", choices=FLIGHTS, default="standard",
-                   help="the built-in flight: standard, or thrust_test (a low hover in ground effect and "
-                        "throttle steps instead of the altitude sine)")
+                   help="the built-in flight: standard; thrust_test (a low hover in ground effect and "
+                        "throttle steps instead of the altitude sine); or high (a climb to 5-8 m, above the "
+                        "range sensor's 4 m, where the barometer alone carries the height)")
     s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
     s.add_argument("--effect", action="append", default=[], metavar="NAME:k=v,...",
                    help="a declared effect (the ground station may be told); repeatable")

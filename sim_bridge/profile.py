@@ -13,6 +13,12 @@ steps show a lag in the actuators (the standard flight's lowest hover
 is 0.6 m and its throttle is smooth: ground effect and actuator lag act there
 only during take-off and touchdown).
 
+``flight="high"`` climbs above the range sensor's reach (4 m) for about a
+quarter of the flight: a smooth climb to 5-8 m, a sine there, a smooth descent,
+then the standard flight's tilt manoeuvres. Up there the barometer alone
+carries the height, as on any field flight above a few metres, so a baro error
+shows in the height, where the standard flight's range sensor hides it.
+
 The controllers stand for the vehicle's own autopilot. They fly on the true
 state (a real autopilot flies on its estimate; the simulator's point is the
 sensors, not the autopilot) and on the *nominal* vehicle parameters, so an
@@ -43,7 +49,7 @@ class Setpoint:
     accel: float = 0.0         # [m/s^2] acceleration, fed forward (only thrust_test's ramp sets them)
 
 
-FLIGHTS = ("standard", "thrust_test")
+FLIGHTS = ("standard", "thrust_test", "high")
 
 
 class FlightProfile:
@@ -66,6 +72,8 @@ class FlightProfile:
         self.h_ground = rng.uniform(0.15, 0.3)
         self.step = rng.uniform(0.3, 0.6)
         self.step_period = rng.uniform(1.5, 2.5)
+        # high (drawn after thrust_test's)
+        self.h_top = rng.uniform(5.0, 8.0)
 
     def __call__(self, t: float) -> Setpoint:
         land_at = max(20.0, self.duration - 7.0)
@@ -81,7 +89,7 @@ class FlightProfile:
         u = (t - 5.0) % 40.0
         if u < 6.0:
             return Setpoint(self.h1, armed=True)
-        if u < 16.0:
+        if u < 16.0 and self.flight != "high":
             return Setpoint(self.h_hi if u < 11.0 else self.h_lo, armed=True)
         if u < 28.0 and self.flight == "thrust_test":
             if u < 21.0:
@@ -95,10 +103,29 @@ class FlightProfile:
                 return Setpoint(self.h_ground, armed=True)             # low hover, in ground effect
             sign = 1.0 if int((u - 25.0) / self.step_period) % 2 == 0 else -1.0
             return Setpoint(self.h1 + sign * self.step, armed=True)     # throttle steps
+        if u < 28.0 and self.flight == "high":
+            # the climb starts at 8 s, so that a 60 s flight's repeat (u = 40-48 before the landing at
+            # 53 s) hovers instead of starting one
+            if u < 8.0:
+                return Setpoint(self.h1, armed=True)
+            if u < 13.0:
+                return self._ramp(u - 8.0, 5.0, self.h1, self.h_top)
+            if u < 22.0:
+                return Setpoint(self.h_top + self.sine_amp * math.sin(2 * math.pi * (u - 13.0) / self.sine_period),
+                                armed=True)
+            return self._ramp(min(u - 22.0, 5.0), 5.0, self.h_top, self.h1)
         if u < 28.0:
             return Setpoint(self.h1 + self.sine_amp * math.sin(2 * math.pi * (u - 16.0) / self.sine_period), armed=True)
         w = 2 * math.pi / self.tilt_period
         return Setpoint(self.h1, self.tilt * math.sin(w * (u - 28.0)), self.tilt * math.sin(0.7 * w * (u - 28.0)), True)
+
+    @staticmethod
+    def _ramp(s: float, T: float, h0: float, h1: float) -> Setpoint:
+        """A cosine ramp from h0 to h1 over T seconds, its rate and acceleration fed forward."""
+        w = math.pi / T
+        dh = h1 - h0
+        return Setpoint(h0 + dh * (1 - math.cos(w * s)) / 2, armed=True,
+                        rate=dh * w / 2 * math.sin(w * s), accel=dh * w * w / 2 * math.cos(w * s))
 
 
 class QuadAutopilot:

@@ -390,6 +390,18 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
             assert (await asyncio.wait_for(notes.__anext__(), 5.0)).startswith("armed")
             await probe.set_gui(gui_id(panel.sliders["z_c"]), value=1.5)
             await probe.set_gui(gui_id(panel.feedback), value="quad_thrust")
+            status_id = gui_id(panel.status_md)
+
+            async def refusal_shown():
+                # the panel's callbacks run in the order viser received them, but not in step with
+                # the commander's records: wait for the refusal itself (under load on CI the
+                # record with z_c came first and the message was still empty)
+                async for _, messages in probe.frames():
+                    for m in messages:
+                        if (m["type"] == "GuiUpdateMessage" and m.get("uuid") == status_id
+                                and "disarm before" in m["updates"].get("_markdown", "")):
+                            return
+            await asyncio.wait_for(refusal_shown(), 10.0)
             records = station.commander.records.subscribe()
 
             async def reference_applied():

@@ -3,6 +3,7 @@ import asyncio
 import math
 import re
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -88,10 +89,14 @@ def _scene(img: np.ndarray) -> np.ndarray:
     return img[160:, :860]
 
 
-async def _drawn(b: Browser, path: Path) -> np.ndarray:
-    """A screenshot once the 3D view shows its grid, trail and ray: software WebGL fades the
-    canvas in over several seconds (a frame at a time), and a veiled view shows nothing."""
-    while non_white(_scene(img := await b.screenshot(path))) < 0.01:
+async def _drawn(b: Browser, path: Path, *, within: float = 30.0) -> np.ndarray:
+    """A screenshot once the 3D view shows its grid, trail and ray and the panels their contents:
+    software WebGL fades the canvas in over several seconds (a frame at a time), and the panel's
+    folders are painted some frames after their text is in the page (a screenshot taken as soon
+    as the text was there showed the panel's frame empty: 283 dark pixels)."""
+    deadline = time.monotonic() + within
+    while (non_white(_scene(img := await b.screenshot(path))) < 0.01 or dark_pixels(img[:, -380:]) <= 1000) \
+            and time.monotonic() < deadline:
         await asyncio.sleep(0.2)
     return img
 
@@ -122,7 +127,7 @@ async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
         async with Browser() as b:
             await b.goto(f"http://127.0.0.1:{port}")
             await b.wait_for_text("No diagnosis has been run")
-            img = await b.screenshot(ARTIFACTS / "dashboard_panels.png")
+            img = await _drawn(b, ARTIFACTS / "dashboard_panels.png")
         assert dark_pixels(img[:, -380:]) > 1000                    # folders, tables and uPlot axes
     finally:
         if proc.returncode is None:

@@ -146,3 +146,30 @@ def test_the_thrust_test_flight_hovers_in_ground_effect_without_touching_down(se
     a, b = FlightProfile(seed, 60.0), FlightProfile(seed, 60.0, "thrust_test")
     assert (a.h1, a.h_hi, a.h_lo, a.tilt) == (b.h1, b.h_hi, b.h_lo, b.tilt)
     assert a(20.0) == b(20.0) and a(23.0) != b(23.0)
+
+
+@pytest.mark.parametrize("vehicle,seed", [("quad", 8), ("coax", 7)])
+def test_the_high_flight_climbs_above_the_range_sensor_and_the_driver_drops_its_readings(tmp_path, vehicle, seed):
+    """flight="high": 10 s and more above the range sensor's 4 m, where DISTANCE_SENSOR reports
+    out-of-range readings that the driver drops (the baro alone carries the height there), then
+    back down, and a landing from a hover (no climb starts before it)."""
+    import csv
+
+    from groundstation.measurement import Kind
+    from groundstation.replay import Replay
+    from sim_bridge.fast import run_fast
+    from sim_bridge.profile import FlightProfile
+    from sim_bridge.scenario import Scenario
+    log = tmp_path / "h.tlog"
+    run_fast(Scenario.from_args(vehicle, seed, 60.0, ["range_tilt"], [], flight="high"), log, log.with_suffix(".csv"))
+    rows = [{k: float(v) for k, v in r.items()} for r in csv.DictReader(open(log.with_suffix(".csv")))]
+    above = [r["t"] for r in rows if r["range_true"] > 4.05]
+    assert len(above) * 0.01 >= 10.0 and max(r["h"] for r in rows) > 5.0
+    ranges = [m.t for m in Replay(log).iter_measurements() if m.kind == Kind.RANGE]
+    assert not [t for t in ranges if above[0] + 0.1 < t < above[-1] - 0.1]   # none while out of reach
+    assert [t for t in ranges if t > above[-1] + 1.0]                        # and back after
+    assert max(r["h"] for r in rows if r["t"] > 58.0) < 0.01                 # landed
+    prof = FlightProfile(seed, 60.0, "high")
+    assert all(prof(t).height == prof.h1 for t in np.arange(45.0, 53.0, 0.5))  # the repeat hovers
+    a = FlightProfile(seed, 60.0)                                            # the standard's draws unchanged
+    assert (a.h1, a.h_hi, a.h_lo, a.tilt) == (prof.h1, prof.h_hi, prof.h_lo, prof.tilt)
