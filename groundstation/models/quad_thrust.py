@@ -63,7 +63,7 @@ def _A(u) -> np.ndarray:
 
 def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, G_acc: float = 0.006,
                       G_alpha: float = 1e-3, G_beta: float = 1e-3, G_bar: float = 1e-4, G_tof: float = 1e-8,
-                      sigma_range: float = 0.0105, sigma_baro: float = 0.345, sigma_gps: float = 2.0,
+                      sigma_range: float = 0.0105, sigma_baro: float = 0.338, sigma_gps: float = 2.0,
                       range_tilt: bool = True, use_gps: bool = False, sigma_alpha0: float = 4.0,
                       sigma_beta0: float = 2.0, sigma_tof0: float = 0.02,
                       range_limits: tuple[float, float] = (0.0, math.inf)) -> LinearModel:
