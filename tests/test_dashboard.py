@@ -89,7 +89,7 @@ def _scene(img: np.ndarray) -> np.ndarray:
     return img[160:, :860]
 
 
-async def _drawn(b: Browser, path: Path, *, within: float = 30.0) -> np.ndarray:
+async def _drawn(b: Browser, path: Path, *, within: float = 60.0) -> np.ndarray:
     """A screenshot once the 3D view shows its grid, trail and ray and the panels their contents:
     software WebGL fades the canvas in over several seconds (a frame at a time), and the panel's
     folders are painted some frames after their text is in the page (a screenshot taken as soon
