@@ -46,7 +46,7 @@ class Setpoint:
     pitch: float = 0.0
     armed: bool = False
     rate: float = 0.0          # [m/s] the height's rate and
-    accel: float = 0.0         # [m/s^2] acceleration, fed forward (only thrust_test's ramp sets them)
+    accel: float = 0.0         # [m/s^2] acceleration, fed forward (only the ramps set them: FlightProfile._ramp)
 
 
 FLIGHTS = ("standard", "thrust_test", "high")
@@ -95,10 +95,7 @@ class FlightProfile:
             if u < 21.0:
                 # a smooth ramp down, its rate and acceleration fed forward: a step, or a ramp
                 # without, overshoots into the ground
-                w, dh = math.pi / 5.0, self.h_lo - self.h_ground
-                x = w * (u - 16.0)
-                return Setpoint(self.h_ground + dh * (1 + math.cos(x)) / 2, armed=True,
-                                rate=-dh * w / 2 * math.sin(x), accel=-dh * w * w / 2 * math.cos(x))
+                return self._ramp(u - 16.0, 5.0, self.h_lo, self.h_ground)
             if u < 25.0:
                 return Setpoint(self.h_ground, armed=True)             # low hover, in ground effect
             sign = 1.0 if int((u - 25.0) / self.step_period) % 2 == 0 else -1.0
