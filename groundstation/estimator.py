@@ -209,16 +209,33 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
 
 
 # -- the multirotor attitude (gyro input, accelerometer updates: models.attitude_drag) ----------
+#: a vertical velocity older than this is not used (the stream stopped: no GPS fix, a gap in the log)
+VD_MAX_AGE = 0.5
+
+
 def gyro_rates(m: Measurement, ctx: Context) -> np.ndarray | None:
-    """u = (p_m, q_m, r_m): the gyro as measured, body FRD."""
-    return np.asarray(m.value[:3], dtype=float) if m.instance == 0 else None
+    """u = (p_m, q_m, r_m, v_d): the gyro as measured, body FRD, and the latest vertical velocity
+    (NED down; NaN if none within :data:`VD_MAX_AGE`: the model then leaves its terms out)."""
+    if m.instance != 0:
+        return None
+    v = ctx.values
+    vd = v["v_d"] if m.t - v.get("v_d_t", -math.inf) <= VD_MAX_AGE else math.nan
+    return np.array([float(m.value[0]), float(m.value[1]), float(m.value[2]), vd])
+
+
+def _vertical_velocity(m: Measurement, ctx: Context) -> None:
+    """v_d from VELOCITY_NED (down) or CLIMB_RATE (up)."""
+    vd = float(m.value[2]) if m.kind is Kind.VELOCITY_NED else -float(m.value[0])
+    if math.isfinite(vd):                 # a GNSS board's VELOCITY_NED has no vertical component
+        ctx.values["v_d"], ctx.values["v_d_t"] = vd, m.t
 
 
 def attitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.attitude_drag import attitude_drag_model
     return KalmanEstimator(model or attitude_drag_model(), inputs={Kind.GYRO: gyro_rates},
                            context={Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators,
-                                    Kind.VEHICLE_STATUS: _vehicle_status})
+                                    Kind.VEHICLE_STATUS: _vehicle_status, Kind.VELOCITY_NED: _vertical_velocity,
+                                    Kind.CLIMB_RATE: _vertical_velocity})
 
 
 # -- horizontal position (IMU input, GPS updates) -------------------------------------------------

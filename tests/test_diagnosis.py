@@ -360,3 +360,30 @@ def test_the_thrust_model_names_an_undeclared_slant_range(tmp_path):
     assert [e.name for e in d.effects][:1] == ["range_tilt"], [e.name for e in d.effects]
     before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
     assert after < 0.5 * before, (before, after)
+
+
+def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
+    """A candidate's filter can run away (a gyro bias at 0.96 rad/s drove the attitude model to pitch
+    -90 deg on Crazyflie 0425-traj4, and its innovation covariance went singular). It is ranked with
+    Delta BIC = inf and a note; the diagnosis goes on. Here the singular S is made for real: a range
+    row of zeros with no noise."""
+    from dataclasses import replace
+
+    from groundstation.diagnosis.catalogue import Candidate
+    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.trace import rank
+
+    def blind_range(model):
+        meas = dict(model.measurements)
+        meas["range"] = replace(meas["range"], row=lambda ctx: np.zeros((1, model.n)), R=np.zeros((1, 1)))
+        return replace(model, measurements=meas)
+
+    log = tmp_path / "d.tlog"
+    run_fast(Scenario.from_args("quad", 5, 20.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
+    su = setup(list(Replay(log).iter_measurements()), model_name="altitude")
+    base = run_model(su.model, su.prep, su.make)
+    out = rank([Candidate("blind", 0, set(), "range", blind_range, None)], su.model, base, su.prep, su.make,
+               su.prep.measurements)
+    assert out[0].delta_bic == float("inf") and out[0].params == {"note": "the filter diverged"}
+    assert not out[0].accepted

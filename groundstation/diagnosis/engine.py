@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import csv
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -30,7 +30,7 @@ from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
-from .run import Prepared, Run, prepare, run_model
+from .run import Prepared, Run, in_time_order, prepare, run_model
 from .thrust import UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
 from .trace import Scored, rank
 
@@ -215,6 +215,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         if not {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
             raise ValueError(f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
                              "and this log has no raw IMU")
+        prep = with_vertical_velocity(prep, ms, declared, vehicle)
     else:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude, quad_thrust or attitude)")
     if model_name != "attitude" and not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
@@ -225,6 +226,27 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         raise ValueError(f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
                          f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)")
     return Setup(prep, model, make, catalogue, names)
+
+
+def with_vertical_velocity(prep: Prepared, ms: list[Measurement], declared, vehicle: str | None) -> Prepared:
+    """The attitude model's v_d input (models.attitude_drag: the q w and p w terms): the altitude
+    filter run over the same log, its vertical speed as CLIMB_RATE (source "altitude model"). The
+    log's own vertical velocity (VELOCITY_NED, CLIMB_RATE) is used only where that filter cannot run
+    (no accelerometer or no height sensor): the simulator's VFR_HUD climb is 0 throughout, and an
+    autopilot's estimate comes from a filter whose tuning the log does not say."""
+    try:
+        alt = setup(ms, model_name="altitude", declared=declared, vehicle=vehicle)
+    except ValueError:
+        return prep
+    run = run_model(alt.model, alt.prep, alt.make)
+    if not len(run.t):
+        return prep
+    up = run.x[:, alt.model.index("vz")]
+    derived = [Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model")
+               for t, v in zip(run.t, up)]
+    rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
+    return replace(prep, measurements=sorted(rest + derived, key=in_time_order),
+                   kinds=prep.kinds | {Kind.CLIMB_RATE})
 
 
 def _joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> None:

@@ -36,6 +36,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable
 
+import numpy as np
+
 from ..models.base import LinearModel
 from .catalogue import SENSOR_KINDS, Candidate, shift
 from .run import Prepared, Run, run_model
@@ -124,7 +126,12 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
         p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
         return scored(cand, model, r, base, n, p, shifted)
     aug = cand.augment(model)
-    r = run_model(aug, prep, make, measurements=ms)
+    try:
+        r = run_model(aug, prep, make, measurements=ms)
+    except np.linalg.LinAlgError:
+        # the augmented filter ran away (its innovation covariance went singular): not a finding,
+        # and not the end of the diagnosis
+        return Scored(cand, aug, base, math.inf, {"note": "the filter diverged"}, ms)
     return scored(cand, aug, r, base, n, cand.params(r) if cand.params else {}, ms)
 
 
