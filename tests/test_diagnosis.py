@@ -387,3 +387,25 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
                su.prep.measurements)
     assert out[0].delta_bic == float("inf") and out[0].params == {"note": "the filter diverged"}
     assert not out[0].accepted
+
+
+@pytest.mark.slow
+def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
+    """The landed constraint (vz = 0) begins at a touchdown the model lacks. As a full Kalman update it
+    was explained through the correlations: this flight's accelerometer scale of 0.02 read 0.0195 at
+    50 s and 0.0165 after the landing. As a Schmidt update on z and vz it stays where the flight put it."""
+    from groundstation.diagnosis.catalogue import accel_scale
+    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.run import run_model
+
+    log = tmp_path / "l.tlog"
+    run_fast(Scenario.from_args("quad", 1041, 60.0, ["range_tilt"], ["accel_scale:s=0.02"]), log,
+             log.with_suffix(".csv"))
+    su = setup(list(Replay(log).iter_measurements()), model_name="altitude",
+               declared=declared_effects(log.with_suffix(".declared.json")))
+    aug = accel_scale(su.model)
+    r = run_model(aug, su.prep, su.make)
+    c = r.x[:, aug.index("accel_scale")]
+    s = c / (1.0 - c)
+    at50 = s[np.searchsorted(r.t, 50.0)]
+    assert s[-1] == pytest.approx(0.02, rel=0.07) and abs(s[-1] - at50) < 0.001, (at50, s[-1])

@@ -191,7 +191,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
             # a logged throttle only: a stand-in derived from the range or the vibration would feed
             # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
             # "throttle" pattern in the range innovations)
-            model = on_ground(model)
+            model = on_ground(model, consider=True)
         if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
             model = baro_zero(model)
         if Kind.ACCEL not in prep.kinds:
