@@ -137,3 +137,26 @@ def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
         assert len(live) == len(logged) - 1 > 1000          # the last block is still open
         assert np.allclose([m.t for m in live], [m.t for m in logged[:-1]])
         assert np.allclose([m.value for m in live], [m.value for m in logged[:-1]])
+
+
+def test_the_vertical_velocity_input_comes_from_velocity_or_climb_rate_and_goes_stale():
+    """v_d (NED down) from VELOCITY_NED or CLIMB_RATE (up: the sign flips), NaN once older than
+    VD_MAX_AGE (the model then leaves the q w, p w terms out); a GNSS board's VELOCITY_NED, whose
+    vertical component is NaN, leaves the last one."""
+    from groundstation.estimator import VD_MAX_AGE, attitude_estimator
+    from groundstation.measurement import Measurement
+
+    est = attitude_estimator()
+
+    def gyro(t):
+        est.handle(Measurement(t, Kind.GYRO, np.array([0.1, -0.2, 0.05]), "t"))
+        return est.filter.u
+
+    assert math.isnan(gyro(0.0)[3])
+    est.handle(Measurement(0.01, Kind.VELOCITY_NED, np.array([1.0, 2.0, -0.7]), "t"))
+    assert gyro(0.02)[3] == -0.7
+    est.handle(Measurement(0.03, Kind.CLIMB_RATE, np.array([0.4]), "t"))
+    assert gyro(0.04)[3] == -0.4
+    est.handle(Measurement(0.05, Kind.VELOCITY_NED, np.array([1.0, 2.0, math.nan]), "t"))
+    assert gyro(0.06)[3] == -0.4
+    assert math.isnan(gyro(0.03 + VD_MAX_AGE + 0.01)[3])
