@@ -183,17 +183,9 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
             ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
     prep: Prepared = prepare(ms)
     if model_name == "altitude":
-        params = vehicle_config(vehicle, "altitude")
-        model = altitude_model(range_tilt="range_tilt" in names, **params)
+        model = _altitude_base(prep, names, vehicle)
         make: Callable[[object], KalmanEstimator] = altitude_estimator
         catalogue = altitude_catalogue
-        if prep.logged_throttle:
-            # a logged throttle only: a stand-in derived from the range or the vibration would feed
-            # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
-            # "throttle" pattern in the range innovations)
-            model = on_ground(model, consider=True)
-        if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
-            model = baro_zero(model)
         if Kind.ACCEL not in prep.kinds:
             raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
                              "log has none; the thrust model needs only the throttle: --model quad_thrust")
@@ -215,7 +207,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         if not {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
             raise ValueError(f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
                              "and this log has no raw IMU")
-        prep = with_vertical_velocity(prep, ms, declared, vehicle)
+        prep = with_vertical_velocity(prep, names, vehicle)
     else:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude, quad_thrust or attitude)")
     if model_name != "attitude" and not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
@@ -228,20 +220,33 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
     return Setup(prep, model, make, catalogue, names)
 
 
-def with_vertical_velocity(prep: Prepared, ms: list[Measurement], declared, vehicle: str | None) -> Prepared:
+def _altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearModel:
+    """The altitude model a diagnosis starts from: the vehicle's noise, the declared slant, and what a
+    person would set right before suspecting any effect (the ground, the baro's zero)."""
+    model = altitude_model(range_tilt="range_tilt" in names, **vehicle_config(vehicle, "altitude"))
+    if prep.logged_throttle:
+        # a logged throttle only: a stand-in derived from the range or the vibration would feed
+        # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
+        # "throttle" pattern in the range innovations)
+        model = on_ground(model, consider=True)
+    if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+        model = baro_zero(model)
+    return model
+
+
+def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> Prepared:
     """The attitude model's v_d input (models.attitude_drag: the q w and p w terms): the altitude
-    filter run over the same log, its vertical speed as CLIMB_RATE (source "altitude model"). The
-    log's own vertical velocity (VELOCITY_NED, CLIMB_RATE) is used only where that filter cannot run
-    (no accelerometer or no height sensor): the simulator's VFR_HUD climb is 0 throughout, and an
+    filter run over the same prepared log, its vertical speed as CLIMB_RATE (source "altitude model").
+    The log's own vertical velocity (VELOCITY_NED, CLIMB_RATE) is used only where that filter cannot
+    run (no accelerometer or no height sensor): the simulator's VFR_HUD climb is 0 throughout, and an
     autopilot's estimate comes from a filter whose tuning the log does not say."""
-    try:
-        alt = setup(ms, model_name="altitude", declared=declared, vehicle=vehicle)
-    except ValueError:
+    if Kind.ACCEL not in prep.kinds or not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         return prep
-    run = run_model(alt.model, alt.prep, alt.make)
+    model = _altitude_base(prep, names, vehicle)
+    run = run_model(model, prep, altitude_estimator)
     if not len(run.t):
         return prep
-    up = run.x[:, alt.model.index("vz")]
+    up = run.x[:, model.index("vz")]
     derived = [Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model")
                for t, v in zip(run.t, up)]
     rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
