@@ -125,7 +125,7 @@ class KalmanEstimator:
             if not np.all(np.isfinite(z)):
                 self.counters.skip(f"{mm.name}_invalid")
                 continue
-            rec = f.update(mm, z)
+            rec = f.update(mm, z, R=mm.R / m.samples if mm.per_sample and m.samples > 1 else None)
             self.counters.updates += 1
         return rec
 

@@ -176,13 +176,13 @@ class ModelFilter:
         self.ctx.values = dict(ctx)
         del self.log.records[n_log:]
 
-    def _update_only(self, mm: MeasurementModel, z: np.ndarray, H: np.ndarray) -> None:
+    def _update_only(self, mm: MeasurementModel, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
         """The Schmidt-Kalman ("consider") update: the gain's rows for the states not in
         ``mm.corrects`` set to zero, P by the Joseph form, which holds for any gain (Simon, Optimal
         State Estimation, 2006, sec. 7.3); or, with ``mm.reset``, those states set to the measured
         value. filterpy has neither."""
         kf = self.kf
-        R = np.atleast_2d(mm.R)
+        R = np.atleast_2d(R)
         y = np.atleast_1d(z).astype(float) - H @ kf.x
         PHt = kf.P @ H.T
         S = H @ PHt + R
@@ -205,16 +205,19 @@ class ModelFilter:
         kf.P = I_KH @ kf.P @ I_KH.T + K @ R @ K.T
         kf.y, kf.S, kf.K = y, S, K
 
-    def update(self, mm: MeasurementModel, z: np.ndarray) -> InnovationRecord:
+    def update(self, mm: MeasurementModel, z: np.ndarray, R: np.ndarray | None = None) -> InnovationRecord:
+        """One measurement update with ``mm``'s H and offset, and its R unless ``R`` is given
+        (a block mean's R / n, see ``MeasurementModel.per_sample``)."""
         self._apply_pending()
         kf = self.kf
+        R = mm.R if R is None else R
         H = np.atleast_2d(mm.row(self.ctx))
         if mm.offset is not None:
             z = z - mm.offset(self.ctx)
         if mm.corrects is None:
-            kf.update(z, R=mm.R, H=H)
+            kf.update(z, R=R, H=H)
         else:
-            self._update_only(mm, z, H)
+            self._update_only(mm, z, H, R)
         nu = np.atleast_1d(kf.y).astype(float).copy()
         S = np.atleast_2d(kf.S).astype(float).copy()
         nis = float(nu @ np.linalg.solve(S, nu))

@@ -118,6 +118,8 @@ class Measurement(NamedTuple):
     t_rx: float = float("nan")
     variance: np.ndarray | None = None
     instance: int = 0
+    #: how many raw samples the value averages (a diagnosis's IMU block mean); 1 as sent
+    samples: int = 1
 
     def describe(self) -> str:
         names = KIND_COMPONENTS.get(self.kind) or tuple(str(i) for i in range(len(self.value)))

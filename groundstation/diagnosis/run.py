@@ -64,9 +64,10 @@ def block_mean(first: Measurement, t_last: float, values: list) -> Measurement:
     interval that ends at its stamp (an integrating IMU's delta-velocity; the simulator's specific
     force over its last step), so held from one sample period before the first stamp, the mean
     acts over the very interval it averages. (Stamped at the first sample, the range readings
-    of simulated flights looked 2-3 ms early against the height.)"""
+    of simulated flights looked 2-3 ms early against the height.) It carries its sample count: a
+    model whose R is one sample's variance (``MeasurementModel.per_sample``) divides it by that."""
     period = (t_last - first.t) / (len(values) - 1) if len(values) > 1 else 0.0
-    return first._replace(t=first.t - period, value=np.mean(values, axis=0))
+    return first._replace(t=first.t - period, value=np.mean(values, axis=0), samples=len(values))
 
 
 def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:

@@ -89,13 +89,16 @@ def _with_w(u, cf: float, ct: float) -> bool:
 
 
 def attitude_drag_model(*, mu: float = 0.35, gyro_noise: float = 2.2e-4, G_v: float = 2e-4,
-                        sigma_accel: float = 0.0335, bias_walk: float = 3e-6, P0_angle: float = 0.05,
+                        sigma_accel: float = 0.08, bias_walk: float = 3e-6, P0_angle: float = 0.05,
                         P0_bias: float = 0.05, P0_mount: float = 0.1, P0_v: float = 0.2,
                         gyro_bias: bool = False, misalignment: bool = False) -> LinearModel:
     """The drag attitude model. Noise as densities: ``gyro_noise`` [rad/s/sqrt(Hz)], ``G_v``
     [(m/s^2)^2/Hz] for what the velocity model leaves out (the ``q w`` terms, gusts),
-    ``bias_walk`` [rad/s/sqrt(s)]; ``sigma_accel`` [m/s^2] per accelerometer update (a
-    10 ms block mean of the 500 Hz samples, see :func:`groundstation.diagnosis.run.prepare`)."""
+    ``bias_walk`` [rad/s/sqrt(s)]; ``sigma_accel`` [m/s^2] per accelerometer sample: an update
+    is a 10 ms block mean of n samples (:func:`groundstation.diagnosis.run.prepare`), read with
+    R = sigma^2 / n. 0.08 is the simulator's white noise; until session 15 R was 0.0335^2 per
+    block, right for its 500 Hz IMU (5-6 samples) and 1.7 times too small for a live
+    recording's 250 Hz one."""
     states = ["roll", "pitch", "u", "v"]
     if gyro_bias:
         states += ["b_p", "b_q"]
@@ -177,7 +180,7 @@ def attitude_drag_model(*, mu: float = 0.35, gyro_noise: float = 2.2e-4, G_v: fl
     q = [gyro_noise**2] * 2 + [G_v] * 2 + [bias_walk**2] * 2 * gyro_bias + [0.0] * 2 * misalignment
     p0 = [P0_angle**2] * 2 + [P0_v**2] * 2 + [P0_bias**2] * 2 * gyro_bias + [P0_mount**2] * 2 * misalignment
     meas = {"accel": MeasurementModel("accel", Kind.ACCEL, accel_xy, accel_row, np.eye(2) * sigma_accel**2,
-                                      instance=0)}
+                                      instance=0, per_sample=True)}
     options = dict(mu=mu, gyro_noise=gyro_noise, G_v=G_v, sigma_accel=sigma_accel, bias_walk=bias_walk,
                    P0_angle=P0_angle, P0_bias=P0_bias, P0_mount=P0_mount, P0_v=P0_v, 
                    gyro_bias=gyro_bias, misalignment=misalignment)

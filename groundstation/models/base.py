@@ -70,6 +70,11 @@ class MeasurementModel:
     #: link SERVO_OUTPUT_RAW led the IMU by 90 ms), and predicted to it, the filter dropped the
     #: IMU blocks after it as out of order: the demo's estimate fell to -1.2 m at the landing
     untimed: bool = False
+    #: ``R`` is one raw sample's variance: a measurement averaging n samples (``Measurement.samples``,
+    #: an IMU block mean) is updated with R / n. Fixed per block, R had assumed the 500 Hz
+    #: simulator's 5-6 samples; a live recording's 250 Hz IMU gives 3, and its attitude diagnosis
+    #: read an accelerometer NIS of 3.74 for 2
+    per_sample: bool = False
 
     @property
     def dim(self) -> int:
