@@ -106,6 +106,7 @@ def one(job: tuple) -> dict:
         dg = diagnose(ms, model_name=model, declared=declared_effects(log.with_suffix(".declared.json")),
                       truth=truth_from(ms, log, None), veto_with_truth=False, vehicle=airframe)
         wall = time.perf_counter() - t0
+        sim_truth = np.genfromtxt(log.with_suffix(".csv"), delimiter=",", names=True)
     names = [e.name for e in dg.effects]
     found = dg.effects + dg.modelled          # an effect the base model estimates counts as found
     all_names = names + [e.name for e in dg.modelled]
@@ -122,27 +123,33 @@ def one(job: tuple) -> dict:
     if sensor not in {f.sensor for f in dg.findings_after}:      # none, or an input (a lagged throttle)
         sensor = "accel" if model == "attitude" else "range"
     after = {f.test: f for f in dg.findings_after if f.sensor == sensor}
-    noise_p = noise_whiteness(ms, log.with_suffix(".csv"), sensor, mag if effect == "sensor_delay" else 0.0)
+    R = next((float(np.atleast_2d(mm.R)[0, 0]) for mm in dg.after.model.measurements.values() if mm.name == sensor),
+             float("nan"))
+    noise = sensor_noise(ms, sim_truth, sensor, R, mag if effect == "sensor_delay" else 0.0)
     return {"effect": effect, "mag": mag, "seed": seed, "vehicle": vehicle, "rank": rank, "claimed": names,
             "discovered": [x.expression for x in dg.discoveries], "est": est, "err": err, "rmse_before": rb,
             "rmse_after": ra, "rmse_floor": floor, "nis_ok": after["NIS mean"].passed if "NIS mean" in after else None,
             "nis": after["NIS mean"].statistic if "NIS mean" in after else float("nan"),
             "lb_p": after["Ljung-Box whiteness"].statistic if "Ljung-Box whiteness" in after else float("nan"),
-            "noise_p": noise_p, "wall": wall}
+            **noise, "wall": wall}
 
 
-def noise_whiteness(ms: list, truth_csv: Path, sensor: str, delay: float = 0.0) -> float:
-    """Ljung-Box p of the sensor's own simulated noise: its readings minus what the simulator's
-    truth says they should read (the baro: height plus every baro effect's error; the range: the
-    true slant range, ``delay`` s earlier for a range delay). A perfect model's innovations are
-    no whiter than this. The test fails on 5 % of white sequences, and where the noise itself
-    fails, the model's innovations do too: on 4 baro_thrust flights of session 13 the
-    innovations read p = 0.036, 0.018, 0.014, 0.002 and their noise 0.047, 0.019, 0.017, 0.002.
+def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float = 0.0) -> dict:
+    """The sensor's own simulated noise, judged as its innovations are: its mean square over the
+    model's R (the NIS a perfect model would approach) and its Ljung-Box p, ``tr`` the simulator's
+    truth table (``*.csv``). The noise is the
+    readings minus what the simulator's truth says they should read (the baro: height plus every
+    baro effect's error; the range: the true slant range, ``delay`` s earlier for a range delay).
+    Each test fails on 5 % of draws of correct noise, and where the noise fails, so do the
+    innovations: on 4 baro_thrust flights of session 13 the innovations' Ljung-Box read
+    p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.047, 0.019, 0.017, 0.002; on two clean
+    high flights the range's NIS read 0.90 and 1.10 and its noise 0.88 and 1.09.
     NaN where the truth has no such column (the accelerometer)."""
+    from scipy.stats import chi2
+
     from groundstation.atmosphere import altitude_at
     from groundstation.evaluate import ljung_box
     from groundstation.measurement import Kind
-    tr = np.genfromtxt(truth_csv, delimiter=",", names=True)
     if sensor == "baro":
         b = np.array([(m.t, float(altitude_at(m.value[0]))) for m in ms
                       if m.kind is Kind.BARO_PRESSURE and m.instance == 0])
@@ -151,9 +158,11 @@ def noise_whiteness(ms: list, truth_csv: Path, sensor: str, delay: float = 0.0) 
         r = np.array([(m.t, float(m.value[0])) for m in ms if m.kind is Kind.RANGE])
         t, e = r[:, 0], r[:, 1] - np.interp(r[:, 0] - delay, tr["t"], tr["range_true"])
     else:
-        return float("nan")
+        return {"noise_nis": float("nan"), "noise_nis_ok": None, "noise_p": float("nan")}
     e = e[t >= t[0] + 5.0]                 # from 5 s in, as the diagnosis scores
-    return float(ljung_box(e - e.mean()))
+    e = e - e.mean()                        # the baro's zero is the model's own constant
+    nis, (lo, hi) = float(np.mean(e**2) / R), chi2.ppf([0.025, 0.975], len(e)) / len(e)
+    return {"noise_nis": nis, "noise_nis_ok": bool(lo <= nis <= hi), "noise_p": float(ljung_box(e))}
 
 
 def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str], model: str,
@@ -179,9 +188,11 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
 
 
 def noise_too(rs: list[dict]) -> str:
-    """Of the runs failing Ljung-Box after, how many have a sensor noise that fails it too."""
-    failed = [r for r in rs if not r["lb_p"] > 0.05 and np.isfinite(r["noise_p"])]
-    return f"{sum(r['noise_p'] <= 0.05 for r in failed)} of {len(failed)}" if failed else "-"
+    """Of the runs failing NIS / Ljung-Box after, how many have a sensor noise that fails it too."""
+    nis = [r for r in rs if not r["nis_ok"] and r["noise_nis_ok"] is not None]
+    lb = [r for r in rs if not r["lb_p"] > 0.05 and np.isfinite(r["noise_p"])]
+    return (f"{sum(not r['noise_nis_ok'] for r in nis)}/{len(nis)}, "
+            f"{sum(r['noise_p'] <= 0.05 for r in lb)}/{len(lb)}")
 
 
 def main() -> int:
@@ -206,7 +217,8 @@ def main() -> int:
                 jobs.append((effect, param, mag, extra, seed, vehicle, args.seconds, airframe,
                              flight_for(effect, args.baro_flight)))
     print(f"{'effect':<20}{'mag':>7}{'seed':>6}{'veh':>6}{'rank':>5}{'param':>10}{'err':>7}"
-          f"{'RMSE before':>13}{'after':>9}{'floor':>8}{'NIS':>7}{'LB p':>8}{'noise':>7}  claimed", flush=True)
+          f"{'RMSE before':>13}{'after':>9}{'floor':>8}{'NIS':>7}{'noise':>7}{'LB p':>8}{'noise':>7}  claimed",
+          flush=True)
     rows = []
     with ProcessPoolExecutor(args.jobs) as ex:
         for r in ex.map(one, jobs):
@@ -216,16 +228,19 @@ def main() -> int:
             mag = f"{r['mag']:g}" if r["mag"] is not None else "-"
             print(f"{r['effect']:<20}{mag:>7}{r['seed']:>6}{r['vehicle']:>6}{r['rank']:>5}{est:>10}{err:>7}"
                   f"{r['rmse_before']:>13.4f}{r['rmse_after']:>9.4f}{r['rmse_floor']:>8.4f}"
-                  f"{r['nis']:>6.2f}{' ' if r['nis_ok'] else '*'}{r['lb_p']:>8.3f}{r['noise_p']:>7.3f}  "
+                  f"{r['nis']:>6.2f}{' ' if r['nis_ok'] else '*'}{r['noise_nis']:>7.2f}{r['lb_p']:>8.3f}{r['noise_p']:>7.3f}  "
                   f"{','.join(r['claimed'] + ['discovered:' + x for x in r['discovered']]) or '-'}", flush=True)
     print("\nper effect (issue 7's bars)")
     print(f"{'effect':<20}{'runs':>5}{'first':>8}{'param ok':>10}{'RMSE down (median)':>20}"
-          f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}{'noise too':>10}")
+          f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}  failing where the noise fails too (NIS, LB)")
     for effect in args.effects.split(","):
         rs = [r for r in rows if r["effect"] == effect]
         if effect in CLEAN:
             quiet = np.mean([not r["claimed"] and not r["discovered"] for r in rs])
-            print(f"{effect:<20}{len(rs):>5}   nothing claimed in {100 * quiet:.0f} % (bar >= 95 %)")
+            print(f"{effect:<20}{len(rs):>5}   nothing claimed in {100 * quiet:.0f} % (bar >= 95 %); NIS ok "
+                  f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):.0f} %, Ljung-Box "
+                  f"{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):.0f} %; failing where the noise fails too "
+                  f"{noise_too(rs)}")
             continue
         first = np.mean([r["rank"] == 1 for r in rs])
         pok = [r["err"] is not None and r["err"] <= 0.15 for r in rs] if SWEEP[effect][0] else []
@@ -239,7 +254,7 @@ def main() -> int:
         print(f"{effect:<20}{len(rs):>5}{100 * first:>7.0f}%{(f'{100 * np.mean(pok):.0f}%' if pok else '-'):>10}"
               f"{100 * down:>13.0f}% (>= {100 * bar:.0f}%){own:>20}"
               f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):>7.0f}%{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):>9.0f}%"
-              f"{noise_too(rs):>10}")
+              f"  {noise_too(rs)}")
     print(f"\nmedian diagnosis time {np.median([r['wall'] for r in rows]):.1f} s per 60 s flight")
     return 0
 
