@@ -70,8 +70,8 @@ def test_a_clean_flight_claims_nothing_in_the_attitude_model(tmp_path):
 
 @pytest.mark.parametrize("imu_hz", [250.0, 1000.0])
 def test_the_accelerometers_noise_follows_the_imu_rate(tmp_path, imu_hz):
-    """An update is a 10 ms block mean of the IMU's samples: 2-3 of them at the live demo's 250 Hz,
-    10 at 1 kHz. Its R is one sample's variance over their number (``per_sample``); fixed at the
+    """An update is a 10 ms block mean of the IMU's samples: 3 of them at the live demo's 250 Hz,
+    10-11 at 1 kHz. Its R is one sample's variance over their number (``per_sample``); fixed at the
     500 Hz blocks' value, a live recording's NIS read 3.74 for 2 (and 1 kHz would read about 1.1)."""
     log, ms = fly(tmp_path, [], 43, imu_hz)
     d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
