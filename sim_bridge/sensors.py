@@ -117,7 +117,7 @@ class SensorSuite:
 
     def _imu(self, sim):
         c = self.cfg
-        fx, fy, fz, wx, wy, wz = sim.vehicle.imu_truth()
+        fx, fy, fz, wx, wy, wz = sim.imu_truth()
         if sim.imu_effects:
             f, w = np.array([fx, fy, fz]), np.array([wx, wy, wz])
             for e in sim.imu_effects:

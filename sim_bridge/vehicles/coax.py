@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..rotation import euler_from_matrix, exp_so3
-from .quad import CONTACT_TC
+from .quad import CONTACT_TC, REST_GAP
 from .base import G, Kinematics, Vehicle
 
 
@@ -130,20 +130,22 @@ class Coax(Vehicle):
                 w_dot[:] = 0.0
                 k.vel[:] = 0.0
                 k.omega = np.zeros(3)
-        elif k.pos[2] >= 0.0 and k.vel[2] > 0.0:
+        elif k.vel[2] > 0.0 and k.pos[2] >= -k.vel[2] * CONTACT_TC:
             # ground contact: the landing gear's damper stops the descent over
             # ~CONTACT_TC, so the IMU sees the impact (stopping within one step
-            # hid a 0.65 m/s velocity change from the accelerometer)
+            # hid a 0.65 m/s velocity change from the accelerometer). Engaged at its
+            # stopping distance above the ground: the vehicle comes to rest at h = 0
+            # (see the quadcopter's)
             acc[2] = min(acc[2], -k.vel[2] / CONTACT_TC)
             acc[0], acc[1] = -k.vel[0] / CONTACT_TC, -k.vel[1] / CONTACT_TC
         k.omega = k.omega + w_dot * dt
         k.R = k.R @ exp_so3(k.omega, dt)
         k.vel = k.vel + acc * dt
         k.pos = k.pos + k.vel * dt
-        if not self.on_ground and k.pos[2] >= 0.0 and k.vel[2] <= 0.02 and acc[2] >= -G:
-            k.pos[2] = 0.0                 # at rest on the ground
+        if not self.on_ground and k.pos[2] >= -REST_GAP and 0.0 <= k.vel[2] <= 0.02 and acc[2] >= -G:
+            acc = acc - k.vel / dt         # at rest on the ground: the IMU reads the last of the velocity go
+            k.pos[2] = 0.0
             k.vel[:] = 0.0
-            acc[:] = 0.0
             self.on_ground = True
         elif k.pos[2] > 0.0:
             k.pos[2] = 0.0

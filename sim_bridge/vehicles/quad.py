@@ -38,6 +38,9 @@ from .base import G, Kinematics, Vehicle
 
 #: Landing-gear contact time constant [s]: a touchdown at 1 m/s peaks at ~3.4 g.
 CONTACT_TC = 0.03
+#: m: within this of the ground, sinking at 2 cm/s or less, the vehicle is at rest (the damper's
+#: remaining travel at 2 cm/s is 0.6 mm); climbing, it is lifting off
+REST_GAP = 0.001
 
 
 @dataclass
@@ -167,9 +170,13 @@ class Quad(Vehicle):
             else:
                 an = ae = ad = 0.0
                 self.vn = self.ve = self.vd = 0.0
-        elif self.d >= 0.0 and self.vd > 0.0:
+        elif self.vd > 0.0 and self.d >= -self.vd * CONTACT_TC:
             # ground contact: a damper stops the descent over ~CONTACT_TC (the
-            # IMU sees the landing impact, as on a real vehicle)
+            # IMU sees the landing impact, as on a real vehicle). It engages at its
+            # stopping distance, vd * CONTACT_TC, above the ground, so the vehicle comes
+            # to rest at h = 0 with its position the integral of its velocity (engaged at
+            # h = 0 with the position held there, the vehicle stopped 1.7 cm before its
+            # IMU said so)
             ad = min(ad, -self.vd / CONTACT_TC)
             an, ae = -self.vn / CONTACT_TC, -self.ve / CONTACT_TC
         self.vn += an * dt
@@ -178,10 +185,13 @@ class Quad(Vehicle):
         self.n += self.vn * dt
         self.e += self.ve * dt
         self.d += self.vd * dt
-        if not self.on_ground and self.d >= 0.0 and self.vd <= 0.02 and ad >= -G:
-            self.d = 0.0            # at rest on the ground
+        if not self.on_ground and self.d >= -REST_GAP and 0.0 <= self.vd <= 0.02 and ad >= -G:
+            # at rest on the ground: the last of the velocity goes in this step, and the
+            # IMU reads it (zeroed unreported, 2 cm/s of it became a 2 cm/s sink of the
+            # estimate on the ground)
+            an, ae, ad = an - self.vn / dt, ae - self.ve / dt, ad - self.vd / dt
+            self.d = 0.0
             self.vn = self.ve = self.vd = 0.0
-            an = ae = ad = 0.0
             self.on_ground = True
         elif self.d > 0.0:
             self.d = 0.0
