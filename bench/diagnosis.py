@@ -188,11 +188,16 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
 
 
 def noise_too(rs: list[dict]) -> str:
-    """Of the runs failing NIS / Ljung-Box after, how many have a sensor noise that fails it too."""
-    nis = [r for r in rs if not r["nis_ok"] and r["noise_nis_ok"] is not None]
-    lb = [r for r in rs if not r["lb_p"] > 0.05 and np.isfinite(r["noise_p"])]
-    return (f"{sum(not r['noise_nis_ok'] for r in nis)}/{len(nis)}, "
-            f"{sum(r['noise_p'] <= 0.05 for r in lb)}/{len(lb)}")
+    """Of the runs failing NIS / Ljung-Box after, how many have a sensor noise that fails it too
+    ("k/m"), and how many failed where the truth gives no noise (the accelerometer: "+j n/a")."""
+    def count(failed: list[dict], has, fails) -> str:
+        known = [r for r in failed if has(r)]
+        out = f"{sum(fails(r) for r in known)}/{len(known)}"
+        return out + (f" +{len(failed) - len(known)} n/a" if len(failed) > len(known) else "")
+    return (count([r for r in rs if not r["nis_ok"]], lambda r: r["noise_nis_ok"] is not None,
+                  lambda r: not r["noise_nis_ok"]) + ", " +
+            count([r for r in rs if not r["lb_p"] > 0.05], lambda r: np.isfinite(r["noise_p"]),
+                  lambda r: r["noise_p"] <= 0.05))
 
 
 def main() -> int:
