@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from sim_bridge.rotation import euler_from_matrix
+from sim_bridge.rotation import a_ib, euler_from_matrix
 from sim_bridge.vehicles.base import G
 from sim_bridge.vehicles.coax import Coax, CoaxCommand, CoaxParams, G_ab
 from sim_bridge.vehicles.heli3dof import Heli3dof, Heli3dofCommand, Heli3dofParams
@@ -198,8 +198,7 @@ def test_the_imu_reads_the_touchdown_the_truth_goes_through(vehicle, imu_hz):
     for (ta, f), (tb, _) in zip(imu, imu[1:]):
         if t0 < tb <= t1:                                   # a sample stands for the interval ending at it
             phi, theta = np.interp(tb, tr["t"], tr["roll"]), np.interp(tb, tr["t"], tr["pitch"])
-            f_d = -math.sin(theta) * f[0] + math.sin(phi) * math.cos(theta) * f[1] \
-                + math.cos(phi) * math.cos(theta) * f[2]
+            f_d = a_ib(phi, theta, 0.0)[2] @ np.asarray(f)      # the down row does not depend on yaw
             dv += (f_d + G) * (tb - ta)
     dv_truth = np.interp(t1, tr["t"], tr["vd"]) - np.interp(t0, tr["t"], tr["vd"])
     assert abs(dv - dv_truth) < 0.005, (dv, dv_truth)
