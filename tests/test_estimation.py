@@ -262,3 +262,22 @@ def test_a_throttle_message_dated_ahead_of_the_sensors_does_not_move_the_filters
     assert "out_of_order" not in est.counters.skipped, est.counters.skipped
     assert est.filter.t == pytest.approx(1.99)
     assert len(est.filter.log.arrays("landed")["t"]) > 50        # and the constraint still applies
+
+
+def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_them():
+    """An autopilot's THROTTLE (VFR_HUD: an integer percent, every fifth output message, on its own
+    scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
+    simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
+    from groundstation.diagnosis.thrust import throttle_series
+    from groundstation.estimator import _actuators, _throttle
+    from groundstation.models.base import Context
+    ctx = Context({})
+    thr = [Measurement(t, Kind.THROTTLE, np.array([0.50]), "sim") for t in (0.0, 0.1)]
+    pwm = Measurement(0.05, Kind.ACTUATOR, np.array([0.503] * 4 + [math.nan] * 4), "sim")
+    _throttle(thr[0], ctx)
+    assert ctx.values["throttle"] == 0.50             # no outputs yet: THROTTLE is all there is
+    _actuators(pwm, ctx)
+    _throttle(thr[1], ctx)
+    assert ctx.values["throttle"] == pytest.approx(0.503)
+    assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
+    assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]                 # a log without outputs
