@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, collective
+from ..estimator import KalmanEstimator, collective, set_throttle
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
@@ -259,7 +259,7 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         tau = collective(m, ctx)
         if tau is None:
             return
-        ctx.values["throttle"] = tau
+        set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
 
     def temperature(m, ctx):

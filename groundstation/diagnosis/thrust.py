@@ -49,7 +49,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion, landed,
-                         _throttle, _vehicle_status, motor_outputs)
+                         _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.ground import LANDED, on_ground
@@ -310,7 +310,7 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
 
 def _battery_voltage(m: Measurement, ctx: Context) -> None:
     """The throttle at the battery's reading: its load line carries the reading forward from there."""
-    tau = ctx.values.get("throttle")
+    tau = throttle_at_reading(ctx, m.t)
     if tau is not None and math.isfinite(tau):
         ctx.values["voltage_tau2"] = tau * tau
 
