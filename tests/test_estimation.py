@@ -281,3 +281,28 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     assert ctx.values["throttle"] == pytest.approx(0.503)
     assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
     assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]                 # a log without outputs
+
+
+def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
+    """A throttle written at the reading's instant has not yet drawn its current. The simulated thrust
+    test flight steps its throttle on the battery's 5 Hz grid; paired with the new throttle, the
+    voltage carried forward between readings was off by k (0.77^2 - 0.5^2) = 1.6 V after each step,
+    and thrust_voltage's n = 1.5 read 1.85 (with a false actuator lag beside it)."""
+    from groundstation.diagnosis.battery import load_line
+    from groundstation.estimator import _actuators, throttle_at_reading
+    from groundstation.models.base import Context
+    ctx = Context({})
+    _actuators(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
+    _actuators(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
+    assert throttle_at_reading(ctx, 11.0) == 0.5 and throttle_at_reading(ctx, 11.01) == 0.77
+    # a pack with k = 4 V: each reading drawn by the throttle before it, the throttle stepping at the readings
+    rng = np.random.default_rng(0)
+    taus = 0.5 + 0.25 * rng.random(40)
+    ms, throttle = [], []
+    for j, tau in enumerate(taus):
+        t = 0.2 * j
+        drawn = taus[j - 1] if j else tau
+        ms.append(Measurement(t, Kind.BATTERY_VOLTAGE, np.array([12.0 - 4.0 * drawn ** 2]), "sim"))
+        throttle.append((t, float(tau)))
+    k, _ = load_line(ms, throttle)
+    assert k == pytest.approx(4.0, rel=1e-6)
