@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, collective, set_throttle
+from ..estimator import KalmanEstimator, motor_outputs
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
@@ -256,10 +256,11 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         v[key + "_t"] = t
 
     def throttle(m, ctx):
-        tau = collective(m, ctx)
-        if tau is None:
+        vals = m.value[np.isfinite(m.value)]
+        if not len(vals):
             return
-        set_throttle(ctx, tau, m.t)
+        tau = float(vals[0]) if m.kind is Kind.THROTTLE else float(np.mean(vals[:motor_outputs(ctx)]))
+        ctx.values["throttle"] = tau
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
 
     def temperature(m, ctx):
