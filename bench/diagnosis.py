@@ -14,7 +14,7 @@ mounting) with the attitude model, on the quadcopter. Printed per run: the
 true effect's rank, its parameter error, RMSE against truth before/after
 (height [m]; roll and pitch [rad] for the attitude model), the affected
 sensor's NIS and Ljung-Box p after, and the same test's p on that sensor's own simulated
-noise against truth (:func:`noise_whiteness`). Then per effect the issue's bars: ranked
+noise against truth (:func:`sensor_noise`). Then per effect the issue's bars: ranked
 first in >= 90 % of runs, parameter within +-15 %, RMSE down >= 50 % (>= 80 %
 for tilt and latency), and for the clean runs nothing claimed in >= 95 %. The
 truth (the simulator's sidecar) is used for the errors only: ``diagnose``'s
@@ -142,7 +142,7 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     baro effect's error; the range: the true slant range, ``delay`` s earlier for a range delay).
     Each test fails on 5 % of draws of correct noise, and where the noise fails, so do the
     innovations: on 4 baro_thrust flights of session 13 the innovations' Ljung-Box read
-    p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.047, 0.019, 0.017, 0.002; on two clean
+    p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.046, 0.019, 0.019, 0.002 (session 15); on two clean
     high flights the range's NIS read 0.90 and 1.10 and its noise 0.88 and 1.09.
     NaN where the truth has no such column (the accelerometer)."""
     from scipy.stats import chi2
