@@ -64,6 +64,15 @@ class KalmanEstimator:
     def kinds(self) -> set[Kind]:
         return set(self.inputs) | set(self.context) | set(self._by_kind)
 
+    def checkpoint(self) -> tuple:
+        """Everything a rollback needs, before the first measurement too (a late one there was
+        dropped: the outputs stamped just before the attitude that started the filter)."""
+        return self.started, self.filter.checkpoint()
+
+    def restore(self, cp: tuple) -> None:
+        self.started, f = cp
+        self.filter.restore(f)
+
     @property
     def t(self) -> float:
         return self.filter.t

@@ -141,18 +141,32 @@ class EstimationLoop:
     def flush(self) -> None:
         """Nothing is held back; kept for callers that mark the end of a stream."""
 
-    def _process(self, m: Measurement, publish: bool) -> None:
-        t = m.t
+    def _checkpoint_if_due(self, t: float) -> None:
+        """A checkpoint before a measurement at ``t``, every :data:`CHECKPOINT_EVERY`; also while a
+        rollback re-runs (with none taken then, the next late measurement went back to the same old
+        checkpoint, and the one after further still)."""
         if not self._checkpoints or t - self._checkpoints[-1][0] >= CHECKPOINT_EVERY:
-            self._checkpoints.append((t, self._seq, [e.filter.checkpoint() if e.started else None
-                                                     for e in self.estimators]))
+            self._checkpoints.append((t, self._seq, [e.checkpoint() for e in self.estimators]))
+
+    def _record(self, m: Measurement) -> None:
+        """Keep ``m`` for re-runs; forget checkpoints older than the window, and the measurements
+        processed before the oldest one kept. Everything after it must stay: the history was once
+        cut by time alone while an older checkpoint survived, and a rollback to it lost what lay
+        between (a MAVLink stream's untimed SERVO_OUTPUT_RAW, stamped a fraction of a microsecond
+        before the ATTITUDE of the same instant, rolled back at every message, and the throttle
+        outputs and barometer readings so lost put alpha 2 m/s^2 off)."""
         self._seq += 1
-        self._history.append((t, self._seq, m))
-        horizon = t - self.reorder_s - CHECKPOINT_EVERY
+        self._history.append((m.t, self._seq, m))
+        horizon = m.t - self.reorder_s - CHECKPOINT_EVERY
         while len(self._checkpoints) > 1 and self._checkpoints[1][0] < horizon:
             self._checkpoints.popleft()
-        while self._history and self._history[0][0] < horizon - CHECKPOINT_EVERY:
+        oldest = self._checkpoints[0][1] if self._checkpoints else self._seq
+        while self._history and self._history[0][1] <= oldest:
             self._history.popleft()
+
+    def _process(self, m: Measurement, publish: bool) -> None:
+        self._checkpoint_if_due(m.t)
+        self._record(m)
         self.counters.processed += 1
         for est in self.estimators:
             rec = est.handle(m)
@@ -163,14 +177,15 @@ class EstimationLoop:
         """Re-run from the last checkpoint before ``m`` with ``m`` in its place."""
         i = bisect.bisect_right([c[0] for c in self._checkpoints], m.t) - 1
         if i < 0:
-            return False
+            if not self._checkpoints or self._checkpoints[0][1] != 0:
+                return False
+            i = 0          # before the stream's first measurement: its state holds for any earlier time
         t_cp, seq_cp, states = self._checkpoints[i]
-        if any(s is None for s in states):
-            return False
         for est, cp in zip(self.estimators, states):
-            est.filter.restore(cp)
-        # measurements processed at or after the checkpoint, plus the late one, in time order
-        redo = sorted([h for h in self._history if h[1] > seq_cp] + [(m.t, 0, m)], key=lambda h: (h[0], h[1]))
+            est.restore(cp)
+        # measurements processed at or after the checkpoint, plus the late one, in time order; at
+        # equal times in arrival order (VFR_HUD's throttle and SERVO_OUTPUT_RAW share a stamp)
+        redo = sorted([h for h in self._history if h[1] > seq_cp] + [(m.t, math.inf, m)], key=lambda h: (h[0], h[1]))
         while len(self._checkpoints) > i + 1:
             self._checkpoints.pop()
         self._history = deque(h for h in self._history if h[1] <= seq_cp)
@@ -183,8 +198,8 @@ class EstimationLoop:
         return True
 
     def _process_quiet(self, m: Measurement, last: dict) -> None:
-        self._seq += 1
-        self._history.append((m.t, self._seq, m))
+        self._checkpoint_if_due(m.t)
+        self._record(m)
         for est in self.estimators:
             rec = est.handle(m)
             if rec is not None:
