@@ -171,7 +171,27 @@ def _quaternion(m: Measurement, ctx: Context) -> None:
 
 
 def _throttle(m: Measurement, ctx: Context) -> None:
-    ctx.values["throttle"] = float(m.value[0])
+    tau = collective(m, ctx)
+    if tau is not None:
+        set_throttle(ctx, tau, m.t)
+
+
+def set_throttle(ctx: Context, tau: float, t: float) -> None:
+    """The throttle from ``t`` on; the one before stays as ``throttle_before`` for a reading at
+    that same instant (:func:`throttle_at_reading`)."""
+    v = ctx.values
+    if v.get("throttle_since") != t:
+        v["throttle_before"] = v.get("throttle")
+    v["throttle"], v["throttle_since"] = tau, t
+
+
+def throttle_at_reading(ctx: Context, t: float) -> float | None:
+    """The throttle in effect when a sensor read at ``t``: written before ``t``. One written at
+    that instant has not yet drawn its current: a simulated thrust test flight steps its throttle
+    on the battery's 5 Hz grid, and a reading paired with the step's new throttle put up to
+    1.6 V of error in the voltage carried forward (thrust_voltage's n = 1.5 read 1.85)."""
+    v = ctx.values
+    return v.get("throttle_before") if v.get("throttle_since", -math.inf) >= t else v.get("throttle")
 
 
 #: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
@@ -191,10 +211,29 @@ def _vehicle_status(m: Measurement, ctx: Context) -> None:
         ctx.values["motor_outputs"] = MOTOR_OUTPUTS.get(int(m.value[3]), 4)
 
 
+def collective(m: Measurement, ctx: Context) -> float | None:
+    """The collective throttle 0..1 of a THROTTLE or ACTUATOR record, from one source per log: the
+    motor outputs (their mean) once the log has shown them, else THROTTLE. None: not this record.
+
+    An autopilot's THROTTLE (VFR_HUD) is an integer percent, at a fifth of the outputs' rate, and on
+    the autopilot's own scale (ArduPilot's is not the PWM's (us - 1000) / 1000). Taken from both, a
+    simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100 (up to
+    0.1 m/s^2 of thrust at alpha = 22), and an actuator lag was fitted over both streams."""
+    if m.kind is Kind.ACTUATOR:
+        v = m.value[np.isfinite(m.value)]
+        if not len(v):
+            return None
+        ctx.values["throttle_from_outputs"] = True
+        return float(np.mean(v[:motor_outputs(ctx)]))
+    if ctx.values.get("throttle_from_outputs") or not len(m.value) or not math.isfinite(m.value[0]):
+        return None
+    return float(m.value[0])
+
+
 def _actuators(m: Measurement, ctx: Context) -> None:
-    v = m.value[np.isfinite(m.value)]
-    if len(v):
-        ctx.values["throttle"] = float(np.mean(v[:motor_outputs(ctx)]))
+    tau = collective(m, ctx)
+    if tau is not None:
+        set_throttle(ctx, tau, m.t)
 
 
 def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:

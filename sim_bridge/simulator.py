@@ -82,7 +82,8 @@ class Simulator:
         self._external = None
         self._external_cmd = None
         self._external_until = -1.0
-        self.output_command = None         # what the outputs (PWM) show
+        self.output_command = None         # what the outputs (PWM) show: the command from now on
+        self._next_command = None          # that command, for the next step
         self.last_command = None           # what the vehicle was given (after the motors' effects)
 
     # -- ground-station commands -------------------------------------------------------
@@ -93,14 +94,17 @@ class Simulator:
         self._external = cmd
         self._external_cmd = None
         self._external_until = self.t + self.command_timeout
+        self._next_command = None          # flown from the next step, not after the held one
 
     @property
     def externally_commanded(self) -> bool:
         return self._external is not None and self.t <= self._external_until
 
     # -- stepping -------------------------------------------------------------------------
-    def step(self) -> list[Sample]:
-        dt, v = self.dt, self.vehicle
+    def _command_from_now(self):
+        """The command from this instant on, as the outputs (PWM) show it: the autopilot's at its
+        ticks, held between them, or the ground station's while it keeps coming."""
+        dt = self.dt
         if self.externally_commanded:
             ext = self._external
             if callable(ext):
@@ -109,13 +113,22 @@ class Simulator:
                 cmd = self._external_cmd
             else:
                 cmd = ext
-        elif self.step_count % self.autopilot_every == 0:
+        elif self._auto_cmd is None or self.step_count % self.autopilot_every == 0:
             cmd = self._auto_cmd = self.autopilot(self.t, dt * self.autopilot_every)
         else:
             cmd = self._auto_cmd
         for e in self.effects:
             if not e.in_the_motors:
                 cmd = e.command(cmd, dt, self)
+        return cmd
+
+    def step(self) -> list[Sample]:
+        dt, v = self.dt, self.vehicle
+        # computed at the end of the previous step, so that the outputs read then were the command
+        # the motors got from then on (read before it, they showed the autopilot's previous tick:
+        # the logged throttle was 4 ms stale, and a 0.05 s actuator lag read 0.042 s)
+        cmd = self._next_command if self._next_command is not None else self._command_from_now()
+        self._next_command = None
         self.output_command = cmd
         for e in self.effects:
             if e.in_the_motors:
@@ -136,6 +149,7 @@ class Simulator:
             e.step(dt, self)
         self.t = (self.step_count + 1) * dt
         self.step_count += 1
+        self.output_command = self._next_command = self._command_from_now()
         out: list[Sample] = []
         for name in self.sensors.due(self.t, dt):
             s = Sample(self.t, name, self.sensors.read(name, self))

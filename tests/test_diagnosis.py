@@ -291,7 +291,9 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
 def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan():
     """actuator_lag's reshaping of the inputs. It once shared one state between the throttle and
     the PWM outputs (reset at every switch) and reset on any NaN (a quad's unused outputs), so it
-    never lagged anything and no lag was ever found."""
+    never lagged anything and no lag was ever found. Each record is the lag's mean over the time
+    it is held: until session 16 it was the lag's value with the new output taken as written at the
+    sample before, and a step written at a sample read 20 ms early."""
     from groundstation.diagnosis.thrust import lag_throttle
     from groundstation.measurement import Kind, Measurement
     ms = []
@@ -304,12 +306,20 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     out = lag_throttle(ms, 0.1)
     pwm = {round(m.t, 2): m.value for m in out if m.kind is Kind.ACTUATOR}
     assert np.isnan(pwm[0.5][4:]).all()
-    # a first-order lag, the new output held since the sample before (0.18 s): 1 - exp(-(t - 0.18) / 0.1)
-    assert pwm[0.3][0] == pytest.approx(1 - np.exp(-1.2), abs=1e-6)
-    assert pwm[0.5][0] == pytest.approx(1 - np.exp(-3.2), abs=1e-6)
+
+    def mean_over(t, d, t_step=0.2, tc=0.1):
+        """The lag's response to the output written at t_step, averaged over [t, t + d): what the
+        model, holding each record until the next, must integrate."""
+        s = np.linspace(t, t + d, 20001)
+        return np.trapezoid(1 - np.exp(-(s - t_step) / tc), s) / d
+
+    assert pwm[0.18][0] == 0.0                               # nothing before the step is written
+    for t in (0.2, 0.3, 0.5):
+        assert pwm[t][0] == pytest.approx(mean_over(t, 0.02), abs=1e-6)
     thr = {round(m.t, 2): m.value[0] for m in out if m.kind is Kind.THROTTLE}
-    assert thr[0.3] == pytest.approx(1 - np.exp(-2.0), abs=1e-6)      # its own samples, 0.1 s apart
+    assert thr[0.3] == pytest.approx(mean_over(0.3, 0.1), abs=1e-6)      # its own samples, 0.1 s apart
     assert lag_throttle(ms, 0.0) is ms
+    assert lag_throttle(ms, 1e-6)[-2].value[0] == pytest.approx(1.0)      # tc -> 0: the outputs themselves
 
 
 def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):

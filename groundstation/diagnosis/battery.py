@@ -45,7 +45,9 @@ def load_line(ms: list[Measurement], throttle: list[tuple[float, float]]) -> tup
     tau = np.array([v for _, v in th])
     t_v = np.array([t for t, _ in volts])
     v = np.array([x for _, x in volts])
-    i = np.searchsorted(t_th, t_v, side="right") - 1      # the throttle held at each reading
+    # the throttle in effect at each reading: written before it (one written at the reading's
+    # instant has not yet drawn its current; estimator.throttle_at_reading)
+    i = np.searchsorted(t_th, t_v, side="left") - 1
     ok = i >= 0
     t_v, v, s = t_v[ok], v[ok], tau[i[ok]] ** 2
     pair = np.diff(t_v) <= PAIR_GAP

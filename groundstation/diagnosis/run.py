@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, motor_outputs
+from ..estimator import KalmanEstimator, collective, set_throttle
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
@@ -256,11 +256,10 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         v[key + "_t"] = t
 
     def throttle(m, ctx):
-        vals = m.value[np.isfinite(m.value)]
-        if not len(vals):
+        tau = collective(m, ctx)
+        if tau is None:
             return
-        tau = float(vals[0]) if m.kind is Kind.THROTTLE else float(np.mean(vals[:motor_outputs(ctx)]))
-        ctx.values["throttle"] = tau
+        set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
 
     def temperature(m, ctx):

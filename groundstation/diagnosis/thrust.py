@@ -49,7 +49,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion, landed,
-                         _throttle, _vehicle_status, motor_outputs)
+                         _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.ground import LANDED, on_ground
@@ -189,10 +189,12 @@ def _motor_outputs_of(ms: list[Measurement]) -> int:
 
 
 def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
-    """(t, collective 0..1) from THROTTLE, or the mean of the motor outputs (ACTUATOR)."""
+    """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
+    them (one source, as :func:`groundstation.estimator.collective` takes it)."""
     n = _motor_outputs_of(ms)
-    return [(m.t, float(m.value[0]) if m.kind is Kind.THROTTLE else float(np.nanmean(m.value[:n])))
-            for m in ms if m.kind in (Kind.THROTTLE, Kind.ACTUATOR) and len(m.value)]
+    outputs = [(m.t, float(np.nanmean(m.value[:n]))) for m in ms
+               if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()]
+    return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
 
 
 def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) -> tuple[float, float] | None:
@@ -308,7 +310,7 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
 
 def _battery_voltage(m: Measurement, ctx: Context) -> None:
     """The throttle at the battery's reading: its load line carries the reading forward from there."""
-    tau = ctx.values.get("throttle")
+    tau = throttle_at_reading(ctx, m.t)
     if tau is not None and math.isfinite(tau):
         ctx.values["voltage_tau2"] = tau * tau
 
@@ -382,25 +384,54 @@ def _rotor_radius(run) -> dict:
 
 
 def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
-    """The throttle as the rotors follow it: first-order low-pass with time constant tc, for each
-    stream of outputs (a throttle and the PWM outputs each their own: one state shared between
-    them was reset at every switch) and each output within it (unused outputs are NaN and stay
-    so: one NaN once reset the whole filter at every sample, and no lag was ever found)."""
+    """The throttle as the rotors follow it through a first-order lag of time constant tc, for
+    each stream of outputs (a throttle and the PWM outputs each their own: one state shared between
+    them was reset at every switch) and each output within it (unused outputs are NaN and stay so:
+    one NaN once reset the whole filter at every sample, and no lag was ever found).
+
+    A logged output x_k is what was written at t_k and held to the next one, as the model holds
+    its inputs (zero-order hold). Over [t_k, t_k+1) the lag's state y moves from y_k towards x_k,
+
+        y(t_k + s) = x_k + (y_k - x_k) e^(-s/tc),
+
+    and the record put in its place is that motion's mean over the interval,
+
+        y_bar_k = x_k + (y_k - x_k) (tc/D) (1 - e^(-D/tc)),   D = t_k+1 - t_k,
+
+    so that the held input gives the velocity change the lagged thrust gives (exact for a held
+    input). tc -> 0 gives x_k back: the base model. The lag's state at t_k was, until session 16,
+    updated with x_k as if written at t_k-1, and the held value was y_k: a step written at t_k
+    read 20 ms early, a 0.05 s lag read 0.042-0.056 s as the simulator's outputs changed timing."""
     if tc <= 0:
         return ms
     out, state = [], {}
-    for m in ms:
+    nxt = _next_times(ms)
+    for i, m in enumerate(ms):
         if m.kind in (Kind.THROTTLE, Kind.ACTUATOR):
             x = np.asarray(m.value, dtype=float)
-            y, t_last = state.get(m.kind, (None, None))
+            y, x_last, t_last = state.get(m.kind, (None, None, None))
             if y is None or len(y) != len(x):
                 y = x.copy()
             else:
                 a = 1.0 - math.exp(-max(m.t - t_last, 0.0) / tc)
-                y = np.where(np.isfinite(y) & np.isfinite(x), y + (x - y) * a, x)
-            state[m.kind] = (y, m.t)
-            m = m._replace(value=y.copy())
+                y = np.where(np.isfinite(y) & np.isfinite(x_last), y + (x_last - y) * a, x)
+                y = np.where(np.isfinite(x), y, x)
+            state[m.kind] = (y, x, m.t)
+            d = nxt[i] - m.t
+            w = tc / d * (1.0 - math.exp(-d / tc)) if d > 0 else 1.0
+            m = m._replace(value=x + (y - x) * w)
         out.append(m)
+    return out
+
+
+def _next_times(ms: list[Measurement]) -> list[float]:
+    """For each record, the time of the next of its kind (its own time for the last)."""
+    out = [0.0] * len(ms)
+    nxt: dict = {}
+    for i in range(len(ms) - 1, -1, -1):
+        m = ms[i]
+        out[i] = nxt.get(m.kind, m.t)
+        nxt[m.kind] = m.t
     return out
 
 
