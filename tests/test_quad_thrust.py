@@ -69,8 +69,9 @@ def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_reading
     k = 4.8
     v_oc = 12.6 - 0.03 * t                                   # the pack discharging
     ms = [Measurement(ti, Kind.ACTUATOR, np.array([x] * 4), "sim") for ti, x in zip(t, tau)]
-    ms += [Measurement(ti, Kind.BATTERY_VOLTAGE, np.array([v_oc[i] - k * tau[i] ** 2 + rng.normal(0, 0.02)]), "sim")
-           for i, ti in enumerate(t) if i % 10 == 0]
+    # a reading draws the current of the throttle written before it (one written at its instant has not yet)
+    ms += [Measurement(ti, Kind.BATTERY_VOLTAGE, np.array([v_oc[i] - k * tau[i - 1] ** 2 + rng.normal(0, 0.02)]),
+                       "sim") for i, ti in enumerate(t) if i % 10 == 0 and i]
     ms.sort(key=lambda m: m.t)
     throttle = [(ti, x) for ti, x in zip(t, tau)]
     fit, sigma = load_line(ms, throttle)

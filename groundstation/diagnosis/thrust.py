@@ -53,7 +53,7 @@ from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate,
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.ground import LANDED, on_ground
-from ..models.quad_thrust import quad_thrust_model
+from ..models.quad_thrust import DRAG, quad_thrust_model
 from .battery import load_line, loaded_voltage
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 
@@ -94,14 +94,21 @@ RANGE_SAYS_AIRBORNE = 0.2
 TOF_HELD = 0.002
 
 
-def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, voltage_sag: float | None = None,
+#: the thrust model's acceleration noise in the diagnosis [(m/s^2)^2/Hz], unless the vehicle file says
+DIAGNOSIS_G_ACC = 0.006
+
+
+def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltage_sag: float | None = None,
                  **params) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
     module's docstring), a baro given as an altitude too, and the input widened for the
     couplings."""
     params.setdefault("range_limits", (RANGE_FLOOR, math.inf))
+    # the diagnosis' own setting (its alpha and beta constants from the log; the live filter's
+    # random walks take up part of what this covers), kept when the live default went to 0.002
+    params.setdefault("G_acc", DIAGNOSIS_G_ACC)
     params.setdefault("sigma_tof0", TOF_HELD)
-    m = quad_thrust_model(G_alpha=0.0, G_beta=0.0, G_bar=0.0, G_tof=0.0, **params)
+    m = quad_thrust_model(G_alpha=0.0, G_beta=0.0, G_bar=0.0, G_tof=0.0, drag=drag, **params)
     meas = dict(m.measurements)
     from_altitude = relative_to_estimate(lambda mm: float(mm.value[0]), "baro_alt_ref", 25)
     pressure = meas["baro"].extract
@@ -135,7 +142,7 @@ def thrust_model(*, drag: float = 0.3, voltage_ref: float | None = None, voltage
     B = np.hstack([m.B, np.zeros((m.n, 6))])
     B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)
-    m = ground_contact(on_ground(airframe_drag(m, drag), height=False))
+    m = ground_contact(on_ground(m, height=False))
     options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag}
     return replace(m, options={k: v for k, v in options.items() if v})
 
@@ -164,19 +171,6 @@ def ground_contact(model: LinearModel) -> LinearModel:
                 row=lambda ctx, n=model.n: unit_row(n, iz), R=np.array([[CONTACT_SIGMA**2]]), corrects=(iz,),
                 reset=True)
     return replace(model, measurements=meas)
-
-
-def airframe_drag(model: LinearModel, mu_z: float) -> LinearModel:
-    """``vz_dot -= mu_z vz`` [1/s] (see the module's docstring); off on the ground, where the
-    inputs are zero."""
-    iv, A_old = model.index("vz"), model.A
-
-    def A(u):
-        a = A_old(u)
-        if u is not None and len(u) > 1 and u[1] != 0.0:
-            a[iv, iv] -= mu_z
-        return a
-    return replace(model, A=A)
 
 
 def _motor_outputs_of(ms: list[Measurement]) -> int:
