@@ -171,6 +171,7 @@ def _quaternion(m: Measurement, ctx: Context) -> None:
 
 
 def _throttle(m: Measurement, ctx: Context) -> None:
+    """THROTTLE and ACTUATOR records alike: the log's one throttle source (:func:`collective`)."""
     tau = collective(m, ctx)
     if tau is not None:
         set_throttle(ctx, tau, m.t)
@@ -220,20 +221,15 @@ def collective(m: Measurement, ctx: Context) -> float | None:
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100 (up to
     0.1 m/s^2 of thrust at alpha = 22), and an actuator lag was fitted over both streams."""
     if m.kind is Kind.ACTUATOR:
-        v = m.value[np.isfinite(m.value)]
+        v = m.value[:motor_outputs(ctx)]
+        v = v[np.isfinite(v)]          # the motors' outputs, then the unused among them (not servos' in their place)
         if not len(v):
             return None
         ctx.values["throttle_from_outputs"] = True
-        return float(np.mean(v[:motor_outputs(ctx)]))
+        return float(np.mean(v))
     if ctx.values.get("throttle_from_outputs") or not len(m.value) or not math.isfinite(m.value[0]):
         return None
     return float(m.value[0])
-
-
-def _actuators(m: Measurement, ctx: Context) -> None:
-    tau = collective(m, ctx)
-    if tau is not None:
-        set_throttle(ctx, tau, m.t)
 
 
 def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
@@ -253,7 +249,7 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                     Kind.ANGULAR_RATE: _angular_rate, Kind.THROTTLE: _throttle,
-                                    Kind.ACTUATOR: _actuators, Kind.VEHICLE_STATUS: _vehicle_status})
+                                    Kind.ACTUATOR: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})
 
 
 # -- the multirotor attitude (gyro input, accelerometer updates: models.attitude_drag) ----------
@@ -281,7 +277,7 @@ def _vertical_velocity(m: Measurement, ctx: Context) -> None:
 def attitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.attitude_drag import attitude_drag_model
     return KalmanEstimator(model or attitude_drag_model(), inputs={Kind.GYRO: gyro_rates},
-                           context={Kind.THROTTLE: _throttle, Kind.ACTUATOR: _actuators,
+                           context={Kind.THROTTLE: _throttle, Kind.ACTUATOR: _throttle,
                                     Kind.VEHICLE_STATUS: _vehicle_status, Kind.VELOCITY_NED: _vertical_velocity,
                                     Kind.CLIMB_RATE: _vertical_velocity})
 
@@ -348,7 +344,7 @@ def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
                            inputs={Kind.ACTUATOR: thrust_input, Kind.THROTTLE: thrust_input,
                                    Kind.ATTITUDE: thrust_input},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _actuators,
+                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
                                     Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})
 
 

@@ -160,7 +160,7 @@ class EstimationLoop:
         horizon = m.t - self.reorder_s - CHECKPOINT_EVERY
         while len(self._checkpoints) > 1 and self._checkpoints[1][0] < horizon:
             self._checkpoints.popleft()
-        oldest = self._checkpoints[0][1] if self._checkpoints else self._seq
+        oldest = self._checkpoints[0][1]              # one is taken before every record
         while self._history and self._history[0][1] <= oldest:
             self._history.popleft()
 

@@ -201,11 +201,11 @@ def test_ground_station_heartbeats_are_not_vehicle_status():
     (mavlink.MAV_TYPE_HELICOPTER, 0.6),             # one main rotor
 ])
 def test_the_throttle_averages_only_the_outputs_that_drive_rotors(mav_type, throttle):
-    from groundstation.estimator import _actuators, _vehicle_status
+    from groundstation.estimator import _throttle, _vehicle_status
     from groundstation.models.base import Context
     ctx = Context({})
     out, _ = decode(mavlink.MAVLink_heartbeat_message(mav_type, 3, mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3))
     _vehicle_status(out[(Kind.VEHICLE_STATUS, 0)], ctx)
     out, _ = decode(mavlink.MAVLink_servo_output_raw_message(1000, 0, 1600, 1600, 1500, 1600, 0, 0, 0, 0))
-    _actuators(out[(Kind.ACTUATOR, 0)], ctx)
+    _throttle(out[(Kind.ACTUATOR, 0)], ctx)
     assert ctx.values["throttle"] == pytest.approx(throttle)

@@ -295,14 +295,14 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
     from groundstation.diagnosis.thrust import throttle_series
-    from groundstation.estimator import _actuators, _throttle
+    from groundstation.estimator import _throttle
     from groundstation.models.base import Context
     ctx = Context({})
     thr = [Measurement(t, Kind.THROTTLE, np.array([0.50]), "sim") for t in (0.0, 0.1)]
     pwm = Measurement(0.05, Kind.ACTUATOR, np.array([0.503] * 4 + [math.nan] * 4), "sim")
     _throttle(thr[0], ctx)
     assert ctx.values["throttle"] == 0.50             # no outputs yet: THROTTLE is all there is
-    _actuators(pwm, ctx)
+    _throttle(pwm, ctx)
     _throttle(thr[1], ctx)
     assert ctx.values["throttle"] == pytest.approx(0.503)
     assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
@@ -315,11 +315,11 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     voltage carried forward between readings was off by k (0.77^2 - 0.5^2) = 1.6 V after each step,
     and thrust_voltage's n = 1.5 read 1.85 (with a false actuator lag beside it)."""
     from groundstation.diagnosis.battery import load_line
-    from groundstation.estimator import _actuators, throttle_at_reading
+    from groundstation.estimator import _throttle, throttle_at_reading
     from groundstation.models.base import Context
     ctx = Context({})
-    _actuators(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
-    _actuators(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
+    _throttle(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
+    _throttle(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
     assert throttle_at_reading(ctx, 11.0) == 0.5 and throttle_at_reading(ctx, 11.01) == 0.77
     # a pack with k = 4 V: each reading drawn by the throttle before it, the throttle stepping at the readings
     rng = np.random.default_rng(0)

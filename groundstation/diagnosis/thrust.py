@@ -48,7 +48,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimator import (TAU_GROUND, KalmanEstimator, _actuators, _angular_rate, _attitude, _quaternion, landed,
+from ..estimator import (TAU_GROUND, KalmanEstimator, _angular_rate, _attitude, _quaternion, landed,
                          _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
 from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
@@ -312,7 +312,7 @@ def _battery_voltage(m: Measurement, ctx: Context) -> None:
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     est = KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
                           context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                   Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _actuators,
+                                   Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
                                    Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status,
                                    Kind.BATTERY_VOLTAGE: _battery_voltage})
     for key in ("voltage_ref", "voltage_sag"):

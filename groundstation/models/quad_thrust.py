@@ -58,7 +58,7 @@ DRAG = 0.3
 STATES = ["z", "vz", "alpha", "beta", "d_bar", "d_tof"]
 
 
-def _A(u, drag: float = 0.0) -> np.ndarray:
+def _A(u, drag: float) -> np.ndarray:
     tau_c, c = (u[0], u[1]) if u is not None else (0.5, 1.0)
     A = np.zeros((6, 6))
     A[0, 1] = 1.0
