@@ -54,7 +54,7 @@ from ..measurement import Kind, Measurement
 from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
 from ..models.ground import LANDED, on_ground
 from ..models.quad_thrust import DRAG, quad_thrust_model
-from .battery import load_line, loaded_voltage
+from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 
 G = 9.80665
@@ -99,7 +99,7 @@ DIAGNOSIS_G_ACC = 0.006
 
 
 def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltage_sag: float | None = None,
-                 **params) -> LinearModel:
+                 voltage_noise: float | None = None, **params) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
     module's docstring), a baro given as an altitude too, and the input widened for the
     couplings."""
@@ -143,7 +143,7 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
     B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)
     m = ground_contact(on_ground(m, height=False))
-    options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag}
+    options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag, "voltage_noise": voltage_noise}
     return replace(m, options={k: v for k, v in options.items() if v})
 
 
@@ -235,6 +235,9 @@ def hover_prior(prep) -> dict:
     sag = load_line(prep.measurements, th)
     if sag is not None:
         prior["voltage_sag"] = sag[0]      # the voltage between the battery's readings (battery.py)
+    sigma = reading_sigma(prep.measurements, th, sag[0] if sag is not None else 0.0)
+    if sigma:
+        prior["voltage_noise"] = sigma     # how much to smooth them (battery.OpenCircuitVoltage)
     return prior
 
 
@@ -244,7 +247,7 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     volt = v.get("voltage", 0.0)            # 0 until a reading: u must stay finite (B u)
     if not math.isfinite(volt):
         volt = 0.0
-    volt = loaded_voltage(volt, tau, v)     # between the battery's readings
+    volt = loaded_voltage(volt, tau, v, m.t)     # between the battery's readings
     x = v.get("_x")
     h = float(x[0]) if x is not None else 0.0
     c = v.get("down_row", _LEVEL)[2]
@@ -303,10 +306,22 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
 
 
 def _battery_voltage(m: Measurement, ctx: Context) -> None:
-    """The throttle at the battery's reading: its load line carries the reading forward from there."""
+    """The throttle at the battery's reading, and the open-circuit voltage the reading implies,
+    smoothed over the readings (battery.py): the load line carries it to the throttle of each
+    step."""
     tau = throttle_at_reading(ctx, m.t)
-    if tau is not None and math.isfinite(tau):
-        ctx.values["voltage_tau2"] = tau * tau
+    if tau is None or not math.isfinite(tau):
+        return
+    v = ctx.values
+    v["voltage_tau2"] = tau * tau
+    volt, sigma = float(m.value[0]) if len(m.value) else math.nan, v.get("voltage_noise")
+    if not sigma or not math.isfinite(volt) or volt <= 0.0:
+        return
+    v_oc = volt + (v.get("voltage_sag") or 0.0) * tau * tau
+    if "voltage_oc" not in v:
+        v["voltage_oc"] = OpenCircuitVoltage(v_oc, m.t, sigma)
+    else:
+        v["voltage_oc"].update(m.t, v_oc)
 
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
@@ -315,7 +330,7 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
                                    Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status,
                                    Kind.BATTERY_VOLTAGE: _battery_voltage})
-    for key in ("voltage_ref", "voltage_sag"):
+    for key in ("voltage_ref", "voltage_sag", "voltage_noise"):
         if model.options.get(key):
             est.filter.ctx.values[key] = model.options[key]
     if "n_voltage" in model.states:
