@@ -283,6 +283,8 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     off = v.setdefault("left_ground_at", m.t)
     if m.t - off < GE_SETTLE:
         h = 0.0                          # thrust_ground_effect's term not used yet (GE_SETTLE)
+    elif h >= GE_MIN_H and "_i_R2_rotor" in v and x is not None:
+        h = max(h, math.sqrt(max(float(x[v["_i_R2_rotor"]]), 0.0)))     # (R/4h)^2 holds for h >= R
     v_ref = v.get("voltage_ref", 0.0)
     n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
     return np.array([tau * c, c, G, volt, h, a_t, v_ref, n_hat, a_v])
@@ -335,6 +337,8 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
             est.filter.ctx.values[key] = model.options[key]
     if "n_voltage" in model.states:
         est.filter.ctx.values["_i_n_voltage"] = model.index("n_voltage")
+    if "R2_rotor" in model.states:
+        est.filter.ctx.values["_i_R2_rotor"] = model.index("R2_rotor")
     return est
 
 
@@ -360,6 +364,11 @@ def thrust_voltage(model: LinearModel) -> LinearModel:
 
 
 def thrust_ground_effect(model: LinearModel) -> LinearModel:
+    """``vz_dot += a_T c (R / 4h)^2`` (Cheeseman and Bennett's first order), the state R^2. The
+    formula holds for h >= R (the simulator's too); below, the height it is given is R's estimate
+    (:func:`_input`), so the term stays at its h = R value, 1/16 of the thrust. With 1/h^2 carried
+    on below R, a quadcopter hovering at 0.17 m with R = 0.25 m had its ground effect predicted at
+    14 % of the thrust for 6.7 %, and R read 10 % low (0.226 m) with the range's NIS at 1.15."""
     iv = model.index("vz")
 
     def coupling(u):
