@@ -255,7 +255,13 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     # on the ground: reached at CONTACT_H with the thrust not lifting the vehicle, left only when
     # the thrust lifts it (without the hysteresis the state flickered at CONTACT_H, and each
     # flicker let the model fall for a step)
-    lifts = a_t * c > G         # or a range reading above the ground (thrust_model's range_airborne)
+    # the thrust the model flies with: with thrust_voltage, times (V / V_ref)^n at the estimate. Judged
+    # without it, a throttle blip after a touchdown "lifted" a vehicle whose modelled thrust was below
+    # its weight, and the model fell through the ground (1.2 m in 1.5 s, a simulated n = 1.5 flight)
+    v_ref0 = v.get("voltage_ref", 0.0)
+    n_lift, _ = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref0, 0.0)
+    r_n = (volt / v_ref0) ** n_lift if n_lift and volt > 0.0 and v_ref0 > 0.0 else 1.0
+    lifts = a_t * c * r_n > G   # or a range reading above the ground (thrust_model's range_airborne)
     # a range reading off the ground within RANGE_SAYS_AIRBORNE s overrides the estimate (the contact
     # resets z to 0)
     seen_up = m.t - v.get("range_off_ground_at", -math.inf) < RANGE_SAYS_AIRBORNE
