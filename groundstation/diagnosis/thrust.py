@@ -258,9 +258,9 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     # the thrust the model flies with: with thrust_voltage, times (V / V_ref)^n at the estimate. Judged
     # without it, a throttle blip after a touchdown "lifted" a vehicle whose modelled thrust was below
     # its weight, and the model fell through the ground (1.2 m in 1.5 s, a simulated n = 1.5 flight)
-    v_ref0 = v.get("voltage_ref", 0.0)
-    n_lift, _ = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref0, 0.0)
-    r_n = (volt / v_ref0) ** n_lift if n_lift and volt > 0.0 and v_ref0 > 0.0 else 1.0
+    v_ref = v.get("voltage_ref", 0.0)
+    n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
+    r_n = (volt / v_ref) ** n_hat if n_hat and volt > 0.0 and v_ref > 0.0 else 1.0
     lifts = a_t * c * r_n > G   # or a range reading above the ground (thrust_model's range_airborne)
     # a range reading off the ground within RANGE_SAYS_AIRBORNE s overrides the estimate (the contact
     # resets z to 0)
@@ -291,8 +291,8 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
         h = 0.0                          # thrust_ground_effect's term not used yet (GE_SETTLE)
     elif h >= GE_MIN_H and "_i_R2_rotor" in v and x is not None:
         h = max(h, math.sqrt(max(float(x[v["_i_R2_rotor"]]), 0.0)))     # (R/4h)^2 holds for h >= R
-    v_ref = v.get("voltage_ref", 0.0)
-    n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
+    if v_ref <= 0.0:
+        v_ref = v.get("voltage_ref", 0.0)    # set just above: r = 1, so n_hat's terms are 0 this step
     return np.array([tau * c, c, G, volt, h, a_t, v_ref, n_hat, a_v])
 
 
