@@ -31,7 +31,7 @@ from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, in_time_order, prepare, run_model
-from .thrust import UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
+from .thrust import RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4
@@ -144,7 +144,7 @@ def sensor_findings(run: Run) -> list[Finding]:
             continue
         k = tr.t >= tr.t[0] + 5.0
         sig = {n: v[k] for n, v in tr.signals.items() if n not in ("throttle_lp",)}
-        out += detect(s, tr.t[k], tr.nu_normalised[k], tr.nis[k], tr.nu.shape[1], sig)
+        out += detect(s, tr.t[k], tr.nu_normalised[k], tr.nis[k], tr.nu.shape[1], sig, nu=tr.nu[k, 0])
     return out
 
 
@@ -193,7 +193,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         params = vehicle_config(vehicle, "quad_thrust")
         if "range_limits" in params:
             params["range_limits"] = tuple(params["range_limits"])
-        params = {**hover_prior(prep), **params}
+        params = {**hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf))), **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator
         catalogue = thrust_catalogue

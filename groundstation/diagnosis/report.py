@@ -9,7 +9,8 @@ report.json::
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
-failed tests; and, when truth exists, ``rmse_vs_truth`` of the height [m] or, for the
+failed tests, and ``skipped_spurious`` where readings were skipped as spurious (the thrust
+model's range echoes on the ground, ``thrust.LIFTOFF_REACH``); and, when truth exists, ``rmse_vs_truth`` of the height [m] or, for the
 attitude model, of roll and pitch together [rad] (``rmse_of`` says which).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
@@ -37,6 +38,7 @@ from ..export import EstimateCsvWriter
 from .engine import Diagnosis
 from .run import Run
 from ..models.ground import LANDED
+from .thrust import LIFTOFF_REACH
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
@@ -53,6 +55,9 @@ def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
             "ljung_box_p": float(ljung_box(e)),
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
+        spurious = run.estimator.filter.ctx.values.get(f"{s}_spurious")
+        if spurious:
+            out["sensors"][s]["skipped_spurious"] = int(spurious)     # thrust.LIFTOFF_REACH
     if truth is not None:
         e = truth.error(run, t0, t1)
         if math.isfinite(e):
@@ -129,6 +134,11 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
                      f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance).")
     b, a = j["before"], j["after"]
+    spurious = a["sensors"].get("range", {}).get("skipped_spurious")
+    if spurious:
+        parts.append(f"{spurious} range readings were skipped as spurious echoes: with the vehicle on the "
+                     f"ground they read it more than {LIFTOFF_REACH:.0f} m up, where no lift-off reaches "
+                     f"between two readings.")
     if "rmse_vs_truth" in b and b["rmse_of"].startswith("height"):
         parts.append(f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
                      f"{a['rmse_vs_truth'] * 100:.2f} cm after.")

@@ -77,6 +77,14 @@ RANGE_FLOOR = 0.1
 CONTACT_H = 0.1
 CONTACT_MARGIN = 0.05    # m: a range reading this far above CONTACT_H says the vehicle has left the ground
 CONTACT_SIGMA = 0.02     # m: the height on the ground (landing gear, uneven ground)
+#: m: with the estimate on the ground (at or below CONTACT_H), a range reading further up than this is a
+#: spurious echo, skipped and counted (``range_spurious`` in the context): a vehicle leaves the ground
+#: continuously, and a range sensor reads it at 5-50 Hz, so its first readings after a lift-off are
+#: within a few tenths of a metre of its floor. ArduPilot's underpowered.log: its sonar read 1.9-6.5 m
+#: for 0.9 s as the motors spun up on the ground, and the model, taking them, flew to 8 m at 28 m/s
+LIFTOFF_REACH = 1.0
+#: s: the range reads inside its limits this long without a break: the vehicle is in the air (lift_off)
+LIFTOFF_HOLD = 2.0
 #: s: a range reading used (at or above its floor, RANGE_FLOOR or the vehicle's range_limits) keeps the
 #: model off the ground this long, whatever its estimate. Without it a touchdown's estimate, reaching
 #: CONTACT_H a little early, was reset to the ground while the range still read the vehicle 5-10 cm up
@@ -127,6 +135,9 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
         if landed(ctx):
             return None
         z = extract(mm, ctx)
+        if z is not None and ctx.values.get("z", 0.0) <= CONTACT_H and z[0] > LIFTOFF_REACH:
+            ctx.values["range_spurious"] = ctx.values.get("range_spurious", 0) + 1
+            return None
         if z is not None:
             # a reading at all (on the ground the sensor reads below its floor, and none is used)
             ctx.values["range_off_ground_at"] = mm.t
@@ -191,11 +202,14 @@ def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
     return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
 
 
-def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) -> tuple[float, float] | None:
+def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 8.0) -> tuple[float, float] | None:
     """The longest stretch with the rotors carrying the vehicle (throttle at or above
     ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
-    of it (the spin-up) to its end. Ground handling around it (motor tests, hops, a
-    sonar reading its floor or nothing on the ground) says nothing about thrust."""
+    of it to its end. Ground handling around it (motor tests, hops, a
+    sonar reading its floor or nothing on the ground) says nothing about thrust.
+    ``before`` is longer than the 5 s the filter settles in before the likelihood is scored
+    (``run_model``'s ``score_from``), so the spin-up is scored: with 3 s, the first 2 s of
+    underpowered.log's baro dip at spin-up (the data README's -2.7 m) were not."""
     th = throttle_series(ms)
     best, start, last_up = None, None, None
     for t, v in th:
@@ -210,18 +224,48 @@ def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 3.0) ->
     return best[0] - before, best[1]
 
 
-def hover_prior(prep) -> dict:
+def lift_off(ms: list[Measurement], t_spin: float, limits: tuple[float, float] = (RANGE_FLOOR, math.inf),
+             hold: float = LIFTOFF_HOLD) -> float:
+    """When the vehicle left the ground: the first range reading within its ``limits`` (the
+    vehicle file's ``range_limits``: a sonar's no-echo maximum is above them) from which the range
+    keeps reading within them for ``hold`` s, after the spin-up at ``t_spin``; ``t_spin`` itself
+    when that never happens (a log without a range sensor).
+
+    On the ground a range sensor reads below its floor or nothing, so this is where the rotors
+    first carry the vehicle. The throttle alone does not say it: ArduPilot's underpowered.log sits
+    on the ground for 6 s at 0.62-0.72 (its hover throttle is 0.73), and a sonar there reads
+    spurious echoes of 1.9-6.5 m for 0.9 s as the motors spin up."""
+    start = None
+    last = t_spin
+    for m in ms:
+        if m.kind is not Kind.RANGE or m.t < t_spin or not len(m.value):
+            continue
+        up = limits[0] <= float(m.value[0]) <= limits[1]
+        if not up or m.t - last > 1.0:          # a second without a reading breaks the hold
+            start = None
+        if up:
+            start = m.t if start is None else start
+            if m.t - start >= hold:
+                return start
+        last = m.t
+    return t_spin
+
+
+def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf)) -> dict:
     """The a priori thrust coefficients (document sec. 1: "estimated offline"), from the log
-    itself: alpha0 = g / tau_hover, the median throttle over the first 10 s with the rotors
-    carrying the vehicle, and beta fixed near 0 (the document's own way out of alpha and
+    itself: alpha0 = g / tau_hover, the median throttle over the first 10 s in the air (from
+    :func:`lift_off`), and beta fixed near 0 (the document's own way out of alpha and
     beta's near-collinearity). Without it a slow thrust loss is fitted as "thrust does
-    not depend on the throttle" (alpha -> 0, beta -> g)."""
+    not depend on the throttle" (alpha -> 0, beta -> g). Read from the spin-up instead (the
+    first throttle at ground idle), underpowered.log's 6 s on the ground at 0.62-0.72 made its
+    hover throttle 0.65 and alpha0 12 % high: the model lifted off at spin-up and flew 2 m up
+    while the vehicle sat on the ground."""
     th = throttle_series(prep.measurements)
     flying = [(t, v) for t, v in th if v >= TAU_GROUND]
     if len(flying) < 10:
         return {}
-    t0 = flying[0][0]
-    tau_h = float(np.median([v for t, v in flying if t <= t0 + 10.0]))
+    t0 = lift_off(prep.measurements, flying[0][0], range_limits)
+    tau_h = float(np.median([v for t, v in flying if t0 <= t <= t0 + 10.0]))
     alpha0 = G / tau_h
     prior = {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
     volts = [float(m.value[0]) for m in prep.measurements
