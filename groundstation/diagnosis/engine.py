@@ -31,7 +31,8 @@ from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .run import Prepared, Run, in_time_order, prepare, run_model
-from .thrust import RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator, thrust_model
+from .thrust import (RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator,
+                     thrust_model)
 from .trace import Scored, rank
 
 MAX_EFFECTS = 4

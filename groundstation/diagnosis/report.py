@@ -10,8 +10,9 @@ report.json::
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
 failed tests, and ``skipped_spurious`` where readings were skipped as spurious (the thrust
-model's range echoes on the ground, ``thrust.LIFTOFF_REACH``); and, when truth exists, ``rmse_vs_truth`` of the height [m] or, for the
-attitude model, of roll and pitch together [rad] (``rmse_of`` says which).
+model's range echoes on the ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
+``rmse_vs_truth`` of the height [m] or, for the attitude model, of roll and pitch together
+[rad] (``rmse_of`` says which).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
 trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update``, ``runner_up`` and its ΔBIC, and,

@@ -135,7 +135,8 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
         if landed(ctx):
             return None
         z = extract(mm, ctx)
-        if z is not None and ctx.values.get("z", 0.0) <= CONTACT_H and z[0] > LIFTOFF_REACH:
+        on_the_ground = ctx.values.get("z", 0.0) <= CONTACT_H        # the estimate's height (_update sets it)
+        if z is not None and on_the_ground and z[0] > LIFTOFF_REACH:
             ctx.values["range_spurious"] = ctx.values.get("range_spurious", 0) + 1
             return None
         if z is not None:
