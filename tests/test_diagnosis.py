@@ -328,6 +328,12 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert found["baro_ground_effect"]["A"] < -0.5
     rng = j["after"]["sensors"]["range"]
     assert rng["skipped_spurious"] >= 6 and rng["nis_mean"] < 5.0, rng
+    assert any(t0 <= 55.0 <= t1 for t0, t1 in rng["skipped_spurious_at"]), rng     # the spin-up's echoes
+    # and the dip itself, located in time before the fix: the baro low while the motors spin up
+    x = next(f for f in j["findings_before"] if f["sensor"] == "baro" and f["test"] == "excursion")
+    windows = [w.split(", ") for w in x["where"].split("; ")]
+    spin_up = [w for w in windows if float(w[0][4:].split("-")[0]) <= 55.0 <= float(w[0].split("-")[1][:-2])]
+    assert not x["passed"] and spin_up and float(spin_up[0][1].split()[1]) < -1.5, x
     assert "spurious echoes" in j["conclusion"]
     assert "landed" not in j["before"]["sensors"]
 
@@ -537,9 +543,27 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     def highest():
         run = run_model(su.model, su.prep, su.make)
         k = (run.t > spin) & (run.t < spin + 0.8)
-        return float(run.x[k, 0].max()), run.estimator.filter.ctx.values.get("range_spurious", 0)
+        return float(run.x[k, 0].max()), len(run.estimator.filter.ctx.values.get("range_spurious", ()))
     z, skipped = highest()
     assert z < 0.15 and skipped == 6, (z, skipped)      # the model floats within 0.1 m at spin-up
     monkeypatch.setattr(thrust, "LIFTOFF_REACH", np.inf)
     z, skipped = highest()
     assert z > 1.0 and skipped == 0, (z, skipped)
+
+
+def test_a_short_sum_of_coloured_innovations_varies_as_an_ar1_sum_does():
+    """The excursion test's spread: the exact variance of an m-sample sum of an AR(1) sequence, checked
+    against the direct double sum and against 4000 simulated 20-sample sums at r = 0.9."""
+    from groundstation.diagnosis.detect import ar1_sum_variance
+    r, m = 0.95, 20
+    direct = m + 2 * sum((m - k) * r**k for k in range(1, m))
+    assert float(ar1_sum_variance(m, r)) == pytest.approx(direct) and float(ar1_sum_variance(m, 0.0)) == m
+    rng = np.random.default_rng(3)
+    r = 0.9
+    w = rng.standard_normal((4000, 220)) * np.sqrt(1 - r**2)
+    e = np.zeros_like(w)
+    e[:, 0] = rng.standard_normal(4000)
+    for k in range(1, w.shape[1]):
+        e[:, k] = r * e[:, k - 1] + w[:, k]
+    sums = e[:, 200:].sum(axis=1)
+    assert np.var(sums) == pytest.approx(float(ar1_sum_variance(20, r)), rel=0.08)

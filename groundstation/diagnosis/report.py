@@ -9,8 +9,9 @@ report.json::
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
-failed tests, and ``skipped_spurious`` where readings were skipped as spurious (the thrust
-model's range echoes on the ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
+failed tests, and ``skipped_spurious`` (a count) and ``skipped_spurious_at`` ([first, last]
+spans in s) where readings were skipped as spurious (the thrust model's range echoes on the
+ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
 ``rmse_vs_truth`` of the height [m] or, for the attitude model, of roll and pitch together
 [rad] (``rmse_of`` says which).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
@@ -57,8 +58,9 @@ def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
         spurious = run.estimator.filter.ctx.values.get(f"{s}_spurious")
-        if spurious:
-            out["sensors"][s]["skipped_spurious"] = int(spurious)     # thrust.LIFTOFF_REACH
+        if spurious:                                                  # thrust.LIFTOFF_REACH
+            out["sensors"][s]["skipped_spurious"] = len(spurious)
+            out["sensors"][s]["skipped_spurious_at"] = _spans(spurious)
     if truth is not None:
         e = truth.error(run, t0, t1)
         if math.isfinite(e):
@@ -66,6 +68,17 @@ def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
             out["rmse_of"] = truth.quantity(run)
             out["truth"] = truth.source
     return out
+
+
+def _spans(times, gap: float = 1.0) -> list[list[float]]:
+    """Instants as [first, last] spans, a new span after ``gap`` s without one."""
+    spans: list[list[float]] = []
+    for t in sorted(times):
+        if spans and t - spans[-1][1] <= gap:
+            spans[-1][1] = round(t, 2)
+        else:
+            spans.append([round(t, 2), round(t, 2)])
+    return spans
 
 
 def as_json(d: Diagnosis) -> dict:
@@ -135,11 +148,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
                      f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance).")
     b, a = j["before"], j["after"]
-    spurious = a["sensors"].get("range", {}).get("skipped_spurious")
-    if spurious:
-        parts.append(f"{spurious} range readings were skipped as spurious echoes: with the vehicle on the "
-                     f"ground they read it more than {LIFTOFF_REACH:.0f} m up, where no lift-off reaches "
-                     f"between two readings.")
+    rng = a["sensors"].get("range", {})
+    if rng.get("skipped_spurious"):
+        when = ", ".join(f"{t0:.1f}-{t1:.1f} s" if t1 > t0 else f"{t0:.1f} s" for t0, t1 in rng["skipped_spurious_at"])
+        parts.append(f"{rng['skipped_spurious']} range readings were skipped as spurious echoes ({when}): with the "
+                     f"vehicle on the ground they read it more than {LIFTOFF_REACH:.0f} m up, where no lift-off "
+                     f"reaches between two readings.")
     if "rmse_vs_truth" in b and b["rmse_of"].startswith("height"):
         parts.append(f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
                      f"{a['rmse_vs_truth'] * 100:.2f} cm after.")

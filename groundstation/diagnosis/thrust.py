@@ -78,7 +78,7 @@ CONTACT_H = 0.1
 CONTACT_MARGIN = 0.05    # m: a range reading this far above CONTACT_H says the vehicle has left the ground
 CONTACT_SIGMA = 0.02     # m: the height on the ground (landing gear, uneven ground)
 #: m: with the estimate on the ground (at or below CONTACT_H), a range reading further up than this is a
-#: spurious echo, skipped and counted (``range_spurious`` in the context): a vehicle leaves the ground
+#: spurious echo, skipped and its time kept (``range_spurious``, a tuple in the context): a vehicle leaves the ground
 #: continuously, and a range sensor reads it at 5-50 Hz, so its first readings after a lift-off are
 #: within a few tenths of a metre of its floor. ArduPilot's underpowered.log: its sonar read 1.9-6.5 m
 #: for 0.9 s as the motors spun up on the ground, and the model, taking them, flew to 8 m at 28 m/s
@@ -137,7 +137,8 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
         z = extract(mm, ctx)
         on_the_ground = ctx.values.get("z", 0.0) <= CONTACT_H        # the estimate's height (_update sets it)
         if z is not None and on_the_ground and z[0] > LIFTOFF_REACH:
-            ctx.values["range_spurious"] = ctx.values.get("range_spurious", 0) + 1
+            # a tuple, replaced: a checkpoint's shallow copy of the context must not share it
+            ctx.values["range_spurious"] = ctx.values.get("range_spurious", ()) + (mm.t,)
             return None
         if z is not None:
             # a reading at all (on the ground the sensor reads below its floor, and none is used)
