@@ -16,11 +16,12 @@ sec. 5.4), so each test below asks one way in which they are not:
   or an oscillating error), with its frequency;
 * CUSUM on e (Page 1954): the largest standardised excursion of the
   cumulative sum marks a step or a drift, and where it is;
-* excursion: the ``EXCURSION_S`` window whose innovations' mean is furthest
-  from 0 (a scan statistic), against a Bonferroni bound over the log's windows.
-  CUSUM sees what lasts; this sees a transient and says when it was, and what
-  the throttle did then (ArduPilot's underpowered.log: the baro reads 3.5 m
-  low for 2 s as the motors spin up on the ground, the data README's dip).
+* excursion: the ``EXCURSION_S`` windows whose innovations' sum is furthest
+  from 0 for its spread (a scan statistic), against a Bonferroni bound over the
+  log's windows. CUSUM sees what lasts; this sees a transient and says when it
+  was, and what the throttle did then (ArduPilot's underpowered.log: the baro
+  reads 2.8 m low over 53.8-55.7 s as the motors spin up on the ground, the
+  data README's dip).
 """
 from __future__ import annotations
 
@@ -132,7 +133,7 @@ def excursion(sensor: str, t: np.ndarray, e: np.ndarray, r: float = 0.0, nu: np.
     spread that of an AR(1) sequence with the innovations' lag-1 correlation ``r``
     (:func:`ar1_sum_variance`: the colour counted at the window's length; the long-run factor
     n / n_eff, as the mean test counts it, hid underpowered.log's 2 s baro dip at spin-up behind a
-    whole log's colour: z -3.5, against -5.7 with it); the largest |z| against the
+    whole log's colour: z -3.0, against -6.1 with it); the largest |z| against the
     two-sided 5 % bound shared among the log's duration / window windows (Bonferroni). Its
     ``where`` names the worst windows beyond the bound (up to :data:`EXCURSIONS_SHOWN`, not
     overlapping, worst first), each with the innovations' mean over it in the sensor's units
