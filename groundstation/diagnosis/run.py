@@ -182,12 +182,15 @@ class Run:
         return float(self.x[-1, i]), float(math.sqrt(max(self.P[-1, i, i], 0.0)))
 
 
+#: s: the filter settles this long before the likelihood is scored (run_model's score_from)
+SETTLE_S = 5.0
+
 #: context values recorded beside every innovation (for cross-correlation and regression)
 SIGNALS = ("throttle", "throttle_lp", "roll", "pitch", "temperature", "voltage", "current", "vibration")
 
 
 def run_model(model: LinearModel, prep: Prepared, make_estimator: Callable[[LinearModel], KalmanEstimator], *,
-              measurements: list[Measurement] | None = None, score_from: float = 5.0) -> Run:
+              measurements: list[Measurement] | None = None, score_from: float = SETTLE_S) -> Run:
     """The model over the prepared log; the likelihood scored from ``score_from`` s in."""
     est = make_estimator(model)
     add_signal_rules(est)

@@ -56,6 +56,7 @@ from ..models.ground import LANDED, on_ground
 from ..models.quad_thrust import DRAG, quad_thrust_model
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
+from .run import SETTLE_S
 
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
@@ -204,13 +205,13 @@ def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
     return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
 
 
-def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = 8.0) -> tuple[float, float] | None:
+def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = SETTLE_S + 3.0) -> tuple[float, float] | None:
     """The longest stretch with the rotors carrying the vehicle (throttle at or above
     ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
     of it to its end. Ground handling around it (motor tests, hops, a
     sonar reading its floor or nothing on the ground) says nothing about thrust.
-    ``before`` is longer than the 5 s the filter settles in before the likelihood is scored
-    (``run_model``'s ``score_from``), so the spin-up is scored: with 3 s, the first 2 s of
+    ``before`` is 3 s longer than the filter settles before the likelihood is scored
+    (:data:`~.run.SETTLE_S`), so the spin-up is scored: with 3 s, the first 2 s of
     underpowered.log's baro dip at spin-up (the data README's -2.7 m) were not."""
     th = throttle_series(ms)
     best, start, last_up = None, None, None
