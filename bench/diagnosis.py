@@ -144,7 +144,10 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     innovations: on 4 baro_thrust flights of session 13 the innovations' Ljung-Box read
     p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.046, 0.019, 0.019, 0.002 (session 15); on two clean
     high flights the range's NIS read 0.90 and 1.10 and its noise 0.88 and 1.09.
-    NaN where the truth has no such column (the accelerometer)."""
+    The accelerometer (horizontal, the attitude model's measurement): the simulator's record of its
+    readings' noise and rounding over each 10 ms truth row, which are the diagnosis' input blocks;
+    NIS over both axes at R / samples per block, Ljung-Box on x (the first component, as the
+    diagnosis reads it). NaN where the truth has no such column (tables from before session 20)."""
     from scipy.stats import chi2
 
     from groundstation.atmosphere import altitude_at
@@ -157,6 +160,11 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     elif sensor == "range":
         r = np.array([(m.t, float(m.value[0])) for m in ms if m.kind is Kind.RANGE])
         t, e = r[:, 0], r[:, 1] - np.interp(r[:, 0] - delay, tr["t"], tr["range_true"])
+    elif sensor == "accel" and "accel_err_x" in (tr.dtype.names or ()):
+        ok = (tr["accel_samples"] > 0) & (tr["t"] >= tr["t"][0] + 5.0)
+        ex, ey, k = tr["accel_err_x"][ok], tr["accel_err_y"][ok], tr["accel_samples"][ok]
+        nis, (lo, hi) = float(np.mean((ex**2 + ey**2) * k / R)), chi2.ppf([0.025, 0.975], 2 * len(ex)) / len(ex)
+        return {"noise_nis": nis, "noise_nis_ok": bool(lo <= nis <= hi), "noise_p": float(ljung_box(ex))}
     else:
         return {"noise_nis": float("nan"), "noise_nis_ok": None, "noise_p": float("nan")}
     e = e[t >= t[0] + 5.0]                 # from 5 s in, as the diagnosis scores

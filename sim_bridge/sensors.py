@@ -87,6 +87,9 @@ class SensorSuite:
         self.gps_err = np.zeros(3)
         self._noise = np.empty(0)
         self._k = 0
+        #: what the accelerometer's readings have added to the (effect-altered) specific force
+        #: since :meth:`take_accel_error`: noise and rounding, x and y summed, and the sample count
+        self._accel_error = [0.0, 0.0, 0]
 
     def normal(self) -> float:
         """One standard normal draw, from blocks drawn in advance (per-call
@@ -126,9 +129,19 @@ class SensorSuite:
             fx, fy, fz = f.tolist()
             wx, wy, wz = w.tolist()
         n, sa, sg, la, lg = self.normal, c.accel_sigma, c.gyro_sigma, c.accel_lsb, c.gyro_lsb
-        return (round((fx + sa * n()) / la) * la, round((fy + sa * n()) / la) * la,
-                round((fz + sa * n()) / la) * la, round((wx + sg * n()) / lg) * lg,
+        ax, ay = round((fx + sa * n()) / la) * la, round((fy + sa * n()) / la) * la
+        err = self._accel_error
+        err[0], err[1], err[2] = err[0] + ax - fx, err[1] + ay - fy, err[2] + 1
+        return (ax, ay, round((fz + sa * n()) / la) * la, round((wx + sg * n()) / lg) * lg,
                 round((wy + sg * n()) / lg) * lg, round((wz + sg * n()) / lg) * lg, sim.temperature)
+
+    def take_accel_error(self) -> tuple[float, float, int]:
+        """The accelerometer's own error (x, y: noise and rounding) averaged over the samples since
+        the last call, and their count; the truth's record of what a perfect model's innovations
+        would be. Blocks of the truth's 10 ms rows are the diagnosis' 10 ms input blocks."""
+        sx, sy, k = self._accel_error
+        self._accel_error = [0.0, 0.0, 0]
+        return (sx / k, sy / k, k) if k else (math.nan, math.nan, 0)
 
     def _baro(self, sim):
         c = self.cfg

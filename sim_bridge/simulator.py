@@ -216,6 +216,7 @@ class Simulator:
         row["temperature"] = self.temperature
         k = self.vehicle.kin
         row["range_true"] = max(0.0, k.height) / max(0.2, k.R[2, 2])
+        row["accel_err_x"], row["accel_err_y"], row["accel_samples"] = self.sensors.take_accel_error()
         if "roll" not in row:
             r, p, y = euler_from_matrix(k.R)
             row.update({"roll": r, "pitch": p, "yaw": y})

@@ -80,6 +80,26 @@ def test_the_accelerometers_noise_follows_the_imu_rate(tmp_path, imu_hz):
     assert 1.9 < nis.statistic < 2.1, nis
 
 
+def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_path):
+    """The simulator's truth records what its accelerometer readings add to the specific force
+    (noise and rounding) over each 10 ms row, and the bench judges that noise as it judges the
+    innovations. The rows are the diagnosis' IMU blocks: a 500 Hz log's blocks all hold 5 samples
+    (from microsecond stamps, three in four took a sixth before session 20's slack, and the grid
+    drifted), and on a clean flight the model's x innovations are that noise."""
+    from groundstation.diagnosis.run import run_model
+    log, ms = fly(tmp_path, [], 43)
+    su = setup(ms, model_name="attitude")
+    assert {m.samples for m in su.prep.measurements if m.kind is Kind.ACCEL} == {5}
+    acc = run_model(su.model, su.prep, su.make).sensors["accel"]
+    truth = np.genfromtxt(log.with_suffix(".csv"), delimiter=",", names=True)
+    row = np.searchsorted(truth["t"], acc.t + 0.01 - 1e-6)      # a block stamped t closes at t + 10 ms
+    ok = (row < len(truth)) & (acc.t > 5.0)
+    assert np.allclose(truth["t"][row[ok]], acc.t[ok] + 0.01)
+    noise = truth["accel_err_x"][row[ok]]
+    assert 0.95 < np.std(noise) / (0.08 / math.sqrt(5)) < 1.05
+    assert np.corrcoef(acc.nu[ok, 0], noise)[0, 1] > 0.99
+
+
 def test_the_vertical_speed_makes_a_manoeuvring_flights_accelerometer_consistent(tmp_path):
     """The q w and p w terms need the body's vertical velocity; the diagnosis takes v_d from its own
     altitude filter. Without them this clean flight (climbs under tilt manoeuvres) read NIS 2.10

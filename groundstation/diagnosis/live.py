@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import deque
 
 from ..measurement import Kind, Measurement
-from .run import block_mean
+from .run import block_mean, starts_block
 
 
 class SessionBuffer:
@@ -30,7 +30,7 @@ class SessionBuffer:
             self._block.clear()
         if m.kind in (Kind.ACCEL, Kind.GYRO) and m.instance == 0:
             first, t_last, values = self._block.get(m.kind, (None, 0.0, None))
-            if first is not None and m.t - first.t < self._imu_dt:
+            if first is not None and not starts_block(first.t, m.t, self._imu_dt):
                 values.append(m.value)
                 self._block[m.kind] = (first, m.t, values)
                 return
