@@ -37,6 +37,23 @@ def test_clockless_text_log_gets_the_control_loop_clock_and_shows_the_voltage_sa
     assert by[Kind.RANGE][:, 1].max() < 8.0          # sonar 0.2-7.7 m
 
 
+def test_the_sonars_clamped_readings_are_skipped_with_the_limits_the_log_gives():
+    """underpowered.log's sonar (SONAR_TYPE 0, an XL-EZ0: ArduPilot's driver sets 20-765 cm) reads
+    exactly its floor or its no-echo maximum 564 times, mostly on the ground, where a replay showed
+    the vehicle 7.65 m up: they are counted skips, not heights. Newer logs give the limits as
+    RNGFND parameters; a log with no rangefinder parameters keeps every positive reading."""
+    from drivers.logs.dataflash import rangefinder_limits
+    log = read_dataflash(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
+    assert log.range_limits == (0.2, 7.65) and log.skipped["range_out_of_bounds"] == 564
+    r = np.array([m.value[0] for m in log.measurements if m.kind is Kind.RANGE])
+    assert len(r) == 4302 - 564 and 0.2 < r.min() and r.max() < 7.65
+    assert rangefinder_limits({"RNGFND_MIN_CM": 20.0, "RNGFND_MAX_CM": 700.0, "SONAR_TYPE": 1.0}) == (0.2, 7.0)
+    assert rangefinder_limits({"RNGFND1_MIN_CM": 5.0, "RNGFND1_MAX_CM": 400.0}) == (0.05, 4.0)
+    assert rangefinder_limits({"SONAR_ENABLE": 1.0, "SONAR_TYPE": 1.0}) == (0.15, 6.45)
+    assert rangefinder_limits({"SONAR_ENABLE": 0.0, "SONAR_TYPE": 0.0}) is None
+    assert rangefinder_limits({}) is None
+
+
 def test_binary_log_units_and_frames():
     log = read_dataflash(real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin"))
     acc = np.array([m.value for m in log.measurements if m.kind is Kind.ACCEL][:50])

@@ -14,12 +14,23 @@ record     fields                                 measurement
 IMU, IMU2  AccX/Y/Z [m/s^2], GyrX/Y/Z [rad/s]     ACCEL, GYRO (FRD already); IMU2 -> 1
 BARO       Alt [m], Press [Pa], Temp [degC]       BARO_ALTITUDE, BARO_PRESSURE, TEMPERATURE [K]
 CTUN       ThrOut (0..1000 old, 0..1 new),         THROTTLE [0..1]; BarAlt -> BARO_ALTITUDE
-           BarAlt [m], SonAlt [m]                 (only in logs without BARO); SonAlt -> RANGE (> 0)
+           BarAlt [m], SonAlt [m]                 (only in logs without BARO); SonAlt -> RANGE (inside
+                                                  the rangefinder's limits, see below)
 CURR       Volt, Curr (V x 100, A x 100 in old)   BATTERY_VOLTAGE [V], BATTERY_CURRENT [A] (0: not connected)
 ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
 GPS        Lat, Lng [deg], Alt [m], Status        GPS (3-D fix only)
 RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
 =========  =====================================  ====================================
+
+The rangefinder's limits come from the log's own parameters (PARM), as the MAVLink driver takes
+DISTANCE_SENSOR's ``min_distance``/``max_distance``: ``RNGFND_MIN_CM``/``RNGFND_MAX_CM`` (or
+``RNGFND1_*``) where the log has them, else ArduCopter 3.0-3.1's ``SONAR_TYPE`` with the
+limits its MaxBotix driver sets (``AP_RangeFinder_MaxsonarXL.h``). A reading at or beyond a
+limit is the sensor's clamp, not a distance: an analog sonar reads its floor for anything closer
+and its maximum when no echo comes back. ``underpowered.log`` (SONAR_TYPE 0, an XL-EZ0: 20-765 cm)
+holds 304 readings of exactly 0.20 m and 260 of exactly 7.65 m, most of them on the ground, where
+a replay had shown the vehicle 7.65 m up before it took off. They are skipped and counted
+(``range_out_of_bounds``).
 """
 from __future__ import annotations
 
@@ -39,6 +50,10 @@ from drivers.logs.bulk import walk_dataflash
 from groundstation.measurement import Kind, Measurement
 
 CONTROL_RATE = 10.0     # CTUN's rate in logs without a clock [Hz]
+
+#: ArduCopter 3.0-3.1's SONAR_TYPE: (min, max) [cm] of its MaxBotix driver
+#: (libraries/AP_RangeFinder/AP_RangeFinder_MaxsonarXL.h: XL-EZ0, LV-EZ0, XL-EZL0; HRLV-EZ4)
+SONAR_TYPE_LIMITS_CM = {0: (20.0, 765.0), 1: (15.0, 645.0), 2: (20.0, 1068.0), 3: (30.0, 500.0)}
 
 
 class DataFlashError(ValueError):
@@ -63,6 +78,7 @@ class DataFlashLog:
     skipped: Counter = field(default_factory=Counter)
     clock: str = "TimeUS/TimeMS"
     damage: str = ""            # one line naming the file and the offsets of damage, or ''
+    range_limits: tuple[float, float] | None = None     # [m], from the log's parameters, if it has them
 
     @property
     def duration(self) -> float:
@@ -121,7 +137,8 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         damage = "; ".join(x for x in (damage, msgs[-1][1]) if x)
     types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
     has_baro = types["BARO"] > 0
-    log = DataFlashLog(p, [], types, damage=damage)
+    params = {m.Name: m.Value for m in msgs if not isinstance(m, tuple) and m.get_type() == "PARM"}
+    log = DataFlashLog(p, [], types, damage=damage, range_limits=rangefinder_limits(params))
     timed = any(hasattr(m, "TimeUS") or hasattr(m, "TimeMS") for m in msgs
                 if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT"))
     if not timed:
@@ -144,12 +161,24 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
                 t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
         else:
             t = n_ctun / CONTROL_RATE
-        _convert(typ, m, t, source, has_baro, out, log.skipped)
+        _convert(typ, m, t, source, has_baro, log.range_limits, out, log.skipped)
     out.sort(key=lambda x: x.t)
     return log
 
 
-def _convert(typ, m, t, s, has_baro, out, skipped) -> None:
+def rangefinder_limits(params: dict[str, float]) -> tuple[float, float] | None:
+    """The first rangefinder's (min, max) [m] from a log's parameters, or None if it does not say."""
+    for prefix in ("RNGFND1_", "RNGFND_"):
+        lo, hi = params.get(prefix + "MIN_CM"), params.get(prefix + "MAX_CM")
+        if lo is not None and hi is not None and 0 <= lo < hi:
+            return lo / 100.0, hi / 100.0
+    if params.get("SONAR_ENABLE") and int(params.get("SONAR_TYPE", -1)) in SONAR_TYPE_LIMITS_CM:
+        lo, hi = SONAR_TYPE_LIMITS_CM[int(params["SONAR_TYPE"])]
+        return lo / 100.0, hi / 100.0
+    return None
+
+
+def _convert(typ, m, t, s, has_baro, range_limits, out, skipped) -> None:
     def add(kind, value, instance=0):
         out.append(Measurement(t, kind, np.asarray(value, dtype=float), s, t, None, instance))
 
@@ -168,10 +197,12 @@ def _convert(typ, m, t, s, has_baro, out, skipped) -> None:
         if not has_baro and hasattr(m, "BarAlt"):
             add(Kind.BARO_ALTITUDE, [m.BarAlt])
         son = getattr(m, "SonAlt", getattr(m, "SAlt", 0.0))
-        if son and son > 0:
-            add(Kind.RANGE, [son])
-        else:
+        if not son or son <= 0:
             skipped["range_invalid"] += 1
+        elif range_limits is not None and not range_limits[0] < son < range_limits[1]:
+            skipped["range_out_of_bounds"] += 1        # the sensor's clamp (see the module's docstring)
+        else:
+            add(Kind.RANGE, [son])
     elif typ == "CURR":
         v, i = m.Volt, m.Curr
         if v > 100:                      # old logs: volts x 100, amps x 100
