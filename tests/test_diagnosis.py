@@ -314,7 +314,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     climb (README: BarAlt - SonAlt +2.4 m in flight, 0.0125 m/s over the 190 s to its middle), and
     the baro reading low with the rotors running near the ground (README: the dip at spin-up). The
     sonar's spurious echoes as the motors spin up on the ground are skipped: taken, they launched
-    the model to 8 m, and the range's NIS after the fix was 13."""
+    the model to 8 m, and the range's NIS after the fix was 13. And the sonar reads 0.45 s late."""
     from .conftest import real_file
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "up"
@@ -326,6 +326,8 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert 1.4 < found["thrust_voltage"]["n"] < 2.1
     assert 0.008 < found["baro_bias_drift"]["rate"] < 0.02
     assert found["baro_ground_effect"]["A"] < -0.5
+    # the sonar reads late (its autopilot's mode filter, the sensor's own): 0.45 s, found fifth
+    assert found["sensor_delay"]["sensor"] == "range" and 0.3 < found["sensor_delay"]["seconds"] < 0.5
     rng = j["after"]["sensors"]["range"]
     assert rng["skipped_spurious"] >= 6 and rng["nis_mean"] < 5.0, rng
     assert any(t0 <= 55.0 <= t1 for t0, t1 in rng["skipped_spurious_at"]), rng     # the spin-up's echoes

@@ -35,7 +35,9 @@ from .thrust import (RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight,
                      thrust_model)
 from .trace import Scored, rank
 
-MAX_EFFECTS = 4
+#: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,
+#: came after four: the baro's drift, thrust loss, rotor and baro ground effect)
+MAX_EFFECTS = 5
 MIN_SECONDS = 10.0
 #: with truth, an effect whose fix makes the estimate's error against it this much worse (by a factor,
 #: and by more than :data:`VETO_FLOOR`) is rejected: its better fit to the measurements comes from

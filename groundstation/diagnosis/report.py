@@ -43,7 +43,9 @@ from ..models.ground import LANDED
 from .thrust import LIFTOFF_REACH
 
 
-def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
+def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, float] | None = None) -> dict:
+    """``delays``: a sensor's delay in this run's model, to give its skipped readings' times as the
+    log stamps them (the model takes a late sensor's readings as of when they were measured)."""
     out = {"sensors": {}}
     for s, tr in run.sensors.items():
         if s == LANDED:              # the on-ground constraint, not a sensor
@@ -60,7 +62,8 @@ def _summary(run: Run, findings, truth, t0: float, t1: float) -> dict:
         spurious = run.estimator.filter.ctx.values.get(f"{s}_spurious")
         if spurious:                                                  # thrust.LIFTOFF_REACH
             out["sensors"][s]["skipped_spurious"] = len(spurious)
-            out["sensors"][s]["skipped_spurious_at"] = _spans(spurious)
+            late = (delays or {}).get(s, 0.0)
+            out["sensors"][s]["skipped_spurious_at"] = _spans([t + late for t in spurious])
     if truth is not None:
         e = truth.error(run, t0, t1)
         if math.isfinite(e):
@@ -98,7 +101,8 @@ def as_json(d: Diagnosis) -> dict:
         "unobservable": d.unobservable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
-        "after": _summary(d.after, d.findings_after, d.truth, t0, t1),
+        "after": _summary(d.after, d.findings_after, d.truth, t0, t1,
+                          {e.params["sensor"]: e.params["seconds"] for e in d.effects if e.name == "sensor_delay"}),
         "findings_before": [f.as_dict() for f in d.findings_before],
         "findings_after": [f.as_dict() for f in d.findings_after],
     }
