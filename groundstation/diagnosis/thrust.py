@@ -530,7 +530,7 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
     # the range's own delay, on a grid to half a second: a lagged thrust reaches the baro too, a late
     # range reading does not. On underpowered.log, with four effects in, the range innovations still
     # followed the vertical speed 0.3 s earlier (49 % of their variance), and a delayed range scored
-    # Delta BIC -971 against the lag's -898 (ArduCopter 3.0 passes its sonar through a 5-sample mode filter)
+    # Delta BIC -970 against the lag's -898 (ArduCopter 3.0 passes its sonar through a 5-sample mode filter)
     cands.append(Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=RANGE_DELAYS))
     return [c for c in cands if c.needs <= kinds]
 
