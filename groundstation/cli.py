@@ -32,7 +32,7 @@ from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 
 from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
-from .estimators import MODELS, build_estimator, declared_beside, declared_effects
+from .estimators import MODELS, build_estimator, declared_beside, declared_effects, vehicle_config
 from .diagnosis.cli import add_parser as add_diagnose_parser, cmd_diagnose
 from .estimator import horizontal_estimator
 from .export import EstimateCsvWriter, MeasurementCsvWriter
@@ -67,6 +67,9 @@ def _add_web_options(p: argparse.ArgumentParser) -> None:
 def _add_output_options(p: argparse.ArgumentParser) -> None:
     _add_web_options(p)
     p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
+    p.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
+                                     "noise, thrust curve and sensor limits for this airframe; default: what the "
+                                     "log implies (a Crazyflie log: crazyflie)")
     p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
     p.add_argument("--declared", type=Path,
                    help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any")
@@ -140,6 +143,8 @@ def _run(args) -> int:
             return cmd_sim(args)
         if args.command == "demo":
             return asyncio.run(run_demo(args))
+        if args.vehicle:
+            vehicle_config(args.vehicle, args.model)    # an unknown one is a one-line error before anything starts
         runner = {"connect": run_connect, "replay": run_replay}[args.command]
         return asyncio.run(runner(args))
     except BrokenPipeError:
@@ -303,7 +308,7 @@ async def run_connect(args) -> int:
     stop = asyncio.Event()
     _install_stop(stop)
     dash = _start_dashboard(args)
-    out = Outputs(args, args.declared, dash)
+    out = Outputs(args, args.declared, dash, args.vehicle)
     status = out.status
     rates = RateMeter()
 
@@ -369,7 +374,7 @@ def _open_replay(args) -> tuple[Replay, str, str | None]:
 async def run_replay(args) -> int:
     rp, desc, vehicle = _open_replay(args)
     dash = _start_dashboard(args)
-    out = Outputs(args, args.declared or declared_beside(args.file), dash, vehicle)
+    out = Outputs(args, args.declared or declared_beside(args.file), dash, args.vehicle or vehicle)
     status = out.status
     print(f"replaying {args.file}: {desc} at "
           f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)

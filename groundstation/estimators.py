@@ -70,7 +70,8 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))
     if name == "quad_thrust":
-        return quad_thrust_estimator(quad_thrust_model(range_tilt="range_tilt" in names))
+        # a vehicle file's thrust curve, drag, noise and range limits (sim_quad, apm2_sonar)
+        return quad_thrust_estimator(quad_thrust_model(range_tilt="range_tilt" in names, **params))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
 
 

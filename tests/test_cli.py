@@ -51,6 +51,28 @@ def test_replay_export_of_a_real_tlog(tmp_path):
     assert all(b >= a for a, b in zip(ts, ts[1:]))
 
 
+def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
+    """``--vehicle`` gives the live estimator an airframe's constants, as ``diagnose`` and
+    ``evaluate`` take them: the simulated quad's thrust curve (alpha 22, beta -1.2) instead of the
+    thrust model's defaults. An unknown vehicle is a one-line error naming the known ones, before
+    anything starts."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+    log = tmp_path / "q.tlog"
+    run_fast(Scenario.from_args("quad", 7, 6.0, ["range_tilt"], []), log)
+    first = {}
+    for vehicle in (None, "sim_quad"):
+        est = tmp_path / f"{vehicle}.csv"
+        r = run("replay", str(log), "--speed", "max", "--no-web", "--quiet", "--model", "quad_thrust",
+                "--export", str(est), *(["--vehicle", vehicle] if vehicle else []))
+        assert r.returncode == 0, r.stderr
+        first[vehicle] = next(csv.DictReader(open(est)))
+    assert float(first["sim_quad"]["alpha"]) == pytest.approx(22.0, abs=0.5)
+    assert float(first["sim_quad"]["beta"]) == pytest.approx(-1.2, abs=0.3)
+    assert float(first[None]["alpha"]) == pytest.approx(20.0, abs=0.5)
+    assert_one_line_error(run("replay", str(log), "--no-web", "--vehicle", "nosuch"), "no vehicle configuration 'nosuch'")
+
+
 @pytest.mark.parametrize("case,content,text", [
     ("text", b"just some notes, not telemetry\n" * 500, "not a MAVLink tlog"),
     ("empty", b"", "not a MAVLink tlog"),
