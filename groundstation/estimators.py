@@ -7,6 +7,7 @@ Undeclared effects are, by definition, not here: finding them is the diagnosis's
 """
 from __future__ import annotations
 
+import inspect
 import json
 from pathlib import Path
 
@@ -39,8 +40,24 @@ def _vehicle_file(vehicle: str) -> dict:
 
 
 def vehicle_config(vehicle: str | None, model: str) -> dict:
-    """A vehicle's model parameters (``groundstation/vehicles/<vehicle>.json``), or none."""
-    return dict(_vehicle_file(vehicle).get(model, {})) if vehicle else {}
+    """A vehicle's model parameters (``groundstation/vehicles/<vehicle>.json``), or none. A name the
+    model does not take is a one-line error here, not a TypeError from deep in the model's factory."""
+    if not vehicle:
+        return {}
+    params = dict(_vehicle_file(vehicle).get(model, {}))
+    known = _model_options(model)
+    unknown = sorted(set(params) - known) if known else []
+    if unknown:
+        raise ValueError(f"vehicle configuration {vehicle!r}: {model} takes no {', '.join(map(repr, unknown))}; "
+                         f"it takes {', '.join(sorted(known))}")
+    return params
+
+
+def _model_options(model: str) -> set[str]:
+    """The keyword options of a model's factory (empty: a model a vehicle file cannot configure)."""
+    from .models.attitude_drag import attitude_drag_model
+    factory = {"altitude": altitude_model, "quad_thrust": quad_thrust_model, "attitude": attitude_drag_model}.get(model)
+    return set(inspect.signature(factory).parameters) if factory else set()
 
 
 def vehicle_effects(vehicle: str | None) -> list[dict]:

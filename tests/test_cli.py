@@ -73,6 +73,23 @@ def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
     assert_one_line_error(run("replay", str(log), "--no-web", "--vehicle", "nosuch"), "no vehicle configuration 'nosuch'")
 
 
+def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(tmp_path, monkeypatch):
+    """A misspelt key in a vehicle file (alhpa0) was a TypeError traceback from the model's factory,
+    in replay and in diagnose alike; the shared reader now names it and what the model takes."""
+    import json
+
+    from groundstation import estimators
+    (tmp_path / "typo.json").write_text(json.dumps({"quad_thrust": {"alhpa0": 22.0, "drag": 0.35}}))
+    monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
+    with pytest.raises(ValueError, match="quad_thrust takes no 'alhpa0'; it takes .*alpha0"):
+        estimators.vehicle_config("typo", "quad_thrust")
+    assert estimators.vehicle_config("typo", "altitude") == {}
+    monkeypatch.undo()
+    for name in ("sim_quad", "apm2_sonar", "crazyflie"):           # the shipped files all read
+        for model in ("altitude", "quad_thrust", "attitude"):
+            estimators.vehicle_config(name, model)
+
+
 @pytest.mark.parametrize("case,content,text", [
     ("text", b"just some notes, not telemetry\n" * 500, "not a MAVLink tlog"),
     ("empty", b"", "not a MAVLink tlog"),
