@@ -128,8 +128,9 @@ class KalmanEstimator:
                 continue
             f.ctx.values["z"] = float(f.x[0])
             z = mm.extract(m, f.ctx)
+            why = f.ctx.values.pop("skip_why", None)        # an extract's own reason (models.range_gate)
             if z is None:
-                self.counters.skip(f"{mm.name}_not_used")     # calibrating, out of range
+                self.counters.skip(f"{mm.name}_{why or 'not_used'}")     # calibrating, out of range
                 continue
             if not np.all(np.isfinite(z)):
                 self.counters.skip(f"{mm.name}_invalid")

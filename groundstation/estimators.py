@@ -8,6 +8,7 @@ Undeclared effects are, by definition, not here: finding them is the diagnosis's
 from __future__ import annotations
 
 import inspect
+import math
 import json
 from pathlib import Path
 
@@ -15,6 +16,7 @@ from .estimator import KalmanEstimator, altitude_estimator, heli3dof_estimator, 
 from .models.altitude import altitude_model
 from .models.ground import on_ground
 from .models.quad_thrust import quad_thrust_model
+from .models.range_gate import range_gate
 
 MODELS = ("altitude", "quad_thrust", "heli3dof")
 
@@ -80,15 +82,18 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     names = {e.get("name") for e in declared}
     params = vehicle_config(vehicle, name)
     if name == "altitude":
-        # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one)
-        return altitude_estimator(on_ground(altitude_model(range_tilt="range_tilt" in names,
-                                                           range_offset=range_offset(declared), **params)))
+        # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one),
+        # and a range reading there is no height until the vehicle climbs (models.range_gate)
+        return altitude_estimator(range_gate(on_ground(altitude_model(range_tilt="range_tilt" in names,
+                                                                      range_offset=range_offset(declared), **params))))
     if name == "heli3dof":
         from .models.heli3dof import heli3dof_model
         return heli3dof_estimator(heli3dof_model(R=noise))
     if name == "quad_thrust":
         # a vehicle file's thrust curve, drag, noise and range limits (sim_quad, apm2_sonar)
-        return quad_thrust_estimator(quad_thrust_model(range_tilt="range_tilt" in names, **params))
+        floor = params.get("range_limits", (0.0, math.inf))[0]
+        return quad_thrust_estimator(range_gate(on_ground(quad_thrust_model(range_tilt="range_tilt" in names,
+                                                                            **params)), floor=floor))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
 
 

@@ -53,7 +53,7 @@ import numpy as np
 from ..estimator import (TAU_GROUND, KalmanEstimator, _angular_rate, _attitude, _quaternion, landed,
                          _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
 from ..measurement import Kind, Measurement
-from ..models.base import Context, LinearModel, MeasurementModel, relative_to_estimate, unit_row
+from ..models.base import Context, LinearModel, unit_row
 from ..models.ground import LANDED, on_ground
 from ..models.quad_thrust import DRAG, quad_thrust_model
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
@@ -112,7 +112,7 @@ DIAGNOSIS_G_ACC = 0.006
 def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltage_sag: float | None = None,
                  voltage_noise: float | None = None, **params) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
-    module's docstring), a baro given as an altitude too, and the input widened for the
+    module's docstring) and the input widened for the
     couplings."""
     params.setdefault("range_limits", (RANGE_FLOOR, math.inf))
     # the diagnosis' own setting (its alpha and beta constants from the log; the live filter's
@@ -121,16 +121,6 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
     params.setdefault("sigma_tof0", TOF_HELD)
     m = quad_thrust_model(G_alpha=0.0, G_beta=0.0, G_bar=0.0, G_tof=0.0, drag=drag, **params)
     meas = dict(m.measurements)
-    from_altitude = relative_to_estimate(lambda mm: float(mm.value[0]), "baro_alt_ref", 25)
-    pressure = meas["baro"].extract
-
-    def baro_pressure(mm, ctx):
-        ctx.values["baro_has_pressure"] = 1.0
-        return pressure(mm, ctx)
-
-    def baro_altitude(mm, ctx):
-        # one barometer, one update (DataFlash BARO gives Press and Alt of the same sample)
-        return None if ctx.values.get("baro_has_pressure") else from_altitude(mm, ctx)
     rng = meas["range"]
 
     def range_airborne(mm, ctx, extract=rng.extract):
@@ -151,10 +141,6 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
         return z
     meas["range"] = replace(rng, extract=range_airborne)
 
-    row = meas["baro"].row
-    R = meas["baro"].R
-    meas["baro"] = MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R)
-    meas["baro_alt"] = MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)
     B = np.hstack([m.B, np.zeros((m.n, 6))])
     B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)

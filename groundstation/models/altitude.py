@@ -38,9 +38,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel, relative_to_estimate, slant
+from .base import LinearModel, MeasurementModel, barometer, relative_to_estimate, slant
 
 G = 9.80665
 
@@ -68,28 +67,12 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
     def range_row(ctx):
         return np.array([[slant(ctx), 0.0, 0.0]])
 
-    from_pressure = relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50)
-    from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)
-
-    def baro_pressure(m, ctx):
-        ctx.values["baro_has_pressure"] = 1.0
-        return from_pressure(m, ctx)
-
-    def baro_altitude(m, ctx):
-        # One barometer, one update: a log that gives the same sample as a pressure
-        # and as an altitude (DataFlash BARO: Press and Alt) is read from the pressure.
-        return None if ctx.values.get("baro_has_pressure") else from_altitude(m, ctx)
-
     meas = {
         "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0] - range_offset]),
                                   range_row if range_tilt else (lambda ctx: H), np.array([[sigma_range**2]])),
-        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, lambda ctx: H,
-                                 np.array([[sigma_baro**2]])),
         "gps": MeasurementModel("gps", Kind.GPS, relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
                                 lambda ctx: H, np.array([[sigma_gps**2]])),
-        # logs that give the barometer as an altitude (DataFlash BARO.Alt, Crazyflie baro.asl)
-        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, lambda ctx: H,
-                                     np.array([[sigma_baro**2]])),
+        **barometer(lambda ctx: H, np.array([[sigma_baro**2]])),
     }
     if not use_gps:
         # GPS altitude errors are correlated over tens of seconds (2 m over 20 s in the

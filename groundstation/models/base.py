@@ -199,6 +199,26 @@ def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_c
     return extract
 
 
+def barometer(row: Callable[[Context], np.ndarray], R: np.ndarray) -> dict[str, MeasurementModel]:
+    """A barometer's two forms, as a height relative to the ground station's zero: a pressure
+    (MAVLink SCALED_PRESSURE, ``baro``; the standard atmosphere's altitude) and an altitude (DataFlash
+    BARO.Alt, Crazyflie baro.asl, ``baro_alt``), both named ``baro``. One barometer, one update: a
+    log that gives the same sample as a pressure and as an altitude (DataFlash BARO: Press and Alt)
+    is read from the pressure."""
+    from ..atmosphere import altitude_at
+    from_pressure = relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50)
+    from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)
+
+    def baro_pressure(m, ctx):
+        ctx.values["baro_has_pressure"] = 1.0
+        return from_pressure(m, ctx)
+
+    def baro_altitude(m, ctx):
+        return None if ctx.values.get("baro_has_pressure") else from_altitude(m, ctx)
+    return {"baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R),
+            "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)}
+
+
 def unit_row(n: int, i: int) -> np.ndarray:
     """H for a measurement of state i alone, of an n-state model."""
     r = np.zeros((1, n))

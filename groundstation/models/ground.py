@@ -8,7 +8,8 @@ throttle message (:func:`groundstation.estimator.landed` says when), at the filt
 
 * ``vz = 0`` (sigma 5 cm/s) while landed: the vehicle does not move;
 * ``z = 0`` (sigma 3 cm) while landed *and* the range sensor has gone quiet after
-  reading at least once: below its minimum distance it reports nothing (the
+  reading at least once, or reads what :mod:`.range_gate` skips as no height (a sonar's
+  steady echo with the motors stopped): below its minimum distance it reports nothing (the
   MAVLink drivers drop a DISTANCE_SENSOR reading outside [min, max]). The height is
   then between 0 and that minimum. This is PX4 EKF2's on-ground range: with the
   range sensor sending but invalid on the ground, it synthesises a reading at the
@@ -25,6 +26,7 @@ and they are not scored, tested or plotted as a sensor's.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -62,8 +64,10 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
         return np.array([0.0]) if landed(ctx) else None
 
     def on_the_ground(m, ctx):
-        t_range = ctx.values.get("range_read_at")
-        quiet = t_range is not None and m.t - t_range > RANGE_QUIET
+        # the sensor has sent (a reading used, or one models.range_gate skipped) and none used lately
+        v = ctx.values
+        sent = "range_read_at" in v or "range_on_ground_at" in v
+        quiet = sent and m.t - v.get("range_read_at", -math.inf) > RANGE_QUIET
         return np.array([0.0]) if quiet and landed(ctx) else None
 
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):

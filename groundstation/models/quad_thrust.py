@@ -48,9 +48,8 @@ import math
 import numpy as np
 from scipy.linalg import expm
 
-from ..atmosphere import altitude_at
 from ..measurement import Kind
-from .base import LinearModel, MeasurementModel, observability_rank, relative_to_estimate, slant
+from .base import LinearModel, MeasurementModel, barometer, observability_rank, relative_to_estimate, slant
 
 G = 9.80665
 #: the airframe's vertical drag when the vehicle file does not give it [1/s]
@@ -124,9 +123,7 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, drag: float =
     meas = {
         "range": MeasurementModel("range", Kind.RANGE, range_value, tof_row,
                                   np.array([[sigma_range**2]])),
-        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE,
-                                 relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50),
-                                 lambda ctx: row(0, 4), np.array([[sigma_baro**2]])),
+        **barometer(lambda ctx: row(0, 4), np.array([[sigma_baro**2]])),
     }
     if use_gps:
         meas["gps"] = MeasurementModel("gps", Kind.GPS,
