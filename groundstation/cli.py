@@ -31,7 +31,7 @@ from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 
-from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
+from .console import REPLAY_HELP, StatusLine, counted, print_link_events, replay_command
 from .estimators import MODELS, build_estimator, declared_beside, declared_effects, vehicle_config
 from .diagnosis.cli import add_parser as add_diagnose_parser, cmd_diagnose
 from .estimator import horizontal_estimator
@@ -246,6 +246,9 @@ class Outputs:
         self.loop.flush()
         self._drain()
         parts = []
+        rejected = self.estimator.counters.rejected
+        if rejected:
+            parts.append(f"the estimator skipped {counted(rejected)}")
         if self.estimates is not None:
             self.estimates.close()
             parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
@@ -366,7 +369,7 @@ def _open_replay(args) -> tuple[Replay, str, str | None]:
     if is_dataflash(args.file) or is_crazyflie_log(args.file):
         ms, desc, vehicle = load_measurements(args.file)
         rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start, measurements=ms)
-        return rp, f"{desc}, {len(rp.index)} measurements", vehicle
+        return rp, desc, vehicle
     rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
     return rp, f"{len(rp.index)} records, {rp.duration:.1f} s", None
 
@@ -376,8 +379,8 @@ async def run_replay(args) -> int:
     dash = _start_dashboard(args)
     out = Outputs(args, args.declared or declared_beside(args.file), dash, args.vehicle or vehicle)
     status = out.status
-    print(f"replaying {args.file}: {desc} at "
-          f"{'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed", flush=True)
+    print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}",
+          flush=True)
     if rp.speed == math.inf and not args.loop and dash is None:
         # Batch: the same receive path, without an event loop round trip per record.
         for m in rp.iter_measurements():

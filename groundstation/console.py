@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Mapping, TextIO
 
 from drivers.mavlink.receiver import LinkCounters
 
@@ -93,3 +93,8 @@ def replay_command(line: str, replay, stop) -> str:
     except ValueError as e:
         return f"? {e}"
     return f"? {REPLAY_HELP}"
+
+
+def counted(counts: Mapping[str, int]) -> str:
+    """Counted skips as one phrase, most first: ``564 range_out_of_bounds, 12 not_finite``."""
+    return ", ".join(f"{n} {why}" for why, n in sorted(counts.items(), key=lambda kv: -kv[1]) if n)

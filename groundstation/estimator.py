@@ -32,6 +32,13 @@ class EstimatorCounters:
     def skip(self, why: str) -> None:
         self.skipped[why] = self.skipped.get(why, 0) + 1
 
+    @property
+    def rejected(self) -> dict[str, int]:
+        """The skips of data: not finite, out of order, invalid, or refused by a model with its reason
+        (``range_on_ground``, ``range_out_of_bounds``). Not ``*_not_used``: a barometer's calibration
+        readings, a pseudo-sensor's constraint that did not apply (``landed`` in flight)."""
+        return {k: n for k, n in self.skipped.items() if not k.endswith("_not_used")}
+
 
 class KalmanEstimator:
     """``handle(m)`` -> the innovation record when ``m`` was a measurement update.

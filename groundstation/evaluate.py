@@ -20,6 +20,7 @@ from drivers.logs.crazyflie import is_crazyflie_log, measurements as cf_measurem
 from drivers.logs.dataflash import is_dataflash, read_dataflash
 
 from .atmosphere import altitude_at
+from .console import counted
 from .derived import with_attitude
 from .estimators import build_estimator, range_offset, vehicle_effects
 from .loop import EstimationLoop
@@ -43,18 +44,25 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     return float(chi2.sf(q, lags))
 
 
+def _reader_skipped(skipped) -> str:
+    """The reader's counted skips of readings (not the streams it does not convert)."""
+    text = counted({k: n for k, n in skipped.items() if not k.startswith("not_converted:")})
+    return f"; the reader skipped {text}" if text else ""
+
+
 def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
     """Any supported log -> (measurements in time order, a one-line description,
     the vehicle configuration it implies)."""
     if is_crazyflie_log(path):
         log = read_crazyflie(path)
         ms = list(with_attitude(cf_measurements(log)))
-        desc = f"Crazyflie uSD log, {log.duration:.1f} s" + (f"; {log.damage}" if log.damage else "")
-        return ms, desc, "crazyflie"
+        desc = f"Crazyflie uSD log, {log.duration:.1f} s, {len(ms)} measurements" + (f"; {log.damage}" if log.damage else "")
+        return ms, desc + _reader_skipped(log.skipped), "crazyflie"
     if is_dataflash(path):
         log = read_dataflash(path)
-        return log.measurements, (f"ArduPilot DataFlash log, {log.duration:.1f} s (clock: {log.clock})"
-                                  + (f"; {log.damage}" if log.damage else "")), None
+        return log.measurements, (f"ArduPilot DataFlash log, {log.duration:.1f} s, {len(log.measurements)} "
+                                  f"measurements (clock: {log.clock})" + (f"; {log.damage}" if log.damage else "")
+                                  + _reader_skipped(log.skipped)), None
     rp = Replay(path)
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()

@@ -1,5 +1,8 @@
 """models.range_gate: a landed vehicle's range readings that are not its height, in the live filters."""
 import math
+import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -122,3 +125,16 @@ def test_underpowered_log_stands_on_the_ground_and_flies_on_its_sonar(model):
     rng = np.array([(m.t, m.value[0]) for m in log.measurements if m.kind is Kind.RANGE and 66.0 < m.t < 80.0])
     in_air = (t > 66.0) & (t < 80.0)
     assert abs(np.median(z[in_air]) - np.median(rng[:, 1])) < 0.15
+
+
+def test_replay_says_what_the_reader_and_the_estimator_skipped():
+    """The counted skips are on the replay's first and last lines: the sonar's clamps (the reader)
+    and its echoes on the ground (the estimator)."""
+    log = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
+    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(log), "--speed", "max", "--no-web",
+                        "--quiet", "--vehicle", "apm2_sonar"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    first, last = r.stdout.splitlines()[0], r.stdout.splitlines()[-1]
+    assert "17503 measurements" in first and first.endswith("the reader skipped 564 range_out_of_bounds"), first
+    n = int(re.search(r"the estimator skipped (\d+) range_on_ground", last).group(1))
+    assert 200 < n < 600, last

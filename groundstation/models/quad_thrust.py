@@ -103,7 +103,10 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, drag: float =
 
     def range_value(m, ctx):
         d = float(m.value[0])
-        return np.array([d]) if lo < d < hi else None
+        if lo < d < hi:
+            return np.array([d])
+        ctx.values["skip_why"] = "out_of_bounds"       # counted as range_out_of_bounds
+        return None
     B = np.zeros((6, 3))
     B[1, 2] = -1.0                     # gravity, as a known input g
 
