@@ -92,8 +92,10 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     if name == "quad_thrust":
         # a vehicle file's thrust curve, drag, noise and range limits (sim_quad, apm2_sonar)
         floor = params.get("range_limits", (0.0, math.inf))[0]
+        # the ground's constraints as Schmidt updates: its stop says nothing of the thrust coefficients
+        # (with full updates a simulated landing's reset moved alpha, beta from 19.8, 0.4 to 16.0, 3.2)
         return quad_thrust_estimator(range_gate(on_ground(quad_thrust_model(range_tilt="range_tilt" in names,
-                                                                            **params)), floor=floor))
+                                                                            **params), consider=True), floor=floor))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
 
 
