@@ -138,3 +138,18 @@ def test_replay_says_what_the_reader_and_the_estimator_skipped():
     assert "17503 measurements" in first and first.endswith("the reader skipped 564 range_out_of_bounds"), first
     n = int(re.search(r"the estimator skipped (\d+) range_on_ground", last).group(1))
     assert 200 < n < 600, last
+
+
+def test_motors_stopped_in_the_air_do_not_lock_the_range_out_for_the_flight():
+    """A throttle at 0 for 0.5 s in flight (a pilot's stick fully down, on a log whose throttle is
+    the demand) closes the gate 3 m up, with no take-off to come: a track that holds 10 s opens it."""
+    ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -G]) for k in range(1600)]
+    ms += [_m(0.005 + k * 0.1, Kind.RANGE, 3.0 + 0.01 * math.sin(k)) for k in range(160)]
+    ms += [_m(k * 0.02, Kind.THROTTLE, 0.0 if 4.0 <= k * 0.02 < 4.5 else 0.5) for k in range(800)]
+    est = build_estimator("altitude")
+    z = _run(est, ms)
+    assert z[3.99] > 2.5                                    # unsure for 2 s, then the range's
+    n = z.skipped[3.99]
+    assert z.skipped[14.4] - n > 90                         # closed at 4 s: skipped while the track holds
+    assert z.skipped[15.99] == z.skipped[14.6]              # open again
+    assert z[14.4] < 1.0 and z[15.99] == pytest.approx(3.0, abs=0.2)     # set down at 4 s, back up on the range

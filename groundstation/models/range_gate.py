@@ -19,16 +19,17 @@ reading is believed that far up only once the range has followed the vehicle up.
 when it sees the vehicle leave the ground, which it does continuously from the sensor's floor at
 10-50 readings a second:
 
-* a *track* starts at a reading within :data:`LIFTOFF_REACH` of the floor;
-* each next reading must follow within :data:`TRACK_GAP` s and within a climb's step of the last
-  (:data:`CLIMB_SPEED` times the interval, plus :data:`STEP_NOISE`); otherwise the track is dropped;
-* the gate opens, at the reading that does it, once the track has risen :data:`CLIMB_RISE` above
-  its start.
+* a *track* is readings that follow each other within :data:`TRACK_GAP` s and within a climb's
+  step of the last (:data:`CLIMB_SPEED` times the interval, plus :data:`STEP_NOISE`); a reading
+  that does not starts a new one;
+* the gate opens, at the reading that does it, once a track that started within
+  :data:`LIFTOFF_REACH` of the floor has risen :data:`CLIMB_RISE` above its start.
 
 A steady floor reading does not open it (underpowered.log read 0.21 m four times in spin-up, then
 2.57 m and 7.61 m: on the ground, in prop wash); its take-off at 61.1 s reads 0.23, 0.27, 0.34,
 0.41 m and opens the gate at 61.7 s. Nothing of a take-off is lost: its first readings are within
-reach.
+reach. Should the motors stop in the air (a pilot's stick fully down, on a log whose throttle is
+the autopilot's demand), a track that holds :data:`CLOSED_HOLD` s opens it too.
 
 At the start (a log's, or a link joined at any time) the gate is *unsure*: the motors running
 says neither that the vehicle flies nor that it stands. Readings beyond reach are skipped there
@@ -66,6 +67,10 @@ TRACK_GAP = 0.5
 #: long say the vehicle flies (a link joined in flight). underpowered.log's first 1.2 s, at ground
 #: idle, read a steady 1.98 m before its motors stopped
 UNSURE_HOLD = 2.0
+#: [s] ... and after the motors were seen stopped: the way out if they stop in the air (a pilot's
+#: stick fully down, on a log whose throttle is the autopilot's demand). On the ground with the
+#: motors running, underpowered.log's sonar held a steady echo for 3.1 s at most (23.1-26.2 s)
+CLOSED_HOLD = 10.0
 #: the gate's states (``range_gate`` in the context): not yet sure the vehicle flies (at the start, with
 #: the motors running), closed (the motors were seen stopped), open (the range has seen it fly)
 UNSURE, CLOSED, OPEN = "unsure", "closed", "open"
@@ -102,21 +107,21 @@ def range_gate(model: LinearModel, *, floor: float = 0.0) -> LinearModel:
 
 def _leaves_ground(v: dict, t: float, d: float, reach: float, *, sure: bool) -> bool:
     """Extend (or start, or drop) the track with the reading ``d`` at ``t``; True when it says the
-    vehicle is in the air: it has climbed :data:`CLIMB_RISE` from within ``reach`` of the ground, or,
-    unless ``sure`` the vehicle stood on the ground, it has held for :data:`UNSURE_HOLD` s. The track
-    is a tuple (t0, d0, t_last, d_last), replaced, not changed: a checkpoint's shallow copy of the
-    context must not share it."""
-    track = v.get("range_track")
+    vehicle is in the air: it has climbed :data:`CLIMB_RISE` from within ``reach`` of the ground, or
+    it has held :data:`UNSURE_HOLD` s (:data:`CLOSED_HOLD` s when ``sure`` the vehicle stood on the
+    ground). The track is a tuple (t0, d0, t_last, d_last), replaced, not changed: a checkpoint's
+    shallow copy of the context must not share it."""
     if not math.isfinite(d):
         return False
+    track = v.get("range_track")
     if track is not None:
         t0, d0, t_last, d_last = track
         dt = t - t_last
         if 0.0 <= dt <= TRACK_GAP and abs(d - d_last) <= CLIMB_SPEED * dt + STEP_NOISE:
-            if (d0 <= reach and d - d0 >= CLIMB_RISE) or (not sure and t - t0 >= UNSURE_HOLD):
+            if (d0 <= reach and d - d0 >= CLIMB_RISE) or t - t0 >= (CLOSED_HOLD if sure else UNSURE_HOLD):
                 v["range_track"] = None
                 return True
             v["range_track"] = (t0, d0, t, d)
             return False
-    v["range_track"] = (t, d, t, d) if d <= reach or not sure else None
+    v["range_track"] = (t, d, t, d)
     return False
