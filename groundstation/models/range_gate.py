@@ -4,8 +4,8 @@ None of the design documents has a range sensor on the ground: their range is th
 flight. A real one on a landed vehicle reads steadily what is not the ground under it. ArduPilot's
 ``underpowered.log`` (shared/data/real/ardupilot_dataflash): its MaxBotix sonar read 1.98 m for
 the first 28 s with the motors stopped and the baro at 0.0 m, then 2-7.6 m as the motors spun up
-on the ground; in flight, 0.2 m from the ground, it reads the vehicle's climb from its floor. The
-live filters took the echoes: a replay showed the standing vehicle 1.9 m up (altitude model) and
+on the ground; at the take-off it reads the climb from its 0.2 m floor up. The live filters took
+the echoes: a replay showed the standing vehicle 1.9 m up (altitude model) and
 1.5-6 m up (thrust model) for the first minute.
 
 The gate closes while the motors are stopped (throttle below
@@ -39,7 +39,7 @@ gate.
 
 A range sensor whose minimum is above :data:`LIFTOFF_REACH` (none of the small rotorcraft's sonars
 and time-of-flight sensors here) needs its floor given (``floor``, from a vehicle file's
-``range_limits``), or it would never open the gate after a landing.
+``range_limits``); without it, its gate opens only :data:`CLOSED_HOLD` s into each flight.
 """
 from __future__ import annotations
 
