@@ -214,6 +214,7 @@ class Outputs:
             # the 3D view needs a horizontal place and its covariance; none of the
             # documents' models has one (see models/horizontal.py)
             estimators.append(horizontal_estimator())
+            dashboard.estimator_counters = self.estimator.counters       # its skips, under the state
         self.loop = EstimationLoop(estimators)
         self.status = StatusLine()
         self.dashboard = dashboard

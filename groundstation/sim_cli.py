@@ -165,6 +165,8 @@ async def run_demo(args) -> int:
     if dash is not None:
         dash.declared = declared
     estimators = [build_estimator(model, declared)]
+    if dash is not None:
+        dash.estimator_counters = estimators[0].counters        # its skips, under the state
     if dash is not None and args.vehicle != "heli3dof":      # the rig is bolted to the table
         estimators.append(horizontal_estimator())
     loop = EstimationLoop(estimators)

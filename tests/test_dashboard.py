@@ -217,3 +217,23 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
         pusher.cancel()
         await asyncio.gather(pusher, return_exceptions=True)
         d.stop()
+
+
+def test_the_state_panel_lists_what_the_estimator_skipped():
+    """A replay of underpowered.log skips its sonar's echoes on the ground: the state panel says so
+    under the table, as the replay's last line does (not a calibration's or the ground's non-uses)."""
+    from groundstation.estimator import EstimatorCounters
+    from groundstation.loop import Snapshot
+    from web.dashboard import Dashboard
+    dash = Dashboard(port=0)
+    try:
+        counters = EstimatorCounters(skipped={"range_on_ground": 310, "baro_not_used": 49, "landed_not_used": 9})
+        dash.estimator_counters = counters
+        dash.feed_snapshot(Snapshot(1.0, "altitude", ("z", "vz", "b_acc"), np.zeros(3), np.eye(3) * 1e-4, None, 0.0))
+        dash.update_panels()
+        assert dash.state_md.content.endswith("\n\nskipped: 310 range_on_ground"), dash.state_md.content
+        counters.skipped.clear()
+        dash.update_panels()
+        assert "skipped" not in dash.state_md.content
+    finally:
+        dash.stop()

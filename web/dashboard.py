@@ -32,6 +32,7 @@ import numpy as np
 import viser
 from scipy.stats import chi2
 
+from groundstation.console import counted
 from groundstation.measurement import Kind, Measurement
 from groundstation.models.ground import LANDED
 
@@ -98,6 +99,8 @@ class Dashboard:
         self._params: deque = deque()       # (t, x[2:], sigma[2:])
         self._dirty = False
         self.status_text = "waiting for data"
+        #: the estimator's counters (its skipped readings are listed under the state), if one is attached
+        self.estimator_counters = None
         from groundstation.diagnosis.live import SessionBuffer
         self.session = SessionBuffer()
         self._diagnosing = False
@@ -330,7 +333,10 @@ class Dashboard:
         s = self._snap
         if s is not None:
             rows = "\n".join(f"| {n} | {v:+.4f} | ±{sg:.4f} |" for n, v, sg in zip(s.states, s.x, s.sigma))
-            self.state_md.content = f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}"
+            rejected = self.estimator_counters.rejected if self.estimator_counters is not None else {}
+            skipped = f"\n\nskipped: {counted(rejected)}" if rejected else ""
+            self.state_md.content = (f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}"
+                                     + skipped)
         t_now = self._series[-1][0] if self._series else 0.0
         for buf in (self._series, self._meas, self._innov, self._params):
             while buf and buf[0][0] < t_now - self.window_s:
