@@ -52,10 +52,6 @@ class _At:
         return self.v[int(np.searchsorted(self.t, t, side="right")) - 1]
 
 
-def _run(est, ms):
-    return _Heights(est, ms)
-
-
 @pytest.mark.parametrize("model", ["altitude", "quad_thrust"])
 def test_echoes_with_the_motors_stopped_and_in_spin_up_are_skipped_and_a_take_off_opens_the_gate(model):
     """Motors stopped 0-5 s with the range reading a steady 1.98 m (underpowered.log's echo), spun up
@@ -75,7 +71,7 @@ def test_echoes_with_the_motors_stopped_and_in_spin_up_are_skipped_and_a_take_of
         t = 0.005 + k * 0.1
         d = 1.98 if t < 5.0 else echoes[k % len(echoes)] if t < 8.0 else _climb(t)[0]
         ms.append(_m(t, Kind.RANGE, d))
-    z = _run(est, ms)
+    z = _Heights(est, ms)
     skipped = est.counters.skipped.get("range_on_ground", 0)
     assert abs(z[4.99]) < 0.05, z[4.99]           # on the ground, not 1.98 m up
     assert abs(z[7.99]) < 0.35, z[7.99]           # the 0.21 m floor readings used, the echoes not
@@ -98,7 +94,7 @@ def test_a_link_joined_in_flight_takes_the_range_once_it_has_held_and_without_a_
         if with_throttle:
             ms += [_m(k * 0.02, Kind.THROTTLE, 0.5) for k in range(250)]
         est = build_estimator("altitude")
-        return est, _run(est, ms)
+        return est, _Heights(est, ms)
     est, z = flight(True)
     assert abs(z[1.5]) < 0.1 and 15 <= est.counters.skipped["range_on_ground"] <= 21      # 2 s at 10 Hz
     assert z[4.99] == pytest.approx(3.0, abs=0.1)
@@ -147,7 +143,7 @@ def test_motors_stopped_in_the_air_do_not_lock_the_range_out_for_the_flight():
     ms += [_m(0.005 + k * 0.1, Kind.RANGE, 3.0 + 0.01 * math.sin(k)) for k in range(160)]
     ms += [_m(k * 0.02, Kind.THROTTLE, 0.0 if 4.0 <= k * 0.02 < 4.5 else 0.5) for k in range(800)]
     est = build_estimator("altitude")
-    z = _run(est, ms)
+    z = _Heights(est, ms)
     assert z[3.99] > 2.5                                    # unsure for 2 s, then the range's
     n = z.skipped[3.99]
     assert z.skipped[14.4] - n > 90                         # closed at 4 s: skipped while the track holds
