@@ -8,7 +8,7 @@ correlated, i.e. the model misses something the diagnosis should find.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import math
@@ -85,9 +85,11 @@ class Evaluation:
     rows: list[SensorRow]
     estimate_rmse: float
     estimates: int
+    skipped: dict[str, int] = field(default_factory=dict)      # the estimator's counted skips
 
     def table(self) -> str:
-        out = [self.description, f"model: {self.model}, {self.estimates} estimates",
+        out = [self.description, f"model: {self.model}, {self.estimates} estimates"
+               + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else ""),
                f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}"]
         for r in self.rows:
             raw = f"{r.raw_rmse:.4f}" if r.raw_rmse == r.raw_rmse else "-"
@@ -149,4 +151,4 @@ def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
             rows.append(SensorRow("range-o", len(r), rmse_vs_truth(r[:, 0], r[:, 1] - offset), math.nan, math.nan))
     st = np.array([x.t for x in s])
     sz = np.array([x.x[0] for x in s])
-    return Evaluation(desc, model, rows, rmse_vs_truth(st, sz), len(s))
+    return Evaluation(desc, model, rows, rmse_vs_truth(st, sz), len(s), est.counters.rejected)

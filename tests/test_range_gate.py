@@ -124,8 +124,8 @@ def test_underpowered_log_stands_on_the_ground_and_flies_on_its_sonar(model):
 
 
 def test_replay_says_what_the_reader_and_the_estimator_skipped():
-    """The counted skips are on the replay's first and last lines: the sonar's clamps (the reader)
-    and its echoes on the ground (the estimator)."""
+    """The counted skips are on the replay's first and last lines, and on evaluate's first two: the
+    sonar's clamps (the reader) and its echoes on the ground (the estimator)."""
     log = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(log), "--speed", "max", "--no-web",
                         "--quiet", "--vehicle", "apm2_sonar"], capture_output=True, text=True, timeout=300)
@@ -134,6 +134,10 @@ def test_replay_says_what_the_reader_and_the_estimator_skipped():
     assert "17503 measurements" in first and first.endswith("the reader skipped 564 range_out_of_bounds"), first
     n = int(re.search(r"the estimator skipped (\d+) range_on_ground", last).group(1))
     assert 200 < n < 600, last
+    from groundstation.evaluate import evaluate
+    table = evaluate(log, vehicle="apm2_sonar").table().splitlines()
+    assert table[0].endswith("the reader skipped 564 range_out_of_bounds"), table[0]
+    assert table[1].endswith(f"the estimator skipped {n} range_on_ground"), table[1]
 
 
 def test_motors_stopped_in_the_air_do_not_lock_the_range_out_for_the_flight():
