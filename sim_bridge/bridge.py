@@ -45,10 +45,10 @@ from .simulator import Simulator
 from .vehicles.heli3dof import Heli3dofCommand
 from .vehicles.quad import QuadCommand
 
-#: ArduPilot's REQUEST_DATA_STREAM groups -> our sensor streams
 #: [s] of the wall clock the simulated vehicle catches up at once; a longer stall pauses it (:meth:`SimBridge.run`)
 MAX_CATCH_UP = 0.02
 
+#: ArduPilot's REQUEST_DATA_STREAM groups -> our sensor streams
 DATA_STREAM_GROUPS = {
     mavlink.MAV_DATA_STREAM_RAW_SENSORS: ("imu", "baro"),
     mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: ("battery",),
