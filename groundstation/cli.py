@@ -205,8 +205,6 @@ class Outputs:
 
     def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
         declared = declared_effects(declared_path)
-        if dashboard is not None:
-            dashboard.declared = declared          # what its Diagnosis panel may assume
         self.estimator = build_estimator(args.model, declared, load_noise(args.noise),
                                          vehicle=vehicle)
         estimators = [self.estimator]
@@ -214,7 +212,8 @@ class Outputs:
             # the 3D view needs a horizontal place and its covariance; none of the
             # documents' models has one (see models/horizontal.py)
             estimators.append(horizontal_estimator())
-            dashboard.estimator_counters = self.estimator.counters       # its skips, under the state
+            dashboard.attach_session(model=args.model, declared=declared, counters=self.estimator.counters,
+                                     vehicle=vehicle)
         self.loop = EstimationLoop(estimators)
         self.status = StatusLine()
         self.dashboard = dashboard

@@ -162,11 +162,9 @@ async def run_demo(args) -> int:
         print(f"dashboard: {dash.url}", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
     declared = [{"name": "range_tilt"}] if model == "altitude" else []
-    if dash is not None:
-        dash.declared = declared
     estimators = [build_estimator(model, declared)]
     if dash is not None:
-        dash.estimator_counters = estimators[0].counters        # its skips, under the state
+        dash.attach_session(model=model, declared=declared, counters=estimators[0].counters)
     if dash is not None and args.vehicle != "heli3dof":      # the rig is bolted to the table
         estimators.append(horizontal_estimator())
     loop = EstimationLoop(estimators)

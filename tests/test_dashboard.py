@@ -187,7 +187,9 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
 async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
     """The dashboard's Diagnosis panel, pressed by a tab: the last 60 s of a session with an
     undeclared rotor-wash baro error, diagnosed in a worker process while the page stays live
-    (its text arrives as the markdown's ``_markdown`` property)."""
+    (its text arrives as the markdown's ``_markdown`` property), from what the session's
+    estimator was given: its declared slant and its airframe file (sim_quad's constants are the
+    thrust model's; the altitude model's diagnosis is the same with or without them)."""
     from groundstation.replay import Replay
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
@@ -197,7 +199,7 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
     log = tmp_path / "s.tlog"
     run_fast(Scenario.from_args("quad", 7, 40.0, ["range_tilt"], ["baro_thrust:k=4"]), log)
     d = Dashboard(port=0)
-    d.declared = [{"name": "range_tilt"}]                 # as the session's declared file says
+    d.attach_session(model="altitude", declared=[{"name": "range_tilt"}], vehicle="sim_quad")
     pusher = asyncio.create_task(d.run())
     try:
         for m in Replay(log).iter_measurements():
@@ -210,7 +212,9 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
                 texts = [m["updates"].get("_markdown", "") for m in messages
                          if m["type"] == "GuiUpdateMessage" and m.get("uuid") == md_id]
                 if any("baro_thrust" in t for t in texts):
+                    assert any("model altitude, vehicle sim_quad" in t for t in texts), texts
                     break
+        assert d.last_diagnosis["vehicle"] == "sim_quad"
         assert d.last_diagnosis["effects"][0]["name"] == "baro_thrust"
         assert 3.0 < d.last_diagnosis["effects"][0]["params"]["k"] < 5.0
     finally:
@@ -228,12 +232,26 @@ def test_the_state_panel_lists_what_the_estimator_skipped():
     dash = Dashboard(port=0)
     try:
         counters = EstimatorCounters(skipped={"range_on_ground": 310, "baro_not_used": 49, "landed_not_used": 9})
-        dash.estimator_counters = counters
+        dash.attach_session(model="altitude", declared=[], counters=counters)
         dash.feed_snapshot(Snapshot(1.0, "altitude", ("z", "vz", "b_acc"), np.zeros(3), np.eye(3) * 1e-4, None, 0.0))
         dash.update_panels()
         assert dash.state_md.content.endswith("\n\nskipped: 310 range_on_ground"), dash.state_md.content
         counters.skipped.clear()
         dash.update_panels()
         assert "skipped" not in dash.state_md.content
+    finally:
+        dash.stop()
+
+
+def test_the_diagnosis_panel_follows_the_session():
+    """The panel offers the session's own model where it can diagnose it, and leaves the choice as
+    it was for one it cannot (the 3-DOF rig's)."""
+    from web.dashboard import Dashboard
+    dash = Dashboard(port=0)
+    try:
+        dash.attach_session(model="quad_thrust", declared=[], vehicle="apm2_sonar")
+        assert (dash.diagnosis_model.value, dash.vehicle) == ("quad_thrust", "apm2_sonar")
+        dash.attach_session(model="heli3dof", declared=[])
+        assert (dash.diagnosis_model.value, dash.vehicle) == ("quad_thrust", None)
     finally:
         dash.stop()

@@ -127,6 +127,7 @@ def test_diagnose_command_writes_the_reports(tmp_path):
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
+    assert j["vehicle"] is None                           # no airframe file: the constants are the log's
     assert j["effects"][0]["name"] == "baro_thrust" and j["effects"][0]["params"]["k"] == pytest.approx(2.5, rel=0.15)
     for side in ("before", "after"):
         assert set(j[side]["sensors"]) >= {"range", "baro"} and "rmse_vs_truth" in j[side]
@@ -322,6 +323,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
                         "--vehicle", "apm2_sonar", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
+    assert j["vehicle"] == "apm2_sonar" and "vehicles/apm2_sonar.json" in (out / "report.html").read_text()
     found = {e["name"]: e["params"] for e in j["effects"]}
     assert 1.4 < found["thrust_voltage"]["n"] < 2.1
     assert 0.008 < found["baro_bias_drift"]["rate"] < 0.02

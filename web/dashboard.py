@@ -37,6 +37,8 @@ from groundstation.measurement import Kind, Measurement
 from groundstation.models.ground import LANDED
 
 _FLIP = np.array([1.0, -1.0, -1.0])
+#: the models the Diagnosis panel offers (groundstation.diagnosis.engine.setup's)
+DIAGNOSIS_MODELS = ("altitude", "quad_thrust", "attitude")
 
 
 def ned_to_view(v) -> np.ndarray:
@@ -108,6 +110,8 @@ class Dashboard:
         self.last_diagnosis: dict | None = None
         #: effects the session declares (the diagnosis does not look for them)
         self.declared: list[dict] = []
+        #: the airframe file the session's estimator was given (--vehicle): the diagnosis starts from it too
+        self.vehicle: str | None = None
         self._build()
         self._tasks: list[asyncio.Task] = []
 
@@ -167,14 +171,25 @@ class Dashboard:
         self.replay_folder.visible = False
         with gui.add_folder("Diagnosis"):
             self.diagnosis_md = gui.add_markdown("No diagnosis has been run on this session.")
-            self.diagnosis_model = gui.add_dropdown("model", options=("altitude", "quad_thrust", "attitude"),
-                                                    initial_value="altitude")
+            self.diagnosis_model = gui.add_dropdown("model", options=DIAGNOSIS_MODELS, initial_value="altitude")
             self.diagnosis_window = gui.add_slider("last [s]", min=20.0, max=600.0, step=10.0, initial_value=120.0)
             self.diagnose_button = gui.add_button("Diagnose")
 
         @self.diagnose_button.on_click
         async def _(_e) -> None:
             await self.run_diagnosis()
+
+    def attach_session(self, *, model: str, declared: list[dict], counters=None, vehicle: str | None = None) -> None:
+        """What the session's estimator was built with: its declared effects and airframe file (the
+        Diagnosis panel assumes the same; without the airframe a diagnosis of a replay run with
+        ``--vehicle`` would read another sonar's limits and thrust curve than ``diagnose --vehicle``),
+        its model (the panel's choice, where it can diagnose it) and its counters (its skips, listed
+        under the state)."""
+        self.declared = list(declared)
+        self.vehicle = vehicle
+        self.estimator_counters = counters
+        if model in DIAGNOSIS_MODELS:
+            self.diagnosis_model.value = model
 
     async def run_diagnosis(self) -> dict | None:
         """Diagnose the last ``diagnosis_window`` seconds in a worker process; show the result."""
@@ -195,7 +210,8 @@ class Dashboard:
                 import multiprocessing
                 self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
             j = await asyncio.get_running_loop().run_in_executor(self._pool, diagnose_window, ms,
-                                                                 str(self.diagnosis_model.value), self.declared)
+                                                                 str(self.diagnosis_model.value), self.declared,
+                                                                 self.vehicle)
             self.diagnosis_md.content = markdown(j, seconds)
             self.last_diagnosis = j
             return j

@@ -107,6 +107,7 @@ class Diagnosis:
     truth: Truth | None = None
     against_truth: list[Effect] = field(default_factory=list)   # measurable only against truth
     rejected: list[Effect] = field(default_factory=list)        # fitted better, contradicted by truth
+    vehicle: str | None = None                   # the airframe's constants the model started from
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -347,7 +348,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)
     return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
-                     _modelled(base), ranking, truth, against, rejected)
+                     _modelled(base), ranking, truth, against, rejected, vehicle)
 
 
 def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:

@@ -47,12 +47,14 @@ class SessionBuffer:
         return [m for m in self.items if m.t >= t1 - seconds]
 
 
-def diagnose_window(ms: list[Measurement], model: str = "altitude", declared: list[dict] = ()) -> dict:
-    """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion."""
+def diagnose_window(ms: list[Measurement], model: str = "altitude", declared: list[dict] = (),
+                    vehicle: str | None = None) -> dict:
+    """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
+    ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""
     from .engine import diagnose
     from .report import as_json, conclusion
     try:
-        d = diagnose(ms, source="live session", model_name=model, declared=list(declared))
+        d = diagnose(ms, source="live session", model_name=model, declared=list(declared), vehicle=vehicle)
     except ValueError as e:
         return {"error": str(e)}
     j = as_json(d)
@@ -69,4 +71,5 @@ def markdown(j: dict, seconds: float) -> str:
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
     nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
                      for s in j["after"]["sensors"] if s in j["before"]["sensors"])
-    return f"**last {seconds:.0f} s, model {j.get('model', '')}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"
+    airframe = f", vehicle {j['vehicle']}" if j.get("vehicle") else ""
+    return f"**last {seconds:.0f} s, model {j.get('model', '')}{airframe}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"

@@ -2,7 +2,8 @@
 
 report.json::
 
-    {"source", "model", "effects": [{"name", "params", "evidence"}, ...],     # in the order added
+    {"source", "model", "vehicle",       # the airframe file the model started from (--vehicle), or null
+     "effects": [{"name", "params", "evidence"}, ...],     # in the order added
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
      "rejected": [...],                  # fitted better, made the error against truth worse
      "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
@@ -92,7 +93,7 @@ def as_json(d: Diagnosis) -> dict:
              "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms]}}
             for x in d.discoveries]
     return {
-        "source": d.source, "model": d.model,
+        "source": d.source, "model": d.model, "vehicle": d.vehicle,
         "effects": eff + disc,
         "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
         "measured_against_truth": [{"name": e.name, "params": e.params, "evidence": e.evidence}
@@ -267,7 +268,7 @@ def write(d: Diagnosis, out: Path) -> dict:
 <style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
 table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
 th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
-<body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}</p>
+<body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}{_vehicle_line(d)}</p>
 <div class="concl"><p>{html.escape(j['conclusion'])}</p></div>{truth}
 <h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
@@ -275,6 +276,12 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
     (out / "report.html").write_text(page)
     return j
+
+
+def _vehicle_line(d: Diagnosis) -> str:
+    if not d.vehicle:
+        return " (the vehicle's constants from the log: no airframe file)"
+    return f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code>"
 
 
 class _Snap:
