@@ -30,6 +30,7 @@ from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
+from .outputs import interval_means
 from .run import Prepared, Run, in_time_order, prepare, run_model
 from .thrust import (RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator,
                      thrust_model)
@@ -185,6 +186,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         window = main_flight(ms)
         if window is not None:
             ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
+        ms = interval_means(ms)          # the throttle between its records (outputs.py)
     prep: Prepared = prepare(ms)
     if model_name == "altitude":
         model = _altitude_base(prep, names, vehicle)
