@@ -110,7 +110,7 @@ DIAGNOSIS_G_ACC = 0.006
 
 
 def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltage_sag: float | None = None,
-                 voltage_noise: float | None = None, **params) -> LinearModel:
+                 voltage_oc: OpenCircuitVoltage | None = None, **params) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
     module's docstring) and the input widened for the
     couplings."""
@@ -145,7 +145,7 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
     B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)
     m = ground_contact(on_ground(m, height=False))
-    options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag, "voltage_noise": voltage_noise}
+    options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag, "voltage_oc": voltage_oc}
     return replace(m, options={k: v for k, v in options.items() if v})
 
 
@@ -270,9 +270,11 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     sag = load_line(prep.measurements, th)
     if sag is not None:
         prior["voltage_sag"] = sag[0]      # the voltage between the battery's readings (battery.py)
-    sigma = reading_sigma(prep.measurements, th, sag[0] if sag is not None else 0.0)
-    if sigma:
-        prior["voltage_noise"] = sigma     # how much to smooth them (battery.OpenCircuitVoltage)
+    k = sag[0] if sag is not None else 0.0
+    sigma = reading_sigma(prep.measurements, th, k)
+    oc = OpenCircuitVoltage.from_log(prep.measurements, th, k, sigma) if sigma else None
+    if oc is not None:
+        prior["voltage_oc"] = oc           # the readings' open-circuit voltage, smoothed (battery.py)
     return prior
 
 
@@ -349,22 +351,12 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
 
 
 def _battery_voltage(m: Measurement, ctx: Context) -> None:
-    """The throttle at the battery's reading, and the open-circuit voltage the reading implies,
-    smoothed over the readings (battery.py): the load line carries it to the throttle of each
-    step."""
+    """The throttle at the battery's reading: without the log's smoothed open-circuit voltage
+    (``voltage_oc``, from :func:`hover_prior`) the load line carries the reading from it to the
+    throttle of each step (battery.loaded_voltage)."""
     tau = throttle_at_reading(ctx, m.t)
-    if tau is None or not math.isfinite(tau):
-        return
-    v = ctx.values
-    v["voltage_tau2"] = tau * tau
-    volt, sigma = float(m.value[0]) if len(m.value) else math.nan, v.get("voltage_noise")
-    if not sigma or not math.isfinite(volt) or volt <= 0.0:
-        return
-    v_oc = volt + (v.get("voltage_sag") or 0.0) * tau * tau
-    if "voltage_oc" not in v:
-        v["voltage_oc"] = OpenCircuitVoltage(v_oc, m.t, sigma)
-    else:
-        v["voltage_oc"].update(m.t, v_oc)
+    if tau is not None and math.isfinite(tau):
+        ctx.values["voltage_tau2"] = tau * tau
 
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
@@ -373,7 +365,7 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
                                    Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
                                    Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status,
                                    Kind.BATTERY_VOLTAGE: _battery_voltage})
-    for key in ("voltage_ref", "voltage_sag", "voltage_noise"):
+    for key in ("voltage_ref", "voltage_sag", "voltage_oc"):
         if model.options.get(key):
             est.filter.ctx.values[key] = model.options[key]
     if "n_voltage" in model.states:
