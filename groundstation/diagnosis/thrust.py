@@ -34,8 +34,8 @@ Candidates (names as in the issue's catalogue):
   (V_ref: the voltage alpha0 was read at), one state n, linearised about its estimate
   as an EKF does (:func:`thrust_voltage`); V between the battery's readings follows
   the throttle (battery.py);
-* ``thrust_ground_effect``: Cheeseman-Bennett, ``a_T / (1 - (R / 4h)^2)`` to first order
-  ``a_T (1 + R^2 / (16 h^2))``, one state q = R^2 (h >= 0.1 m, rotors carrying);
+* ``thrust_ground_effect``: Cheeseman-Bennett, ``a_T / (1 - (R / 4h)^2)``, one state q = R^2
+  (h >= 0.1 m, rotors carrying), linearised about its estimate (:func:`thrust_ground_effect`);
 * ``actuator_lag``: the thrust follows the throttle through a first-order lag,
   profiled over its time constant like a sensor delay;
 * the barometer's effects of the altitude catalogue, which act on the same
