@@ -114,8 +114,8 @@ class OpenCircuitVoltage:
     Smoothed, not filtered: a diagnosis has the whole log. Filtered (forward only, session 18 to 21)
     the level was 7.5 mV RMS off the simulator's on a thrust test flight (seed 1015), smoothed 4.3 mV;
     through ``(V / V_ref)^1.5`` that is 0.010 against 0.006 m/s^2 of thrust, held for seconds. Once
-    the throttle was held at its interval's mean (outputs.py) and the airframe's G_acc went to
-    0.00005, the forward-only level was the largest error left: that flight's range innovations
+    the throttle was held at its interval's mean (outputs.py), with the airframe's G_acc tried at
+    0.00005 (0.0001 kept), the forward-only level was the largest error left: that flight's range innovations
     after the fix failed Ljung-Box (p 0.000, positively autocorrelated out to lag 15; 0.56 with the
     simulator's true voltage)."""
 
