@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from .filters import InnovationRecord, ModelFilter
 from .measurement import Kind, Measurement
+from .models.contact import in_contact
 from .models.base import Context, LinearModel
 
 G = 9.80665
@@ -338,7 +339,7 @@ def landed(ctx: Context) -> bool:
 
 def thrust_input(m: Measurement, ctx: Context) -> np.ndarray | None:
     """u = (tau c, c, g): throttle times tilt, tilt, gravity (see models.quad_thrust);
-    all zero on the ground, where the document's model does not apply."""
+    all zero on the ground, where the document's model does not apply (landed: below ground idle)."""
     tau = ctx.get("throttle")
     if landed(ctx):
         return np.zeros(3)
@@ -346,11 +347,23 @@ def thrust_input(m: Measurement, ctx: Context) -> np.ndarray | None:
     return np.array([tau * c, c, G])
 
 
+def thrust_input_on_ground(m: Measurement, ctx: Context) -> np.ndarray | None:
+    """:func:`thrust_input`, zero also in contact with the ground with the rotors turning
+    (:mod:`groundstation.models.contact`, whose resets and range readings the model then has)."""
+    v = ctx.values
+    x = v.get("_x")
+    lifts = x is not None and (float(x[2]) * ctx.get("throttle") + float(x[3])) * v.get("down_row", _LEVEL)[2] > G
+    if in_contact(v, m.t, float(x[0]) if x is not None else 0.0, lifts, known=x is not None):
+        return np.zeros(3)
+    return thrust_input(m, ctx)
+
+
 def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     from .models.quad_thrust import quad_thrust_model
-    return KalmanEstimator(model or quad_thrust_model(),
-                           inputs={Kind.ACTUATOR: thrust_input, Kind.THROTTLE: thrust_input,
-                                   Kind.ATTITUDE: thrust_input},
+    model = model or quad_thrust_model()
+    inp = thrust_input_on_ground if model.options.get("ground_contact") else thrust_input
+    return KalmanEstimator(model,
+                           inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp},
                            context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
                                     Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
                                     Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status})

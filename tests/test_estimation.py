@@ -224,7 +224,7 @@ def test_non_finite_measurements_are_counted_and_skipped(bad):
 def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():
     """MeasurementModel.corrects (Schmidt-Kalman): the gain's other rows are zero, so the other states and
     their covariance are what they were; with reset, the states are set with variance R and uncorrelated.
-    The thrust model's ground contact uses both (diagnosis.thrust.ground_contact)."""
+    The thrust model's ground contact uses both (models.contact.ground_contact)."""
     from dataclasses import replace
 
     from groundstation.filters import ModelFilter

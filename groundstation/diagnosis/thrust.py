@@ -53,8 +53,9 @@ import numpy as np
 from ..estimator import (TAU_GROUND, KalmanEstimator, _angular_rate, _attitude, _quaternion, landed,
                          _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
 from ..measurement import Kind, Measurement
-from ..models.base import Context, LinearModel, unit_row
-from ..models.ground import LANDED, on_ground
+from ..models.base import Context, LinearModel
+from ..models.contact import CONTACT_H, RANGE_FLOOR, ground_contact, in_contact, note_range
+from ..models.ground import on_ground
 from ..models.quad_thrust import DRAG, quad_thrust_model
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
@@ -71,15 +72,6 @@ GE_MIN_H = 0.1           # m: below this the first-order ground-effect term is n
 #: 0.18 m without it. With the ground contact's resets (ground_contact) R reads 0.155 m, 0.167 m
 #: without this
 GE_SETTLE = 1.0
-#: m: range readings below this are not used. A driver drops the readings under the sensor's
-#: minimum (MAVLink's min_distance), so near it only the upper tail of the noise is left: a landed
-#: simulated quad "read" 5-8 cm, and held the estimated height off the ground
-RANGE_FLOOR = 0.1
-#: m: at or below this estimated height, with the thrust not lifting the vehicle, it is on the
-#: ground (:func:`_input`); below RANGE_FLOOR no sensor can say otherwise
-CONTACT_H = 0.1
-CONTACT_MARGIN = 0.05    # m: a range reading this far above CONTACT_H says the vehicle has left the ground
-CONTACT_SIGMA = 0.02     # m: the height on the ground (landing gear, uneven ground)
 #: m: with the estimate on the ground (at or below CONTACT_H), a range reading further up than this is a
 #: spurious echo, skipped and its time kept (``range_spurious``, a tuple in the context): a vehicle leaves the ground
 #: continuously, and a range sensor reads it at 5-50 Hz, so its first readings after a lift-off are
@@ -88,13 +80,6 @@ CONTACT_SIGMA = 0.02     # m: the height on the ground (landing gear, uneven gro
 LIFTOFF_REACH = 1.0
 #: s: the range reads inside its limits this long without a break: the vehicle is in the air (lift_off)
 LIFTOFF_HOLD = 2.0
-#: s: a range reading used (at or above its floor, RANGE_FLOOR or the vehicle's range_limits) keeps the
-#: model off the ground this long, whatever its estimate. Without it a touchdown's estimate, reaching
-#: CONTACT_H a little early, was reset to the ground while the range still read the vehicle 5-10 cm up
-#: (simulated R = 0.15 m flight: 2.7 mm RMS error over the landing's 5 s, 10.8 mm without); and with it
-#: counting only readings above CONTACT_H + CONTACT_MARGIN, a lagged model hovering at 0.15-0.2 m was
-#: once set on the ground in mid-air (an actuator lag's likelihood jumped by 300 between 0.18 and 0.2 s)
-RANGE_SAYS_AIRBORNE = 0.2
 #: m: the ToF offset d_tof is held at its prior (0) to this. No sensor reads it: below RANGE_FLOOR
 #: the range is not used, so on the ground nothing ties the range to z = 0, and left free (2 cm
 #: a priori) d_tof was set by the take-off alone, wherever the model's climb and the range's
@@ -133,12 +118,8 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
             # a tuple, replaced: a checkpoint's shallow copy of the context must not share it
             ctx.values["range_spurious"] = ctx.values.get("range_spurious", ()) + (mm.t,)
             return None
-        if z is not None:
-            # a reading at all (on the ground the sensor reads below its floor, and none is used)
-            ctx.values["range_off_ground_at"] = mm.t
-            if z[0] > CONTACT_H + CONTACT_MARGIN:
-                ctx.values["in_contact"] = False        # the range sees the vehicle off the ground
-        return z
+        # a reading at all (on the ground the sensor reads below its floor, and none is used)
+        return note_range(z, mm.t, ctx)
     meas["range"] = replace(rng, extract=range_airborne)
 
     B = np.hstack([m.B, np.zeros((m.n, 6))])
@@ -147,32 +128,6 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
     m = ground_contact(on_ground(m, height=False))
     options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag, "voltage_oc": voltage_oc}
     return replace(m, options={k: v for k, v in options.items() if v})
-
-
-def ground_contact(model: LinearModel) -> LinearModel:
-    """Landed also while the vehicle sits on the ground with the rotors turning (see :func:`_input`):
-    the landed constraint vz = 0 then applies as it does below ground idle; in contact, z = 0 too.
-
-    Both are resets of the state they constrain (:class:`MeasurementModel`'s ``corrects`` and
-    ``reset``): the ground stops the vehicle whatever the other states are. As full updates, the
-    touchdown's vz = 0 against an estimate still sinking at 0.8 m/s was "explained" through the
-    correlations: the estimate was pushed up to 0.15 m and held there on the ground (truth 0; 12 cm
-    RMS over the last 5 s of a simulated flight, now 3 mm), and the effects' states took the ground's
-    stop as thrust (a rotor radius R = 0.15 m: R^2 0.025 -> 0.034 at touchdown, the value reported).
-    As repeated Schmidt updates (the other states left alone, but the information piling up) z's
-    variance went to nothing on the ground, and at the take-off the range's first readings went
-    into the ToF offset instead (d_tof 1.1 cm, a 1 cm height error through the flight)."""
-    iz, iv = model.index("z"), model.index("vz")
-    meas = dict(model.measurements)
-    for key, mm in model.measurements.items():
-        if mm.name == LANDED:
-            meas[key] = replace(mm, extract=lambda m, ctx, idle=mm.extract: (
-                np.array([0.0]) if ctx.values.get("in_contact") else idle(m, ctx)), corrects=(iv,), reset=True)
-            meas[f"contact_{mm.kind.value}"] = replace(
-                mm, extract=lambda m, ctx: np.array([0.0]) if ctx.values.get("in_contact") else None,
-                row=lambda ctx, n=model.n: unit_row(n, iz), R=np.array([[CONTACT_SIGMA**2]]), corrects=(iz,),
-                reset=True)
-    return replace(model, measurements=meas)
 
 
 def _motor_outputs_of(ms: list[Measurement]) -> int:
@@ -289,9 +244,6 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     h = float(x[0]) if x is not None else 0.0
     c = v.get("down_row", _LEVEL)[2]
     a_t = float(x[2]) * tau + float(x[3]) if x is not None else G
-    # on the ground: reached at CONTACT_H with the thrust not lifting the vehicle, left only when
-    # the thrust lifts it (without the hysteresis the state flickered at CONTACT_H, and each
-    # flicker let the model fall for a step)
     # the thrust the model flies with: with thrust_voltage, times (V / V_ref)^n at the estimate. Judged
     # without it, a throttle blip after a touchdown "lifted" a vehicle whose modelled thrust was below
     # its weight, and the model fell through the ground (1.2 m in 1.5 s, a simulated n = 1.5 flight)
@@ -299,21 +251,10 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
     r_n = (volt / v_ref) ** n_hat if n_hat and volt > 0.0 and v_ref > 0.0 else 1.0
     lifts = a_t * c * r_n > G   # or a range reading above the ground (thrust_model's range_airborne)
-    # a range reading off the ground within RANGE_SAYS_AIRBORNE s overrides the estimate (the contact
-    # resets z to 0)
-    seen_up = m.t - v.get("range_off_ground_at", -math.inf) < RANGE_SAYS_AIRBORNE
-    # entered at the start or from above (a touchdown): a take-off whose thrust estimate dipped below
-    # the weight for a moment, still under CONTACT_H, was set back on the ground and held there until
-    # the range read it 15 cm up (a clean simulated quad: d_tof 4 mm off, 5 mm of height error through
-    # the flight)
-    was = v.get("in_contact")
-    if not was and (seen_up or h > CONTACT_H + CONTACT_MARGIN):
-        v["been_up"] = True
-    v["in_contact"] = (x is not None and not lifts and not seen_up
-                       and (bool(was) or (h <= CONTACT_H and (was is None or bool(v.get("been_up"))))))
-    if v["in_contact"]:
-        v["been_up"] = False
-    if v["in_contact"] or landed(ctx):
+    # on the ground (models.contact): reached at CONTACT_H with the thrust not lifting the vehicle, left
+    # when it does or a range reading sees the vehicle up
+    contact = in_contact(v, m.t, h, lifts, known=x is not None)
+    if contact or landed(ctx):
         # on the ground: its reaction cancels thrust and weight (eq. 1-2 do not say so); driven
         # by them, the model would fly through the ground, and the constant thrust coefficients
         # would be fitted to that (a clean simulated quad's 0.8 m/s touchdown with the throttle
