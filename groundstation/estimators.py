@@ -93,13 +93,12 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     if name == "quad_thrust":
         # a vehicle file's thrust curve, drag, noise and range limits (sim_quad, apm2_sonar)
         floor = params.get("range_limits", (0.0, math.inf))[0]
-        # the ground's constraints as Schmidt updates: its stop says nothing of the thrust coefficients
-        # (with full updates a simulated landing's reset moved alpha, beta from 19.8, 0.4 to 16.0, 3.2)
-        # and with the rotors turning, the ground holds the vehicle up (models.contact): driven by a touchdown's
+        # the ground's constraints as resets of z and vz: its stop says nothing of the thrust coefficients
+        # (as full updates a simulated landing moved alpha, beta from 19.8, 0.4 to 16.0, 3.2); and with the
+        # rotors turning, in contact, the ground holds the vehicle up (models.contact): driven by a touchdown's
         # throttle, the model sank 1.5 m below the ground in the 1.5 s after each landing of a simulated quad
         model = quad_thrust_model(range_tilt="range_tilt" in names, **params)
-        return quad_thrust_estimator(range_gate(contact_range(ground_contact(on_ground(model, consider=True))),
-                                                floor=floor))
+        return quad_thrust_estimator(range_gate(contact_range(ground_contact(on_ground(model))), floor=floor))
     raise ValueError(f"unknown model {name!r}; known: {', '.join(MODELS)}")
 
 
