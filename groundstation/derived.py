@@ -80,7 +80,8 @@ def with_attitude(ms: Iterable[Measurement], *, rate: float = 100.0) -> list[Mea
     if len(gyro) < 3:
         return ms
     t = np.array([m.t for _, m in gyro])
-    keep = np.concatenate([[True], np.diff(t) > 0])         # a clock that stands still or steps back adds no rate
+    # a clock that stands still or steps back adds no rate: keep the samples past every earlier one
+    keep = t > np.maximum.accumulate(np.concatenate([[-np.inf], t[:-1]]))
     gyro = [g for g, k in zip(gyro, keep) if k]
     t = t[keep]
     x = gyro_attitude(t, np.array([m.value for _, m in gyro]))

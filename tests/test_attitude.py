@@ -81,6 +81,7 @@ def test_with_attitude_inserts_the_derived_tilt_and_skips_a_clock_that_steps_bac
     from groundstation.measurement import Kind, Measurement
     ms = [Measurement(0.001 * k, Kind.GYRO, np.array([0.0, 0.0, 0.0]), "cf/1.1") for k in range(3000)]
     ms.insert(1500, Measurement(0.5, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1"))   # clock jump back
+    ms[2000:2000] = [Measurement(0.2 + 0.001 * k, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1") for k in range(50)]
     ms.insert(10, Measurement(0.0105, Kind.GYRO, np.array([np.nan, 0.0, 0.0]), "cf/1.1"))
     out = with_attitude(ms, rate=100.0)
     att = [m for m in out if m.kind is Kind.ATTITUDE]
