@@ -180,6 +180,23 @@ def test_untimed_messages_wait_for_the_vehicle_clock():
     assert [m.t for m in out if m.kind is Kind.THROTTLE] == [200.0, 203.0]
 
 
+def test_untimed_messages_keep_to_the_timed_ones_when_the_delay_grows():
+    """A vehicle clock that falls behind the receive clock (a simulator on a loaded machine: 1.6 s in
+    60 s; a radio link that buffers): the offset, the least delay seen, stamped VFR_HUD up to the
+    accumulated lag ahead of the ATTITUDE sent with it (here 1.0 s, where the clock resets), and the
+    estimation loop dropped what followed as late."""
+    enc = mavlink.MAVLink(None, 7, 1)
+    r = MavlinkReceiver("t")
+    lead = []
+    for k in range(1, 600):                                  # (a zero time field counts as none)
+        t = 0.1 * k
+        rx = 1000.0 + t * 1.03                               # 3 % behind: 1.8 s after 60 s
+        timed = r.feed(mavlink.MAVLink_attitude_message(int(t * 1000), 0, 0, 0, 0, 0, 0).pack(enc), rx)
+        hud = r.feed(mavlink.MAVLink_vfr_hud_message(0, 0, 0, 40, 3.0, 0).pack(enc), rx + 0.001)
+        lead.append(hud[0].t - timed[0].t)
+    assert max(lead) < 0.01 and min(lead) >= 0.0, (min(lead), max(lead))
+
+
 def test_unknown_messages_are_counted_recorded_and_hooked():
     frames, hooked = [], []
     r = MavlinkReceiver("t", on_frame=lambda f, t: frames.append(f), on_message=lambda m, t: hooked.append(m))
