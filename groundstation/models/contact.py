@@ -15,7 +15,7 @@ when a range reading sees the vehicle above the ground (:func:`note_range`). In 
 model's inputs are off and z and vz are *reset* to 0 (:func:`ground_contact`), whatever the
 other states are: as Kalman updates, a touchdown's vz = 0 against an estimate still sinking
 at 0.8 m/s was "explained" through the correlations. Used by the live thrust filter
-(:func:`groundstation.estimator.thrust_input`) and its diagnosis
+(:func:`groundstation.estimator.thrust_input_on_ground`, through :func:`contact_range`) and its diagnosis
 (:func:`groundstation.diagnosis.thrust._input`).
 """
 from __future__ import annotations
@@ -110,8 +110,8 @@ def ground_contact(model: LinearModel) -> LinearModel:
 
 
 def contact_range(model: LinearModel) -> LinearModel:
-    """``model`` whose range readings end the contact (:func:`note_range`), and whose readings within
-    :data:`CONTACT_MARGIN` of CONTACT_H are skipped in contact, counted (``range_in_contact``). The
+    """``model`` whose range readings end the contact (:func:`note_range`), and whose readings up to
+    :data:`CONTACT_MARGIN` above CONTACT_H are skipped in contact, counted (``range_in_contact``). The
     contact resets z, so such a reading has only the ToF offset to go into: on a simulated quad whose
     model, climbing ahead of a slow take-off on the baro, fell back into contact while the vehicle was
     3-6 cm up, the ToF offset (then 2 cm a priori) took 4 cm from the first readings, a 3.7 cm height
