@@ -16,11 +16,12 @@ the receive time since it. The delay can grow faster than 100 ppm: a radio link
 that buffers, or the simulated vehicle on a loaded machine, whose clock falls
 behind the wall clock (1.6 s over a 60 s demo recorded while the test suite ran).
 On the offset alone, SERVO_OUTPUT_RAW and VFR_HUD were then stamped up to 1 s
-(``jump_s``, where the offset resets) ahead of the sensors sent with them, and the estimation loop, ordering by time,
-dropped 25 141 of that recording's measurements as late: the altitude filter
-took no baro or range reading at all, and the thrust filter ended 37 m up. With
-the bound none is late, and every baro and range reading is used. A recording
-made on an idle machine (0.22 s behind after 60 s) lost 577 as late, 31 now.
+(``jump_s``, where the offset resets) ahead of the sensors sent with them, and
+the estimation loop, ordering by time, dropped 25 141 of that recording's
+measurements as late: the altitude filter took no baro or range reading at all,
+and the thrust filter ended 37 m up. With the bound none is late, and every baro
+and range reading is used. A recording made on an idle machine (0.22 s behind
+after 60 s) lost 577 as late, 31 now.
 """
 from __future__ import annotations
 
