@@ -22,7 +22,7 @@ veto of an effect that makes the error against truth worse is off, so what is
 measured is the diagnosis from the log's own sensors. ``--airframe sim_quad``
 gives the thrust model the simulated quadcopter's thrust curve, drag and
 acceleration noise (``groundstation/vehicles/sim_quad.json``, as ``diagnose --vehicle``); without it
-they come from the log (alpha from the hover throttle, beta held near 0).
+they come from the log (the thrust curve from the accelerometer: groundstation/diagnosis/airframe.py).
 The fast subset is ``tests/test_diagnosis.py``.
 """
 from __future__ import annotations

@@ -109,6 +109,7 @@ class Diagnosis:
     against_truth: list[Effect] = field(default_factory=list)   # measurable only against truth
     rejected: list[Effect] = field(default_factory=list)        # fitted better, contradicted by truth
     vehicle: str | None = None                   # the airframe's constants the model started from
+    airframe: dict | None = None                 # ... or the thrust curve read from the log's accelerometer
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -175,6 +176,7 @@ class Setup:
     make: Callable[[LinearModel], KalmanEstimator]
     catalogue: Callable
     declared: set
+    airframe: dict | None = None      # the thrust curve read from the log (airframe.ThrustCurve.as_dict)
 
 
 def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitude", declared: list[dict] = (),
@@ -182,6 +184,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
     cannot feed it)."""
     names = {e.get("name") for e in declared}
+    airframe = None
     if model_name == "quad_thrust":
         window = main_flight(ms)
         if window is not None:
@@ -199,7 +202,10 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         params = vehicle_config(vehicle, "quad_thrust")
         if "range_limits" in params:
             params["range_limits"] = tuple(params["range_limits"])
-        params = {**hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf))), **params}
+        prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)), curve="alpha0" not in params)
+        curve = prior.pop("curve", None)
+        airframe = curve.as_dict() if curve is not None else None
+        params = {**prior, **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator
         catalogue = thrust_catalogue
@@ -223,7 +229,7 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         # and "no effect improves the model" would be said of no data at all
         raise ValueError(f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
                          f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)")
-    return Setup(prep, model, make, catalogue, names)
+    return Setup(prep, model, make, catalogue, names, airframe)
 
 
 def _altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearModel:
@@ -350,7 +356,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)
     return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
-                     _modelled(base), ranking, truth, against, rejected, vehicle)
+                     _modelled(base), ranking, truth, against, rejected, vehicle, su.airframe)
 
 
 def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:

@@ -3,6 +3,8 @@
 report.json::
 
     {"source", "model", "vehicle",       # the airframe file the model started from (--vehicle), or null
+     "airframe",                         # without one, the thrust curve read from the accelerometer
+                                         # (airframe.py: alpha, beta, drag, n, tc, sigma, ...), or null
      "effects": [{"name", "params", "evidence"}, ...],     # in the order added
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
      "rejected": [...],                  # fitted better, made the error against truth worse
@@ -93,7 +95,7 @@ def as_json(d: Diagnosis) -> dict:
              "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms]}}
             for x in d.discoveries]
     return {
-        "source": d.source, "model": d.model, "vehicle": d.vehicle,
+        "source": d.source, "model": d.model, "vehicle": d.vehicle, "airframe": d.airframe,
         "effects": eff + disc,
         "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
         "measured_against_truth": [{"name": e.name, "params": e.params, "evidence": e.evidence}
@@ -279,6 +281,11 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 
 
 def _vehicle_line(d: Diagnosis) -> str:
+    a = d.airframe
+    if not d.vehicle and a:
+        return (f" (no airframe file: the thrust curve from the log's accelerometer, alpha = {a['alpha']:.2f} "
+                f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; {a['sigma']['beta']:.2f} "
+                f"m/s&sup2;, drag {a['drag']:.2f} /s, over {a['seconds']:.0f} s of flight)")
     if not d.vehicle:
         return " (the vehicle's constants from the log: no airframe file)"
     return f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code>"

@@ -57,6 +57,7 @@ from ..models.base import Context, LinearModel
 from ..models.contact import CONTACT_H, RANGE_FLOOR, ground_contact, in_contact, note_range
 from ..models.ground import on_ground
 from ..models.quad_thrust import DRAG, quad_thrust_model
+from .airframe import thrust_curve
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 from .run import SETTLE_S
@@ -90,7 +91,8 @@ LIFTOFF_HOLD = 2.0
 TOF_HELD = 0.002
 
 
-#: the thrust model's acceleration noise in the diagnosis [(m/s^2)^2/Hz], unless the vehicle file says
+#: the thrust model's acceleration noise in the diagnosis [(m/s^2)^2/Hz], unless the vehicle file says or
+#: the thrust curve comes from the accelerometer (airframe.CURVE_G_ACC)
 DIAGNOSIS_G_ACC = 0.006
 
 
@@ -197,7 +199,7 @@ def lift_off(ms: list[Measurement], t_spin: float, limits: tuple[float, float] =
     return t_spin
 
 
-def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf)) -> dict:
+def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf), *, curve: bool = True) -> dict:
     """The a priori thrust coefficients (document sec. 1: "estimated offline"), from the log
     itself: alpha0 = g / tau_hover, the median throttle over the first 10 s in the air (from
     :func:`lift_off`), and beta fixed near 0 (the document's own way out of alpha and
@@ -205,7 +207,12 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     not depend on the throttle" (alpha -> 0, beta -> g). Read from the spin-up instead (the
     first throttle at ground idle), underpowered.log's 6 s on the ground at 0.62-0.72 made its
     hover throttle 0.65 and alpha0 12 % high: the model lifted off at spin-up and flew 2 m up
-    while the vehicle sat on the ground."""
+    while the vehicle sat on the ground.
+
+    With ``curve`` (no vehicle file gives the airframe) and a log with an accelerometer, attitude and
+    range sensor, alpha0, beta0 and the drag are the accelerometer's instead, with the acceleration
+    noise of a known airframe (:mod:`.airframe`: beta held at 0 made alpha 10 % low on the simulated
+    quadcopter); the fit itself is under ``"curve"``."""
     th = throttle_series(prep.measurements)
     flying = [(t, v) for t, v in th if v >= TAU_GROUND]
     if len(flying) < 10:
@@ -230,6 +237,12 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     oc = OpenCircuitVoltage.from_log(prep.measurements, th, k, sigma) if sigma else None
     if oc is not None:
         prior["voltage_oc"] = oc           # the readings' open-circuit voltage, smoothed (battery.py)
+    if curve:
+        volt = (lambda t, tau: oc.at(t) - k * tau * tau) if oc is not None else None
+        fit = thrust_curve(prep.measurements, th, flying[0][0], t0, flying[-1][0], voltage=volt,
+                           voltage_ref=prior.get("voltage_ref"), range_limits=range_limits)
+        if fit is not None:
+            prior.update(fit.prior(), sigma_alpha0=0.2 * fit.alpha, curve=fit)
     return prior
 
 
