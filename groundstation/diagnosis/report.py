@@ -139,6 +139,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
+    cross = [(e, CURVE_PARAM[e.name]) for e in d.effects
+             if d.airframe and CURVE_PARAM.get(e.name) in e.params and CURVE_PARAM[e.name] in d.airframe]
+    if cross:
+        parts.append("Read on its own from the accelerometer, which the thrust model does not use, the thrust "
+                     "curve (airframe) gives " +
+                     "; ".join(f"{k} = {d.airframe[k]:.3g} ± {d.airframe['sigma'][k]:.1g} for {e.name}'s "
+                               f"{e.params[k]:.3g}" for e, k in cross) + ".")
     for e in d.rejected:
         ev = e.evidence
         k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
@@ -173,6 +180,9 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                  if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
     return " ".join(parts)
 
+
+#: the thrust curve's parameter (airframe.ThrustCurve) that sizes the same effect: the conclusion sets them side by side
+CURVE_PARAM = {"thrust_voltage": "n", "actuator_lag": "tc"}
 
 #: n / n_eff from which the conclusion says an effect's sensor innovations are coloured
 COLOURED = 3.0
@@ -284,8 +294,8 @@ def _vehicle_line(d: Diagnosis) -> str:
     a = d.airframe
     if not d.vehicle and a:
         return (f" (no airframe file: the thrust curve from the log's accelerometer, alpha = {a['alpha']:.2f} "
-                f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; {a['sigma']['beta']:.2f} "
-                f"m/s&sup2;, drag {a['drag']:.2f} /s, over {a['seconds']:.0f} s of flight)")
+                f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; "
+                f"{a['sigma']['beta']:.2f} m/s&sup2;, drag {a['drag']:.2f} /s, over {a['seconds']:.0f} s of flight)")
     if not d.vehicle:
         return " (the vehicle's constants from the log: no airframe file)"
     return f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code>"
