@@ -7,6 +7,7 @@ import pytest
 
 from groundstation.diagnosis.airframe import thrust_curve
 from groundstation.diagnosis.engine import diagnose, interval_means, main_flight, setup, truth_from
+from groundstation.diagnosis.live import markdown
 from groundstation.diagnosis.report import as_json, conclusion
 from groundstation.diagnosis.thrust import TAU_GROUND, lift_off, throttle_series
 from groundstation.estimators import declared_effects
@@ -85,3 +86,4 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     # the conclusion sets the accelerometer's own reading of the lag beside the filter's
     text = conclusion(d, as_json(d))
     assert "from the accelerometer" in text and "for actuator_lag's 0.0" in text, text
+    assert "thrust curve from the accelerometer (α 22." in markdown(as_json(d), 60.0)     # the dashboard's panel

@@ -71,5 +71,7 @@ def markdown(j: dict, seconds: float) -> str:
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
     nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
                      for s in j["after"]["sensors"] if s in j["before"]["sensors"])
-    airframe = f", vehicle {j['vehicle']}" if j.get("vehicle") else ""
+    a = j.get("airframe")
+    airframe = (f", vehicle {j['vehicle']}" if j.get("vehicle") else
+                f", thrust curve from the accelerometer (α {a['alpha']:.1f}, β {a['beta']:.2f} m/s²)" if a else "")
     return f"**last {seconds:.0f} s, model {j.get('model', '')}{airframe}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"
