@@ -27,7 +27,7 @@ horizontal drag (which the model lacks) by tilt (``C_MIN``).
 
 Why the throttle is the fitted side ("reverse" regression): the logged throttle is a sample of a faster
 controller's output, and the samples' aliasing is an error in it that the window's mean does not remove
-(on a clean simulated flight 5 % of its variance at every window from 0.2 to 4 s). As the regressor,
+(on a clean simulated flight 3-5 % of its variance at every window from 0.2 to 4 s). As the regressor,
 that error flattened the curve, alpha 21.3-21.6 for 22 (errors in variables); as the fitted variable it
 is noise, and the accelerometer's own, averaged over the window, is 0.01 m/s^2.
 
@@ -155,7 +155,12 @@ def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_s
         return None
     for a in (acc, att, rng, th):
         a[:] = a[np.argsort(a[:, 0], kind="stable")]
-    c_of = lambda t: np.cos(np.interp(t, att[:, 0], att[:, 1])) * np.cos(np.interp(t, att[:, 0], att[:, 2]))  # noqa: E731
+
+    def c_of(t):            # cos(roll) cos(pitch) at times t
+        return np.cos(np.interp(t, att[:, 0], att[:, 1])) * np.cos(np.interp(t, att[:, 0], att[:, 2]))
+
+    # without 50 samples before the spin-up (a log that starts in the air) the bias is taken as 0: it
+    # then moves beta by itself
     ground = acc[:, 0] < t_spin
     bias = float(np.mean(acc[ground, 1] + G * c_of(acc[ground, 0]))) if ground.sum() >= 50 else 0.0
     grid = np.arange(t_lift + EDGE, t_end - EDGE, STEP)
