@@ -87,3 +87,33 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     text = conclusion(d, as_json(d))
     assert "from the accelerometer" in text and "for actuator_lag's 0.0" in text, text
     assert "thrust curve from the accelerometer (α 22." in markdown(as_json(d), 60.0)     # the dashboard's panel
+
+
+def test_with_a_vehicle_file_the_accelerometers_curve_is_read_beside_it(tmp_path):
+    """``--vehicle sim_quad``: the file's curve is the model's, and the accelerometer's is read beside it
+    (22.2 here for the file's 22), for the report to say when a file is not the log's airframe."""
+    log, ms = _flight(tmp_path, 1012)
+    su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
+               vehicle="sim_quad")
+    a = su.airframe
+    assert a is not None and a["used"] is False and a["file_alpha"] == 22.0, a
+    assert a["alpha"] == pytest.approx(22.0, rel=0.05)
+    assert float(su.model.x0[su.model.index("alpha")]) == 22.0          # the file's, not the fit's
+
+
+@pytest.mark.slow
+def test_a_vehicle_file_that_is_not_the_logs_airframe_is_named_in_the_conclusion(tmp_path, monkeypatch):
+    """A vehicle file written for another airframe (alpha 17 where the simulated quadcopter's is 22: other
+    propellers, or a heavier battery): the conclusion says the log's accelerometer reads another curve,
+    and that the effects are sized against the file's."""
+    import json
+
+    import groundstation.estimators as estimators
+    (tmp_path / "other_quad.json").write_text(json.dumps({"quad_thrust": {"alpha0": 17.0, "beta0": 0.0}}))
+    monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
+    log, ms = _flight(tmp_path, 1012)
+    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
+                 vehicle="other_quad")
+    text = conclusion(d, as_json(d))
+    assert "The vehicle file's thrust curve (alpha = 17, beta = 0 m/s^2) is not this log's" in text, text
+    assert "reads alpha = 22." in text, text

@@ -202,9 +202,16 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         params = vehicle_config(vehicle, "quad_thrust")
         if "range_limits" in params:
             params["range_limits"] = tuple(params["range_limits"])
-        prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)), curve="alpha0" not in params)
+        limits = params.get("range_limits", (RANGE_FLOOR, math.inf))
+        prior = hover_prior(prep, limits, curve="alpha0" not in params)
         curve = prior.pop("curve", None)
-        airframe = curve.as_dict() if curve is not None else None
+        if curve is not None:
+            airframe = {**curve.as_dict(), "used": True}
+        elif "alpha0" in params:
+            # the file's curve is used; the accelerometer's is read beside it, to say when it is not this log's
+            check = hover_prior(prep, limits).get("curve")
+            airframe = {**check.as_dict(), "used": False, "file_alpha": params["alpha0"],
+                        "file_beta": params.get("beta0", 0.0)} if check is not None else None
         params = {**prior, **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator

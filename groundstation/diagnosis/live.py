@@ -73,5 +73,6 @@ def markdown(j: dict, seconds: float) -> str:
                      for s in j["after"]["sensors"] if s in j["before"]["sensors"])
     a = j.get("airframe")
     airframe = (f", vehicle {j['vehicle']}" if j.get("vehicle") else
-                f", thrust curve from the accelerometer (α {a['alpha']:.1f}, β {a['beta']:.2f} m/s²)" if a else "")
+                f", thrust curve from the accelerometer (α {a['alpha']:.1f}, β {a['beta']:.2f} m/s²)"
+                if a and a.get("used") else "")
     return f"**last {seconds:.0f} s, model {j.get('model', '')}{airframe}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"

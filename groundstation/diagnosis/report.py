@@ -3,8 +3,9 @@
 report.json::
 
     {"source", "model", "vehicle",       # the airframe file the model started from (--vehicle), or null
-     "airframe",                         # without one, the thrust curve read from the accelerometer
-                                         # (airframe.py: alpha, beta, drag, n, tc, sigma, ...), or null
+     "airframe",                         # the thrust curve read from the accelerometer (airframe.py: alpha,
+                                         # beta, drag, n, tc, sigma, ..., "used": the model's prior; with a
+                                         # vehicle file, read beside it: file_alpha, file_beta), or null
      "effects": [{"name", "params", "evidence"}, ...],     # in the order added
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
      "rejected": [...],                  # fitted better, made the error against truth worse
@@ -139,6 +140,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
+    a = d.airframe
+    if a and not a.get("used", True) and abs(a["alpha"] - a["file_alpha"]) > CURVE_MISMATCH * a["file_alpha"]:
+        parts.append(f"The vehicle file's thrust curve (alpha = {a['file_alpha']:.3g}, beta = {a['file_beta']:.3g} "
+                     f"m/s^2) is not this log's: its accelerometer reads alpha = {a['alpha']:.3g} ± "
+                     f"{a['sigma']['alpha']:.1g}, beta = {a['beta']:.3g} ± {a['sigma']['beta']:.1g}. The effects "
+                     f"above are sized against the file's; check it (other propellers, motors or battery?) or "
+                     f"diagnose without --vehicle.")
     cross = [(e, CURVE_PARAM[e.name]) for e in d.effects
              if d.airframe and CURVE_PARAM.get(e.name) in e.params and CURVE_PARAM[e.name] in d.airframe]
     if cross:
@@ -183,6 +191,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
 
 #: the thrust curve's parameter (airframe.ThrustCurve) that sizes the same effect: the conclusion sets them side by side
 CURVE_PARAM = {"thrust_voltage": "n", "actuator_lag": "tc"}
+
+#: the conclusion says a vehicle file's alpha is not the log's when the accelerometer's differs by more than this
+#: fraction of it (the curve reads the simulated quadcopter's 22 as 22.2-23.0: 1-5 % high)
+CURVE_MISMATCH = 0.1
 
 #: n / n_eff from which the conclusion says an effect's sensor innovations are coloured
 COLOURED = 3.0
@@ -292,6 +304,10 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 
 def _vehicle_line(d: Diagnosis) -> str:
     a = d.airframe
+    if a and not a.get("used", True):
+        return (f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code> "
+                f"(alpha = {a['file_alpha']:.2f} m/s&sup2;; the log's accelerometer reads {a['alpha']:.2f} &plusmn; "
+                f"{a['sigma']['alpha']:.2f})")
     if not d.vehicle and a:
         return (f" (no airframe file: the thrust curve from the log's accelerometer, alpha = {a['alpha']:.2f} "
                 f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; "
