@@ -157,7 +157,9 @@ def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
 
 def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp_path):
     """The thrust-model filter sees what the altitude filter cannot: the ESCs do not
-    compensate the sagging battery (thrust ~ V^n), undeclared."""
+    compensate the sagging battery (thrust ~ V^n), undeclared. From the log alone, on the standard
+    flight: n reads 2.02 with the thrust curve from the accelerometer (airframe.py); until session 24,
+    from the hover throttle, this test could ask only for 1 < n < 2.5."""
     from sim_bridge.scenario import Scenario
     log = tmp_path / "tv.tlog"
     run_fast(Scenario.from_args("quad", 21, 60.0, ["range_tilt"], ["thrust_voltage:n=2"]), log, tmp_path / "tv.csv")
@@ -165,7 +167,7 @@ def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp
     d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
                  truth=truth_from(ms, log, None))
     assert [e.name for e in d.effects][:1] == ["thrust_voltage"]
-    assert 1.0 < d.effects[0].params["n"] < 2.5
+    assert d.effects[0].params["n"] == pytest.approx(2.0, rel=0.15)
     assert "accel_scale" in d.unobservable          # the thrust model does not read the IMU
 
 
