@@ -98,7 +98,7 @@ class ThrustCurve:
 
     def prior(self) -> dict:
         """The thrust model's constants from it (:func:`~.thrust.thrust_model`'s parameters)."""
-        return {"alpha0": self.alpha, "beta0": self.beta, "drag": self.drag,
+        return {"alpha0": self.alpha, "beta0": self.beta, "drag": self.drag, "sigma_alpha0": 0.2 * self.alpha,
                 "sigma_beta0": max(0.05, self.sigma["beta"]), "G_acc": CURVE_G_ACC}
 
     def as_dict(self) -> dict:

@@ -202,16 +202,15 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         params = vehicle_config(vehicle, "quad_thrust")
         if "range_limits" in params:
             params["range_limits"] = tuple(params["range_limits"])
-        limits = params.get("range_limits", (RANGE_FLOOR, math.inf))
-        prior = hover_prior(prep, limits, curve="alpha0" not in params)
+        prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)))
         curve = prior.pop("curve", None)
-        if curve is not None:
+        if curve is not None and "alpha0" not in params:
+            prior.update(curve.prior())            # the log's thrust curve (airframe.py) over the hover's
             airframe = {**curve.as_dict(), "used": True}
-        elif "alpha0" in params:
+        elif curve is not None:
             # the file's curve is used; the accelerometer's is read beside it, to say when it is not this log's
-            check = hover_prior(prep, limits).get("curve")
-            airframe = {**check.as_dict(), "used": False, "file_alpha": params["alpha0"],
-                        "file_beta": params.get("beta0", 0.0)} if check is not None else None
+            airframe = {**curve.as_dict(), "used": False, "file_alpha": params["alpha0"],
+                        "file_beta": params.get("beta0", 0.0)}
         params = {**prior, **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator

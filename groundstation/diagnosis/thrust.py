@@ -209,10 +209,10 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     hover throttle 0.65 and alpha0 12 % high: the model lifted off at spin-up and flew 2 m up
     while the vehicle sat on the ground.
 
-    With ``curve`` (no vehicle file gives the airframe) and a log with an accelerometer, attitude and
-    range sensor, alpha0, beta0 and the drag are the accelerometer's instead, with the acceleration
-    noise of a known airframe (:mod:`.airframe`: beta held at 0 made alpha 10 % low on the simulated
-    quadcopter); the fit itself is under ``"curve"``."""
+    With ``curve`` and a log with an accelerometer, attitude and range sensor, the thrust curve read
+    from the accelerometer is under ``"curve"`` (:mod:`.airframe`; beta held at 0 made alpha 10 % low on
+    the simulated quadcopter): the caller puts its :meth:`~.airframe.ThrustCurve.prior` over these when
+    no vehicle file gives the airframe, and reads it beside the file's otherwise."""
     th = throttle_series(prep.measurements)
     flying = [(t, v) for t, v in th if v >= TAU_GROUND]
     if len(flying) < 10:
@@ -238,11 +238,12 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     if oc is not None:
         prior["voltage_oc"] = oc           # the readings' open-circuit voltage, smoothed (battery.py)
     if curve:
-        volt = (lambda t, tau: oc.at(t) - k * tau * tau) if oc is not None else None
+        # the voltage the thrust model's input will see (battery.loaded_voltage), at each throttle
+        volt = (lambda t, tau: loaded_voltage(oc.at(t), tau, prior, t)) if oc is not None else None
         fit = thrust_curve(prep.measurements, th, flying[0][0], t0, flying[-1][0], voltage=volt,
                            voltage_ref=prior.get("voltage_ref"), range_limits=range_limits)
         if fit is not None:
-            prior.update(fit.prior(), sigma_alpha0=0.2 * fit.alpha, curve=fit)
+            prior["curve"] = fit
     return prior
 
 
