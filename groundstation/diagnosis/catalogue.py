@@ -45,6 +45,10 @@ class Candidate:
     #: default: its sensor's, or all. An effect that acts in part of a flight only (rotor ground
     #: effect, near the ground) would else have its gain spread over updates it cannot change
     support: Callable | None = None
+    #: (measurements, size) -> the measurements with the effect acting at that size, for an effect on the
+    #: input (no sensor of its own): its signature through the base filter gives the updates it acts on
+    #: (trace.signature_support)
+    perturb: Callable | None = None
 
 
 def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,
@@ -150,6 +154,11 @@ def _scale_param(run) -> dict:
     return {"s": c / (1.0 - c), "sigma_s": sc / (1.0 - c) ** 2}
 
 
+def scale_accelerometer(ms: list[Measurement], s: float) -> list[Measurement]:
+    """The log as an accelerometer with scale error s would have recorded it (f_meas = (1 + s) f)."""
+    return [m._replace(value=m.value * (1.0 + s)) if m.kind is Kind.ACCEL else m for m in ms]
+
+
 def _temperature(ctx) -> float:
     t0 = ctx.values.get("temperature_0")
     return ctx.get("temperature") - t0 if t0 is not None else 0.0
@@ -171,7 +180,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
     has_throttle = bool(kinds & {Kind.THROTTLE, Kind.ACTUATOR})
     cands = [
         Candidate("range_tilt", 0, {Kind.RANGE, Kind.ATTITUDE}, "range", range_tilt, lambda run: {}),
-        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _scale_param),
+        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _scale_param, perturb=scale_accelerometer),
         Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2)),
     ]
     if has_baro:

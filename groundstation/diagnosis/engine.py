@@ -326,6 +326,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
                               {"delta_bic": round(best.delta_bic, 1), "sensor": best.candidate.sensor,
                                "loglik_gain": round(best.run.loglik - base.loglik, 1),
                                "gain_per_update": round(best.gain_per_update, 4),
+                               "support": best.support,
                                # the evidence at the innovations' effective sample size (trace's docstring)
                                "delta_bic_effective": round(best.delta_bic_effective, 1),
                                "innovation_colour": {k: round(v, 2) for k, v in best.run.inflation.items()},

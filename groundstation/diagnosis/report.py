@@ -20,7 +20,8 @@ ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
 [rad] (``rmse_of`` says which).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
-trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update``, ``runner_up`` and its ΔBIC, and,
+trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update`` over ``support`` updates (those the
+effect acts on: trace.py), ``runner_up`` and its ΔBIC, and,
 when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
 model's joint estimate: engine._joint_params).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
