@@ -34,7 +34,7 @@ from .outputs import interval_means
 from .run import Prepared, Run, in_time_order, prepare, run_model
 from .thrust import (RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator,
                      thrust_model)
-from .trace import Scored, rank
+from .trace import Scored, rank, smallest_claimed
 
 #: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,
 #: came after four: the baro's drift, thrust loss, rotor and baro ground effect)
@@ -110,6 +110,8 @@ class Diagnosis:
     rejected: list[Effect] = field(default_factory=list)        # fitted better, contradicted by truth
     vehicle: str | None = None                   # the airframe's constants the model started from
     airframe: dict | None = None                 # ... or the thrust curve read from the log's accelerometer
+    #: per candidate left unclaimed, the size this log would claim it at about half the time (trace.smallest_claimed)
+    detectable: list[dict] = field(default_factory=list)
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -305,6 +307,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
     rejected: list[Effect] = []
     ranking = []
     added: list[Candidate] = []
+    scored: list[Scored] = []
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
@@ -363,7 +366,23 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)
     return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
-                     _modelled(base), ranking, truth, against, rejected, vehicle, su.airframe)
+                     _modelled(base), ranking, truth, against, rejected, vehicle, su.airframe,
+                     _detectable(scored, added, rejected))
+
+
+def _detectable(scored: list[Scored], added: list[Candidate], rejected: list[Effect]) -> list[dict]:
+    """The candidates of the last ranking left unclaimed, each with the size this log would claim it
+    at about half the time (trace.smallest_claimed); scored against the final model but for the
+    last one added, which ended the search."""
+    out = []
+    for s in scored:
+        if s.candidate in added or any(e.name == s.name for e in rejected) or not math.isfinite(s.delta_bic):
+            continue
+        size = smallest_claimed(s)
+        if size:
+            out.append({"name": _label(s), "size": {k: float(f"{v:.3g}") for k, v in size.items()},
+                        "delta_bic": round(s.delta_bic, 1)})
+    return out
 
 
 def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:

@@ -10,6 +10,8 @@ report.json::
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
      "rejected": [...],                  # fitted better, made the error against truth worse
      "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
+     "detectable": [{"name", "size": {param: value}, "delta_bic"}, ...],   # each candidate not found: the
+                                         # size this log would claim it at about half the time (trace.py)
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
@@ -104,6 +106,7 @@ def as_json(d: Diagnosis) -> dict:
                                    for e in d.against_truth],
         "rejected": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.rejected],
         "unobservable": d.unobservable,
+        "detectable": d.detectable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
         "after": _summary(d.after, d.findings_after, d.truth, t0, t1,
@@ -141,6 +144,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
+        if d.detectable:
+            parts.append("The smallest sizes they would have shown about half the time: " +
+                         "; ".join(f"{x['name']} " + ", ".join(_size(k, v) for k, v in x["size"].items())
+                                   for x in d.detectable) + ".")
     a = d.airframe
     if a and not a.get("used", True) and abs(a["alpha"] - a["file_alpha"]) > CURVE_MISMATCH * a["file_alpha"]:
         parts.append(f"The vehicle file's thrust curve (alpha = {a['file_alpha']:.3g}, beta = {a['file_beta']:.3g} "
@@ -188,6 +195,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
                  if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
     return " ".join(parts)
+
+
+def _size(param: str, v: float) -> str:
+    return f"{v:.2g} s" if param in ("seconds", "tc") else f"|{param}| = {v:.2g}"
 
 
 #: the thrust curve's parameter (airframe.ThrustCurve) that sizes the same effect: the conclusion sets them side by side
@@ -280,6 +291,8 @@ def write(d: Diagnosis, out: Path) -> dict:
     failed = _table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
                      for f in d.findings_before if not f.passed] or [["(none)", "", "", "", ""]],
                     ["sensor", "test", "statistic", "threshold", "where"])
+    detectable = _table([[x["name"], _fmt_params(x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
+                        or [["(none)", "", ""]], ["effect", "size", "Delta BIC on this log"])
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
     truth = ""
     if "rmse_vs_truth" in j["before"]:
@@ -298,6 +311,8 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
 <h2>Tests that failed before</h2>{failed}
+<h2>What this log could have shown: the size of each effect not found that it would claim about half the time</h2>
+{detectable}
 <h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
     (out / "report.html").write_text(page)
     return j
