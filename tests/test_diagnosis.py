@@ -114,6 +114,34 @@ def test_a_small_accelerometer_scale_is_weighed_over_the_updates_it_acts_on(tmp_
 
 
 @pytest.mark.slow
+def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tmp_path):
+    """"Nothing claimed" comes with what the log could have shown (trace.smallest_claimed): the
+    size of each effect claimed about half the time. On the same flight, effects at half those
+    sizes go unclaimed and at twice them are found. The range delay's limit comes from its
+    profile's curvature at zero (trace.profile_sigma): delays of 0.01-0.015 s, once never
+    located on the 0.04 s grid, are found (0.0100, 0.0147 s)."""
+    from groundstation.diagnosis.report import as_json, conclusion
+    d, _ = run_case(tmp_path, [])
+    assert d.effects == []
+    size = {x["name"]: x["size"] for x in d.detectable}
+    s50, d50 = size["accel_scale"]["s"], size["sensor_delay(range)"]["seconds"]
+    assert 0.005 < s50 < 0.015 and 0.004 < d50 < 0.02, size
+    assert "The smallest sizes they would have shown about half the time: " in conclusion(d, as_json(d))
+    for k in (0.5, 2.0):
+        (tmp_path / str(k)).mkdir()
+        dk, (before, after) = run_case(tmp_path / str(k), [f"accel_scale:s={k * s50:.4f}",
+                                                           f"sensor_delay:sensor=range,seconds={k * d50:.4f}"])
+        found = {e.name: e.params for e in dk.effects}
+        if k < 1:
+            assert found == {}, found
+            continue
+        assert set(found) == {"accel_scale", "sensor_delay"}, found
+        assert abs(found["sensor_delay"]["seconds"] - k * d50) < 3 * found["sensor_delay"]["sigma_seconds"]
+        assert abs(found["accel_scale"]["s"] - k * s50) < 3 * found["accel_scale"]["sigma_s"]
+        assert after < before
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("vehicle,seed,flight", [
     ("quad", 12, "standard"),
     ("coax", 1056, "standard"),  # its baro zero drew a 10 cm (2 sigma) calibration error: once taken for baro_thrust
