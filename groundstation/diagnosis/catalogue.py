@@ -49,6 +49,9 @@ class Candidate:
     #: input (no sensor of its own): its signature through the base filter gives the updates it acts on
     #: (trace.signature_support)
     perturb: Callable | None = None
+    #: (its run, z) -> {parameter: the size a claim needs}, z = sqrt(2 x the gain it needs) (trace.smallest_claimed);
+    #: default: each reported ``sigma_`` times z, for a parameter that is itself the state
+    limit: Callable | None = None
 
 
 def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,

@@ -405,6 +405,12 @@ def _rotor_radius(run) -> dict:
     return {"R": r, "sigma_R": s / (2 * r) if r > 0 else math.inf}
 
 
+def _rotor_radius_limit(run, z: float) -> dict:
+    """The state is R^2: its size z sigma_R2 is where the gain is, then R = sqrt of it (sigma_R, a
+    linearisation at the estimate, is no guide near R = 0)."""
+    return {"R": math.sqrt(z * run.final("R2_rotor")[1])}
+
+
 def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
     """The throttle as the rotors follow it through a first-order lag of time constant tc, for
     each stream of outputs (a throttle and the PWM outputs each their own: one state shared between
@@ -469,7 +475,7 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
             cands.append(Candidate("thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage,
                                    _state_param("n", "n_voltage")))
         cands.append(Candidate("thrust_ground_effect", 1, set(), None, thrust_ground_effect, _rotor_radius,
-                               support=_near_the_ground))
+                               support=_near_the_ground, limit=_rotor_radius_limit))
         cands.append(Candidate("actuator_lag", 1, set(), "throttle", None, None,
                                delays=(0.0, 0.03, 0.06, 0.12, 0.24, 0.4), reshape=lag_throttle))
     # the barometer's own effects act on the same measurement in this model, and so does the ToF's slant

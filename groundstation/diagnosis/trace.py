@@ -117,7 +117,10 @@ def smallest_claimed(s: Scored) -> dict[str, float]:
 
     What "nothing claimed" means on this log, in each effect's own unit."""
     need = max((s.candidate.k * math.log(max(s.n, 1)) - STRONG) / 2.0, MATERIAL * s.support)
-    return {k[len("sigma_"):]: float(v) * math.sqrt(2.0 * need) for k, v in s.params.items()
+    z = math.sqrt(2.0 * need)
+    if s.candidate.limit:
+        return s.candidate.limit(s.run, z)
+    return {k[len("sigma_"):]: float(v) * z for k, v in s.params.items()
             if k.startswith("sigma_") and isinstance(v, float) and math.isfinite(v)}
 
 
