@@ -242,12 +242,14 @@ def collective(m: Measurement, ctx: Context) -> float | None:
 
 
 def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
-    """gamma_z = -(A_IB f)_down - g: the world-vertical specific force, gravity removed."""
+    """(gamma_z, cos_tilt): gamma_z = -(A_IB f)_down - g, the world-vertical specific force with
+    gravity removed, and cos_tilt = (A_IB)_down,z = cos(roll) cos(pitch), how much of the body's
+    z axis (and of a bias along it) is vertical."""
     if m.instance != 0:
         return None
     fx, fy, fz = m.value.tolist()
     a, b, c = ctx.values.get("down_row", _LEVEL)
-    return np.array([-(a * fx + b * fy + c * fz) - G])
+    return np.array([-(a * fx + b * fy + c * fz) - G, c])
 
 
 _LEVEL = (0.0, 0.0, 1.0)

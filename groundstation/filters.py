@@ -107,10 +107,13 @@ class ModelFilter:
 
     def _discrete(self, dt: float):
         k = int(dt * 1e7 + 0.5)
-        key = (k, tuple(np.round(self.u, 6))) if self._u_dependent else k
+        A = self.model.A(self.u) if self._u_dependent else None
+        # keyed on A itself: a model whose A takes one input of several (the altitude model's
+        # cos_tilt) reuses a discretisation while the others change
+        key = (k, A.tobytes()) if self._u_dependent else k
         d = self._cache.get(key)
         if d is None:
-            A = self.model.A(self.u)
+            A = self.model.A(self.u) if A is None else A
             if self._u_dependent and np.abs(A).sum(axis=1).max() * dt < SERIES_LIMIT:
                 # A changes with every input: a fourth-order series of the same integrals
                 # (error ~ (|A| dt)^5 / 120 < 3e-6), 20x cheaper than two matrix exponentials
