@@ -372,8 +372,8 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
 
 def _detectable(scored: list[Scored], added: list[Candidate], rejected: list[Effect]) -> list[dict]:
     """The candidates of the last ranking left unclaimed, each with the size this log would claim it
-    at about half the time (trace.smallest_claimed); scored against the final model but for the
-    last one added, which ended the search."""
+    at about half the time (trace.smallest_claimed). When the effect added last ended the search
+    (the residuals then passed), they were scored against the model before it."""
     out = []
     for s in scored:
         if s.candidate in added or any(e.name == s.name for e in rejected) or not math.isfinite(s.delta_bic):

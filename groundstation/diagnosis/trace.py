@@ -183,7 +183,8 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
             return Scored(cand, model, r, math.inf, {"sensor": cand.sensor, "seconds": d,
                                                      "note": "at the edge of the search range"}, shifted)
         p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
-        p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
+        if math.isfinite(sd):             # a flat profile has none (and JSON no infinity)
+            p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
         return scored(cand, model, r, base, n, p, shifted)
     aug = cand.augment(model)
     try:
