@@ -560,7 +560,10 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
 def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
     """The landed constraint (vz = 0) begins at a touchdown the model lacks. As a full Kalman update it
     was explained through the correlations: this flight's accelerometer scale of 0.02 read 0.0195 at
-    50 s and 0.0165 after the landing. As a Schmidt update on z and vz it stays where the flight put it."""
+    50 s and 0.0165 after the landing. As a Schmidt update on z and vz it stays where the flight put it:
+    compared at the last range reading in the air (the last climb and the descent, 51-55.6 s, carry
+    much of the scale's evidence and move it legitimately: 0.0228 -> 0.0213 with the bias along the
+    body axis), then within 0.00004."""
     from groundstation.diagnosis.catalogue import accel_scale
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
@@ -574,8 +577,9 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
     r = run_model(aug, su.prep, su.make)
     c = r.x[:, aug.index("accel_scale")]
     s = c / (1.0 - c)
-    at50 = s[np.searchsorted(r.t, 50.0)]
-    assert s[-1] == pytest.approx(0.02, rel=0.07) and abs(s[-1] - at50) < 0.001, (at50, s[-1])
+    sigma = np.sqrt(r.P[-1, aug.index("accel_scale"), aug.index("accel_scale")])
+    in_air = s[np.searchsorted(r.t, r.sensors["range"].t[-1])]
+    assert abs(s[-1] - 0.02) < 2.0 * sigma < 0.005 and abs(s[-1] - in_air) < 0.0005, (in_air, s[-1], sigma)
 
 
 def _range(t: float, d: float):
