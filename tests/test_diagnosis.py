@@ -99,9 +99,9 @@ def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undecl
 def test_a_small_accelerometer_scale_is_weighed_over_the_updates_it_acts_on(tmp_path):
     """Of s's effect on the vertical only s a is left (s g is a bias, b_acc's), and all its evidence
     sits where the vertical acceleration changes: the steps and the descent. Spread over every range
-    update, s = 0.015 here (read 0.0128 +- 0.0022, Delta BIC -20.7) gained 0.011 per update, below
-    trace.MATERIAL, and went unclaimed; over the 173 of 1262 updates its signature covers
-    (trace.signature_support) it gains 0.084, and is found."""
+    update, s = 0.015 here (read 0.0147 +- 0.0021, Delta BIC -35.9) gained 0.018 per update, below
+    trace.MATERIAL, and went unclaimed; over the 185 of 1262 updates its signature covers
+    (trace.signature_support) it gains 0.12, and is found."""
     from groundstation.diagnosis.trace import MATERIAL
     d, (before, after) = run_case(tmp_path, ["accel_scale:s=0.015"])
     assert d.effects and d.effects[0].name == "accel_scale", [e.name for e in d.effects]
