@@ -60,7 +60,9 @@ COS_TILT_STEP = 1e-4
 
 
 def transition(u) -> np.ndarray:
-    """A(u): the document's, with the bias's coupling -cos_tilt (level when no input has come)."""
+    """A(u): the document's, with the bias's coupling -cos_tilt; level for ``A(None)`` (the
+    closed-form tests). A filter's inputs start at zero, so until the first accelerometer
+    sample it predicts no acceleration at all, the bias's share included."""
     c = 1.0 if u is None or len(u) < 2 else round(float(u[1]) / COS_TILT_STEP) * COS_TILT_STEP
     return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -c], [0.0, 0.0, 0.0]])
 
