@@ -230,6 +230,21 @@ def shift(ms: list[Measurement], kinds: set, d: float) -> list[Measurement]:
     return out
 
 
+#: each catalogue parameter's unit, as the simulator's effects give it (sim_bridge/effects.py), for the
+#: reports; a parameter not here is a pure number (a scale, an exponent)
+UNITS = {("accel_bias", "z"): "m/s^2", ("gyro_bias", "x"): "rad/s", ("gyro_bias", "y"): "rad/s",
+         ("imu_misalignment", "roll"): "deg", ("imu_misalignment", "pitch"): "deg",
+         ("baro_bias_drift", "rate"): "m/s", ("baro_thermal", "k"): "m/K",
+         ("baro_thrust", "k"): "m per unit throttle", ("baro_ground_effect", "A"): "m", ("range_offset", "o"): "m",
+         ("sensor_delay", "seconds"): "s", ("actuator_lag", "tc"): "s", ("thrust_ground_effect", "R"): "m"}
+
+
+def unit_of(name: str, param: str) -> str:
+    """The unit of an effect's parameter ("" for a pure number); ``name`` may carry its sensor,
+    ``sensor_delay(range)``."""
+    return UNITS.get((name.split("(")[0], param), "")
+
+
 #: effects of geometry and timing (issue 7: their RMSE bar is 80 %, not 50 %)
 GEOMETRIC = {"range_tilt", "sensor_delay", "imu_misalignment"}
 

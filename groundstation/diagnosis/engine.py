@@ -46,6 +46,11 @@ MIN_SECONDS = 10.0
 #: -11 deg fitted the accelerometer's vibration and took roll and pitch from 0.66 deg to 6.45 deg off)
 VETO_FACTOR = 1.2
 VETO_FLOOR = {"height [m]": 0.01, "roll and pitch [rad]": math.radians(0.5)}
+#: an added effect whose runner-up is claimable too and scores within this much of it is reported with that
+#: runner-up as its alternative: the log prefers the one by less than very strong evidence (the claim's
+#: own 10; Kass and Raftery's scale). A baro drift of 0.03 m/s on a flight whose temperature rose almost
+#: in a line was named baro_thermal, Delta BIC -7168.5 against the drift's -7161.9
+CLOSE_CALL = 10.0
 
 
 @dataclass
@@ -307,6 +312,7 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
     rejected: list[Effect] = []
     ranking = []
     added: list[Candidate] = []
+    labels: list[str] = []
     scored: list[Scored] = []
     for _ in range(MAX_EFFECTS):
         if not cands:
@@ -334,8 +340,10 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
                                "delta_bic_effective": round(best.delta_bic_effective, 1),
                                "innovation_colour": {k: round(v, 2) for k, v in best.run.inflation.items()},
                                "runner_up": _label(runner_up) if runner_up else None,
-                               "runner_up_delta_bic": round(runner_up.delta_bic, 1) if runner_up else None}))
+                               "runner_up_delta_bic": round(runner_up.delta_bic, 1) if runner_up else None,
+                               **_alternative(best, runner_up)}))
         added.append(best.candidate)
+        labels.append(_label(best))
         model, base, stream = best.model, best.run, best.measurements
         cands = [c for c in cands if not (c.name == best.name and c.sensor == best.candidate.sensor)]
         if best.name == "baro_bias_drift":
@@ -344,6 +352,9 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
         if Diagnosis.passes(sensor_findings(base)):
             break
     _joint_params(effects, added, base)
+    for e in effects:       # an alternative the loop added after all is a second effect, not an alternative
+        if e.evidence.get("alternative", {}).get("name") in labels:
+            del e.evidence["alternative"]
     findings1 = sensor_findings(base)
     discoveries = []
     for s, f_ok in ((s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors if s != LANDED):
@@ -401,6 +412,15 @@ def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:
 
 def _label(s: Scored) -> str:
     return s.name + (f"({s.candidate.sensor})" if s.candidate.delays else "")
+
+
+def _alternative(best: Scored, runner_up: Scored | None) -> dict:
+    """``{"alternative": {name, params, delta_bic}}`` when the runner-up would have been claimed on its own
+    and the log prefers ``best`` to it by less than :data:`CLOSE_CALL`; else nothing."""
+    if runner_up is None or not runner_up.accepted or runner_up.delta_bic - best.delta_bic >= CLOSE_CALL:
+        return {}
+    return {"alternative": {"name": _label(runner_up), "params": runner_up.params,
+                            "delta_bic": round(runner_up.delta_bic, 1)}}
 
 
 def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:

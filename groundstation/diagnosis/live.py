@@ -66,8 +66,8 @@ def markdown(j: dict, seconds: float) -> str:
     """The panel's text: effects found, the conclusion, NIS before and after."""
     if "error" in j:
         return f"**cannot diagnose:** {j['error']}"
-    rows = "\n".join(f"| {e['name']} | {', '.join(f'{k} = {v:.4g}' for k, v in e['params'].items() if not k.startswith('sigma') and isinstance(v, (int, float)))} |"
-                     for e in j.get("effects", []))
+    from .report import format_params
+    rows = "\n".join(f"| {e['name']} | {format_params(e['name'], e['params'])} |" for e in j.get("effects", []))
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
     nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
                      for s in j["after"]["sensors"] if s in j["before"]["sensors"])

@@ -23,7 +23,8 @@ ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
 trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update`` over ``support`` updates (those the
-effect acts on: trace.py), ``runner_up`` and its ΔBIC, and,
+effect acts on: trace.py), ``runner_up`` and its ΔBIC, ``alternative`` ({name, params, delta_bic}) when
+that runner-up would have been claimed too and is less than very strongly worse (engine.CLOSE_CALL), and,
 when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
 model's joint estimate: engine._joint_params).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
@@ -44,7 +45,8 @@ import numpy as np
 
 from ..evaluate import ljung_box
 from ..export import EstimateCsvWriter
-from .engine import Diagnosis
+from .catalogue import unit_of
+from .engine import CLOSE_CALL, Diagnosis
 from .run import Run
 from ..models.ground import LANDED
 from .thrust import LIFTOFF_REACH
@@ -141,12 +143,20 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                                    f"each {s} innovation is worth 1/{f:.0f} of an independent "
                                    f"sample)" for e, s, f in coloured) +
                          ". Weigh those findings with care: the colour comes from something the model still lacks.")
+        for e in d.effects:
+            alt = e.evidence.get("alternative")
+            if alt:
+                p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
+                parts.append(f"This log barely tells {e.name} from {alt['name']}{f' ({p})' if p else ''}: that one "
+                             f"would have been claimed too, at Delta BIC {alt['delta_bic']:.1f} against "
+                             f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
+                             f"strong evidence. Read the finding as either; a flight that tells them apart settles it.")
     else:
         parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
                      "can tell, the model is complete.")
         if d.detectable:
             parts.append("The smallest sizes they would have shown about half the time: " +
-                         "; ".join(f"{x['name']} " + ", ".join(_size(k, v) for k, v in x["size"].items())
+                         "; ".join(f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items())
                                    for x in d.detectable) + ".")
     a = d.airframe
     if a and not a.get("used", True) and abs(a["alpha"] - a["file_alpha"]) > CURVE_MISMATCH * a["file_alpha"]:
@@ -170,7 +180,7 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                      f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
                      f"comes from something the model lacks, not from {e.name}.")
     for e in d.modelled:
-        parts.append(f"The model's own state {e.evidence['state']} carries {e.name}: {_fmt_params(e.params)}.")
+        parts.append(f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}.")
     for e in d.against_truth:
         parts.append(f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
                      f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown.")
@@ -197,8 +207,9 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     return " ".join(parts)
 
 
-def _size(param: str, v: float) -> str:
-    return f"{v:.2g} s" if param in ("seconds", "tc") else f"|{param}| = {v:.2g}"
+def _size(name: str, param: str, v: float) -> str:
+    u = unit_of(name, param)
+    return f"{v:.2g} s" if u == "s" else f"|{param}| = {v:.2g}{' ' + u if u else ''}"
 
 
 #: the thrust curve's parameter (airframe.ThrustCurve) that sizes the same effect: the conclusion sets them side by side
@@ -214,14 +225,17 @@ COLOURED = 3.0
 
 def _named(e) -> str:
     """``name (k = v, ...)``, or the name alone for an effect without parameters (range_tilt)."""
-    p = _fmt_params(e.params)
+    p = format_params(e.name, e.params)
     return f"{e.name} ({p})" if p else e.name
 
 
-def _fmt_params(p: dict) -> str:
-    """``k = v`` for each parameter; a ``unit`` entry is printed after the numbers it applies to."""
-    unit = f" {p['unit']}" if "unit" in p else ""
-    return ", ".join(f"{k} = {v:.4g}{unit}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
+def format_params(name: str, p: dict) -> str:
+    """``k = v unit`` for each parameter of effect ``name`` (catalogue.UNITS; a ``unit`` entry in ``p``
+    overrides it), sigmas left out."""
+    def unit(k):
+        u = p.get("unit") or unit_of(name, k)
+        return f" {u}" if u else ""
+    return ", ".join(f"{k} = {v:.4g}{unit(k)}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
                      if not k.startswith("sigma_") and k != "unit")
 
 
@@ -280,18 +294,18 @@ def write(d: Diagnosis, out: Path) -> dict:
                      f"{b['ljung_box_p']:.3g}", f"{a.get('ljung_box_p', math.nan):.3g}"])
     sensors = _table(rows, ["sensor", "innovation RMS before", "after", "NIS before", "after",
                             "Ljung-Box p before", "after"])
-    effects = _table([[e["name"], _fmt_params(e["params"]), json.dumps(e["evidence"])] for e in j["effects"]]
+    effects = _table([[e["name"], format_params(e["name"], e["params"]), json.dumps(e["evidence"])] for e in j["effects"]]
                      or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
     if j["rejected"]:
         effects += "<h3>Rejected: a better fit, a worse estimate against truth</h3>" + _table(
-            [[e["name"], _fmt_params(e["params"]), json.dumps(e["evidence"])] for e in j["rejected"]],
+            [[e["name"], format_params(e["name"], e["params"]), json.dumps(e["evidence"])] for e in j["rejected"]],
             ["effect", "parameters", "evidence"])
     ranking = "".join(f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
                       for i, it in enumerate(j["ranking"]))
     failed = _table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
                      for f in d.findings_before if not f.passed] or [["(none)", "", "", "", ""]],
                     ["sensor", "test", "statistic", "threshold", "where"])
-    detectable = _table([[x["name"], _fmt_params(x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
+    detectable = _table([[x["name"], format_params(x["name"], x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
                         or [["(none)", "", ""]], ["effect", "size", "Delta BIC on this log"])
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
     truth = ""
