@@ -215,9 +215,25 @@ def test_diagnose_command_writes_the_reports(tmp_path):
     assert "range_offset" in j["unobservable"]
     page = (out / "report.html").read_text()
     assert "baro_thrust" in page and "<svg" in page and "autocorrelation" in page
+    # for people: parameters with their units, the evidence in words (the numbers are report.json's)
+    assert f"k = {j['effects'][0]['params']['k']:.4g} m per unit throttle" in page
+    assert "per update over the" in page and '{"delta_bic"' not in page
+    assert "Tests that still fail after" in page
     head = (out / "estimates_after.csv").read_text().splitlines()[0].split(",")
     assert head[:2] == ["t", "z"] and "k_thrust" in head and "sigma_k_thrust" in head
     assert (out / "estimates_before.csv").read_text().splitlines()[0].split(",")[:4] == ["t", "z", "vz", "b_acc"]
+
+
+def test_an_innovation_plot_breaks_where_a_sensor_had_no_readings():
+    """A range sensor out of reach above 4 m for 15 s: its innovations are drawn with a break there,
+    not a straight line across (a NaN between the last reading before and the first after)."""
+    from groundstation.diagnosis.report import _broken_at_gaps
+    t = np.concatenate([np.arange(0.0, 15.0, 0.05), np.arange(30.0, 40.0, 0.05)])
+    tb, yb = _broken_at_gaps(t, np.zeros_like(t))
+    assert len(tb) == len(t) + 1 and np.isnan(tb[300]) and np.isnan(yb[300])
+    assert tb[299] == pytest.approx(14.95) and tb[301] == 30.0
+    t2 = np.cumsum(np.random.default_rng(0).uniform(0.03, 0.07, 500))      # jitter only: no break
+    assert len(_broken_at_gaps(t2, t2)[0]) == 500
 
 
 def test_diagnose_on_a_bad_file_is_one_line(tmp_path):

@@ -239,6 +239,16 @@ def format_params(name: str, p: dict) -> str:
                      if not k.startswith("sigma_") and k != "unit")
 
 
+def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``t, y`` with a NaN in each gap of over 0.5 s and five typical intervals, so that a plotted line
+    breaks there (a range sensor out of reach for 15 s was drawn as one straight line across)."""
+    if len(t) < 3:
+        return t, y
+    dt = np.diff(t)
+    gaps = np.flatnonzero(dt > max(0.5, 5.0 * float(np.median(dt)))) + 1
+    return np.insert(t.astype(float), gaps, np.nan), np.insert(y.astype(float), gaps, np.nan)
+
+
 def _figures(d: Diagnosis) -> str:
     import matplotlib
     matplotlib.use("Agg")
@@ -248,7 +258,7 @@ def _figures(d: Diagnosis) -> str:
         fig, ax = plt.subplots(1, 2, figsize=(11, 3.0))
         for run, label, col in ((d.before, "before", "#c0392b"), (d.after, "after", "#2e7d32")):
             tr = run.sensors[s]
-            ax[0].plot(tr.t, tr.nu[:, 0], lw=0.6, color=col, label=label, alpha=0.8)
+            ax[0].plot(*_broken_at_gaps(tr.t, tr.nu[:, 0]), lw=0.6, color=col, label=label, alpha=0.8)
             e = tr.nu_normalised[tr.t >= tr.t[0] + 5.0]
             ec = e - e.mean()
             lags = min(50, len(e) // 4)
@@ -270,9 +280,50 @@ def _figures(d: Diagnosis) -> str:
     return "\n".join(out)
 
 
+def _evidence_html(name: str, ev: dict) -> str:
+    """An effect's evidence as a person reads it, a line per item (report.json keeps the numbers)."""
+    lines = []
+    if "delta_bic" in ev:
+        on = f" on the {ev['sensor']}" if ev.get("sensor") else ""
+        lines.append(f"Delta BIC {ev['delta_bic']:+.1f}{on}"
+                     + (f" ({ev['delta_bic_effective']:+.1f} at the effective sample size)"
+                        if ev.get("delta_bic_effective") not in (None, ev["delta_bic"]) else ""))
+    if "loglik_gain" in ev:
+        lines.append(f"log-likelihood gain {ev['loglik_gain']:.1f}: {ev['gain_per_update']:.3g} per update over the "
+                     f"{ev['support']} updates it acts on")
+    coloured = {k: v for k, v in ev.get("innovation_colour", {}).items() if v >= COLOURED}
+    if coloured:
+        lines.append("coloured innovations: " + ", ".join(f"each {k} one worth 1/{v:.0f} of a sample"
+                                                          for k, v in coloured.items()))
+    if ev.get("runner_up"):
+        lines.append(f"runner-up {ev['runner_up']} ({ev['runner_up_delta_bic']:+.1f})")
+    alt = ev.get("alternative")
+    if alt:
+        p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
+        lines.append(f"barely told from {alt['name']}{f' ({p})' if p else ''}: read the finding as either")
+    if "params_when_added" in ev:
+        lines.append(f"when added: {format_params(name, ev['params_when_added'])}")
+    if "error_before" in ev:
+        k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
+        lines.append(f"error against the {ev['against']}: {ev['error_before'] * k:.2f} {unit} without it, "
+                     f"{ev['error_with'] * k:.2f} {unit} with it")
+    elif "against" in ev:
+        lines.append(f"measured against the {ev['against']} over {ev.get('n', '?')} readings")
+    if "state" in ev:
+        lines.append(f"the model's state {ev['state']}, {ev.get('z_over_sigma', math.nan):.1f} sigma from 0")
+    if "note" in ev:
+        lines.append(ev["note"])
+    return "<br>".join(html.escape(x) for x in lines)
+
+
+class _Html(str):
+    """A table cell that is HTML already (escaped where it was built)."""
+
+
 def _table(rows: list[list], head: list[str]) -> str:
     th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>" for r in rows)
+    body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, _Html) else html.escape(str(c))}</td>" for c in r)
+                   + "</tr>" for r in rows)
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
@@ -294,17 +345,18 @@ def write(d: Diagnosis, out: Path) -> dict:
                      f"{b['ljung_box_p']:.3g}", f"{a.get('ljung_box_p', math.nan):.3g}"])
     sensors = _table(rows, ["sensor", "innovation RMS before", "after", "NIS before", "after",
                             "Ljung-Box p before", "after"])
-    effects = _table([[e["name"], format_params(e["name"], e["params"]), json.dumps(e["evidence"])] for e in j["effects"]]
-                     or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
+    effects = _table([[e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+                      for e in j["effects"] + j["modelled"] + j["measured_against_truth"]] or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
     if j["rejected"]:
         effects += "<h3>Rejected: a better fit, a worse estimate against truth</h3>" + _table(
-            [[e["name"], format_params(e["name"], e["params"]), json.dumps(e["evidence"])] for e in j["rejected"]],
-            ["effect", "parameters", "evidence"])
+            [[e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+             for e in j["rejected"]], ["effect", "parameters", "evidence"])
     ranking = "".join(f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
                       for i, it in enumerate(j["ranking"]))
-    failed = _table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
-                     for f in d.findings_before if not f.passed] or [["(none)", "", "", "", ""]],
-                    ["sensor", "test", "statistic", "threshold", "where"])
+    failed, still = (_table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
+                             for f in fs if not f.passed] or [["(none)", "", "", "", ""]],
+                            ["sensor", "test", "statistic", "threshold", "where"])
+                     for fs in (d.findings_before, d.findings_after))
     detectable = _table([[x["name"], format_params(x["name"], x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
                         or [["(none)", "", ""]], ["effect", "size", "Delta BIC on this log"])
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
@@ -325,6 +377,7 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
 <h2>Tests that failed before</h2>{failed}
+<h2>Tests that still fail after</h2>{still}
 <h2>What this log could have shown: the size of each effect not found that it would claim about half the time</h2>
 {detectable}
 <h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
