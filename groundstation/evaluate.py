@@ -31,6 +31,12 @@ from .replay import Replay
 
 def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     """p-value of the Ljung-Box test that ``x`` is white (no autocorrelation up to ``lags``)."""
+    return float(chi2.sf(ljung_box_q(x, lags), lags))
+
+
+def ljung_box_q(x: np.ndarray, lags: int = 20) -> float:
+    """The Ljung-Box statistic Q = n (n + 2) sum_k rho_k^2 / (n - k), k = 1..lags (chi^2 with ``lags``
+    degrees of freedom for white ``x``); NaN for a sequence too short or constant."""
     x = np.asarray(x, dtype=float)
     n = len(x)
     if n <= lags + 1:
@@ -40,8 +46,7 @@ def ljung_box(x: np.ndarray, lags: int = 20) -> float:
     if d == 0:
         return float("nan")
     rho = np.array([x[:-k] @ x[k:] / d for k in range(1, lags + 1)])
-    q = n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1)))
-    return float(chi2.sf(q, lags))
+    return float(n * (n + 2) * np.sum(rho**2 / (n - np.arange(1, lags + 1))))
 
 
 def _reader_skipped(skipped) -> str:

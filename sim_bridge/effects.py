@@ -198,6 +198,21 @@ class BaroGroundEffect(Effect):
 
 
 @register
+class BaroAirflow(Effect):
+    """Outside the diagnosis' catalogue on purpose: what its sparse regression must name. The air a
+    climb or descent moves past the static port lowers the pressure it reads by C q, q = rho v^2 / 2,
+    so the baro reads high by C v^2 / (2 g) (ArduPilot's BARO1_WCF_UP/DN model it the same way for
+    the body's vertical axis; the README's "outside the catalogue")."""
+    name = "baro_airflow"
+    equation = "h_err = k * vz^2  (static-port error from the vertical airflow, k = C / (2 g))"
+    params = {"k": Param(0.1, "m/(m/s)^2", 0.0, 0.3, "pressure coefficient C = 2 g k: 0-6; "
+                                                      "1-2 m in fast descents on poorly ported airframes")}
+
+    def baro_alt(self, sim):
+        return self.k * float(sim.vehicle.kin.vel[2]) ** 2
+
+
+@register
 class RangeTilt(Effect):
     """Always physical: the range sensor reads the slant distance. The effect's
     presence in a scenario only says whether the ground station is told."""

@@ -98,6 +98,9 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     assert drift["innovation_colour"]["baro"] > 10 and drift["delta_bic_effective"] > drift["delta_bic"]
     from groundstation.diagnosis.report import as_json, conclusion
     assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
+    # what still colours the baro after both: the regression names the throttle's shape (README: 60 %)
+    x = {x.sensor: x for x in d.discoveries}["baro"]
+    assert "throttle" in x.expression and x.r2 > 0.4, x
 
 
 @pytest.mark.slow

@@ -63,6 +63,7 @@ def test_baro_bias_drift_rate():
 @pytest.mark.parametrize("spec,check", [
     ("baro_thermal:k=0.5", lambda tr: 0.5 * (tr["temperature"] - 293.15)),
     ("baro_ground_effect:A=-2,h0=0.5", lambda tr: -2 * math.exp(-max(0.0, tr["h"]) / 0.5) if tr["throttle"] > 0.05 else 0.0),
+    ("baro_airflow:k=0.3", lambda tr: 0.3 * tr["vd"] ** 2),
 ])
 def test_baro_errors_follow_their_equation(spec, check):
     _, rows = fly([spec], seconds=30)

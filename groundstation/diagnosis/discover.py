@@ -7,7 +7,11 @@ rotor vibration, time; each also low-passed (0.5 s, 2 s) and delayed (0.1 s,
 ``nu`` [sensor units]. Orthogonal matching pursuit (the greedy sparse
 regression) picks the columns one at a time while each still lowers the BIC
 of the least-squares fit; the first pick is the strongest correlate, and its
-coefficient is given back in the signal's own units.
+coefficient is given back in the signal's own units. It is named when it explains
+:data:`MIN_R2` of the innovations' variance, or their colour (:data:`WHITENS`).
+The coefficient comes from the raw innovations, so it is short by what the
+filter absorbed: a simulated 0.1, 0.2 and 0.3 m per (m/s)^2 read 0.077, 0.174
+and 0.325 (``tests/test_diagnosis.py``).
 
 Why not regress raw innovations on raw features for the catalogue too: the
 filter absorbs part of every effect (issue 7), so such coefficients are biased
@@ -22,12 +26,22 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import chi2
 
+from ..evaluate import ljung_box_q
 from .run import Run
 
+LAGS = 20        # the Ljung-Box test's, as sensor_findings runs it (evaluate.ljung_box)
+
 #: a discovery must explain this much of the innovation variance: with thousands of
-#: updates a 1 % correlate is "significant" and still not worth a person's time
+#: updates a 1 % correlate is "significant" and still not worth a person's time...
 MIN_R2 = 0.10
+#: ... unless it is what colours them: the innovations fail Ljung-Box (p < 0.05) and, with the fit taken
+#: out, the statistic falls to this fraction of itself or less. A noisy sensor's error can be small
+#: against its noise and still be all of its colour: a simulated baro reading high by 0.2 m per (m/s)^2
+#: of climb rate (``baro_airflow``) is 5 % of the baro's innovation variance, and Q falls 139 -> 14
+#: (p 6e-20 -> 0.82); the range's 3-5 % correlates on the same flights leave Q where it was
+WHITENS = 0.5
 
 
 @dataclass
@@ -37,6 +51,8 @@ class Discovery:
     coefficient: float       # in the sensor's units per signal unit
     r2: float                # fraction of the innovation variance it explains
     terms: list[tuple[str, float]]   # all picked (expression, coefficient)
+    #: the Ljung-Box p of the normalised innovations, and of them with the fit taken out
+    ljung_box_p: tuple[float, float] = (math.nan, math.nan)
 
 
 def _lowpass(t: np.ndarray, x: np.ndarray, tc: float) -> np.ndarray:
@@ -114,6 +130,10 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
         return None
     terms = [(names[j], float(c / lib[names[j]].std())) for j, c in zip(picked, coef)]
     r2 = 1.0 - float(np.mean(resid**2) / np.mean(yc**2))
-    if r2 < MIN_R2:
+    sd = np.sqrt(tr.S[keep, 0, 0])
+    q0, q1 = ljung_box_q(y / sd), ljung_box_q((y - X[:, picked] @ coef) / sd)
+    colour = bool(chi2.sf(q0, LAGS) < 0.05 and q1 <= WHITENS * q0)
+    if r2 < MIN_R2 and not colour:
         return None
-    return Discovery(sensor, terms[0][0], terms[0][1], r2, terms)
+    return Discovery(sensor, terms[0][0], terms[0][1], r2, terms,
+                     (float(chi2.sf(q0, LAGS)), float(chi2.sf(q1, LAGS))))

@@ -28,7 +28,7 @@ that runner-up would have been claimed too and is less than very strongly worse 
 when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
 model's joint estimate: engine._joint_params).
 A discovered effect is ``{"name": "discovered", "params": {"regressor",
-"coefficient", "sensor"}, "evidence": {"r2", "terms"}}``; a rejected one's evidence
+"coefficient", "sensor"}, "evidence": {"r2", "terms", "ljung_box_p": {"innovations", "without_the_fit"}}}``; a rejected one's evidence
 has ``delta_bic``, ``against`` (the truth's source), ``quantity``, ``error_before`` and
 ``error_with`` (in the quantity's SI unit).
 Figures are matplotlib (Agg) SVG, inlined so the HTML is one file.
@@ -98,7 +98,8 @@ def as_json(d: Diagnosis) -> dict:
     eff = [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.effects]
     disc = [{"name": "discovered", "params": {"sensor": x.sensor, "regressor": x.expression,
                                               "coefficient": x.coefficient},
-             "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms]}}
+             "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms],
+                          "ljung_box_p": {"innovations": x.ljung_box_p[0], "without_the_fit": x.ljung_box_p[1]}}}
             for x in d.discoveries]
     return {
         "source": d.source, "model": d.model, "vehicle": d.vehicle, "airframe": d.airframe,
@@ -152,8 +153,9 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                              f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
                              f"strong evidence. Read the finding as either; a flight that tells them apart settles it.")
     else:
-        parts.append("No effect in the catalogue improves the model by strong evidence: as far as these data "
-                     "can tell, the model is complete.")
+        parts.append("No effect in the catalogue improves the model by strong evidence" +
+                     (", but the innovations follow something outside it (below)." if d.discoveries else
+                      ": as far as these data can tell, the model is complete."))
         if d.detectable:
             parts.append("The smallest sizes they would have shown about half the time: " +
                          "; ".join(f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items())
@@ -185,8 +187,10 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
                      f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown.")
     for x in d.discoveries:
+        p0, p1 = x.ljung_box_p
+        white = (f"; without it their Ljung-Box p goes from {p0:.2g} to {p1:.2g}" if p0 < 0.05 and p1 > p0 else "")
         parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
-                     f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance).")
+                     f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance{white}).")
     b, a = j["before"], j["after"]
     rng = a["sensors"].get("range", {})
     if rng.get("skipped_spurious"):
@@ -313,6 +317,12 @@ def _evidence_html(name: str, ev: dict) -> str:
         lines.append(f"the model's state {ev['state']}, {ev.get('z_over_sigma', math.nan):.1f} sigma from 0")
     if "note" in ev:
         lines.append(ev["note"])
+    if "r2" in ev:       # discovered: the sparse regression's fit to the raw innovations (discover.py)
+        lines.append(f"{ev['r2']:.0%} of the innovations' variance: " +
+                     " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev["terms"]))
+        lb = ev.get("ljung_box_p", {})
+        if lb:
+            lines.append(f"Ljung-Box p {lb['innovations']:.2g}, without the fit {lb['without_the_fit']:.2g}")
     return "<br>".join(html.escape(x) for x in lines)
 
 
