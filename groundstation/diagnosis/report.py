@@ -99,7 +99,9 @@ def as_json(d: Diagnosis) -> dict:
     disc = [{"name": "discovered", "params": {"sensor": x.sensor, "regressor": x.expression,
                                               "coefficient": x.coefficient},
              "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms],
-                          "ljung_box_p": {"innovations": x.ljung_box_p[0], "without_the_fit": x.ljung_box_p[1]}}}
+                          # null where the test could not run (strict JSON has no NaN)
+                          "ljung_box_p": {k: v if math.isfinite(v) else None
+                                          for k, v in zip(("innovations", "without_the_fit"), x.ljung_box_p)}}}
             for x in d.discoveries]
     return {
         "source": d.source, "model": d.model, "vehicle": d.vehicle, "airframe": d.airframe,
@@ -321,7 +323,7 @@ def _evidence_html(name: str, ev: dict) -> str:
         lines.append(f"{ev['r2']:.0%} of the innovations' variance: " +
                      " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev["terms"]))
         lb = ev.get("ljung_box_p", {})
-        if lb:
+        if lb and None not in lb.values():
             lines.append(f"Ljung-Box p {lb['innovations']:.2g}, without the fit {lb['without_the_fit']:.2g}")
     return "<br>".join(html.escape(x) for x in lines)
 
