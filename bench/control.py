@@ -35,10 +35,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from groundstation.app.offline_flight import fly  # noqa: E402
 from groundstation.control import design  # noqa: E402
 from groundstation.control.controllers import LQRFeedForward, LQRIntegral, PitchPD  # noqa: E402
 from groundstation.control.feedback import FEEDBACK_3DOF  # noqa: E402
-from groundstation.control.offline import fly  # noqa: E402
 from groundstation.control.response import classify, step_fit  # noqa: E402
 from sim_bridge.scenario import Scenario  # noqa: E402
 

@@ -40,10 +40,10 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-from groundstation.estimator import horizontal_estimator  # noqa: E402
-from groundstation.estimators import build_estimator  # noqa: E402
-from groundstation.loop import EstimationLoop, Snapshot  # noqa: E402
-from groundstation.replay import Replay  # noqa: E402
+from drivers.replay import Replay  # noqa: E402
+from groundstation.estimation.loop import EstimationLoop, Snapshot  # noqa: E402
+from groundstation.estimation.registry import build_estimator  # noqa: E402
+from groundstation.estimation.routing import horizontal_estimator  # noqa: E402
 from web.dashboard import Dashboard  # noqa: E402
 
 WRAP = 100.0        # feed time is sent modulo this (the height is a float32 on the wire)

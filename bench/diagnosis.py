@@ -95,9 +95,9 @@ def flight_for(effect: str, baro_flight: str = "high") -> str:
 
 
 def one(job: tuple) -> dict:
+    from drivers.replay import Replay
     from groundstation.diagnosis.engine import diagnose, truth_from
-    from groundstation.estimators import declared_effects
-    from groundstation.replay import Replay
+    from groundstation.estimation.registry import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
     effect, param, mag, extra, seed, vehicle, seconds, airframe, flight = job
@@ -165,9 +165,9 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     diagnosis reads it). NaN where the truth has no such column (tables from before session 20)."""
     from scipy.stats import chi2
 
-    from groundstation.atmosphere import altitude_at
-    from groundstation.evaluate import ljung_box
-    from groundstation.measurement import Kind
+    from groundstation.core.atmosphere import altitude_at
+    from groundstation.core.measurement import Kind
+    from groundstation.estimation.whiteness import ljung_box
     if sensor == "baro":
         b = np.array([(m.t, float(altitude_at(m.value[0]))) for m in ms
                       if m.kind is Kind.BARO_PRESSURE and m.instance == 0])
@@ -195,10 +195,10 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
     height, a baro effect adds a few millimetres to a ~3 mm floor, and "RMSE down >= 50 %" is out of
     reach by construction; the share of the effect's own error removed, (before - after) /
     (before - floor), is what the diagnosis controls."""
+    from drivers.replay import Replay
     from groundstation.diagnosis.engine import setup, truth_from
     from groundstation.diagnosis.run import run_model
-    from groundstation.estimators import declared_effects
-    from groundstation.replay import Replay
+    from groundstation.estimation.registry import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
     with tempfile.TemporaryDirectory() as d:

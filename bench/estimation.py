@@ -27,10 +27,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.mavlink.link import MavlinkLink  # noqa: E402
-from groundstation.estimators import build_estimator  # noqa: E402
-from groundstation.loop import EstimationLoop  # noqa: E402
-from groundstation.measurement import Kind, Measurement  # noqa: E402
-from groundstation.replay import Replay  # noqa: E402
+from drivers.replay import Replay  # noqa: E402
+from groundstation.core.measurement import Kind, Measurement  # noqa: E402
+from groundstation.estimation.loop import EstimationLoop  # noqa: E402
+from groundstation.estimation.registry import build_estimator  # noqa: E402
 from sim_bridge.fast import run_fast  # noqa: E402
 from sim_bridge.scenario import Scenario  # noqa: E402
 
@@ -80,7 +80,7 @@ async def live(seconds: float, d: Path) -> dict:
     scenario(seconds + 5, d)       # writes d / scenario.json
     # the vehicle is another device: the simulator runs in its own process
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "groundstation.cli", "sim", "--scenario", str(d / "scenario.json"),
+        sys.executable, "-m", "groundstation", "sim", "--scenario", str(d / "scenario.json"),
         "--udp", f"127.0.0.1:{link.transport.local_address[1]}", "--duration", str(seconds),
         stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
     est = build_estimator("altitude", [{"name": "range_tilt"}])

@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from groundstation.broadcast import Broadcast, Subscription
-from groundstation.measurement import Kind, Measurement
+from drivers import board_protocol as bp
+from groundstation.core.broadcast import Broadcast, Subscription
+from groundstation.core.measurement import Kind, Measurement
 
-from . import board_protocol as bp
 from .connection import Endpoint, parse_connection
 from .link_state import LinkEvent, LinkState
 from .transports import Transport, open_transport

@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.board import BinaryBoardReceiver
 from drivers.transports import close_watched_socket
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 
 from .board_out import BoardEncoder
 from .fast import EPOCH

@@ -24,7 +24,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from .rotation import a_ib
+from groundstation.core.frames import a_ib
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ import struct
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundstation.atmosphere import altitude_at
+from groundstation.core.atmosphere import altitude_at
 
 from .simulator import Sample
 

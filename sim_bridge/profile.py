@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rotation import euler_from_matrix
+from groundstation.core.frames import euler_from_matrix
+
 from .vehicles.base import G
 from .vehicles.coax import Coax, CoaxCommand
 from .vehicles.heli3dof import Heli3dof, Heli3dofCommand

@@ -29,9 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from groundstation.atmosphere import pressure_at
-
-from .rotation import euler_from_matrix
+from groundstation.core.atmosphere import pressure_at
+from groundstation.core.frames import euler_from_matrix
 
 
 @dataclass

@@ -18,8 +18,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from groundstation.core.frames import euler_from_matrix
+
+from .effects import Effect
 from .profile import CoaxAutopilot, FlightProfile, Heli3dofAutopilot, QuadAutopilot
-from .rotation import euler_from_matrix
 from .scenario import Scenario
 from .sensors import SensorSuite
 from .vehicles.coax import Coax
@@ -56,7 +58,6 @@ class Simulator:
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
         self.dt = 1.0 / self.rate
         self.effects = scenario.effects
-        from .effects import Effect
         self.imu_effects = [e for e in self.effects
                             if type(e).accel is not Effect.accel or type(e).gyro is not Effect.gyro]
         self.sensors = SensorSuite(name, scenario.sensors, self.rng)

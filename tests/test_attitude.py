@@ -5,10 +5,14 @@ import math
 import numpy as np
 import pytest
 
-from groundstation.attitude import AttitudeEKF, ComplementaryFilter, accel_attitude
-from groundstation.attitude_drag import DragAttitudeEKF
-from groundstation.measurement import Kind
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.core.frames import accel_attitude
+from groundstation.core.measurement import Kind
+from groundstation.estimation.attitude_filters import (
+    AttitudeEKF,
+    ComplementaryFilter,
+    DragAttitudeEKF,
+)
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -57,7 +61,7 @@ def test_gyro_attitude_removes_the_gyros_bias_as_its_drift():
     """derived.gyro_attitude: the tilt of a vehicle that starts and ends at rest where it started
     (tilt ~ the horizontal acceleration of x = A (1 - cos wt): no mean, no trend), read by a gyro
     with a bias and noise, is recovered; the bias alone would drift 3 deg."""
-    from groundstation.derived import gyro_attitude
+    from groundstation.estimation.derived import gyro_attitude
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 30.0, 0.001)
     w1, w2 = 2 * np.pi / 6.0, 2 * np.pi / 5.0                  # whole periods over 30 s
@@ -77,8 +81,8 @@ def test_gyro_attitude_removes_the_gyros_bias_as_its_drift():
 
 
 def test_with_attitude_inserts_the_derived_tilt_and_skips_a_clock_that_steps_back():
-    from groundstation.derived import with_attitude
-    from groundstation.measurement import Kind, Measurement
+    from groundstation.core.measurement import Kind, Measurement
+    from groundstation.estimation.derived import with_attitude
     ms = [Measurement(0.001 * k, Kind.GYRO, np.array([0.0, 0.0, 0.0]), "cf/1.1") for k in range(3000)]
     ms.insert(1500, Measurement(0.5, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1"))   # clock jump back
     ms[2000:2000] = [Measurement(0.2 + 0.001 * k, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1") for k in range(50)]
@@ -96,8 +100,9 @@ def test_derived_tilt_against_vicon_on_the_crazyflie_logs(name):
     """The gyro's tilt, bias removed as its drift, against Vicon in flight: 0.3-0.8 deg RMS per axis
     measured; the accelerometer's complementary filter was 7-12 deg off on the 0425 logs."""
     from drivers.logs.crazyflie import measurements, read_crazyflie
-    from groundstation.derived import with_attitude
-    from groundstation.measurement import Kind
+    from groundstation.core.measurement import Kind
+    from groundstation.estimation.derived import with_attitude
+
     from .conftest import real_file
     ms = with_attitude(measurements(read_crazyflie(real_file(f"crazyflie_util/{name}"))))
     att = np.array([(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE])

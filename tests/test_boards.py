@@ -10,7 +10,7 @@ import pytest
 from drivers import board_protocol as bp
 from drivers.board import BinaryBoardReceiver, BoardLink, NmeaReceiver
 from drivers.link_state import LinkState
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 from sim_bridge.board_out import BinaryFramer
 from sim_bridge.bridge import SimBridge
 from sim_bridge.pty_port import PtyPort

@@ -16,7 +16,7 @@ from sim_bridge.mavlink_vehicle import MavlinkVehicle
 from .conftest import async_test, free_udp_port, real_file
 from .helpers import imu_frames, write_tlog
 
-GS = [sys.executable, "-m", "groundstation.cli"]
+GS = [sys.executable, "-m", "groundstation"]
 
 
 def run(*args, timeout=120):
@@ -78,7 +78,7 @@ def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(
     in replay and in diagnose alike; the shared reader now names it and what the model takes."""
     import json
 
-    from groundstation import estimators
+    from groundstation.estimation import registry as estimators
     (tmp_path / "typo.json").write_text(json.dumps({"quad_thrust": {"alhpa0": 22.0, "drag": 0.35}}))
     monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
     with pytest.raises(ValueError, match="quad_thrust takes no 'alhpa0'; it takes .*alpha0"):

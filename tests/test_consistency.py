@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from groundstation.attitude_drag import DragAttitudeEKF
-from groundstation.estimator import heli3dof_estimator, quad_thrust_estimator
-from groundstation.loop import EstimationLoop
-from groundstation.measurement import Kind
-from groundstation.models.heli3dof import heli3dof_model
-from groundstation.models.quad_thrust import quad_thrust_model
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.core.measurement import Kind
+from groundstation.estimation.attitude_filters import DragAttitudeEKF
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.models.heli3dof import heli3dof_model
+from groundstation.estimation.models.quad_thrust import quad_thrust_model
+from groundstation.estimation.routing import heli3dof_estimator, quad_thrust_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -135,7 +135,7 @@ def test_drag_attitude_ekf_is_consistent_on_a_multirotor(tmp_path):
 def test_recursive_least_squares_is_consistent_under_its_own_assumptions():
     """Chapter 7's RLS: white noise on y, an exact regressor. (With the noisy pressure as the
     regressor, as in flight, least squares is biased by regression dilution: rls.py says so.)"""
-    from groundstation.rls import RecursiveLeastSquares
+    from groundstation.estimation.rls import RecursiveLeastSquares
     rng = np.random.default_rng(21)
     sigma = 0.02
     nees_runs, nis_runs = [], []

@@ -18,23 +18,32 @@ from drivers import board_protocol as bp
 from drivers.board import BinaryBoardReceiver, BoardLink
 from drivers.link_state import LinkState
 from drivers.mavlink.link import MavlinkLink
+from groundstation.app.offline_flight import fly
 from groundstation.control import design
 from groundstation.control.commander import ArmRefused, Commander
-from groundstation.control.controllers import (AltitudeHold, COAX_THRUST, LQRFeedForward, LQRIntegral, PitchPD,
-                                               motor_voltages)
-from groundstation.control.feedback import EncoderFeedback, EstimatorFeedback, KalmanFeedback
-from groundstation.control.offline import fly
+from groundstation.control.controllers import (
+    COAX_THRUST,
+    AltitudeHold,
+    LQRFeedForward,
+    LQRIntegral,
+    PitchPD,
+    motor_voltages,
+)
+from groundstation.control.feedback import (
+    EncoderFeedback,
+    EstimatorFeedback,
+    KalmanFeedback,
+)
 from groundstation.control.response import classify, step_fit
 from groundstation.control.uplink import AttitudeTarget, BoardMotors
-from groundstation.estimator import altitude_estimator
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
+from groundstation.estimation.routing import altitude_estimator
 from sim_bridge.bridge import SimBridge
 from sim_bridge.effects import parse_effect
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import Scenario
 
 from .conftest import async_test, free_udp_port
-
 
 # -- designs against the document's equations ----------------------------------------------------
 

@@ -7,8 +7,13 @@ import zlib
 import numpy as np
 import pytest
 
-from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log, measurements, read_crazyflie
-from groundstation.measurement import Kind
+from drivers.logs.crazyflie import (
+    CrazyflieLogError,
+    is_crazyflie_log,
+    measurements,
+    read_crazyflie,
+)
+from groundstation.core.measurement import Kind
 
 from .conftest import real_file
 
@@ -60,7 +65,7 @@ def test_foreign_files_are_clear_errors(tmp_path, content, text):
 @pytest.mark.parametrize("name", LOGS)
 def test_evaluate_the_altitude_filter_against_vicon(name):
     p = real_file(f"crazyflie_util/{name}")
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "evaluate", str(p)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "groundstation", "evaluate", str(p)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     lines = {ln.split()[0]: ln.split() for ln in r.stdout.splitlines() if ln.split()}
     est, tof, tof_o = float(lines["estimate"][1]), float(lines["range"][2]), float(lines["range-o"][2])
@@ -79,7 +84,7 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     and the height error against Vicon before and after. A few minutes: 50 s of 1 kHz IMU, every
     candidate a full filter run."""
     from groundstation.diagnosis.engine import diagnose, truth_from
-    from groundstation.evaluate import load_measurements
+    from groundstation.estimation.logs import load_measurements
     p = real_file("crazyflie_util/0422-log00")
     ms, _desc, vehicle = load_measurements(p)                  # as `groundstation diagnose` reads it
     assert vehicle == "crazyflie"
@@ -110,7 +115,7 @@ def test_attitude_diagnosis_rejects_a_mounting_error_that_vicon_contradicts():
     with its evidence, and what is kept does not worsen the estimate."""
     from groundstation.diagnosis.engine import diagnose, truth_from
     from groundstation.diagnosis.report import as_json, conclusion
-    from groundstation.evaluate import load_measurements
+    from groundstation.estimation.logs import load_measurements
     p = real_file("crazyflie_util/0422-log00")
     ms, _desc, vehicle = load_measurements(p)
     truth = truth_from(ms, None, None)
@@ -136,7 +141,7 @@ def test_diagnose_finds_the_tofs_slant_under_tilt_on_0425_traj4():
     (derived.with_attitude), keeps it against Vicon, and the height error falls by two thirds
     (3.05 -> 0.96 cm measured; with the accelerometer's tilt it was vetoed, 3.21 -> 7.33 cm)."""
     from groundstation.diagnosis.engine import diagnose, truth_from
-    from groundstation.evaluate import load_measurements
+    from groundstation.estimation.logs import load_measurements
     p = real_file("crazyflie_util/0425-traj4")
     ms, _desc, vehicle = load_measurements(p)
     d = diagnose(ms, source=str(p), vehicle=vehicle, truth=truth_from(ms, None, None))

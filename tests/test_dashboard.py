@@ -45,7 +45,7 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
     run_fast(Scenario.from_args("quad", 2, 60.0, ["range_tilt"], []), tmp_path / "q.tlog")
     port = free_tcp_port()
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "groundstation.cli", "replay", str(tmp_path / "q.tlog"), "--speed", "1",
+        sys.executable, "-m", "groundstation", "replay", str(tmp_path / "q.tlog"), "--speed", "1",
         "--port", str(port), "--quiet", stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
     try:
         url = None
@@ -141,7 +141,7 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
     however fast the estimates come (here 200 Hz)."""
     import time
 
-    from groundstation.loop import Snapshot
+    from groundstation.estimation.loop import Snapshot
     from web.dashboard import Dashboard
     from web.probe import ViserProbe, gui_id
 
@@ -190,7 +190,7 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
     (its text arrives as the markdown's ``_markdown`` property), from what the session's
     estimator was given: its declared slant and its airframe file (sim_quad's constants are the
     thrust model's; the altitude model's diagnosis is the same with or without them)."""
-    from groundstation.replay import Replay
+    from drivers.replay import Replay
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
     from web.dashboard import Dashboard
@@ -226,8 +226,8 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
 def test_the_state_panel_lists_what_the_estimator_skipped():
     """A replay of underpowered.log skips its sonar's echoes on the ground: the state panel says so
     under the table, as the replay's last line does (not a calibration's or the ground's non-uses)."""
-    from groundstation.estimator import EstimatorCounters
-    from groundstation.loop import Snapshot
+    from groundstation.estimation.estimator import EstimatorCounters
+    from groundstation.estimation.loop import Snapshot
     from web.dashboard import Dashboard
     dash = Dashboard(port=0)
     try:

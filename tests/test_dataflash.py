@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drivers.logs.dataflash import DataFlashError, read_dataflash
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 
 from .conftest import real_file
 
@@ -75,13 +75,13 @@ def test_foreign_and_truncated_files(tmp_path):
 def test_replay_export_and_evaluate_on_dataflash(tmp_path):
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "e.csv"
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(p), "--speed", "max", "--no-web",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(p), "--speed", "max", "--no-web",
                         "--export-measurements", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "battery_voltage" in out.read_text()
     n_max = int(re.search(r"done: (\d+) measurements", r.stdout).group(1))
     # paced: 430 s of log at 100x, every record delivered
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(p), "--no-web", "--quiet",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(p), "--no-web", "--quiet",
                         "--speed", "100"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert int(re.search(r"done: (\d+) measurements", r.stdout).group(1)) == n_max
@@ -90,7 +90,7 @@ def test_replay_export_and_evaluate_on_dataflash(tmp_path):
 def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero():
     """DataFlash BARO carries Press and Alt for one sample: the filter reads it once (it once
     read it twice, the two against one shared zero, and NIS came out at 5e5)."""
-    from groundstation.evaluate import evaluate
+    from groundstation.estimation.evaluate import evaluate
     p = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin")
     n_baro = sum(1 for m in read_dataflash(p).measurements if m.kind is Kind.BARO_PRESSURE)
     rows = {r.sensor: r for r in evaluate(p).rows}

@@ -8,7 +8,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from drivers.mavlink.decode import DECODED_TYPES, SPECIAL_UNITS, VECTORS
 from drivers.mavlink.receiver import MavlinkReceiver
 from drivers.mavlink.units import G0, UNIT_TO_SI
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 
 ISSUE_TYPES = ["HEARTBEAT", "SYS_STATUS", "BATTERY_STATUS", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2",
                "SCALED_IMU3", "RAW_IMU", "SCALED_PRESSURE", "SCALED_PRESSURE2", "SCALED_PRESSURE3",
@@ -218,11 +218,11 @@ def test_ground_station_heartbeats_are_not_vehicle_status():
     (mavlink.MAV_TYPE_HELICOPTER, 0.6),             # one main rotor
 ])
 def test_the_throttle_averages_only_the_outputs_that_drive_rotors(mav_type, throttle):
-    from groundstation.estimator import _throttle, _vehicle_status
-    from groundstation.models.base import Context
+    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.routing import read_throttle, read_vehicle_status
     ctx = Context({})
     out, _ = decode(mavlink.MAVLink_heartbeat_message(mav_type, 3, mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3))
-    _vehicle_status(out[(Kind.VEHICLE_STATUS, 0)], ctx)
+    read_vehicle_status(out[(Kind.VEHICLE_STATUS, 0)], ctx)
     out, _ = decode(mavlink.MAVLink_servo_output_raw_message(1000, 0, 1600, 1600, 1500, 1600, 0, 0, 0, 0))
-    _throttle(out[(Kind.ACTUATOR, 0)], ctx)
+    read_throttle(out[(Kind.ACTUATOR, 0)], ctx)
     assert ctx.values["throttle"] == pytest.approx(throttle)

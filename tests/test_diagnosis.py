@@ -11,10 +11,10 @@ import sys
 import numpy as np
 import pytest
 
+from drivers.replay import Replay
 from groundstation.diagnosis.detect import detect
 from groundstation.diagnosis.engine import diagnose, truth_from
-from groundstation.estimators import declared_effects
-from groundstation.replay import Replay
+from groundstation.estimation.registry import declared_effects
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -219,7 +219,7 @@ def test_diagnose_command_writes_the_reports(tmp_path):
     log = tmp_path / "q.tlog"
     run_fast(Scenario.from_args("quad", 14, 40.0, ["range_tilt"], ["baro_thrust:k=2.5"]), log, tmp_path / "q.csv")
     out = tmp_path / "rep"
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out)],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
@@ -256,14 +256,14 @@ def test_an_innovation_plot_breaks_where_a_sensor_had_no_readings():
 def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
     p = tmp_path / "x.tlog"
     p.write_bytes(b"not a log" * 100)
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p)], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.startswith("groundstation: error:") and "Traceback" not in r.stderr
 
 
 def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
     from .conftest import real_file
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p)], capture_output=True, text=True)
     assert r.returncode == 2 and "takes the accelerometer as its input" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -309,7 +309,7 @@ def test_the_thrust_test_flight_shows_lag_and_ground_effect_to_the_thrust_model(
 def test_the_simulated_quads_vehicle_file_is_its_airframe():
     """``--vehicle sim_quad`` tells the thrust model the simulated quadcopter's thrust curve and drag:
     they must be the simulator's own."""
-    from groundstation.estimators import vehicle_config
+    from groundstation.estimation.registry import vehicle_config
     from sim_bridge.vehicles.quad import QuadParams
     cfg, p = vehicle_config("sim_quad", "quad_thrust"), QuadParams()
     assert (cfg["alpha0"], cfg["beta0"], cfg["drag"]) == (p.alpha, p.beta, p.drag)
@@ -371,7 +371,7 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
 
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
-    from groundstation.evaluate import ljung_box
+    from groundstation.estimation.whiteness import ljung_box
     log = tmp_path / "clean.tlog"
     run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [], flight="thrust_test"), log,
              log.with_suffix(".csv"))
@@ -435,7 +435,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     from .conftest import real_file
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "up"
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p), "--model", "quad_thrust",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "quad_thrust",
                         "--vehicle", "apm2_sonar", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
@@ -463,7 +463,7 @@ def test_diagnose_on_a_log_too_short_to_score_is_one_line(tmp_path):
     """A 3 s log (a recording cut short): nothing would be scored, so nothing may be concluded."""
     log = tmp_path / "short.tlog"
     run_fast(Scenario.from_args("quad", 1, 3.0, ["range_tilt"], []), log)
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(log)], capture_output=True, text=True)
     assert r.returncode == 2 and "a diagnosis needs at least 10 s" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "short.tlog.diagnosis" / "report.json").exists()
 
@@ -503,8 +503,8 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     never lagged anything and no lag was ever found. Each record is the lag's mean over the time
     it is held: until session 16 it was the lag's value with the new output taken as written at the
     sample before, and a step written at a sample read 20 ms early."""
+    from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.thrust import lag_throttle
-    from groundstation.measurement import Kind, Measurement
     ms = []
     for k in range(50):
         t = 0.02 * k
@@ -542,8 +542,8 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import lag_throttle
-    from groundstation.estimator import H_LANDED, TAU_GROUND, landed
-    from groundstation.models.base import Context
+    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.models.ground import H_LANDED, TAU_GROUND, landed
     assert landed(Context({"throttle": 0.1, "_x": np.array([0.05, 0.0])}))
     assert not landed(Context({"throttle": 0.1, "_x": np.array([3.0, -2.0])}))
     assert not landed(Context({"throttle": 0.5, "_x": np.array([0.0, 0.0])}))
@@ -635,7 +635,7 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
 
 
 def _range(t: float, d: float):
-    from groundstation.measurement import Kind, Measurement
+    from groundstation.core.measurement import Kind, Measurement
     return Measurement(t, Kind.RANGE, np.array([d]), "test")
 
 
@@ -700,8 +700,8 @@ def test_the_throttle_is_held_at_its_intervals_mean_and_a_jump_where_it_shows():
     to the next record (the hold alone put it half a record late); a step is taken at the record that
     first shows it (spread, it would act 10 ms early); a dropout is not bridged; an unused output stays
     NaN and a stand-in 0/1 throttle as it is."""
+    from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.outputs import interval_means
-    from groundstation.measurement import Kind, Measurement
     t = np.round(np.arange(0.0, 0.2, 0.02), 3)
     tau = np.array([0.5, 0.5, 0.2, 0.21, 0.22, 0.23, 0.24, 0.25, 0.26, 0.27])
     ms = [Measurement(float(ti), Kind.ACTUATOR, np.array([v, v, v, v, np.nan]), "replay/1.1", float(ti))

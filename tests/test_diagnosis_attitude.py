@@ -12,10 +12,10 @@ import sys
 import numpy as np
 import pytest
 
+from drivers.replay import Replay
+from groundstation.core.measurement import Kind
 from groundstation.diagnosis.engine import diagnose, setup, truth_from
-from groundstation.measurement import Kind
-from groundstation.models.attitude_drag import attitude_drag_model
-from groundstation.replay import Replay
+from groundstation.estimation.models.attitude_drag import attitude_drag_model
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -133,7 +133,7 @@ def test_a_gyro_bias_and_a_mounting_error_at_once_are_both_found(tmp_path):
 def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
     log, _ = fly(tmp_path, ["gyro_bias:x=0.02,y=0,z=0"], 44)
     out = tmp_path / "rep"
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(log), "--model", "attitude",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "attitude",
                         "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
@@ -148,7 +148,7 @@ def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
 def test_attitude_diagnosis_needs_a_raw_imu():
     from .conftest import real_file
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "diagnose", str(p), "--model", "attitude"],
+    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "attitude"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "no raw IMU" in r.stderr and "Traceback" not in r.stderr
 
@@ -156,9 +156,9 @@ def test_attitude_diagnosis_needs_a_raw_imu():
 def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
     """The dashboard's diagnosis sees the same 10 ms IMU block means as a log's: the attitude
     model's accelerometer noise is that of a block mean."""
+    from groundstation.core.measurement import Kind
     from groundstation.diagnosis.live import SessionBuffer
     from groundstation.diagnosis.run import prepare
-    from groundstation.measurement import Kind
     log = tmp_path / "b.tlog"
     run_fast(Scenario.from_args("quad", 45, 12.0, ["range_tilt"], []), log)
     ms = list(Replay(log).iter_measurements())
@@ -177,8 +177,8 @@ def test_the_vertical_velocity_input_comes_from_velocity_or_climb_rate_and_goes_
     """v_d (NED down) from VELOCITY_NED or CLIMB_RATE (up: the sign flips), NaN once older than
     VD_MAX_AGE (the model then leaves the q w, p w terms out); a GNSS board's VELOCITY_NED, whose
     vertical component is NaN, leaves the last one."""
-    from groundstation.estimator import VD_MAX_AGE, attitude_estimator
-    from groundstation.measurement import Measurement
+    from groundstation.core.measurement import Measurement
+    from groundstation.estimation.routing import VD_MAX_AGE, attitude_estimator
 
     est = attitude_estimator()
 

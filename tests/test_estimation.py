@@ -6,12 +6,16 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from groundstation.estimator import altitude_estimator
-from groundstation.loop import EstimationLoop
-from groundstation.measurement import Kind, Measurement
-from groundstation.models.altitude import altitude_model
-from groundstation.models.base import discretize, discretize_series, observability_rank
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.models.altitude import altitude_model
+from groundstation.estimation.models.base import (
+    discretize,
+    discretize_series,
+    observability_rank,
+)
+from groundstation.estimation.routing import altitude_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -33,7 +37,7 @@ def test_exact_discretisation_reproduces_the_documents_closed_forms():
 def test_the_series_discretisation_matches_the_exponentials_where_the_filter_uses_it():
     """Input-dependent and nonlinear models sum the integrals as a series while |A| dt < 0.2
     (filters.SERIES_LIMIT): there it must agree with Van Loan's exponentials."""
-    from groundstation.filters import SERIES_LIMIT
+    from groundstation.estimation.filters import SERIES_LIMIT
     rng = np.random.default_rng(0)
     for _ in range(20):
         A = rng.standard_normal((6, 6))
@@ -52,9 +56,9 @@ def test_the_accelerometers_bias_acts_along_the_body_axis():
     """A vehicle holding its height at 20 deg of roll, its accelerometer biased 0.4 m/s^2 along the
     body's up axis: the vertical input carries cos(20 deg) of the bias, and the model takes that share
     out. Held on the vertical, as the document has it, 10 s would sink the estimate by 1.2 m."""
-    from groundstation.estimator import vertical_acceleration
-    from groundstation.filters import ModelFilter
-    from groundstation.models.base import Context
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.routing import vertical_acceleration
     b, roll = 0.4, math.radians(20.0)
     c = math.cos(roll)
     ctx = Context({"down_row": (0.0, math.sin(roll), c)})         # (A_IB)_down for roll only
@@ -189,7 +193,7 @@ def test_a_mavlink_streams_untimed_outputs_roll_back_to_the_ordered_result(tmp_p
     checkpoint while the history was cut by time, and the outputs and barometer readings between were
     lost (a 60 s flight's alpha 2 m/s^2 off); the first outputs, late to the filter's start, were
     dropped; and VFR_HUD's throttle overtook the outputs stamped at its instant."""
-    from groundstation.estimator import quad_thrust_estimator
+    from groundstation.estimation.routing import quad_thrust_estimator
     run_fast(Scenario.from_args("quad", 7, 20.0, [], []), tmp_path / "q.tlog", tmp_path / "q.csv")
     ms = list(Replay(tmp_path / "q.tlog").iter_measurements())
     late = sum(b.t < a.t for a, b in zip(ms, ms[1:]) if b.kind in (Kind.ACTUATOR, Kind.THROTTLE))
@@ -250,8 +254,8 @@ def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():
     The thrust model's ground contact uses both (models.contact.ground_contact)."""
     from dataclasses import replace
 
-    from groundstation.filters import ModelFilter
-    from groundstation.models.base import MeasurementModel
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.base import MeasurementModel
     model = altitude_model()
     f = ModelFilter(model)
     f.kf.P = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, 0.003], [0.002, 0.003, 0.01]])
@@ -276,8 +280,8 @@ def test_landed_the_filter_holds_still_and_a_quiet_range_puts_it_on_the_ground(r
     """models.ground: a hover at 0.3 m on the range, then the motors stop. With the range quiet (below
     its minimum) the landed vehicle is set on the ground (z = 0); with the range still reading, the
     range carries the height and the ground constraint only holds it still."""
-    from groundstation.estimators import build_estimator
-    from groundstation.models.ground import LANDED
+    from groundstation.estimation.models.ground import LANDED
+    from groundstation.estimation.registry import build_estimator
     est = build_estimator("altitude")
     ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -9.80665]) for k in range(600)]
     ms += [_m(k * 0.02, Kind.THROTTLE, 0.5 if k * 0.02 < 2.0 else 0.0) for k in range(300)]
@@ -301,7 +305,7 @@ def test_a_throttle_message_dated_ahead_of_the_sensors_does_not_move_the_filters
     """The ground's constraints are read at throttle messages, whose time may lead the sensors' (on
     the live simulated link SERVO_OUTPUT_RAW led the IMU by 90 ms): applied at the filter's own
     time, they leave the IMU blocks after them in order (MeasurementModel.untimed)."""
-    from groundstation.estimators import build_estimator
+    from groundstation.estimation.registry import build_estimator
     est = build_estimator("altitude")
     ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -9.80665]) for k in range(200)]
     ms += [_m(k * 0.02 + 0.09, Kind.ACTUATOR, [0.0, 0.0, 0.0, 0.0], t_rx=k * 0.02) for k in range(100)]
@@ -318,15 +322,15 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
     from groundstation.diagnosis.thrust import throttle_series
-    from groundstation.estimator import _throttle
-    from groundstation.models.base import Context
+    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.routing import read_throttle
     ctx = Context({})
     thr = [Measurement(t, Kind.THROTTLE, np.array([0.50]), "sim") for t in (0.0, 0.1)]
     pwm = Measurement(0.05, Kind.ACTUATOR, np.array([0.503] * 4 + [math.nan] * 4), "sim")
-    _throttle(thr[0], ctx)
+    read_throttle(thr[0], ctx)
     assert ctx.values["throttle"] == 0.50             # no outputs yet: THROTTLE is all there is
-    _throttle(pwm, ctx)
-    _throttle(thr[1], ctx)
+    read_throttle(pwm, ctx)
+    read_throttle(thr[1], ctx)
     assert ctx.values["throttle"] == pytest.approx(0.503)
     assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
     assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]                 # a log without outputs
@@ -338,11 +342,11 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     voltage carried forward between readings was off by k (0.77^2 - 0.5^2) = 1.6 V after each step,
     and thrust_voltage's n = 1.5 read 1.85 (with a false actuator lag beside it)."""
     from groundstation.diagnosis.battery import load_line
-    from groundstation.estimator import _throttle, throttle_at_reading
-    from groundstation.models.base import Context
+    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.routing import read_throttle, throttle_at_reading
     ctx = Context({})
-    _throttle(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
-    _throttle(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
+    read_throttle(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
+    read_throttle(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
     assert throttle_at_reading(ctx, 11.0) == 0.5 and throttle_at_reading(ctx, 11.01) == 0.77
     # a pack with k = 4 V: each reading drawn by the throttle before it, the throttle stepping at the readings
     rng = np.random.default_rng(0)

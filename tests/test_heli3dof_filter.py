@@ -7,12 +7,12 @@ import sys
 import numpy as np
 import pytest
 
-from groundstation.estimators import build_estimator
-from groundstation.loop import EstimationLoop
-from groundstation.measurement import Kind
-from groundstation.models.heli3dof import observability_report
-from groundstation.noise import load_noise
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.core.measurement import Kind
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.models.heli3dof import observability_report
+from groundstation.estimation.noise import load_noise
+from groundstation.estimation.registry import build_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -52,7 +52,7 @@ def _run(d, imu_only, noise=None):
 
 def test_noise_command_and_imu_only_filter(flight):
     out = flight / "noise.json"
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "noise", str(flight / "h.tlog"), "--model",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "noise", str(flight / "h.tlog"), "--model",
                         "heli3dof", "--start", "0", "--end", "1.9", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     d = json.loads(out.read_text())

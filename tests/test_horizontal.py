@@ -3,9 +3,9 @@ import csv
 
 import numpy as np
 
-from groundstation.estimator import horizontal_estimator
-from groundstation.loop import EstimationLoop, Snapshot
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.estimation.loop import EstimationLoop, Snapshot
+from groundstation.estimation.routing import horizontal_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 

@@ -6,7 +6,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.transports import TransportError
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 from sim_bridge.mavlink_vehicle import MavlinkVehicle
 from sim_bridge.pty_port import PtyPort
 

@@ -7,7 +7,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.mavlink.link import LinkState, MavlinkLink
-from groundstation.measurement import Kind
+from groundstation.core.measurement import Kind
 from sim_bridge.mavlink_vehicle import MavlinkVehicle
 
 from .conftest import async_test, free_tcp_port, free_udp_port

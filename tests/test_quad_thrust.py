@@ -4,10 +4,10 @@ import csv
 import numpy as np
 import pytest
 
-from groundstation.estimators import build_estimator
-from groundstation.loop import EstimationLoop
-from groundstation.models.quad_thrust import observability_report
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.models.quad_thrust import observability_report
+from groundstation.estimation.registry import build_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -61,8 +61,8 @@ def test_thrust_loss_with_battery_sag_shows_in_this_filter(tmp_path):
 
 def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_readings():
     """battery.py: V = V_oc(t) - k tau^2, readings at 5 Hz and the throttle at 50 Hz."""
+    from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.battery import load_line, loaded_voltage
-    from groundstation.measurement import Kind, Measurement
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 60.0, 0.02)
     tau = 0.45 + 0.1 * np.sin(2 * np.pi * 0.7 * t) + 0.05 * rng.standard_normal(len(t))
@@ -93,8 +93,12 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
     Held as read, the voltage between readings carries each reading's 20 mV; smoothed over the whole
     log, 3 mV (5-7 mV filtered forward only, until session 22), not behind the discharge (a level without the drift state would lag it by the
     rate times the interval over the gain), and beyond the last reading on its drift."""
-    from groundstation.diagnosis.battery import OpenCircuitVoltage, loaded_voltage, reading_sigma
-    from groundstation.measurement import Kind, Measurement
+    from groundstation.core.measurement import Kind, Measurement
+    from groundstation.diagnosis.battery import (
+        OpenCircuitVoltage,
+        loaded_voltage,
+        reading_sigma,
+    )
     rng = np.random.default_rng(5)
     t = np.arange(0.0, 60.0, 0.2)
     v_true = 12.4 - 0.03 * t
@@ -127,7 +131,11 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
 def test_thrust_voltage_is_the_exact_power_law_at_its_estimate():
     """thrust.thrust_voltage: a_V (the input) + n^ times the coupling's column give a_T c ((V/V_ref)^n^ - 1),
     and the column is the derivative in n there."""
-    from groundstation.diagnosis.thrust import _voltage_terms, thrust_model, thrust_voltage
+    from groundstation.diagnosis.thrust import (
+        _voltage_terms,
+        thrust_model,
+        thrust_voltage,
+    )
     m = thrust_voltage(thrust_model(alpha0=22.0, beta0=-1.2))
     i_n, iv = m.index("n_voltage"), m.index("vz")
     x = np.zeros(m.n)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from drivers.logs.dataflash import read_dataflash
-from groundstation.estimators import build_estimator
-from groundstation.measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.registry import build_estimator
 
 from .conftest import real_file
 
@@ -127,14 +127,14 @@ def test_replay_says_what_the_reader_and_the_estimator_skipped():
     """The counted skips are on the replay's first and last lines, and on evaluate's first two: the
     sonar's clamps (the reader) and its echoes on the ground (the estimator)."""
     log = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
-    r = subprocess.run([sys.executable, "-m", "groundstation.cli", "replay", str(log), "--speed", "max", "--no-web",
+    r = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(log), "--speed", "max", "--no-web",
                         "--quiet", "--vehicle", "apm2_sonar"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     first, last = r.stdout.splitlines()[0], r.stdout.splitlines()[-1]
     assert "17503 measurements" in first and first.endswith("the reader skipped 564 range_out_of_bounds"), first
     n = int(re.search(r"the estimator skipped (\d+) range_on_ground", last).group(1))
     assert 200 < n < 600, last
-    from groundstation.evaluate import evaluate
+    from groundstation.estimation.evaluate import evaluate
     table = evaluate(log, vehicle="apm2_sonar").table().splitlines()
     assert table[0].endswith("the reader skipped 564 range_out_of_bounds"), table[0]
     assert table[1].endswith(f"the estimator skipped {n} range_on_ground"), table[1]

@@ -5,8 +5,8 @@ import time
 
 import pytest
 
-from groundstation.measurement import Kind
-from groundstation.replay import Replay, ReplayState
+from drivers.replay import Replay, ReplayState
+from groundstation.core.measurement import Kind
 
 from .conftest import async_test
 from .helpers import imu_frames, write_tlog
@@ -88,13 +88,13 @@ async def test_loop_plays_again(two_seconds):
 
 def test_speed_limits():
     with pytest.raises(ValueError):
-        from groundstation.replay import check_speed
+        from drivers.replay import check_speed
         check_speed(1000)
 
 
 @async_test()
 async def test_typed_replay_commands(two_seconds):
-    from groundstation.console import replay_command
+    from groundstation.app.console import replay_command
     rp = Replay(two_seconds, speed=1.0)
     stop = asyncio.Event()
     assert replay_command("p", rp, stop) == "paused" and rp.status.state is ReplayState.PAUSED

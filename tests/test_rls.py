@@ -3,8 +3,12 @@ and calibrating the barometer against the range sensor on a simulated flight."""
 import numpy as np
 import pytest
 
-from groundstation.replay import Replay
-from groundstation.rls import BaroRangeCalibration, RecursiveLeastSquares, least_squares
+from drivers.replay import Replay
+from groundstation.estimation.rls import (
+    BaroRangeCalibration,
+    RecursiveLeastSquares,
+    least_squares,
+)
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 

@@ -10,8 +10,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.mavlink.link import LinkState, MavlinkLink
-from groundstation.measurement import Kind
-from groundstation.replay import Replay
+from drivers.replay import Replay
+from groundstation.core.measurement import Kind
 from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.fast import run_fast
 from sim_bridge.pty_port import PtyPort
@@ -163,7 +163,7 @@ def test_every_vehicle_records_a_session(tmp_path, vehicle):
 
 
 def test_baro_reads_the_standard_atmosphere(tmp_path):
-    from groundstation.atmosphere import altitude_at
+    from groundstation.core.atmosphere import altitude_at
     run_fast(Scenario("quad", seed=6, duration=20.0), tmp_path / "q.tlog", tmp_path / "q.csv")
     rows = list(csv.DictReader(open(tmp_path / "q.csv")))
     tt = np.array([float(r["t"]) for r in rows])

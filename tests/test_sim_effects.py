@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from groundstation.atmosphere import altitude_at
+from groundstation.core.atmosphere import altitude_at
 from sim_bridge.effects import REGISTRY, catalogue_markdown, parse_effect
 from sim_bridge.scenario import Scenario
 from sim_bridge.simulator import Simulator

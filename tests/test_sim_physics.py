@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from sim_bridge.rotation import a_ib, euler_from_matrix
+from groundstation.core.frames import a_ib, euler_from_matrix
 from sim_bridge.vehicles.base import G
 from sim_bridge.vehicles.coax import Coax, CoaxCommand, CoaxParams, G_ab
 from sim_bridge.vehicles.heli3dof import Heli3dof, Heli3dofCommand, Heli3dofParams
@@ -155,8 +155,8 @@ def test_the_high_flight_climbs_above_the_range_sensor_and_the_driver_drops_its_
     back down, and a landing from a hover (no climb starts before it)."""
     import csv
 
-    from groundstation.measurement import Kind
-    from groundstation.replay import Replay
+    from drivers.replay import Replay
+    from groundstation.core.measurement import Kind
     from sim_bridge.fast import run_fast
     from sim_bridge.profile import FlightProfile
     from sim_bridge.scenario import Scenario

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from pymavlink import mavutil
 
+from drivers.replay import Replay
 from drivers.tlog import TlogError, TlogIndex, TlogWriter
-from groundstation.replay import Replay
 
 from .conftest import real_file
 from .helpers import imu_frames, write_tlog

@@ -23,7 +23,9 @@ sigma), replay controls, and the diagnosis panel.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import math
+import multiprocessing
 import socket
 import time
 from collections import deque
@@ -32,9 +34,13 @@ import numpy as np
 import viser
 from scipy.stats import chi2
 
-from groundstation.console import counted
-from groundstation.measurement import Kind, Measurement
-from groundstation.models.ground import LANDED
+from groundstation.core.counts import counted
+from groundstation.core.frames import quaternion_from_matrix
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdown
+from groundstation.estimation.models.ground import LANDED
+
+from .control_panel import ControlPanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
 #: the models the Diagnosis panel offers (groundstation.diagnosis.engine.setup's)
@@ -59,7 +65,6 @@ def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, 
 
 
 def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
-    from sim_bridge.rotation import quaternion_from_matrix
     return quaternion_from_matrix(R)
 
 
@@ -103,7 +108,6 @@ class Dashboard:
         self.status_text = "waiting for data"
         #: the estimator's counters (its skipped readings are listed under the state), if one is attached
         self.estimator_counters = None
-        from groundstation.diagnosis.live import SessionBuffer
         self.session = SessionBuffer()
         self._diagnosing = False
         self._pool = None
@@ -193,7 +197,6 @@ class Dashboard:
 
     async def run_diagnosis(self) -> dict | None:
         """Diagnose the last ``diagnosis_window`` seconds in a worker process; show the result."""
-        from groundstation.diagnosis.live import diagnose_window, markdown
         if self._diagnosing:
             return None
         seconds = float(self.diagnosis_window.value)
@@ -206,8 +209,6 @@ class Dashboard:
         self.diagnosis_md.content = f"Diagnosing the last {seconds:.0f} s ({len(ms)} measurements)…"
         try:
             if self._pool is None:
-                import concurrent.futures
-                import multiprocessing
                 self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
             j = await asyncio.get_running_loop().run_in_executor(self._pool, diagnose_window, ms,
                                                                  str(self.diagnosis_model.value), self.declared,
@@ -262,7 +263,6 @@ class Dashboard:
 
     def add_control(self, station):
         """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`)."""
-        from .control_panel import ControlPanel
         self.control = ControlPanel(self.server.gui, station, window_s=self.window_s)
         return self.control
 

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from groundstation.measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 MAGIC = 0xBC
 G0 = 9.80665

@@ -46,8 +46,9 @@ from pathlib import Path
 import numpy as np
 from pymavlink import DFReader
 
-from drivers.logs.bulk import walk_dataflash
-from groundstation.measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
+
+from .bulk import walk_dataflash
 
 CONTROL_RATE = 10.0     # CTUN's rate in logs without a clock [Hz]
 

@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundstation.measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 from .clock import EPOCH_THRESHOLD_US, VehicleClock
 from .units import UNIT_TO_SI, scale

@@ -26,13 +26,13 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundstation.broadcast import Broadcast, Subscription
-from groundstation.measurement import Measurement
+from drivers.connection import Endpoint, parse_connection
+from drivers.link_state import LinkEvent, LinkState
+from drivers.tlog import TlogWriter
+from drivers.transports import Transport, open_transport
+from groundstation.core.broadcast import Broadcast, Subscription
+from groundstation.core.measurement import Measurement
 
-from ..connection import Endpoint, parse_connection
-from ..link_state import LinkEvent, LinkState
-from ..tlog import TlogWriter
-from ..transports import Transport, open_transport
 from .receiver import LinkCounters, MavlinkReceiver
 
 #: Streams requested from a vehicle: message name -> rate [Hz].

@@ -14,7 +14,7 @@ from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from groundstation.measurement import Measurement
+from groundstation.core.measurement import Measurement
 
 from .decode import MavlinkDecoder
 from .framing import Framer

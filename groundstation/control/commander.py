@@ -28,9 +28,9 @@ from typing import Callable
 import numpy as np
 
 from drivers.link_state import LinkEvent, LinkState
+from groundstation.core.broadcast import Broadcast
+from groundstation.core.measurement import Kind, Measurement
 
-from ..broadcast import Broadcast
-from ..measurement import Kind, Measurement
 from .controllers import Controller
 from .feedback import Feedback
 from .uplink import BoardMotors, Uplink

@@ -34,8 +34,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..models.heli3dof import V_S0
-from . import design
+from groundstation.control import design
+from groundstation.estimation.models.heli3dof import V_S0
 
 G = 9.80665
 V_MAX = 12.0

@@ -36,7 +36,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.linalg
 
-from ..models.heli3dof import J_E, J_P, K_F, L_H, L_P
+from groundstation.estimation.models.heli3dof import J_E, J_P, K_F, L_H, L_P
 
 #: the lab's motor constant (sec. 1.2), kept to reproduce its gains
 LAB_K_F = 3.4

@@ -27,9 +27,10 @@ import math
 import numpy as np
 import scipy.linalg
 
-from ..estimator import KalmanEstimator, heli3dof_estimator
-from ..measurement import Kind, Measurement
-from ..models.heli3dof import STATES, V_S0, euler_rates, matrices
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.heli3dof import STATES, V_S0, euler_rates, matrices
+from groundstation.estimation.routing import heli3dof_estimator
 
 
 class Feedback:

@@ -20,10 +20,19 @@ from __future__ import annotations
 import asyncio
 from typing import Callable
 
-from ..estimator import altitude_estimator, quad_thrust_estimator
-from ..measurement import Measurement
+from groundstation.core.measurement import Measurement
+from groundstation.estimation.routing import altitude_estimator, quad_thrust_estimator
+
 from .commander import ArmRefused, Commander
-from .controllers import COAX_THRUST, QUAD_THRUST, AltitudeHold, Controller, LQRFeedForward, LQRIntegral, PitchPD
+from .controllers import (
+    COAX_THRUST,
+    QUAD_THRUST,
+    AltitudeHold,
+    Controller,
+    LQRFeedForward,
+    LQRIntegral,
+    PitchPD,
+)
 from .feedback import FEEDBACK_3DOF, EstimatorFeedback, Feedback
 from .uplink import AttitudeTarget, BoardMotors, ManualControl, Uplink
 

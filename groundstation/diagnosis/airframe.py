@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 G = 9.80665
 #: s: the window the accelerometer and throttle are averaged over (and the range's speed fitted in)

@@ -37,7 +37,7 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
-from ..measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 PAIR_GAP = 1.0       # s: consecutive readings further apart than this are not paired
 MIN_PAIRS = 20

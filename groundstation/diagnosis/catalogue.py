@@ -25,8 +25,9 @@ from typing import Callable
 
 import numpy as np
 
-from ..measurement import Kind, Measurement
-from ..models.base import LinearModel, pad_row, slant
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.models.base import LinearModel, pad_row, slant
+
 from .run import in_time_order
 
 

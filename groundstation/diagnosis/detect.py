@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy.stats import chi2, norm
 
-from ..evaluate import ljung_box
+from groundstation.estimation.whiteness import effective_size, lag1, ljung_box
 
 
 @dataclass
@@ -52,18 +52,6 @@ EXCURSION_S = 2.0
 EXCURSIONS_SHOWN = 3
 
 
-def lag1(e: np.ndarray) -> float:
-    """The lag-1 autocorrelation, held to [0, 0.99] (negative r counts as 0)."""
-    if len(e) < 3:
-        return 0.0
-    return min(max(float(np.corrcoef(e[:-1], e[1:])[0, 1]), 0.0), 0.99)
-
-
-def effective_size(e: np.ndarray) -> float:
-    """How many independent samples ``e`` is worth, from its lag-1 autocorrelation r
-    (AR(1): n (1 - r) / (1 + r))."""
-    r1 = lag1(e)
-    return len(e) * (1 - r1) / (1 + r1)
 
 
 def ar1_sum_variance(m: np.ndarray, r: float) -> np.ndarray:

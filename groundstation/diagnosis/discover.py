@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from ..evaluate import ljung_box_q
+from groundstation.estimation.whiteness import ljung_box_q
+
 from .run import Run
 
 LAGS = 20        # the Ljung-Box test's, as sensor_findings runs it (evaluate.ljung_box)

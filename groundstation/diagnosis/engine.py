@@ -19,21 +19,30 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, altitude_estimator, attitude_estimator
-from ..estimators import vehicle_config
-from ..measurement import Kind, Measurement
-from ..models.altitude import altitude_model
-from ..models.attitude_drag import attitude_drag_model
-from ..models.base import LinearModel
-from ..models.ground import LANDED, on_ground
-from .attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.altitude import altitude_model
+from groundstation.estimation.models.attitude_drag import attitude_drag_model
+from groundstation.estimation.models.base import LinearModel
+from groundstation.estimation.models.ground import LANDED, on_ground
+from groundstation.estimation.registry import vehicle_config
+from groundstation.estimation.routing import altitude_estimator, attitude_estimator
+
+from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .detect import Finding, detect
 from .discover import Discovery, discover
 from .outputs import interval_means
 from .run import Prepared, Run, in_time_order, prepare, run_model
-from .thrust import (RANGE_FLOOR, UNOBSERVABLE_THRUST, hover_prior, main_flight, thrust_catalogue, thrust_estimator,
-                     thrust_model)
+from .thrust import (
+    RANGE_FLOOR,
+    UNOBSERVABLE_THRUST,
+    hover_prior,
+    main_flight,
+    thrust_catalogue,
+    thrust_estimator,
+    thrust_model,
+)
 from .trace import Scored, rank, smallest_claimed
 
 #: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 from collections import deque
 
-from ..measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
+
+from .engine import diagnose
+from .report import as_json, conclusion, format_params
 from .run import block_mean, starts_block
 
 
@@ -51,8 +54,6 @@ def diagnose_window(ms: list[Measurement], model: str = "altitude", declared: li
                     vehicle: str | None = None) -> dict:
     """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
     ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""
-    from .engine import diagnose
-    from .report import as_json, conclusion
     try:
         d = diagnose(ms, source="live session", model_name=model, declared=list(declared), vehicle=vehicle)
     except ValueError as e:
@@ -66,7 +67,6 @@ def markdown(j: dict, seconds: float) -> str:
     """The panel's text: effects found, the conclusion, NIS before and after."""
     if "error" in j:
         return f"**cannot diagnose:** {j['error']}"
-    from .report import format_params
     rows = "\n".join(f"| {e['name']} | {format_params(e['name'], e['params'])} |" for e in j.get("effects", []))
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
     nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"

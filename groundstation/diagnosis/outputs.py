@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..measurement import Kind, Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 #: a record-to-record change this many times the larger of its neighbours' is a jump
 JUMP_FACTOR = 3.0

@@ -42,13 +42,15 @@ import math
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
-from ..evaluate import ljung_box
-from ..export import EstimateCsvWriter
+from groundstation.estimation.export import EstimateCsvWriter
+from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.whiteness import ljung_box
+
 from .catalogue import unit_of
 from .engine import CLOSE_CALL, Diagnosis
 from .run import Run
-from ..models.ground import LANDED
 from .thrust import LIFTOFF_REACH
 
 
@@ -256,12 +258,11 @@ def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _figures(d: Diagnosis) -> str:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     out = []
     for s in sorted((set(d.before.sensors) & set(d.after.sensors)) - {LANDED}):
-        fig, ax = plt.subplots(1, 2, figsize=(11, 3.0))
+        # matplotlib's object API: no pyplot, so no global backend or figure registry to manage
+        fig = Figure(figsize=(11, 3.0))
+        ax = fig.subplots(1, 2)
         for run, label, col in ((d.before, "before", "#c0392b"), (d.after, "after", "#2e7d32")):
             tr = run.sensors[s]
             ax[0].plot(*_broken_at_gaps(tr.t, tr.nu[:, 0]), lw=0.6, color=col, label=label, alpha=0.8)
@@ -281,7 +282,6 @@ def _figures(d: Diagnosis) -> str:
         fig.tight_layout()
         buf = io.StringIO()
         fig.savefig(buf, format="svg")
-        plt.close(fig)
         out.append(buf.getvalue()[buf.getvalue().index("<svg"):])
     return "\n".join(out)
 

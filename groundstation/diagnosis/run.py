@@ -20,15 +20,17 @@ from typing import Callable
 
 import numpy as np
 
-from ..estimator import KalmanEstimator, collective, set_throttle
-from ..measurement import Kind, Measurement
-from ..models.base import Context, LinearModel
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.base import Context, LinearModel
+
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
 # scored. Its innovations are smooth (n / n_eff = 199 on a simulated flight): a clean quad's
 # diagnosis credited thrust_ground_effect (R = 0.28 m, Delta BIC -240) for what the constraint
 # alone "gained", and made the height error worse (1.03 -> 1.35 cm)
-from ..models.ground import LANDED
-from .detect import effective_size
+from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.routing import collective, set_throttle
+from groundstation.estimation.whiteness import effective_size
 
 
 @dataclass

@@ -50,13 +50,28 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..estimator import (TAU_GROUND, KalmanEstimator, _angular_rate, _attitude, _quaternion, landed,
-                         _throttle, _vehicle_status, motor_outputs, throttle_at_reading)
-from ..measurement import Kind, Measurement
-from ..models.base import Context, LinearModel
-from ..models.contact import CONTACT_H, RANGE_FLOOR, ground_contact, in_contact, note_range
-from ..models.ground import on_ground
-from ..models.quad_thrust import DRAG, quad_thrust_model
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.base import Context, LinearModel
+from groundstation.estimation.models.contact import (
+    CONTACT_H,
+    RANGE_FLOOR,
+    ground_contact,
+    in_contact,
+    note_range,
+)
+from groundstation.estimation.models.ground import TAU_GROUND, landed, on_ground
+from groundstation.estimation.models.quad_thrust import DRAG, quad_thrust_model
+from groundstation.estimation.routing import (
+    motor_outputs,
+    read_angular_rate,
+    read_attitude,
+    read_quaternion,
+    read_throttle,
+    read_vehicle_status,
+    throttle_at_reading,
+)
+
 from .airframe import thrust_curve
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
@@ -136,7 +151,7 @@ def _motor_outputs_of(ms: list[Measurement]) -> int:
     for m in ms:
         if m.kind is Kind.VEHICLE_STATUS:
             ctx = Context({})
-            _vehicle_status(m, ctx)
+            read_vehicle_status(m, ctx)
             return motor_outputs(ctx)
     return 4
 
@@ -326,9 +341,9 @@ def _battery_voltage(m: Measurement, ctx: Context) -> None:
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     est = KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
-                          context={Kind.ATTITUDE: _attitude, Kind.ATTITUDE_QUATERNION: _quaternion,
-                                   Kind.ANGULAR_RATE: _angular_rate, Kind.ACTUATOR: _throttle,
-                                   Kind.THROTTLE: _throttle, Kind.VEHICLE_STATUS: _vehicle_status,
+                          context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion,
+                                   Kind.ANGULAR_RATE: read_angular_rate, Kind.ACTUATOR: read_throttle,
+                                   Kind.THROTTLE: read_throttle, Kind.VEHICLE_STATUS: read_vehicle_status,
                                    Kind.BATTERY_VOLTAGE: _battery_voltage})
     for key in ("voltage_ref", "voltage_sag", "voltage_oc"):
         if model.options.get(key):

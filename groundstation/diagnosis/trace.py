@@ -38,7 +38,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..models.base import LinearModel
+from groundstation.estimation.models.base import LinearModel
+
 from .catalogue import SENSOR_KINDS, Candidate, shift
 from .run import SETTLE_S, Prepared, Run, run_model
 

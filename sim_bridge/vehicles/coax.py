@@ -38,9 +38,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rotation import euler_from_matrix, exp_so3
-from .quad import CONTACT_TC, REST_GAP
+from groundstation.core.frames import euler_from_matrix, exp_so3
+
 from .base import G, Kinematics, Vehicle
+from .quad import CONTACT_TC, REST_GAP
 
 
 @dataclass

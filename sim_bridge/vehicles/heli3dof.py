@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..rotation import a_ib
+from groundstation.core.frames import a_ib
+
 from .base import Kinematics, Vehicle
 
 

@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
 import numpy as np
 
-from ..rotation import a_ib
-from .base import G, Kinematics, Vehicle
+from groundstation.core.frames import a_ib
 
+from .base import G, Kinematics, Vehicle
 
 #: Landing-gear contact time constant [s]: a touchdown at 1 m/s peaks at ~3.4 g.
 CONTACT_TC = 0.03

@@ -1,0 +1,1 @@
+"""The application: the ``groundstation`` command line and the wiring of its sessions."""

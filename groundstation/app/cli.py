@@ -1,0 +1,446 @@
+"""``groundstation``: the command line.
+
+    groundstation connect URL [--record FILE] [--export OUT.csv] [--model NAME] [--no-web]
+    groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
+    groundstation info FILE.tlog
+    groundstation sim --vehicle {quad,coax,heli3dof} [--effect NAME:k=v] [--undeclared NAME:k=v] --seed N
+    groundstation sim ... --fast --duration S --log OUT.tlog --truth OUT.csv
+    groundstation demo
+
+Every failure the user can cause (bad connection string, missing device,
+unreadable or foreign file) ends in one line on stderr and exit status 2,
+never a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import datetime as _dt
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drivers.connection import ConnectionStringError, parse_connection
+from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
+from drivers.logs.dataflash import DataFlashError, is_dataflash
+from drivers.mavlink.link import LinkState, MavlinkLink
+from drivers.replay import Replay, check_speed
+from drivers.tlog import TlogError, TlogIndex
+from drivers.transports import TransportError
+from groundstation.control.station import ControlStation
+from groundstation.core.counts import counted
+from groundstation.estimation.evaluate import evaluate
+from groundstation.estimation.export import EstimateCsvWriter, MeasurementCsvWriter
+from groundstation.estimation.logs import load_measurements
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.noise import load_noise, stationary_noise
+from groundstation.estimation.registry import (
+    MODELS,
+    build_estimator,
+    declared_beside,
+    declared_effects,
+    vehicle_config,
+)
+from groundstation.estimation.routing import horizontal_estimator
+from sim_bridge.scenario import ScenarioError
+from web.dashboard import Dashboard
+
+from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
+from .diagnose_cli import add_parser as add_diagnose_parser
+from .diagnose_cli import cmd_diagnose
+from .signals import on_stop_signal
+from .sim_cli import add_sim_parser, cmd_sim, run_demo
+
+
+class UsageError(Exception):
+    """A user error reported as one line."""
+
+
+def _speed(text: str) -> float:
+    if text.lower() in ("max", "inf"):
+        return math.inf
+    try:
+        return check_speed(float(text.rstrip("x")))
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
+def _add_web_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-web", action="store_true", help="headless: no dashboard")
+    p.add_argument("--host", default="127.0.0.1", help="dashboard address (default 127.0.0.1; 0.0.0.0 exposes it)")
+    p.add_argument("--port", type=int, default=8080, help="dashboard port (a free one if taken)")
+
+
+def _add_output_options(p: argparse.ArgumentParser) -> None:
+    _add_web_options(p)
+    p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
+    p.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
+                                     "noise, thrust curve and sensor limits for this airframe; default: what the "
+                                     "log implies (a Crazyflie log: crazyflie)")
+    p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
+    p.add_argument("--declared", type=Path,
+                   help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any")
+    p.add_argument("--export", metavar="OUT.csv", type=Path,
+                   help="write the estimates: t, states, sigma_<state> (one row per estimate)")
+    p.add_argument("--export-measurements", metavar="M.csv", type=Path,
+                   help="write the decoded measurements (long format)")
+    p.add_argument("--quiet", action="store_true", help="no status lines")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="groundstation", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    c = sub.add_parser("connect", help="connect to a vehicle (UDP, TCP or serial) and record the session")
+    c.add_argument("url", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyUSB0,57600")
+    c.add_argument("--record", type=Path, help="tlog path (default sessions/<date-time>.tlog)")
+    c.add_argument("--no-record", action="store_true", help="do not record the session")
+    c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
+    c.add_argument("--duration", type=float, help="stop after this many seconds")
+    c.add_argument("--control", choices=("quad", "coax"),
+                   help="offer altitude hold for this vehicle in the dashboard's Control panel (armed only there)")
+    _add_output_options(c)
+
+    r = sub.add_parser("replay", help="play a recorded .tlog through the live path")
+    r.add_argument("file", type=Path)
+    r.add_argument("--speed", type=_speed, default=1.0, help="0.1 to 100, or 'max' (default 1)")
+    r.add_argument("--start", type=float, default=0.0, help="start this many seconds into the file")
+    r.add_argument("--loop", action="store_true")
+    _add_output_options(r)
+
+    i = sub.add_parser("info", help="summarise a .tlog: duration, messages, damage")
+    i.add_argument("file", type=Path)
+    n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
+    n.add_argument("file", type=Path)
+    n.add_argument("--model", default="heli3dof", choices=MODELS)
+    n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
+    n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
+    n.add_argument("--out", type=Path, help="write the JSON for --noise here")
+    e = sub.add_parser("evaluate", help="run the estimators on a log; errors vs truth, NIS, whiteness")
+    e.add_argument("file", type=Path)
+    e.add_argument("--model", default="altitude", choices=MODELS)
+    e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
+    add_sim_parser(sub)
+    add_diagnose_parser(sub)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return _run(args)
+    except BrokenPipeError:  # output piped into `head` and closed: not an error
+        sys.stdout = open(os.devnull, "w")
+        return 0
+
+
+def _run(args) -> int:
+    try:
+        if args.command == "info":
+            return cmd_info(args)
+        if args.command == "evaluate":
+            print(evaluate(args.file, args.model, vehicle=args.vehicle).table())
+            return 0
+        if args.command == "noise":
+            return cmd_noise(args)
+        if args.command == "diagnose":
+            return cmd_diagnose(args)
+        if args.command == "sim":
+            return cmd_sim(args)
+        if args.command == "demo":
+            return asyncio.run(run_demo(args))
+        if args.vehicle:
+            vehicle_config(args.vehicle, args.model)    # an unknown one is a one-line error before anything starts
+        runner = {"connect": run_connect, "replay": run_replay}[args.command]
+        return asyncio.run(runner(args))
+    except BrokenPipeError:
+        raise
+    except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, CrazyflieLogError,
+            DataFlashError, OSError, ValueError) as e:
+        print(f"groundstation: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+# ---------------------------------------------------------------- info
+def cmd_info(args) -> int:
+    idx = TlogIndex.scan(args.file)
+    rp = Replay(args.file, speed=math.inf)
+    n = sum(1 for _ in rp.iter_measurements())
+    c = rp.receiver.counters
+    print(f"{args.file}: {len(idx)} records, {idx.duration:.1f} s, "
+          f"MAVLink1 {c.mavlink1} / MAVLink2 {c.mavlink2} frames, {n} measurements")
+    print(f"  CRC errors {c.crc_errors}, garbage {c.bad_data}, unknown ids {c.unknown}, "
+          f"sequence loss {c.loss_percent:.2f}%")
+    for sysid in sorted({k[0] for k in c.per_source}):
+        print(f"  system {sysid}: loss {c.loss_percent_of(sysid):.2f}%")
+    damage = rp.skipped_summary()
+    if damage:
+        print(f"  damage: {damage}")
+    for name, count in sorted(c.by_type.items(), key=lambda kv: -kv[1]):
+        print(f"  {name:<28} {count:>8}")
+    return 0
+
+
+# ---------------------------------------------------------------- noise
+def cmd_noise(args) -> int:
+    est = build_estimator(args.model)
+    rp = Replay(args.file, speed=math.inf)
+    result = stationary_noise(rp.iter_measurements(), est, args.start, args.end)
+    if not result:
+        raise UsageError(f"{args.file}: no measurements of the {args.model} model between "
+                         f"{args.start:g} s and {args.end:g} s")
+    for name, r in result.items():
+        R = np.array(r["R"])
+        print(f"{name} ({r['n']} samples, {args.start:g}-{args.end:g} s): R =" + (f"  [{r['note']}]" if "note" in r else ""))
+        print("  " + np.array2string(R, precision=3, separator=", ", prefix="  "))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=2))
+        print(f"wrote {args.out} (use with --noise)")
+    return 0
+
+
+# ---------------------------------------------------------------- helpers
+def _install_stop(stop: asyncio.Event) -> None:
+    on_stop_signal(stop.set)
+
+
+class Outputs:
+    """The estimation loop and the files a command writes, fed measurement by measurement."""
+
+    def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
+        declared = declared_effects(declared_path)
+        self.estimator = build_estimator(args.model, declared, load_noise(args.noise),
+                                         vehicle=vehicle)
+        estimators = [self.estimator]
+        if dashboard is not None:
+            # the 3D view needs a horizontal place and its covariance; none of the
+            # documents' models has one (see models/horizontal.py)
+            estimators.append(horizontal_estimator())
+            dashboard.attach_session(model=args.model, declared=declared, counters=self.estimator.counters,
+                                     vehicle=vehicle)
+        self.loop = EstimationLoop(estimators)
+        self.status = StatusLine()
+        self.dashboard = dashboard
+        self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None
+        self.estimates = None
+        if args.export:
+            self.estimates = EstimateCsvWriter(args.export, self.estimator.name, self.estimator.model.states)
+        # the exporter and the dashboard read the same snapshots
+        self._snaps = self.loop.snapshots.subscribe() if (args.export or dashboard) else None
+
+    def see(self, m) -> None:
+        self.status.see(m)
+        if self.measurements is not None:
+            self.measurements.write(m)
+        if self.dashboard is not None:
+            self.dashboard.feed_measurement(m)
+        self.loop.push(m)
+        self._drain()
+
+    def _drain(self) -> None:
+        if self._snaps is None:
+            return
+        for snap in self._snaps.get_nowait():
+            if self.estimates is not None:
+                self.estimates.write(snap)
+            if self.dashboard is not None:
+                self.dashboard.feed_snapshot(snap)
+
+    def close(self) -> str:
+        self.loop.flush()
+        self._drain()
+        parts = []
+        rejected = self.estimator.counters.rejected
+        if rejected:
+            parts.append(f"the estimator skipped {counted(rejected)}")
+        if self.estimates is not None:
+            self.estimates.close()
+            parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
+        if self.measurements is not None:
+            self.measurements.close()
+            parts.append(f"wrote {self.measurements.rows} measurement rows to {self.measurements.path}")
+        return "; ".join(parts)
+
+
+def _start_dashboard(args):
+    if getattr(args, "no_web", True):
+        return None
+    dash = Dashboard(host=args.host, port=args.port)
+    print(f"dashboard: {dash.url}", flush=True)
+    return dash
+
+
+def link_markdown(state: str, counters, rates: dict[str, float]) -> str:
+    top = sorted(rates.items(), key=lambda kv: -kv[1])[:8]
+    lines = "\n".join(f"| {k} | {v:.1f} |" for k, v in top)
+    return (f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
+            f"garbage {counters.bad_data}\n\n| message | Hz |\n|---|---|\n{lines}")
+
+
+class RateMeter:
+    """Messages per second by type, from the counters' differences."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, int] = {}
+        self._t = None
+
+    def __call__(self, by_type) -> dict[str, float]:
+        now = time.monotonic()
+        dt = (now - self._t) if self._t else 1.0
+        rates = {k: (v - self._last.get(k, 0)) / dt for k, v in by_type.items()}
+        self._last, self._t = dict(by_type), now
+        return rates
+
+
+async def _consume(sub, out: Outputs) -> None:
+    async for m in sub:
+        out.see(m)
+
+
+# ---------------------------------------------------------------- connect
+async def run_connect(args) -> int:
+    endpoint = parse_connection(args.url)
+    record = None
+    if not args.no_record:
+        record = args.record or Path("sessions") / f"{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog"
+    link = MavlinkLink(endpoint, record=record, lost_after=args.lost_after)
+    sub = link.measurements()
+    events = link.events()
+    await link.open()
+    where = link.transport.local_address if link.transport else None
+    print(f"link open: {endpoint}" + (f" (bound to {where[0]}:{where[1]})" if where else "")
+          + (f"; recording to {record}" if record else ""), flush=True)
+    stop = asyncio.Event()
+    _install_stop(stop)
+    dash = _start_dashboard(args)
+    out = Outputs(args, args.declared, dash, args.vehicle)
+    status = out.status
+    rates = RateMeter()
+
+    async def print_status():
+        while True:
+            await asyncio.sleep(1.0)
+            if dash is not None:
+                dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type)))
+            if not args.quiet:
+                status.print(link.state.value, link.counters)
+
+    tasks = [asyncio.create_task(_consume(sub, out)),
+             asyncio.create_task(print_link_events(events)), asyncio.create_task(print_status())]
+    station = None
+    if getattr(args, "control", None):
+        station = ControlStation(args.control, link)
+        tasks += [asyncio.create_task(station.follow(link.measurements())), asyncio.create_task(station.run())]
+        if dash is not None:
+            dash.add_control(station)
+    if dash is not None:
+        tasks.append(asyncio.create_task(dash.run()))
+    try:
+        if args.duration:
+            try:
+                await asyncio.wait_for(stop.wait(), args.duration)
+            except asyncio.TimeoutError:
+                pass
+        else:
+            await stop.wait()
+    finally:
+        if station is not None:
+            station.stop()
+        for t in tasks[2:]:
+            t.cancel()
+        await link.close()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        if dash is not None:
+            dash.stop()
+        written = out.close()
+    c = link.counters
+    print(f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
+          + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else "")
+          + (f"; {written}" if written else ""), flush=True)
+    return 0 if link.state is LinkState.CLOSED else 1
+
+
+# ---------------------------------------------------------------- replay
+def _open_replay(args) -> tuple[Replay, str, str | None]:
+    """A tlog replays through the live receive path; DataFlash and Crazyflie logs through their readers."""
+
+    if is_dataflash(args.file) or is_crazyflie_log(args.file):
+        ms, desc, vehicle = load_measurements(args.file)
+        rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start, measurements=ms)
+        return rp, desc, vehicle
+    rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start)
+    return rp, f"{len(rp.index)} records, {rp.duration:.1f} s", None
+
+
+async def run_replay(args) -> int:
+    rp, desc, vehicle = _open_replay(args)
+    dash = _start_dashboard(args)
+    out = Outputs(args, args.declared or declared_beside(args.file), dash, args.vehicle or vehicle)
+    status = out.status
+    print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}",
+          flush=True)
+    if rp.speed == math.inf and not args.loop and dash is None:
+        # Batch: the same receive path, without an event loop round trip per record.
+        for m in rp.iter_measurements():
+            out.see(m)
+    else:
+        stop = asyncio.Event()
+        _install_stop(stop)
+        sub = rp.measurements()
+        consumer = asyncio.create_task(_consume(sub, out))
+        player = asyncio.create_task(rp.run())
+
+        rates = RateMeter()
+
+        async def print_status():
+            while True:
+                await asyncio.sleep(1.0)
+                if dash is not None:
+                    dash.set_link_status(link_markdown(f"replay {rp.status.state.value} · t {rp.position:.1f}"
+                                                       f" / {rp.duration:.1f} s", rp.receiver.counters,
+                                                       rates(rp.receiver.counters.by_type)))
+                if not args.quiet:
+                    status.print(rp.status.state.value, rp.receiver.counters,
+                                 f"t {rp.position:.1f}/{rp.duration:.1f} s")
+
+        printer = asyncio.create_task(print_status())
+        web = None
+        if dash is not None:
+            dash.attach_replay(rp)
+            web = asyncio.create_task(dash.run())
+        if sys.stdin is not None and sys.stdin.isatty():
+            print(REPLAY_HELP, flush=True)
+
+            def on_stdin():
+                reply = replay_command(sys.stdin.readline(), rp, stop)
+                if reply:
+                    print(reply, flush=True)
+            asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
+        stopper = asyncio.create_task(stop.wait())
+        await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
+        if dash is not None and not stop.is_set():
+            print(f"replay ended; the dashboard stays at {dash.url} until Ctrl-C", flush=True)
+            await stop.wait()
+        for t in (printer, stopper, player, *([web] if web else [])):
+            t.cancel()
+        await asyncio.gather(player, *([web] if web else []), return_exceptions=True)
+        rp.close()
+        await consumer
+        if dash is not None:
+            dash.stop()
+    written = out.close()
+    damage = rp.skipped_summary()
+    print(f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
+          + (f"; {damage}" if damage else "") + (f"; {written}" if written else ""), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

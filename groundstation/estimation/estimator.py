@@ -1,0 +1,146 @@
+"""An estimator: a :class:`~groundstation.estimation.filters.ModelFilter` plus the rules that
+route measurements to it (which kinds are inputs, which feed the context,
+which are measurement updates), and the handling of time: prediction through
+dropouts, re-initialisation on clock jumps. The rules of each model are in
+:mod:`groundstation.estimation.routing`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from groundstation.core.measurement import Kind, Measurement
+
+from .filters import InnovationRecord, ModelFilter
+from .models.base import Context, LinearModel
+
+InputRule = Callable[[Measurement, Context], "np.ndarray | None"]
+ContextRule = Callable[[Measurement, Context], None]
+
+
+@dataclass
+class EstimatorCounters:
+    updates: int = 0
+    predictions: int = 0
+    reinitialisations: int = 0
+    skipped: dict = field(default_factory=dict)
+
+    def skip(self, why: str) -> None:
+        self.skipped[why] = self.skipped.get(why, 0) + 1
+
+    @property
+    def rejected(self) -> dict[str, int]:
+        """The skips of data: not finite, out of order, invalid, or refused by a model with its reason
+        (``range_on_ground``, ``range_out_of_bounds``). Not ``*_not_used``: a barometer's calibration
+        readings, a pseudo-sensor's constraint that did not apply (``landed`` in flight)."""
+        return {k: n for k, n in self.skipped.items() if not k.endswith("_not_used")}
+
+
+class KalmanEstimator:
+    """``handle(m)`` -> the innovation record when ``m`` was a measurement update.
+
+    Clock jumps: a measurement more than ``jump_back`` seconds before the
+    filter's time (a reboot, a replay seek) or more than ``max_gap`` after it
+    re-initialises the filter at the new time, cleanly and counted. Shorter
+    gaps are predicted through (the covariance grows, as it should).
+    """
+
+    def __init__(self, model: LinearModel, *, inputs: dict[Kind, InputRule], context: dict[Kind, ContextRule],
+                 name: str | None = None, jump_back: float = 0.5, max_gap: float = 5.0) -> None:
+        self.name = name or model.name
+        self.model = model
+        self.filter = ModelFilter(model)
+        self.inputs = inputs
+        self.context = context
+        self.jump_back = jump_back
+        self.max_gap = max_gap
+        self.counters = EstimatorCounters()
+        self.started = False
+        self._by_kind: dict[Kind, list] = {}
+        for mm in model.measurements.values():
+            self._by_kind.setdefault(mm.kind, []).append(mm)
+        # kinds that only carry constraints on the state as it is (MeasurementModel.untimed): they
+        # leave the filter's clock alone, unless the kind is an input as well
+        self._untimed = {k for k, mms in self._by_kind.items() if k not in inputs and all(mm.untimed for mm in mms)}
+
+    @property
+    def kinds(self) -> set[Kind]:
+        return set(self.inputs) | set(self.context) | set(self._by_kind)
+
+    def checkpoint(self) -> tuple:
+        """Everything a rollback needs, before the first measurement too (a late one there was
+        dropped: the outputs stamped just before the attitude that started the filter)."""
+        return self.started, self.filter.checkpoint()
+
+    def restore(self, cp: tuple) -> None:
+        self.started, f = cp
+        self.filter.restore(f)
+
+    @property
+    def t(self) -> float:
+        return self.filter.t
+
+    def _time(self, t: float) -> bool:
+        f = self.filter
+        if not self.started:
+            f.reset(t)
+            self.started = True
+            return True
+        if t < f.t - self.jump_back or t > f.t + self.max_gap:
+            self.counters.reinitialisations += 1
+            refs = {k: v for k, v in f.ctx.values.items() if not k.endswith("_ref")}
+            f.reset(t)
+            f.ctx.values.update(refs)
+            return True
+        return t >= f.t - 1e-9
+
+    def handle(self, m: Measurement) -> InnovationRecord | None:
+        v0 = m.value[0] if len(m.value) else math.nan
+        if m.t != m.t or not math.isfinite(v0):
+            self.counters.skip("not_finite")
+            return None
+        f = self.filter
+        f.ctx.values["t"] = m.t
+        rule = self.context.get(m.kind)
+        if rule is not None:
+            f.ctx.values["_x"] = f.kf.x
+            f.ctx.values["_u"] = f.u
+            rule(m, f.ctx)
+        inp = self.inputs.get(m.kind)
+        mms = self._by_kind.get(m.kind)
+        if inp is None and not mms:
+            return None
+        if m.kind in self._untimed:
+            return self._update(m, mms) if self.started else None
+        if not self._time(m.t):
+            self.counters.skip("out_of_order")
+            return None
+        f.predict_to(m.t)
+        self.counters.predictions += 1
+        if inp is not None:
+            u = inp(m, f.ctx)
+            if u is not None:
+                f.u = u
+        return self._update(m, mms or ())
+
+    def _update(self, m: Measurement, mms: list) -> InnovationRecord | None:
+        f = self.filter
+        rec = None
+        for mm in mms:
+            if mm.instance is not None and m.instance != mm.instance:
+                continue
+            f.ctx.values["z"] = float(f.x[0])
+            z = mm.extract(m, f.ctx)
+            why = f.ctx.values.pop("skip_why", None)        # an extract's own reason (models.range_gate)
+            if z is None:
+                self.counters.skip(f"{mm.name}_{why or 'not_used'}")     # calibrating, out of range
+                continue
+            if not np.all(np.isfinite(z)):
+                self.counters.skip(f"{mm.name}_invalid")
+                continue
+            rec = f.update(mm, z, R=mm.R / m.samples if mm.per_sample and m.samples > 1 else None)
+            self.counters.updates += 1
+        return rec

@@ -1,0 +1,110 @@
+"""``groundstation evaluate LOG``: how well the estimators do on measured data.
+
+Runs the estimator the log's sensors allow and prints, per sensor: its raw
+error against truth (where the log has truth: motion capture), the estimate's
+RMSE against truth, the innovations' mean NIS, and a whiteness p-value
+(Ljung-Box on the normalised innovations): a small p says the innovations are
+correlated, i.e. the model misses something the diagnosis should find.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.core.atmosphere import altitude_at
+from groundstation.core.counts import counted
+from groundstation.core.measurement import Kind
+
+from .logs import load_measurements
+from .loop import EstimationLoop
+from .models.ground import LANDED
+from .registry import build_estimator, range_offset, vehicle_effects
+from .whiteness import ljung_box
+
+
+@dataclass
+class SensorRow:
+    sensor: str
+    n: int
+    raw_rmse: float
+    nis: float
+    whiteness_p: float
+
+
+@dataclass
+class Evaluation:
+    description: str
+    model: str
+    rows: list[SensorRow]
+    estimate_rmse: float
+    estimates: int
+    skipped: dict[str, int] = field(default_factory=dict)      # the estimator's counted skips
+
+    def table(self) -> str:
+        out = [self.description, f"model: {self.model}, {self.estimates} estimates"
+               + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else ""),
+               f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}"]
+        for r in self.rows:
+            raw = f"{r.raw_rmse:.4f}" if r.raw_rmse == r.raw_rmse else "-"
+            if r.nis == r.nis:
+                out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}{r.nis:>10.2f}{r.whiteness_p:>13.3g}")
+            else:
+                out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the vehicle's offset applied)")
+        est = f"{self.estimate_rmse:.4f}" if self.estimate_rmse == self.estimate_rmse else "- (no truth)"
+        out.append(f"{'estimate':<10}{'':>7}{est:>24}")
+        return "\n".join(out)
+
+
+def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
+             t_window: tuple[float, float] | None = None) -> Evaluation:
+    ms, desc, implied = load_measurements(path)
+    est = build_estimator(model, vehicle=vehicle or implied)
+    offset = range_offset(vehicle_effects(vehicle or implied))
+    loop = EstimationLoop([est])
+    snaps = loop.snapshots.subscribe()
+    truth_t, truth_z, raw = [], [], {"range": [], "baro": []}
+    for m in ms:
+        loop.push(m)
+        if m.kind is Kind.TRUTH_POSE:
+            truth_t.append(m.t)
+            truth_z.append(-m.value[2])
+        elif m.kind is Kind.RANGE:
+            raw["range"].append((m.t, float(m.value[0])))
+        elif m.kind in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
+            h = float(m.value[0]) if m.kind is Kind.BARO_ALTITUDE else float(altitude_at(m.value[0]))
+            raw["baro"].append((m.t, h))
+    loop.flush()
+    s = snaps.get_nowait()
+    tt, zz = np.array(truth_t), np.array(truth_z)
+    t0, t1 = t_window or ((tt[0], tt[-1]) if len(tt) else (-np.inf, np.inf))
+
+    def rmse_vs_truth(t, v):
+        if not len(tt) or not len(t):
+            return float("nan")
+        k = (t >= t0) & (t <= t1)
+        return float(np.sqrt(np.mean((v[k] - np.interp(t[k], tt, zz)) ** 2))) if k.any() else float("nan")
+
+    rows = []
+    for sensor in est.filter.log.sensors():
+        if sensor == LANDED:            # the ground's pseudo-sensor (models.ground), not a sensor
+            continue
+        a = est.filter.log.arrays(sensor)
+        nu = a["nu"][:, 0] / np.sqrt(a["S"][:, 0, 0])
+        r = np.array(raw.get(sensor, []))
+        raw_rmse = float("nan")
+        if len(r) and len(tt):
+            t, v = r[:, 0], r[:, 1]
+            if sensor == "baro":      # an absolute sensor's zero: its first second against truth
+                first = t < t[0] + 1.0
+                v = v - np.mean(v[first] - np.interp(t[first], tt, zz))
+            raw_rmse = rmse_vs_truth(t, v)
+        rows.append(SensorRow(sensor, len(nu), raw_rmse, float(a["nis"].mean()), ljung_box(nu)))
+        if sensor == "range" and offset and len(r) and len(tt):
+            # the sensor alone at its best: the same mounting offset the model uses, applied to the raw reading
+            rows.append(SensorRow("range-o", len(r), rmse_vs_truth(r[:, 0], r[:, 1] - offset), math.nan, math.nan))
+    st = np.array([x.t for x in s])
+    sz = np.array([x.x[0] for x in s])
+    return Evaluation(desc, model, rows, rmse_vs_truth(st, sz), len(s), est.counters.rejected)

@@ -1,0 +1,86 @@
+"""CSV exports: estimates (the contract other tools read) and decoded measurements.
+
+Estimates, one row per estimate (after each measurement update)::
+
+    t,<state>...,sigma_<state>...
+
+``t`` is vehicle time [s]; states in the model's units (see its docstring);
+``sigma_<state>`` the square root of the covariance's diagonal. Written from
+the same :class:`~groundstation.loop.Snapshot` objects the dashboard reads.
+
+Decoded measurements (tidy/long format):
+
+One row per measurement component::
+
+    t,kind,instance,component,value,variance,source
+
+``t`` is vehicle time [s], ``value`` is in SI units (see
+:mod:`groundstation.measurement`), ``variance`` is empty when the sensor gave
+none. Long format keeps the columns fixed whatever sensors a file has; pivot
+it (pandas ``pivot_table``) for a wide view. Estimates are exported in the
+estimator's own format (``t``, states, ``sigma_<state>``) by the estimation loop.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+from typing import Iterable
+
+from groundstation.core.measurement import KIND_COMPONENTS, Measurement
+
+HEADER = ("t", "kind", "instance", "component", "value", "variance", "source")
+
+
+def _fmt(x: float) -> str:
+    return "" if x is None or (isinstance(x, float) and math.isnan(x)) else repr(float(x))
+
+
+class MeasurementCsvWriter:
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(HEADER)
+        self.rows = 0
+
+    def write(self, m: Measurement) -> None:
+        names = KIND_COMPONENTS.get(m.kind)
+        var = m.variance
+        for j, v in enumerate(m.value):
+            name = names[j] if names and j < len(names) else str(j)
+            self._w.writerow((_fmt(m.t), m.kind.value, m.instance, name, _fmt(v),
+                              _fmt(var[j]) if var is not None else "", m.source))
+            self.rows += 1
+
+    def write_all(self, ms: Iterable[Measurement]) -> None:
+        for m in ms:
+            self.write(m)
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
+
+
+class EstimateCsvWriter:
+    """``t, states, sigma_<state>`` from snapshots of one estimator."""
+
+    def __init__(self, path: str | Path, estimator: str, states: list[str]) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.estimator = estimator
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(["t", *states, *[f"sigma_{s}" for s in states]])
+        self.rows = 0
+
+    def write(self, snap) -> None:
+        if snap.estimator != self.estimator:
+            return
+        self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
+        self.rows += 1
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()

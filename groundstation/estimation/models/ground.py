@@ -1,0 +1,118 @@
+"""The ground under a landed vehicle, as pseudo-measurements of the height filters.
+
+None of the design documents models the ground: their equations of motion hold in
+flight. On the ground an autopilot's estimator holds the vehicle still instead.
+This module gives the altitude filter the same two constraints, read at each
+throttle message (:func:`landed` says when), at the filter's own time
+(``MeasurementModel.untimed``: a throttle message's time may lead the sensors'):
+
+* ``vz = 0`` (sigma 5 cm/s) while landed: the vehicle does not move;
+* ``z = 0`` (sigma 3 cm) while landed *and* the range sensor has gone quiet after
+  reading at least once, or reads what :mod:`.range_gate` skips as no height (a sonar's
+  steady echo with the motors stopped): below its minimum distance it reports nothing (the
+  MAVLink drivers drop a DISTANCE_SENSOR reading outside [min, max]). The height is
+  then between 0 and that minimum. This is PX4 EKF2's on-ground range: with the
+  range sensor sending but invalid on the ground, it synthesises a reading at the
+  ground clearance (``EKF2_MIN_RNG``). In this model z is the height the range
+  sensor measures, so the ground is z = 0 wherever the vehicle lands.
+
+Without the first, the height floats on the ground wherever the range sensor reads
+nothing (a simulated coax's estimate wandered 0.24 m in the 2 s before take-off);
+without the second, a landing's last half-metre is integrated from the
+accelerometer and held there on the baro alone (the demo's live estimate stood at
+-0.115 m after landing). Both are pseudo-sensors named :data:`LANDED`: their
+innovations say how well the model keeps to an assumption, not to a measurement,
+and they are not scored, tested or plotted as a sensor's.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from groundstation.core.measurement import Kind
+
+from .base import Context, LinearModel, MeasurementModel, unit_row
+
+#: below this throttle the vehicle is taken to stand on the ground (the ground,
+#: not the thrust model, carries its weight); the thrust model is for flight
+TAU_GROUND = 0.15
+#: ... but only with the estimate near the ground: above it, a throttle below ground idle is a
+#: fast descent. The thrust test flight's descent from 3.6 m cut the throttle to 0.11 for 40 ms;
+#: taken as landed, the model stopped the vehicle in mid-air (no thrust, no gravity, vz held at 0),
+#: and a 20 ms "actuator lag", smoothing the dip away, gained 50 in log-likelihood on a clean flight
+H_LANDED = 0.5
+#: below this the motors are stopped (disarmed, spinning down): landed wherever the estimate is. An
+#: autopilot does not stop them in flight, and an estimate may be far off at touchdown (ArduPilot's
+#: underpowered.log: 5 m, on the baro alone before its effects are known); flying that estimate on
+#: with the motors off dropped it through the last seconds and moved the fitted thrust_voltage n
+#: from 1.31 to 0.81
+TAU_STOPPED = 0.05
+
+
+def landed(ctx: Context) -> bool:
+    """The vehicle stands on the ground: the motors stopped, or the throttle below ground idle with
+    the estimated height (the state vector's first element, ``_x``, kept in the context) within
+    :data:`H_LANDED`."""
+    tau = ctx.get("throttle")
+    if tau >= TAU_GROUND:
+        return False
+    if tau < TAU_STOPPED:
+        return True
+    x = ctx.values.get("_x")
+    return x is None or float(x[0]) <= H_LANDED
+
+
+#: the pseudo-sensor's name (in the filter's innovation log, beside the sensors')
+LANDED = "landed"
+#: [m/s] the landed vehicle's vertical speed, and [m] its height with the range sensor quiet
+SIGMA_STILL = 0.05
+SIGMA_ON_GROUND = 0.03
+#: [s] no range reading for this long: the sensor reads below its minimum (it sends at 10-50 Hz)
+RANGE_QUIET = 0.3
+
+
+def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False) -> LinearModel:
+    """``model`` with the landed constraints (module docstring); ``height=False`` leaves out z = 0
+    (the thrust model has its own ground contact, :func:`groundstation.models.contact.ground_contact`).
+
+    ``consider=True``: the constraints correct z and vz only (a Schmidt update); the other states
+    keep what the sensors told them. The altitude diagnosis sets it: it estimates constants over
+    the whole log, and "landed" begins with a touchdown the model lacks (the throttle cut while the
+    vehicle still sinks, the ground's impulse). As full updates, vz = 0 there was explained through
+    the correlations: an accel_scale of 0.02, read 0.0195 at 50 s on a simulated quadcopter
+    (seed 1041), fell to 0.0165 over the landing; the final estimates of six flights at 0.02 and
+    0.04 were 10-17 % low, and 1-7 % with the Schmidt update. The live filter keeps full updates:
+    on the pad, vz = 0 is what teaches it the accelerometer's bias before take-off."""
+    iz, iv = model.index("z"), model.index("vz")
+    meas = dict(model.measurements)
+    only = dict(corrects=(iz, iv)) if consider else {}
+
+    def still(m, ctx):
+        return np.array([0.0]) if landed(ctx) else None
+
+    def on_the_ground(m, ctx):
+        # the sensor has sent (a reading used, or one models.range_gate skipped) and none used lately
+        v = ctx.values
+        sent = "range_read_at" in v or "range_on_ground_at" in v
+        quiet = sent and m.t - v.get("range_read_at", -math.inf) > RANGE_QUIET
+        return np.array([0.0]) if quiet and landed(ctx) else None
+
+    for kind in (Kind.THROTTLE, Kind.ACTUATOR):
+        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
+                                                        np.array([[SIGMA_STILL**2]]), untimed=True, **only)
+        if height and "range" in meas:
+            meas[f"on_ground_{kind.value}"] = MeasurementModel(
+                LANDED, kind, on_the_ground, lambda ctx, n=model.n: unit_row(n, iz), np.array([[SIGMA_ON_GROUND**2]]),
+                untimed=True, **only)
+    if height and "range" in meas:
+        rng = meas["range"]
+
+        def range_read(m, ctx, extract=rng.extract):
+            z = extract(m, ctx)
+            if z is not None:
+                ctx.values["range_read_at"] = m.t
+            return z
+        meas["range"] = replace(rng, extract=range_read)
+    return replace(model, measurements=meas)
