@@ -10,6 +10,7 @@ Files: a synthetic 1 kHz-style tlog (``--messages`` frames), the committed real
 tlogs, and the real binary DataFlash logs when ``../shared/data/real`` is there.
 Target: ours >= 10x the baseline's messages per second on every file.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,9 +55,11 @@ def main() -> int:
         synth = Path(d) / f"synthetic_{args.messages}.tlog"
         write_tlog(make_stream(args.messages), synth)
         files = [synth, ROOT / "tests/fixtures/dronekit_flight.tlog", ROOT / "tests/fixtures/ardusub_small.tlog"]
-        files += [REAL / "ardupilot_dataflash" / n for n in ("erle_pxf_copter_Loiter_RTL.bin",
-                                                            "pyflightcoach_pilot_0004.BIN")
-                  if (REAL / "ardupilot_dataflash" / n).exists()]
+        files += [
+            REAL / "ardupilot_dataflash" / n
+            for n in ("erle_pxf_copter_Loiter_RTL.bin", "pyflightcoach_pilot_0004.BIN")
+            if (REAL / "ardupilot_dataflash" / n).exists()
+        ]
         print(f"{'file':<40}{'messages':>10}{'recv_match msg/s':>18}{'bulk msg/s':>14}{'ratio':>8}  target >= 10x")
         worst = float("inf")
         for f in files:
@@ -68,8 +71,10 @@ def main() -> int:
                 best_bulk = min(best_bulk, dt)
             ratio = (n_bulk / best_bulk) / (n_base / best_base)
             worst = min(worst, ratio)
-            print(f"{f.name:<40}{n_bulk:>10,}{n_base / best_base:>18,.0f}{n_bulk / best_bulk:>14,.0f}"
-                  f"{ratio:>8.1f}  {'met' if ratio >= 10 else 'NOT met'}")
+            print(
+                f"{f.name:<40}{n_bulk:>10,}{n_base / best_base:>18,.0f}{n_bulk / best_bulk:>14,.0f}"
+                f"{ratio:>8.1f}  {'met' if ratio >= 10 else 'NOT met'}"
+            )
         if not (REAL / "ardupilot_dataflash").exists():
             print(f"(binary DataFlash files skipped: {REAL} is absent)")
         print(f"worst ratio {worst:.1f}x: target {'met' if worst >= 10 else 'NOT met'}")

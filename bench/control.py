@@ -24,6 +24,7 @@ the elevation is lifted to level, and the pitch reference steps at 6 s.
 Baseline for the ratios: the lab's own observation (Table 2/3) for part 1;
 encoder feedback for part 2.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,11 +59,16 @@ T_STEP, P_STEP = 6.0, 0.3
 
 
 def pitch_trial(ctrl, seconds):
-    f = fly(Scenario("heli3dof", seed=11), ctrl, FEEDBACK_3DOF["encoders"](), seconds=seconds,
-            reference=lambda t: {"p_c": P_STEP if t >= T_STEP else 0.0, "e_c": 0.0})
+    f = fly(
+        Scenario("heli3dof", seed=11),
+        ctrl,
+        FEEDBACK_3DOF["encoders"](),
+        seconds=seconds,
+        reference=lambda t: {"p_c": P_STEP if t >= T_STEP else 0.0, "e_c": 0.0},
+    )
     name = classify(f.t, f.truth["p"], T_STEP, 0.0, P_STEP, limit=1.15)
     if name != "unstable" and np.min(f.truth["e"][f.t > T_STEP]) <= -0.49:
-        name = "unstable"          # it fell back onto the table
+        name = "unstable"  # it fell back onto the table
     sat = float(np.mean([r.saturated for r in f.records if r.t >= T_STEP])) if f.records else 0.0
     try:
         w, z, _ = step_fit(f.t, f.truth["p"], T_STEP, 0.0, P_STEP) if name != "unstable" else (np.nan,) * 3
@@ -76,8 +82,10 @@ def part1(seconds):
     K1, _ = design.k1_k2()
     rows = []
     print("\n## 1. Table 2: pole placement (pitch step 0.3 rad from level; encoders)\n")
-    print("| trial | poles | theory | lab observed | lab gains (K_pp, K_pd) | on the rig: omega_0, zeta "
-          "| rig shows | corrected gains | rig shows | saturated |")
+    print(
+        "| trial | poles | theory | lab observed | lab gains (K_pp, K_pd) | on the rig: omega_0, zeta "
+        "| rig shows | corrected gains | rig shows | saturated |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     for i, (poles, theory, observed) in enumerate(TABLE2, 1):
         lab = PitchPD.from_poles(*poles, K_f=design.LAB_K_F)
@@ -86,14 +94,29 @@ def part1(seconds):
         ours = PitchPD.from_poles(*poles)
         name_ours, w, z, sat = pitch_trial(ours, seconds)
         ps = ", ".join(f"{p:g}" for p in poles)
-        print(f"| {i} | {ps} | {theory} | {observed} | {lab.K_pp:.2f}, {lab.K_pd:.2f} | {w_real:.2f}, {z_real:.2f} "
-              f"| {name_lab} | {ours.K_pp:.1f}, {ours.K_pd:.1f} | {name_ours} | {sat:.0%} |")
-        rows.append({"trial": i, "poles": [str(p) for p in poles], "theory": theory, "lab": observed,
-                     "lab_gains": [lab.K_pp, lab.K_pd], "lab_gains_real_omega_zeta": [w_real, z_real],
-                     "rig_with_lab_gains": name_lab, "corrected_gains": [ours.K_pp, ours.K_pd],
-                     "rig_with_corrected_gains": name_ours, "fitted_omega_zeta": [w, z], "saturated": sat})
-    print(f"\nlab K1 = {K1_lab:.2f} (K_f = {design.LAB_K_F}), rig K1 = {K1:.3f} (K_f = {design.K_F}); "
-          "'saturated': share of control ticks after the step with a motor at its limit.")
+        print(
+            f"| {i} | {ps} | {theory} | {observed} | {lab.K_pp:.2f}, {lab.K_pd:.2f} | {w_real:.2f}, {z_real:.2f} "
+            f"| {name_lab} | {ours.K_pp:.1f}, {ours.K_pd:.1f} | {name_ours} | {sat:.0%} |"
+        )
+        rows.append(
+            {
+                "trial": i,
+                "poles": [str(p) for p in poles],
+                "theory": theory,
+                "lab": observed,
+                "lab_gains": [lab.K_pp, lab.K_pd],
+                "lab_gains_real_omega_zeta": [w_real, z_real],
+                "rig_with_lab_gains": name_lab,
+                "corrected_gains": [ours.K_pp, ours.K_pd],
+                "rig_with_corrected_gains": name_ours,
+                "fitted_omega_zeta": [w, z],
+                "saturated": sat,
+            }
+        )
+    print(
+        f"\nlab K1 = {K1_lab:.2f} (K_f = {design.LAB_K_F}), rig K1 = {K1:.3f} (K_f = {design.K_F}); "
+        "'saturated': share of control ticks after the step with a motor at its limit."
+    )
     return rows
 
 
@@ -109,14 +132,21 @@ def _reference(t, truth):
 
 def part2(seconds):
     print(f"\n## 2. Feedback sources: LQR + feed-forward (eq. 92 weights), {seconds:g} s of scripted joystick\n")
-    print("| feedback | its p error [rad] | its e_dot error [rad/s] | pitch tracking RMS [rad] | ratio "
-          "| e_dot tracking RMS [rad/s] | command noise [V] | ratio | stayed up | wall [s] |")
+    print(
+        "| feedback | its p error [rad] | its e_dot error [rad/s] | pitch tracking RMS [rad] | ratio "
+        "| e_dot tracking RMS [rad/s] | command noise [V] | ratio | stayed up | wall [s] |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|")
     rows, base = [], None
     for name, cls in FEEDBACK_3DOF.items():
         t0 = time.perf_counter()
-        f = fly(Scenario("heli3dof", seed=12), LQRFeedForward(design.LAB_Q_KF, design.LAB_R_KF), cls(),
-                seconds=seconds, reference=_reference)
+        f = fly(
+            Scenario("heli3dof", seed=12),
+            LQRFeedForward(design.LAB_Q_KF, design.LAB_R_KF),
+            cls(),
+            seconds=seconds,
+            reference=_reference,
+        )
         wall = time.perf_counter() - t0
         m = f.t >= T_STEP
         ref_p = np.array([r.reference["p_c"] for r in f.records])
@@ -129,18 +159,30 @@ def part2(seconds):
         cmd = f.command()
         noise = float(np.sqrt(np.mean(np.diff(cmd[:, 1] - cmd[:, 0]) ** 2))) if len(cmd) > 2 else np.nan
         e = f.truth["e"][f.t >= T_STEP]
-        up = bool(np.all(np.abs(f.truth["p"][f.t >= T_STEP]) < 1.15) and np.all((e > -0.49) & (e < 0.99))
-                  and f.armed[-1])
+        up = bool(
+            np.all(np.abs(f.truth["p"][f.t >= T_STEP]) < 1.15) and np.all((e > -0.49) & (e < 0.99)) and f.armed[-1]
+        )
         # what the controller was told against the truth at the same tick
         fp = np.array([r.state["p"] for r in f.records]) - tp
         fed = np.array([r.state["e_dot"] for r in f.records]) - ted
         sp, sed = float(np.sqrt(np.mean(fp[m] ** 2))), float(np.sqrt(np.mean(fed[m] ** 2)))
         if base is None:
             base = (ep, noise)
-        print(f"| {name} | {sp:.4f} | {sed:.4f} | {ep:.4f} | {ep / base[0]:.2f} | {eed:.4f} | {noise:.3f} "
-              f"| {noise / base[1]:.2f} | {'yes' if up else 'no'} | {wall:.1f} |")
-        rows.append({"feedback": name, "state_p_error": sp, "state_e_dot_error": sed, "pitch_rms": ep,
-                     "e_dot_rms": eed, "command_noise": noise, "stayed_up": up})
+        print(
+            f"| {name} | {sp:.4f} | {sed:.4f} | {ep:.4f} | {ep / base[0]:.2f} | {eed:.4f} | {noise:.3f} "
+            f"| {noise / base[1]:.2f} | {'yes' if up else 'no'} | {wall:.1f} |"
+        )
+        rows.append(
+            {
+                "feedback": name,
+                "state_p_error": sp,
+                "state_e_dot_error": sed,
+                "pitch_rms": ep,
+                "e_dot_rms": eed,
+                "command_noise": noise,
+                "stayed_up": up,
+            }
+        )
     return rows
 
 
@@ -149,20 +191,28 @@ def part3(seconds):
     print("| weights | K | closed-loop poles | rig shows | omega_0, zeta fitted |")
     print("|---|---|---|---|---|")
     rows = []
-    cases = [("eq. 38", LQRFeedForward(design.LAB_Q_FF, design.LAB_R_FF)),
-             ("eq. 92", LQRFeedForward(design.LAB_Q_KF, design.LAB_R_KF)),
-             ("eq. 44 (integral)", LQRIntegral(design.LAB_Q_I, design.LAB_R_I))]
+    cases = [
+        ("eq. 38", LQRFeedForward(design.LAB_Q_FF, design.LAB_R_FF)),
+        ("eq. 92", LQRFeedForward(design.LAB_Q_KF, design.LAB_R_KF)),
+        ("eq. 44 (integral)", LQRIntegral(design.LAB_Q_I, design.LAB_R_I)),
+    ]
     for label, c in cases:
         A, B, _ = design.integral_model() if isinstance(c, LQRIntegral) else design.pitch_model()
         poles = np.linalg.eigvals(A - B @ c.K)
-        f = fly(Scenario("heli3dof", seed=13), c, FEEDBACK_3DOF["encoders"](), seconds=min(seconds, 25.0),
-                reference=lambda t: {"p_c": 0.2 if t >= T_STEP else 0.0, "e_dot_c": 0.0})
+        f = fly(
+            Scenario("heli3dof", seed=13),
+            c,
+            FEEDBACK_3DOF["encoders"](),
+            seconds=min(seconds, 25.0),
+            reference=lambda t: {"p_c": 0.2 if t >= T_STEP else 0.0, "e_dot_c": 0.0},
+        )
         name = classify(f.t, f.truth["p"], T_STEP, 0.0, 0.2, limit=1.15)
         w, z, _ = step_fit(f.t, f.truth["p"], T_STEP, 0.0, 0.2)
         ps = ", ".join(f"{p.real:.2f}{p.imag:+.2f}j" if abs(p.imag) > 1e-9 else f"{p.real:.2f}" for p in poles)
         print(f"| {label} | {np.round(c.K, 2).tolist()} | {ps} | {name} | {w:.2f}, {z:.2f} |")
-        rows.append({"weights": label, "K": c.K.tolist(), "poles": [str(p) for p in poles], "rig": name,
-                     "omega_zeta": [w, z]})
+        rows.append(
+            {"weights": label, "K": c.K.tolist(), "poles": [str(p) for p in poles], "rig": name, "omega_zeta": [w, z]}
+        )
     return rows
 
 

@@ -25,6 +25,7 @@ core then busy with SwiftShader's thread 0).
    fixed window, with 0 and with 5 clients (paired rounds, median ratio).
    Baseline: the same run with no client, in the same round. Target: drop < 10 %.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -46,12 +47,13 @@ from groundstation.estimation.registry import build_estimator  # noqa: E402
 from groundstation.estimation.routing import horizontal_estimator  # noqa: E402
 from web.dashboard import Dashboard  # noqa: E402
 
-WRAP = 100.0        # feed time is sent modulo this (the height is a float32 on the wire)
+WRAP = 100.0  # feed time is sent modulo this (the height is a float32 on the wire)
 
 
 # ------------------------------------------------------------------ client process
 async def clients_main(url: str, n: int, seconds: float) -> None:
     from web.probe import ViserProbe
+
     lags: list[float] = []
 
     async def one(record: bool):
@@ -65,6 +67,7 @@ async def clients_main(url: str, n: int, seconds: float) -> None:
                             lags.append(lag)
                 if t > t_end:
                     return
+
     t0 = time.monotonic()
     await asyncio.gather(*(one(i == 0) for i in range(n)))
     print(json.dumps({"lags": lags, "cpu": time.process_time() / (time.monotonic() - t0)}), flush=True)
@@ -72,13 +75,22 @@ async def clients_main(url: str, n: int, seconds: float) -> None:
 
 async def start_clients(url: str, n: int, seconds: float):
     return await asyncio.create_subprocess_exec(
-        sys.executable, __file__, "--client-of", url, "--clients", str(n), "--seconds", str(seconds),
-        stdout=asyncio.subprocess.PIPE)
+        sys.executable,
+        __file__,
+        "--client-of",
+        url,
+        "--clients",
+        str(n),
+        "--seconds",
+        str(seconds),
+        stdout=asyncio.subprocess.PIPE,
+    )
 
 
 async def start_chromium_tabs(url: str, n: int):
     sys.path.insert(0, str(ROOT / "tests"))
     from browser import Browser
+
     b = Browser()
     await b.__aenter__()
     await b.goto(url)
@@ -93,8 +105,17 @@ async def feed_estimates(d: Dashboard, stop: asyncio.Event) -> None:
     while not stop.is_set():
         k += 1
         now = time.monotonic()
-        d.feed_snapshot(Snapshot(k * 0.005, "altitude", ("z", "vz", "b_acc"), np.array([now % WRAP, 0.0, 0.0]),
-                                 np.eye(3) * 1e-4, None, now))
+        d.feed_snapshot(
+            Snapshot(
+                k * 0.005,
+                "altitude",
+                ("z", "vz", "b_acc"),
+                np.array([now % WRAP, 0.0, 0.0]),
+                np.eye(3) * 1e-4,
+                None,
+                now,
+            )
+        )
         await asyncio.sleep(0.005)
 
 
@@ -108,7 +129,7 @@ async def lag_and_cpu(seconds: float) -> tuple[dict, dict]:
         await asyncio.sleep(1.0)
         for n in (0, 1, 5):
             proc = await start_clients(d.url, n, seconds) if n else None
-            await asyncio.sleep(1.0)                       # connected, backlog sent
+            await asyncio.sleep(1.0)  # connected, backlog sent
             c0, w0 = time.process_time(), time.monotonic()
             await asyncio.sleep(seconds - 2.0)
             cpu[n] = (time.process_time() - c0) / (time.monotonic() - w0)
@@ -123,8 +144,11 @@ async def lag_and_cpu(seconds: float) -> tuple[dict, dict]:
         await asyncio.gather(*tasks, return_exceptions=True)
         d.stop()
     a = np.array(lags) * 1e3
-    return ({"n": len(a), "p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95)),
-             "max": float(a.max())} if len(a) else {"n": 0}), cpu
+    return (
+        {"n": len(a), "p50": float(np.percentile(a, 50)), "p95": float(np.percentile(a, 95)), "max": float(a.max())}
+        if len(a)
+        else {"n": 0}
+    ), cpu
 
 
 async def throughput(tlog: Path, seconds: float, clients: str) -> float:
@@ -165,13 +189,19 @@ async def throughput(tlog: Path, seconds: float, clients: str) -> float:
         n0, t0, c0 = count, time.monotonic(), time.process_time()
         await asyncio.sleep(seconds)
         rate = (count - n0) / (time.monotonic() - t0)
-        print(f"  ({clients}: server process CPU {100 * (time.process_time() - c0) / (time.monotonic() - t0):.0f} % "
-              f"of a core)", file=sys.stderr)
+        print(
+            f"  ({clients}: server process CPU {100 * (time.process_time() - c0) / (time.monotonic() - t0):.0f} % "
+            f"of a core)",
+            file=sys.stderr,
+        )
     finally:
         if isinstance(extra, asyncio.subprocess.Process):
             out, _ = await extra.communicate()
-            print(f"  (the 5 clients' own process: {100 * json.loads(out.decode().splitlines()[-1])['cpu']:.0f} % "
-                  f"of a core)", file=sys.stderr)
+            print(
+                f"  (the 5 clients' own process: {100 * json.loads(out.decode().splitlines()[-1])['cpu']:.0f} % "
+                f"of a core)",
+                file=sys.stderr,
+            )
         elif extra is not None:
             await extra.__aexit__(None, None, None)
         for t in tasks:
@@ -187,8 +217,13 @@ def throughput_in_fresh_process(tlog: Path, seconds: float, clients: str) -> flo
     not weigh on the next (measured in one process, the second run of every pair
     was the slower one, whichever it was)."""
     import subprocess
-    out = subprocess.run([sys.executable, __file__, "--throughput-of", str(tlog), "--mode", clients,
-                          "--seconds", str(seconds)], capture_output=True, text=True, check=True).stdout
+
+    out = subprocess.run(
+        [sys.executable, __file__, "--throughput-of", str(tlog), "--mode", clients, "--seconds", str(seconds)],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     return float(out.strip().splitlines()[-1])
 
 
@@ -212,8 +247,10 @@ def main() -> int:
     lag, cpu = asyncio.run(lag_and_cpu(args.seconds))
     print(f"{'measure':<62}{'value':>12}  target")
     print(f"{'display lag, estimate -> client receipt, p50 [ms]':<62}{lag['p50']:>12.1f}")
-    print(f"{'display lag, estimate -> client receipt, p95 [ms]':<62}{lag['p95']:>12.1f}  < 100 ms "
-          f"{'met' if lag['p95'] < 100 else 'NOT met'}  ({lag['n']} updates, max {lag['max']:.0f} ms)")
+    print(
+        f"{'display lag, estimate -> client receipt, p95 [ms]':<62}{lag['p95']:>12.1f}  < 100 ms "
+        f"{'met' if lag['p95'] < 100 else 'NOT met'}  ({lag['n']} updates, max {lag['max']:.0f} ms)"
+    )
     for n in (0, 1, 5):
         print(f"{f'server CPU with {n} client(s) [% of one core]':<62}{100 * cpu[n]:>12.1f}")
     print(f"{'server CPU per connected client [% of one core]':<62}{100 * (cpu[5] - cpu[0]) / 5:>12.2f}")
@@ -221,6 +258,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         from sim_bridge.fast import run_fast
         from sim_bridge.scenario import Scenario
+
         tlog = Path(tmp) / "flight.tlog"
         run_fast(Scenario.from_args("quad", 1, 120.0, ["range_tilt"], []), tlog)
         modes = ["ws"] + (["chromium"] if args.chromium else [])
@@ -237,15 +275,19 @@ def main() -> int:
                 rates[m].append(got[m])
                 ratios[m].append(got[m] / got["none"])
     base = float(np.median(rates["none"]))
-    print(f"{'estimator throughput, dashboard and no client [meas/s]':<62}{base:>12,.0f}  baseline "
-          f"(median of {len(rates['none'])})")
+    print(
+        f"{'estimator throughput, dashboard and no client [meas/s]':<62}{base:>12,.0f}  baseline "
+        f"(median of {len(rates['none'])})"
+    )
     for m, label in (("ws", "5 protocol-level tabs"), ("chromium", "5 headless Chromium tabs")):
         if m in ratios:
             ratio = float(np.median(ratios[m]))
             drop = 1.0 - ratio
-            print(f"{f'estimator throughput, {label} [meas/s]':<62}{np.median(rates[m]):>12,.0f}  "
-                  f"ratio {ratio:.3f} (rounds {', '.join(f'{x:.2f}' for x in ratios[m])}), "
-                  f"drop {100 * drop:.1f} % (< 10 %: {'met' if drop < 0.10 else 'NOT met'})")
+            print(
+                f"{f'estimator throughput, {label} [meas/s]':<62}{np.median(rates[m]):>12,.0f}  "
+                f"ratio {ratio:.3f} (rounds {', '.join(f'{x:.2f}' for x in ratios[m])}), "
+                f"drop {100 * drop:.1f} % (< 10 %: {'met' if drop < 0.10 else 'NOT met'})"
+            )
     print(f"(cores: {os.cpu_count()})")
     return 0
 

@@ -28,6 +28,7 @@ acceleration noise (``groundstation/vehicles/sim_quad.json``, as ``diagnose --ve
 they come from the log (the thrust curve from the accelerometer: groundstation/diagnosis/airframe.py).
 The fast subset is ``tests/test_diagnosis.py``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -100,6 +101,7 @@ def one(job: tuple) -> dict:
     from groundstation.estimation.registry import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
+
     effect, param, mag, extra, seed, vehicle, seconds, airframe, flight = job
     declared = [] if effect == "range_tilt" else ["range_tilt"]
     model = model_for(effect)
@@ -112,12 +114,18 @@ def one(job: tuple) -> dict:
         run_fast(Scenario.from_args(vehicle, seed, seconds, declared, und, flight=flight), log, log.with_suffix(".csv"))
         ms = list(Replay(log).iter_measurements())
         t0 = time.perf_counter()
-        dg = diagnose(ms, model_name=model, declared=declared_effects(log.with_suffix(".declared.json")),
-                      truth=truth_from(ms, log, None), veto_with_truth=False, vehicle=airframe)
+        dg = diagnose(
+            ms,
+            model_name=model,
+            declared=declared_effects(log.with_suffix(".declared.json")),
+            truth=truth_from(ms, log, None),
+            veto_with_truth=False,
+            vehicle=airframe,
+        )
         wall = time.perf_counter() - t0
         sim_truth = np.genfromtxt(log.with_suffix(".csv"), delimiter=",", names=True)
     names = [e.name for e in dg.effects]
-    found = dg.effects + dg.modelled          # an effect the base model estimates counts as found
+    found = dg.effects + dg.modelled  # an effect the base model estimates counts as found
     all_names = names + [e.name for e in dg.modelled]
     rank = all_names.index(effect) + 1 if effect in all_names else 0
     est = found[rank - 1].params.get(param) if rank and param else None
@@ -132,21 +140,36 @@ def one(job: tuple) -> dict:
     else:
         floor = clean_twin_rmse(vehicle, seed, seconds, declared, model, flight, airframe) if und else rb
     sensor = "baro" if effect in OUTSIDE else found[rank - 1].evidence.get("sensor") if rank else None
-    if sensor not in {f.sensor for f in dg.findings_after}:      # none, or an input (a lagged throttle)
+    if sensor not in {f.sensor for f in dg.findings_after}:  # none, or an input (a lagged throttle)
         sensor = "accel" if model == "attitude" else "range"
     after = {f.test: f for f in dg.findings_after if f.sensor == sensor}
-    R = next((float(np.atleast_2d(mm.R)[0, 0]) for mm in dg.after.model.measurements.values() if mm.name == sensor),
-             float("nan"))
+    R = next(
+        (float(np.atleast_2d(mm.R)[0, 0]) for mm in dg.after.model.measurements.values() if mm.name == sensor),
+        float("nan"),
+    )
     noise = sensor_noise(ms, sim_truth, sensor, R, mag if effect == "sensor_delay" else 0.0)
     # the runner-ups the log barely told from the effects it named (engine.CLOSE_CALL)
     alternatives = [e.evidence["alternative"]["name"].split("(")[0] for e in dg.effects if "alternative" in e.evidence]
-    return {"effect": effect, "mag": mag, "seed": seed, "vehicle": vehicle, "rank": rank, "claimed": names,
-            "alternatives": alternatives,
-            "discovered": [x.expression for x in dg.discoveries], "est": est, "err": err, "rmse_before": rb,
-            "rmse_after": ra, "rmse_floor": floor, "nis_ok": after["NIS mean"].passed if "NIS mean" in after else None,
-            "nis": after["NIS mean"].statistic if "NIS mean" in after else float("nan"),
-            "lb_p": after["Ljung-Box whiteness"].statistic if "Ljung-Box whiteness" in after else float("nan"),
-            **noise, "wall": wall}
+    return {
+        "effect": effect,
+        "mag": mag,
+        "seed": seed,
+        "vehicle": vehicle,
+        "rank": rank,
+        "claimed": names,
+        "alternatives": alternatives,
+        "discovered": [x.expression for x in dg.discoveries],
+        "est": est,
+        "err": err,
+        "rmse_before": rb,
+        "rmse_after": ra,
+        "rmse_floor": floor,
+        "nis_ok": after["NIS mean"].passed if "NIS mean" in after else None,
+        "nis": after["NIS mean"].statistic if "NIS mean" in after else float("nan"),
+        "lb_p": after["Ljung-Box whiteness"].statistic if "Ljung-Box whiteness" in after else float("nan"),
+        **noise,
+        "wall": wall,
+    }
 
 
 def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float = 0.0) -> dict:
@@ -168,9 +191,11 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     from groundstation.core.atmosphere import altitude_at
     from groundstation.core.measurement import Kind
     from groundstation.estimation.whiteness import ljung_box
+
     if sensor == "baro":
-        b = np.array([(m.t, float(altitude_at(m.value[0]))) for m in ms
-                      if m.kind is Kind.BARO_PRESSURE and m.instance == 0])
+        b = np.array(
+            [(m.t, float(altitude_at(m.value[0]))) for m in ms if m.kind is Kind.BARO_PRESSURE and m.instance == 0]
+        )
         t, e = b[:, 0], b[:, 1] - np.interp(b[:, 0], tr["t"], tr["h"] + tr["baro_alt_error"])
     elif sensor == "range":
         r = np.array([(m.t, float(m.value[0])) for m in ms if m.kind is Kind.RANGE])
@@ -182,14 +207,21 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
         return {"noise_nis": nis, "noise_nis_ok": bool(lo <= nis <= hi), "noise_p": float(ljung_box(ex))}
     else:
         return {"noise_nis": float("nan"), "noise_nis_ok": None, "noise_p": float("nan")}
-    e = e[t >= t[0] + 5.0]                 # from 5 s in, as the diagnosis scores
-    e = e - e.mean()                        # the baro's zero is the model's own constant
+    e = e[t >= t[0] + 5.0]  # from 5 s in, as the diagnosis scores
+    e = e - e.mean()  # the baro's zero is the model's own constant
     nis, (lo, hi) = float(np.mean(e**2) / R), chi2.ppf([0.025, 0.975], len(e)) / len(e)
     return {"noise_nis": nis, "noise_nis_ok": bool(lo <= nis <= hi), "noise_p": float(ljung_box(e))}
 
 
-def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str], model: str,
-                    flight: str = "standard", airframe: str | None = None) -> float:
+def clean_twin_rmse(
+    vehicle: str,
+    seed: int,
+    seconds: float,
+    declared: list[str],
+    model: str,
+    flight: str = "standard",
+    airframe: str | None = None,
+) -> float:
     """The height RMSE the base model reaches on the same flight without the effect: the floor no
     diagnosis can go below (range noise, the filter's own lag). Where a range sensor carries the
     height, a baro effect adds a few millimetres to a ~3 mm floor, and "RMSE down >= 50 %" is out of
@@ -201,6 +233,7 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
     from groundstation.estimation.registry import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
+
     with tempfile.TemporaryDirectory() as d:
         log = Path(d) / "s.tlog"
         run_fast(Scenario.from_args(vehicle, seed, seconds, declared, [], flight=flight), log, log.with_suffix(".csv"))
@@ -213,14 +246,21 @@ def clean_twin_rmse(vehicle: str, seed: int, seconds: float, declared: list[str]
 def noise_too(rs: list[dict]) -> str:
     """Of the runs failing NIS / Ljung-Box after, how many have a sensor noise that fails it too
     ("k/m"), and how many failed where the truth gives no noise (the accelerometer: "+j n/a")."""
+
     def count(failed: list[dict], has, fails) -> str:
         known = [r for r in failed if has(r)]
         out = f"{sum(fails(r) for r in known)}/{len(known)}"
         return out + (f" +{len(failed) - len(known)} n/a" if len(failed) > len(known) else "")
-    return (count([r for r in rs if not r["nis_ok"]], lambda r: r["noise_nis_ok"] is not None,
-                  lambda r: not r["noise_nis_ok"]) + ", " +
-            count([r for r in rs if not r["lb_p"] > 0.05], lambda r: np.isfinite(r["noise_p"]),
-                  lambda r: r["noise_p"] <= 0.05))
+
+    return (
+        count(
+            [r for r in rs if not r["nis_ok"]], lambda r: r["noise_nis_ok"] is not None, lambda r: not r["noise_nis_ok"]
+        )
+        + ", "
+        + count(
+            [r for r in rs if not r["lb_p"] > 0.05], lambda r: np.isfinite(r["noise_p"]), lambda r: r["noise_p"] <= 0.05
+        )
+    )
 
 
 def main() -> int:
@@ -229,10 +269,18 @@ def main() -> int:
     ap.add_argument("--effects", default=",".join(SWEEP))
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=60.0)
-    ap.add_argument("--airframe", default=None, help="a vehicle file for the thrust model (sim_quad: the simulated "
-                    "quadcopter's thrust curve, drag and acceleration noise); default: from the log")
-    ap.add_argument("--baro-flight", choices=("high", "standard"), default="high",
-                    help="the flight of the barometer's effects and clean_high (default: high)")
+    ap.add_argument(
+        "--airframe",
+        default=None,
+        help="a vehicle file for the thrust model (sim_quad: the simulated "
+        "quadcopter's thrust curve, drag and acceleration noise); default: from the log",
+    )
+    ap.add_argument(
+        "--baro-flight",
+        choices=("high", "standard"),
+        default="high",
+        help="the flight of the barometer's effects and clean_high (default: high)",
+    )
     args = ap.parse_args()
     jobs = []
     for effect in args.effects.split(","):
@@ -242,11 +290,24 @@ def main() -> int:
                 seed = 1000 + 17 * s + len(jobs)
                 vehicle = "quad" if effect in THRUST | ATTITUDE else ("quad", "coax")[s % 2]
                 airframe = args.airframe if model_for(effect) == "quad_thrust" else None
-                jobs.append((effect, param, mag, extra, seed, vehicle, args.seconds, airframe,
-                             flight_for(effect, args.baro_flight)))
-    print(f"{'effect':<20}{'mag':>7}{'seed':>6}{'veh':>6}{'rank':>5}{'param':>10}{'err':>7}"
-          f"{'RMSE before':>13}{'after':>9}{'floor':>8}{'NIS':>7}{'noise':>7}{'LB p':>8}{'noise':>7}  claimed",
-          flush=True)
+                jobs.append(
+                    (
+                        effect,
+                        param,
+                        mag,
+                        extra,
+                        seed,
+                        vehicle,
+                        args.seconds,
+                        airframe,
+                        flight_for(effect, args.baro_flight),
+                    )
+                )
+    print(
+        f"{'effect':<20}{'mag':>7}{'seed':>6}{'veh':>6}{'rank':>5}{'param':>10}{'err':>7}"
+        f"{'RMSE before':>13}{'after':>9}{'floor':>8}{'NIS':>7}{'noise':>7}{'LB p':>8}{'noise':>7}  claimed",
+        flush=True,
+    )
     rows = []
     with ProcessPoolExecutor(args.jobs) as ex:
         for r in ex.map(one, jobs):
@@ -254,30 +315,40 @@ def main() -> int:
             est = f"{r['est']:.4g}" if r["est"] is not None else "-"
             err = f"{100 * r['err']:.0f}%" if r["err"] is not None else "-"
             mag = f"{r['mag']:g}" if r["mag"] is not None else "-"
-            print(f"{r['effect']:<20}{mag:>7}{r['seed']:>6}{r['vehicle']:>6}{r['rank']:>5}{est:>10}{err:>7}"
-                  f"{r['rmse_before']:>13.4f}{r['rmse_after']:>9.4f}{r['rmse_floor']:>8.4f}"
-                  f"{r['nis']:>6.2f}{' ' if r['nis_ok'] else '*'}{r['noise_nis']:>7.2f}{r['lb_p']:>8.3f}{r['noise_p']:>7.3f}  "
-                  f"{','.join(r['claimed'] + ['discovered:' + x for x in r['discovered']]) or '-'}"
-                  f"{''.join(' (or ' + a + ')' for a in r['alternatives'])}", flush=True)
+            print(
+                f"{r['effect']:<20}{mag:>7}{r['seed']:>6}{r['vehicle']:>6}{r['rank']:>5}{est:>10}{err:>7}"
+                f"{r['rmse_before']:>13.4f}{r['rmse_after']:>9.4f}{r['rmse_floor']:>8.4f}"
+                f"{r['nis']:>6.2f}{' ' if r['nis_ok'] else '*'}{r['noise_nis']:>7.2f}"
+                f"{r['lb_p']:>8.3f}{r['noise_p']:>7.3f}  "
+                f"{','.join(r['claimed'] + ['discovered:' + x for x in r['discovered']]) or '-'}"
+                f"{''.join(' (or ' + a + ')' for a in r['alternatives'])}",
+                flush=True,
+            )
     print("\nper effect (issue 7's bars)")
-    print(f"{'effect':<20}{'runs':>5}{'first':>8}{'':>3}{'param ok':>10}{'RMSE down (median)':>20}"
-          f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}  failing where the noise fails too (NIS, LB)")
+    print(
+        f"{'effect':<20}{'runs':>5}{'first':>8}{'':>3}{'param ok':>10}{'RMSE down (median)':>20}"
+        f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}  failing where the noise fails too (NIS, LB)"
+    )
     for effect in args.effects.split(","):
         rs = [r for r in rows if r["effect"] == effect]
         if effect in CLEAN:
             quiet = np.mean([not r["claimed"] and not r["discovered"] for r in rs])
-            print(f"{effect:<20}{len(rs):>5}   nothing claimed in {100 * quiet:.0f} % (bar >= 95 %); NIS ok "
-                  f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):.0f} %, Ljung-Box "
-                  f"{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):.0f} %; failing where the noise fails too "
-                  f"{noise_too(rs)}")
+            print(
+                f"{effect:<20}{len(rs):>5}   nothing claimed in {100 * quiet:.0f} % (bar >= 95 %); NIS ok "
+                f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):.0f} %, Ljung-Box "
+                f"{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):.0f} %; failing where the noise fails too "
+                f"{noise_too(rs)}"
+            )
             continue
         if effect in OUTSIDE:
             # named, not added: the model, its height error and its whiteness stay as they were
             named = [r for r in rs if r["rank"] == 1]
-            print(f"{effect:<20}{len(rs):>5}   outside the catalogue: {OUTSIDE[effect]} named by the regression in "
-                  f"{100 * len(named) / len(rs):.0f} %, its coefficient within 30 % in "
-                  f"{100 * np.mean([r['err'] is not None and r['err'] <= 0.3 for r in rs]):.0f} %; a catalogue "
-                  f"effect claimed in {100 * np.mean([bool(r['claimed']) for r in rs]):.0f} %")
+            print(
+                f"{effect:<20}{len(rs):>5}   outside the catalogue: {OUTSIDE[effect]} named by the regression in "
+                f"{100 * len(named) / len(rs):.0f} %, its coefficient within 30 % in "
+                f"{100 * np.mean([r['err'] is not None and r['err'] <= 0.3 for r in rs]):.0f} %; a catalogue "
+                f"effect claimed in {100 * np.mean([bool(r['claimed']) for r in rs]):.0f} %"
+            )
             continue
         first = np.mean([r["rank"] == 1 for r in rs])
         # not first, but given as the first effect's close alternative: the report says it may be this
@@ -291,11 +362,14 @@ def main() -> int:
         share = [(r["rmse_before"] - r["rmse_after"]) / (r["rmse_before"] - r["rmse_floor"]) for r in moved]
         own = f"{100 * np.median(share):.0f}% of {len(moved)}" if moved else "- (height unmoved)"
         bar = 0.8 if effect in GEOMETRIC else 0.5
-        print(f"{effect:<20}{len(rs):>5}{100 * first:>7.0f}%{f'+{alt}' if alt else '':>3}"
-              f"{(f'{100 * np.mean(pok):.0f}%' if pok else '-'):>10}"
-              f"{100 * down:>13.0f}% (>= {100 * bar:.0f}%){own:>20}"
-              f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):>7.0f}%{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):>9.0f}%"
-              f"  {noise_too(rs)}")
+        print(
+            f"{effect:<20}{len(rs):>5}{100 * first:>7.0f}%{f'+{alt}' if alt else '':>3}"
+            f"{(f'{100 * np.mean(pok):.0f}%' if pok else '-'):>10}"
+            f"{100 * down:>13.0f}% (>= {100 * bar:.0f}%){own:>20}"
+            f"{100 * np.mean([bool(r['nis_ok']) for r in rs]):>7.0f}%"
+            f"{100 * np.mean([r['lb_p'] > 0.05 for r in rs]):>9.0f}%"
+            f"  {noise_too(rs)}"
+        )
     print(f"\nmedian diagnosis time {np.median([r['wall'] for r in rows]):.1f} s per 60 s flight")
     return 0
 

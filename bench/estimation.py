@@ -13,6 +13,7 @@
    decodes, the loop runs the filter; for every
    processed measurement, socket read -> estimate done. Target p99 < 2 ms.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -39,8 +40,17 @@ RATES = {"imu": 1000, "baro": 50, "range": 20}
 
 def scenario(seconds: float, d: Path) -> Scenario:
     p = d / "scenario.json"
-    p.write_text(json.dumps({"vehicle": "quad", "seed": 1, "duration": seconds,
-                             "effects": [{"name": "range_tilt"}], "sensors": {"rates": RATES}}))
+    p.write_text(
+        json.dumps(
+            {
+                "vehicle": "quad",
+                "seed": 1,
+                "duration": seconds,
+                "effects": [{"name": "range_tilt"}],
+                "sensors": {"rates": RATES},
+            }
+        )
+    )
     return Scenario.load(p)
 
 
@@ -73,36 +83,49 @@ def whole_recording(minutes: float, d: Path) -> tuple[float, int]:
 
 
 async def live(seconds: float, d: Path) -> dict:
-    link = MavlinkLink("udpin:127.0.0.1:0", streams={"HIGHRES_IMU": 1000.0, "SCALED_PRESSURE": 50.0,
-                                                     "DISTANCE_SENSOR": 20.0, "ATTITUDE": 50.0})
+    link = MavlinkLink(
+        "udpin:127.0.0.1:0",
+        streams={"HIGHRES_IMU": 1000.0, "SCALED_PRESSURE": 50.0, "DISTANCE_SENSOR": 20.0, "ATTITUDE": 50.0},
+    )
     sub = link.measurements()
     await link.open()
-    scenario(seconds + 5, d)       # writes d / scenario.json
+    scenario(seconds + 5, d)  # writes d / scenario.json
     # the vehicle is another device: the simulator runs in its own process
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "groundstation", "sim", "--scenario", str(d / "scenario.json"),
-        "--udp", f"127.0.0.1:{link.transport.local_address[1]}", "--duration", str(seconds),
-        stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.DEVNULL)
+        sys.executable,
+        "-m",
+        "groundstation",
+        "sim",
+        "--scenario",
+        str(d / "scenario.json"),
+        "--udp",
+        f"127.0.0.1:{link.transport.local_address[1]}",
+        "--duration",
+        str(seconds),
+        stdout=asyncio.subprocess.DEVNULL,
+        stderr=asyncio.subprocess.DEVNULL,
+    )
     est = build_estimator("altitude", [{"name": "range_tilt"}])
     loop = EstimationLoop([est])
     lat_all, lat_upd, cost = [], [], []
 
-    def sink(ms):                         # the loop runs in the link's receive path
+    def sink(ms):  # the loop runs in the link's receive path
         for m in ms:
             n = est.counters.updates
             t_in = time.perf_counter()
             loop.push(m)
-            if m.kind in loop.kinds and m.t > 3.0:       # after take-off and stream set-up
+            if m.kind in loop.kinds and m.t > 3.0:  # after take-off and stream set-up
                 cost.append((time.perf_counter() - t_in) * 1e3)
                 dt = (time.time() - m.t_rx) * 1e3
                 lat_all.append(dt)
                 if est.counters.updates != n:
                     lat_upd.append(dt)
+
     link.sinks.append(sink)
 
     drained = 0
 
-    async def drain():                    # an ordinary subscriber too, as the dashboard would be
+    async def drain():  # an ordinary subscriber too, as the dashboard would be
         nonlocal drained
         async for _ in sub:
             drained += 1
@@ -117,10 +140,17 @@ async def live(seconds: float, d: Path) -> dict:
         await link.close()
         await task
     a, u, pr = np.array(lat_all), np.array(lat_upd), np.array(cost)
-    return {"n": len(a), "p50": np.percentile(a, 50), "p99": np.percentile(a, 99), "max": a.max(),
-            "proc_p99": np.percentile(pr, 99), "proc_p50": np.percentile(pr, 50),
-            "upd_p99": np.percentile(u, 99) if len(u) else float("nan"), "imu_hz": est.counters.predictions / seconds,
-            "drained": drained}
+    return {
+        "n": len(a),
+        "p50": np.percentile(a, 50),
+        "p99": np.percentile(a, 99),
+        "max": a.max(),
+        "proc_p99": np.percentile(pr, 99),
+        "proc_p50": np.percentile(pr, 50),
+        "upd_p99": np.percentile(u, 99) if len(u) else float("nan"),
+        "imu_hz": est.counters.predictions / seconds,
+        "drained": drained,
+    }
 
 
 def main() -> int:
@@ -135,8 +165,10 @@ def main() -> int:
         print(f"{'altitude filter: range updates (with prediction) per s':<58}{ups:>14,.0f}  -")
         ratio, n_upd = whole_recording(args.minutes, d)
         verdict = "met" if ratio >= 20 else "NOT met"
-        print(f"{f'{args.minutes:g}-min recording (1 kHz IMU) -> altitude filter, x real time':<58}"
-              f"{ratio:>13.1f}x  >= 20x {verdict}")
+        print(
+            f"{f'{args.minutes:g}-min recording (1 kHz IMU) -> altitude filter, x real time':<58}"
+            f"{ratio:>13.1f}x  >= 20x {verdict}"
+        )
         if args.live_seconds > 0:
             r = asyncio.run(live(args.live_seconds, d))
             verdict = "met" if r["p99"] < 2.0 else "NOT met"

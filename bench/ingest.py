@@ -14,6 +14,7 @@ processes); the ground-station link receives, and a
 consumer measures loss (sequence numbers and count) and send-to-record latency.
 Target: zero loss and p99 < 5 ms at 2,000 msg/s for 60 s.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,16 +41,41 @@ def make_stream(n: int, seed: int = 1) -> bytes:
     rng = random.Random(seed)
     enc = mavlink.MAVLink(None, 1, 1)
     mix = [
-        (0.40, lambda i: mavlink.MAVLink_highres_imu_message(i * 1000, rng.gauss(0, 1), rng.gauss(0, 1), -9.8, 0.01, 0.02,
-                                                             0.03, 0.2, 0.0, 0.4, 1013.0, 0.0, 10.0, 25.0, 0x1FFF, 0)),
+        (
+            0.40,
+            lambda i: mavlink.MAVLink_highres_imu_message(
+                i * 1000,
+                rng.gauss(0, 1),
+                rng.gauss(0, 1),
+                -9.8,
+                0.01,
+                0.02,
+                0.03,
+                0.2,
+                0.0,
+                0.4,
+                1013.0,
+                0.0,
+                10.0,
+                25.0,
+                0x1FFF,
+                0,
+            ),
+        ),
         (0.20, lambda i: mavlink.MAVLink_attitude_message(i, 0.1, 0.2, 0.3, 0.01, 0.02, 0.03)),
         (0.08, lambda i: mavlink.MAVLink_scaled_pressure_message(i, 1000.0, 0.1, 2500, 0)),
         (0.05, lambda i: mavlink.MAVLink_distance_sensor_message(i, 10, 500, 150, 0, 0, 25, 0)),
         (0.08, lambda i: mavlink.MAVLink_servo_output_raw_message(i * 1000, 0, 1500, 1500, 1500, 1500, 0, 0, 0, 0)),
-        (0.05, lambda i: mavlink.MAVLink_global_position_int_message(i, 473977418, 85455938, 500000, 12345, 1, 2, 3, 0)),
+        (
+            0.05,
+            lambda i: mavlink.MAVLink_global_position_int_message(i, 473977418, 85455938, 500000, 12345, 1, 2, 3, 0),
+        ),
         (0.04, lambda i: mavlink.MAVLink_vfr_hud_message(1.0, 2.0, 90, 50, 10.0, 0.1)),
         (0.04, lambda i: mavlink.MAVLink_sys_status_message(0, 0, 0, 0, 11800, 1000, 50, 0, 0, 0, 0, 0, 0)),
-        (0.03, lambda i: mavlink.MAVLink_gps_raw_int_message(i * 1000, 3, 473977418, 85455938, 500000, 100, 100, 0, 0, 10)),
+        (
+            0.03,
+            lambda i: mavlink.MAVLink_gps_raw_int_message(i * 1000, 3, 473977418, 85455938, 500000, 100, 100, 0, 0, 10),
+        ),
         (0.03, lambda i: mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3)),
     ]
     weights = [w for w, _ in mix]
@@ -63,7 +89,7 @@ def make_stream(n: int, seed: int = 1) -> bytes:
 
 
 def chunks(data: bytes, size: int = 4096):
-    return [data[i:i + size] for i in range(0, len(data), size)]
+    return [data[i : i + size] for i in range(0, len(data), size)]
 
 
 def bench_parse_buffer(parts) -> tuple[float, int]:
@@ -134,8 +160,9 @@ async def live(rate: float, seconds: float) -> dict:
     sub = link.measurements()
     await link.open()
     port = link.transport.local_address[1]
-    proc = await asyncio.create_subprocess_exec(sys.executable, "-c", SENDER, str(port), str(rate), str(seconds),
-                                                stdout=asyncio.subprocess.PIPE)
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-c", SENDER, str(port), str(rate), str(seconds), stdout=asyncio.subprocess.PIPE
+    )
     lat = []
     expected = int(rate * seconds)
 
@@ -152,7 +179,7 @@ async def live(rate: float, seconds: float) -> dict:
         sent = int(out.decode().split()[0])
         try:
             await asyncio.wait_for(task, 2.0)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             pass
     finally:
         if proc.returncode is None:
@@ -161,10 +188,14 @@ async def live(rate: float, seconds: float) -> dict:
         task.cancel()
         await link.close()
     a = np.array(lat) * 1e3
-    return {"sent": sent, "received": len(lat), "seq_lost": link.counters.seq_lost,
-            "p50_ms": float(np.percentile(a, 50)) if len(a) else float("nan"),
-            "p99_ms": float(np.percentile(a, 99)) if len(a) else float("nan"),
-            "max_ms": float(a.max()) if len(a) else float("nan")}
+    return {
+        "sent": sent,
+        "received": len(lat),
+        "seq_lost": link.counters.seq_lost,
+        "p50_ms": float(np.percentile(a, 50)) if len(a) else float("nan"),
+        "p99_ms": float(np.percentile(a, 99)) if len(a) else float("nan"),
+        "max_ms": float(a.max()) if len(a) else float("nan"),
+    }
 
 
 def main() -> int:
@@ -182,18 +213,23 @@ def main() -> int:
         write_tlog(data, tlog)
         best = {"parse_buffer": float("inf"), "ours": float("inf"), "recv_match": float("inf")}
         counts = {}
-        for _ in range(args.repeat):   # interleaved, best of N: the machine is shared and noisy
-            for name, fn in (("parse_buffer", lambda: bench_parse_buffer(parts)),
-                             ("ours", lambda: bench_ours(parts)),
-                             ("recv_match", lambda: bench_recv_match(tlog))):
+        for _ in range(args.repeat):  # interleaved, best of N: the machine is shared and noisy
+            for name, fn in (
+                ("parse_buffer", lambda: bench_parse_buffer(parts)),
+                ("ours", lambda: bench_ours(parts)),
+                ("recv_match", lambda: bench_recv_match(tlog)),
+            ):
                 dt, n = fn()
                 best[name] = min(best[name], dt)
                 counts[name] = n
     rate = {k: counts[k] / v for k, v in best.items()}
     print(f"Offline ingest, {args.messages} MAVLink 2 messages ({len(data)} bytes), best of {args.repeat}")
     print(f"{'contender':<44}{'msg/s':>12}{'ours / it':>12}")
-    print(f"{'pymavlink parse_buffer (frames only)':<44}{rate['parse_buffer']:>12,.0f}{rate['ours'] / rate['parse_buffer']:>12.2f}")
-    print(f"{'pymavlink mavutil tlog recv_match loop':<44}{rate['recv_match']:>12,.0f}{rate['ours'] / rate['recv_match']:>12.2f}")
+    for name, key in (
+        ("pymavlink parse_buffer (frames only)", "parse_buffer"),
+        ("pymavlink mavutil tlog recv_match loop", "recv_match"),
+    ):
+        print(f"{name:<44}{rate[key]:>12,.0f}{rate['ours'] / rate[key]:>12.2f}")
     print(f"{'ours: MavlinkReceiver.feed -> Measurement':<44}{rate['ours']:>12,.0f}{1.0:>12.2f}")
     ok = rate["ours"] / rate["parse_buffer"] >= 0.8
     print(f"target ours >= 0.80x parse_buffer: {'met' if ok else 'NOT met'}")
@@ -201,8 +237,10 @@ def main() -> int:
     if args.live_seconds > 0:
         r = asyncio.run(live(args.live_rate, args.live_seconds))
         print(f"\nLive UDP loopback, {args.live_rate:.0f} msg/s for {args.live_seconds:g} s")
-        print(f"sent {r['sent']}, received {r['received']}, sequence loss {r['seq_lost']}, "
-              f"latency send->record p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms, max {r['max_ms']:.2f} ms")
+        print(
+            f"sent {r['sent']}, received {r['received']}, sequence loss {r['seq_lost']}, "
+            f"latency send->record p50 {r['p50_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms, max {r['max_ms']:.2f} ms"
+        )
         live_ok = r["received"] == r["sent"] and r["seq_lost"] == 0 and r["p99_ms"] < 5.0
         print(f"target zero loss and p99 < 5 ms: {'met' if live_ok else 'NOT met'}")
     return 0

@@ -8,6 +8,7 @@ seconds per wall second. Target (issue 3): >= 50x real time for the quadcopter.
 The baseline of the ratio is real time itself (1.0x), so the machine's noise
 shows only in the spread over repeats, printed beside the best.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,8 +30,10 @@ def main() -> int:
     ok = True
     with tempfile.TemporaryDirectory() as d:
         for vehicle in ("quad", "coax", "heli3dof"):
-            runs = [run_fast(Scenario(vehicle, seed=1, duration=args.seconds), Path(d) / "b.tlog", Path(d) / "b.csv")
-                    for _ in range(args.repeat)]
+            runs = [
+                run_fast(Scenario(vehicle, seed=1, duration=args.seconds), Path(d) / "b.tlog", Path(d) / "b.csv")
+                for _ in range(args.repeat)
+            ]
             best = max(r.speedup for r in runs)
             worst = min(r.speedup for r in runs)
             target = ">= 50x" if vehicle == "quad" else "-"

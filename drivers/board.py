@@ -5,6 +5,7 @@ return :class:`Measurement` records; damage is counted, never fatal.
 :class:`BoardLink` runs either on a serial device through pyserial (reconnecting
 when the device returns) as an ``async for`` stream, like the MAVLink link.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -32,9 +33,9 @@ class BoardCounters:
     by_type: Counter = field(default_factory=Counter)
     crc_errors: int = 0
     garbage_bytes: int = 0
-    unknown: int = 0         # unknown version or message id
+    unknown: int = 0  # unknown version or message id
     seq_lost: int = 0
-    no_fix: int = 0          # NMEA fixes marked invalid (counted, not passed on)
+    no_fix: int = 0  # NMEA fixes marked invalid (counted, not passed on)
 
 
 class BinaryBoardReceiver:
@@ -81,9 +82,9 @@ class BinaryBoardReceiver:
             if end > n:
                 break
             crc = buf[end - 2] | buf[end - 1] << 8
-            if bp.crc16_ccitt(buf[pos + 2:end - 2]) != crc:
+            if bp.crc16_ccitt(buf[pos + 2 : end - 2]) != crc:
                 c.crc_errors += 1
-                pos += 1                   # the length byte itself may be what was damaged
+                pos += 1  # the length byte itself may be what was damaged
                 continue
             if self._last_seq is not None:
                 gap = (seq - self._last_seq - 1) & 0xFF
@@ -97,7 +98,7 @@ class BinaryBoardReceiver:
                 continue
             c.frames += 1
             c.by_type[spec[0]] += 1
-            self._decode(mid, spec[1].unpack(buf[pos + 6:end - 2]), t_rx, out)
+            self._decode(mid, spec[1].unpack(buf[pos + 6 : end - 2]), t_rx, out)
             pos = end
         self._buf = buf[pos:]
         return out
@@ -159,14 +160,14 @@ class NmeaReceiver:
             c.garbage_bytes += start
             end = buf.find(b"\n", start)
             if end < 0:
-                if len(buf) - start > 100:      # NMEA lines are at most 82 characters
+                if len(buf) - start > 100:  # NMEA lines are at most 82 characters
                     c.garbage_bytes += len(buf) - start
                     buf = b""
                 else:
                     buf = buf[start:]
                 break
             line = buf[start:end].strip()
-            buf = buf[end + 1:]
+            buf = buf[end + 1 :]
             self._line(line, t_rx, out)
         self._buf = buf
         return out
@@ -199,15 +200,15 @@ class NmeaReceiver:
         c.by_type[kind] += 1
 
     def _utc(self, hhmmss: str, t_rx: float) -> float:
-        date = self._date or dt.datetime.fromtimestamp(t_rx, dt.timezone.utc).date()
+        date = self._date or dt.datetime.fromtimestamp(t_rx, dt.UTC).date()
         h, m, s = int(hhmmss[0:2]), int(hhmmss[2:4]), float(hhmmss[4:])
-        t = dt.datetime(date.year, date.month, date.day, tzinfo=dt.timezone.utc).timestamp() + h * 3600 + m * 60 + s
-        if self._date is None and t - t_rx > 43200:     # receive clock past midnight, GPS not yet
+        t = dt.datetime(date.year, date.month, date.day, tzinfo=dt.UTC).timestamp() + h * 3600 + m * 60 + s
+        if self._date is None and t - t_rx > 43200:  # receive clock past midnight, GPS not yet
             t -= 86400
         return t
 
     def _gga(self, f, t_rx, out):
-        if f[6] in ("", "0"):                           # no fix
+        if f[6] in ("", "0"):  # no fix
             self.counters.no_fix += 1
             return
         lat, lon = _deg(f[2], f[3]), _deg(f[4], f[5])
@@ -221,14 +222,21 @@ class NmeaReceiver:
     def _rmc(self, f, t_rx, out):
         if f[9]:
             d = f[9]
-            yy = int(d[4:6])      # two-digit year: 80-99 are the 1900s (NMEA's own convention)
+            yy = int(d[4:6])  # two-digit year: 80-99 are the 1900s (NMEA's own convention)
             self._date = dt.date((1900 if yy >= 80 else 2000) + yy, int(d[2:4]), int(d[0:2]))
         if f[2] != "A":
             return
         sog = float(f[7] or 0) * _KNOTS
         cog = math.radians(float(f[8] or 0))
-        out.append(Measurement(self._utc(f[1], t_rx), Kind.VELOCITY_NED,
-                               np.array([sog * math.cos(cog), sog * math.sin(cog), math.nan]), self.source, t_rx))
+        out.append(
+            Measurement(
+                self._utc(f[1], t_rx),
+                Kind.VELOCITY_NED,
+                np.array([sog * math.cos(cog), sog * math.sin(cog), math.nan]),
+                self.source,
+                t_rx,
+            )
+        )
 
 
 def _xor(body: bytes) -> int:
@@ -241,7 +249,7 @@ def _xor(body: bytes) -> int:
 def _deg(value: str, hemi: str) -> float:
     """NMEA ddmm.mmmm / dddmm.mmmm to signed degrees."""
     dot = value.index(".")
-    deg = float(value[:dot - 2]) + float(value[dot - 2:]) / 60.0
+    deg = float(value[: dot - 2]) + float(value[dot - 2 :]) / 60.0
     return -deg if hemi in ("S", "W") else deg
 
 
@@ -252,8 +260,9 @@ class BoardLink:
     returns; ``lost_after`` seconds without a valid frame make it lost.
     """
 
-    def __init__(self, url: str | Endpoint, protocol: str = "binary", *, name: str | None = None,
-                 lost_after: float = 1.0) -> None:
+    def __init__(
+        self, url: str | Endpoint, protocol: str = "binary", *, name: str | None = None, lost_after: float = 1.0
+    ) -> None:
         self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
         if protocol not in ("binary", "nmea"):
             raise ValueError(f"unknown board protocol {protocol!r}; use binary or nmea")

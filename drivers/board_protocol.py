@@ -31,6 +31,7 @@ Receivers resynchronise after garbage by searching for the next sync pair; a
 frame whose CRC fails is skipped one byte at a time (its length byte may be the
 damaged one). Unknown versions and message ids are counted, never fatal.
 """
+
 from __future__ import annotations
 
 import struct
@@ -52,6 +53,7 @@ PAYLOADS: dict[int, tuple[str, struct.Struct]] = {
     POWER: ("POWER", struct.Struct("<I2f")),
     MOTORS: ("MOTORS", struct.Struct("<I2f")),
 }
+
 
 def crc16_ccitt(data: bytes) -> int:
     """CRC-16/CCITT-FALSE (``fastcrc``'s ibm_3740; check value 0x29B1 for b"123456789")."""

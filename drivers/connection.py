@@ -11,6 +11,7 @@
                            ``COM3,115200``); reconnects when the device returns
 =========================  =================================================
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ class ConnectionStringError(ValueError):
 
 @dataclass(frozen=True)
 class Endpoint:
-    scheme: str            # 'udpin' | 'udpout' | 'tcp' | 'tcpin' | 'serial'
+    scheme: str  # 'udpin' | 'udpout' | 'tcp' | 'tcpin' | 'serial'
     host: str = ""
     port: int = 0
     device: str = ""
@@ -64,7 +65,8 @@ def parse_connection(text: str) -> Endpoint:
         return _serial(dev, baud, text)
     raise ConnectionStringError(
         f"{text!r}: unknown connection; use udpin:HOST:PORT, udpout:HOST:PORT, "
-        "tcp:HOST:PORT, tcpin:HOST:PORT or /dev/DEVICE,BAUD")
+        "tcp:HOST:PORT, tcpin:HOST:PORT or /dev/DEVICE,BAUD"
+    )
 
 
 def _serial(dev: str, baud: str, text: str) -> Endpoint:

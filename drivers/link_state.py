@@ -1,4 +1,5 @@
 """Link state, shared by every live source (MAVLink links, sensor boards)."""
+
 from __future__ import annotations
 
 import enum
@@ -6,7 +7,7 @@ from dataclasses import dataclass
 
 
 class LinkState(enum.Enum):
-    CONNECTING = "connecting"   # opened, nothing valid received yet
+    CONNECTING = "connecting"  # opened, nothing valid received yet
     ALIVE = "alive"
     LOST = "lost"
     CLOSED = "closed"
@@ -15,5 +16,5 @@ class LinkState(enum.Enum):
 @dataclass(frozen=True)
 class LinkEvent:
     state: LinkState
-    t: float        # wall-clock time of the change
+    t: float  # wall-clock time of the change
     reason: str

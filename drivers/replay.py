@@ -14,15 +14,16 @@ Logs of other formats (DataFlash, Crazyflie) are decoded whole by their
 readers; ``Replay(path, measurements=...)`` paces those records by their
 vehicle time with the same controls.
 """
+
 from __future__ import annotations
 
 import asyncio
 import enum
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class ReplayState(enum.Enum):
 @dataclass(frozen=True)
 class ReplayStatus:
     state: ReplayState
-    position: float      # seconds into the recording
+    position: float  # seconds into the recording
     duration: float
     speed: float
 
@@ -104,13 +105,21 @@ class _PassThrough:
 class Replay:
     """Paced playback of a tlog (through the live receive path) or of a loaded log's measurements."""
 
-    def __init__(self, path: str | Path, *, speed: float = 1.0, loop: bool = False,
-                 start: float = 0.0, name: str = "replay", buffer: int = 100_000,
-                 measurements: list[Measurement] | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        speed: float = 1.0,
+        loop: bool = False,
+        start: float = 0.0,
+        name: str = "replay",
+        buffer: int = 100_000,
+        measurements: list[Measurement] | None = None,
+    ) -> None:
         if measurements is None:
-            self.index = TlogIndex.scan(path)      # raises TlogError with a one-line message
+            self.index = TlogIndex.scan(path)  # raises TlogError with a one-line message
             self.receiver = MavlinkReceiver(name)
-        else:                                      # DataFlash, Crazyflie: already decoded by their reader
+        else:  # DataFlash, Crazyflie: already decoded by their reader
             self.index = _MeasurementIndex(measurements)
             self.receiver = _PassThrough()
         self.path = Path(path)
@@ -123,7 +132,7 @@ class Replay:
         self._playing = asyncio.Event()
         self._playing.set()
         self._state = ReplayState.PLAYING
-        self._anchor: tuple[float, float] | None = None   # (wall clock, recording time)
+        self._anchor: tuple[float, float] | None = None  # (wall clock, recording time)
 
     # -- information ---------------------------------------------------------------
     @property

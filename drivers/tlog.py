@@ -13,6 +13,7 @@ byte fraction, which breaks across recording gaps. Corrupt stretches are
 skipped by resynchronising on the next plausible record and counted; a
 truncated last record is tolerated and reported.
 """
+
 from __future__ import annotations
 
 import os
@@ -28,6 +29,7 @@ from pymavlink.generator.mavcrc import x25crc
 
 def mcrf4xx(b: bytes) -> int:
     return x25crc(b).crc
+
 
 _TS = struct.Struct(">Q")
 #: Timestamps outside 2000-01-01 .. 2100-01-01 cannot be a tlog's.
@@ -85,7 +87,7 @@ class TlogWriter:
 def _frame_length(data, pos: int) -> int:
     """Length of the MAVLink frame starting at ``pos`` (0 if no frame starts there)."""
     if pos + 3 > len(data):
-        return 0 if pos >= len(data) or data[pos] not in (0xFD, 0xFE) else 10**9   # cut short: truncated
+        return 0 if pos >= len(data) or data[pos] not in (0xFD, 0xFE) else 10**9  # cut short: truncated
     magic = data[pos]
     if magic == 0xFE:
         return 8 + data[pos + 1]
@@ -100,11 +102,11 @@ class TlogIndex:
 
     path: Path
     data: bytes
-    t: np.ndarray                 # receive time of each record [s since epoch]
-    offset: np.ndarray            # byte offset of each record's timestamp
-    length: np.ndarray            # frame length of each record
+    t: np.ndarray  # receive time of each record [s since epoch]
+    offset: np.ndarray  # byte offset of each record's timestamp
+    length: np.ndarray  # frame length of each record
     skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
-    truncated_at: int | None = None   # offset of an incomplete last record
+    truncated_at: int | None = None  # offset of an incomplete last record
 
     def __len__(self) -> int:
         return len(self.t)
@@ -128,10 +130,10 @@ class TlogIndex:
 
     def frame(self, i: int) -> bytes:
         o = int(self.offset[i]) + 8
-        return self.data[o:o + int(self.length[i])]
+        return self.data[o : o + int(self.length[i])]
 
     @classmethod
-    def scan(cls, path: str | os.PathLike) -> "TlogIndex":
+    def scan(cls, path: str | os.PathLike) -> TlogIndex:
         p = Path(path)
         try:
             data = p.read_bytes()
@@ -151,8 +153,13 @@ class TlogIndex:
             if pos + 11 <= n and last_ts is not None and abs(ts - last_ts) <= _RESYNC_WINDOW_US:
                 # Fast path (nearly every record): a frame follows, and so does the next record.
                 magic = data[pos + 8]
-                flen = 8 + data[pos + 9] if magic == 0xFE else \
-                    12 + data[pos + 9] + (13 if data[pos + 10] & 0x01 else 0) if magic == 0xFD else 0
+                flen = (
+                    8 + data[pos + 9]
+                    if magic == 0xFE
+                    else 12 + data[pos + 9] + (13 if data[pos + 10] & 0x01 else 0)
+                    if magic == 0xFD
+                    else 0
+                )
                 nxt = pos + 8 + flen
                 if flen and nxt + 11 <= n:
                     nm = data[nxt + 8]
@@ -164,8 +171,7 @@ class TlogIndex:
                         pos = nxt
                         continue
             flen = _frame_length(data, pos + 8)
-            ok = flen and _TS_MIN_US <= ts <= _TS_MAX_US and (
-                last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US)
+            ok = flen and _TS_MIN_US <= ts <= _TS_MAX_US and (last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US)
             if ok and pos + 8 + flen > n:
                 truncated_at = pos
                 break
@@ -175,8 +181,9 @@ class TlogIndex:
                 nxt = pos + 8 + flen
                 if nxt + 9 <= n:
                     nts = unpack(data, nxt)[0]
-                    ok = (_frame_length(data, nxt + 8) and abs(nts - ts) <= _RESYNC_WINDOW_US) \
-                        or _frame_crc_ok(data, pos + 8, flen)   # damage follows a good frame
+                    ok = (_frame_length(data, nxt + 8) and abs(nts - ts) <= _RESYNC_WINDOW_US) or _frame_crc_ok(
+                        data, pos + 8, flen
+                    )  # damage follows a good frame
                 elif nxt != n:
                     ok = nxt + 8 >= n  # trailing partial timestamp: truncated next record
                     if ok:
@@ -206,9 +213,15 @@ class TlogIndex:
                 truncated_at = pos
         if not ts_list:
             raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
-        return cls(p, data, np.array(ts_list, dtype=np.float64) * 1e-6,
-                   np.array(off_list, dtype=np.int64), np.array(len_list, dtype=np.int64),
-                   skipped, truncated_at)
+        return cls(
+            p,
+            data,
+            np.array(ts_list, dtype=np.float64) * 1e-6,
+            np.array(off_list, dtype=np.int64),
+            np.array(len_list, dtype=np.int64),
+            skipped,
+            truncated_at,
+        )
 
 
 def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
@@ -221,7 +234,7 @@ def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
     plen = data[pos + 1]
     if cls is None or pos + hlen + plen + 2 > len(data):
         return False
-    crc = mcrf4xx(bytes(data[pos + 1:pos + hlen + plen]) + bytes([cls.crc_extra]))
+    crc = mcrf4xx(bytes(data[pos + 1 : pos + hlen + plen]) + bytes([cls.crc_extra]))
     return crc == (data[pos + hlen + plen] | data[pos + hlen + plen + 1] << 8)
 
 

@@ -10,6 +10,7 @@ disappears (a USB radio unplugged, a pty closed) or the peer closes, they
 report ``on_disconnect`` and retry every ``retry_s`` until it is back. UDP has
 no connection; it simply resumes when datagrams arrive again.
 """
+
 from __future__ import annotations
 
 import abc
@@ -18,7 +19,7 @@ import errno
 import os
 import socket
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import serial
 
@@ -43,7 +44,7 @@ def close_watched_socket(sock: socket.socket | None) -> None:
     fd = sock.fileno()
     try:
         loop = asyncio.get_running_loop()
-    except RuntimeError:          # closed outside the event loop: nothing watches it
+    except RuntimeError:  # closed outside the event loop: nothing watches it
         loop = None
     if loop is not None and fd >= 0:
         loop.remove_reader(fd)
@@ -131,7 +132,7 @@ class UdpTransport(Transport):
                 data, addr = sock.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 break
-            except OSError:          # ICMP errors surface here on Linux: harmless
+            except OSError:  # ICMP errors surface here on Linux: harmless
                 self.send_errors += 1
                 break
             if udpin:
@@ -139,7 +140,7 @@ class UdpTransport(Transport):
             # each datagram is handed on as it is read, with its own receive
             # time: a burst does not make its first frame wait for its last
             on_data(data, time.time())
-            if self._sock is None:   # closed by a callback
+            if self._sock is None:  # closed by a callback
                 break
 
     def send(self, data: bytes) -> None:
@@ -165,7 +166,7 @@ class UdpTransport(Transport):
 
 # --------------------------------------------------------------------- TCP
 class _Stream(asyncio.Protocol):
-    def __init__(self, owner: "TcpTransport") -> None:
+    def __init__(self, owner: TcpTransport) -> None:
         self.owner = owner
         self.transport: asyncio.Transport | None = None
 

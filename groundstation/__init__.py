@@ -3,4 +3,5 @@
 Core: the measurement record, sessions (recording, replay), the estimation
 loop and models, diagnosis, and the ``groundstation`` command line.
 """
+
 __version__ = "0.1.0"

@@ -1,4 +1,5 @@
 """``python -m groundstation``: the same command line as the ``groundstation`` script."""
+
 import sys
 
 from groundstation.app.cli import main

@@ -4,6 +4,7 @@ Written from the protocol's specification (README, ``drivers/board_protocol``),
 as a microcontroller's firmware would be; the tests check both sides against
 hand-computed frames.
 """
+
 from __future__ import annotations
 
 import datetime as dt
@@ -54,7 +55,7 @@ class BoardEncoder:
             if s.sensor == "encoders":
                 counts = [int(round(a / (2 * math.pi) * self.cpr)) for a in s.values]
                 return [f(0x04, _ENC.pack(tu, *counts, self.cpr))]
-            if s.sensor == "actuators":      # the board measures the motor supply
+            if s.sensor == "actuators":  # the board measures the motor supply
                 return [f(0x05, _POWER.pack(tu, 12.0, 0.0))]
             return []
         if s.sensor == "gps":
@@ -63,7 +64,7 @@ class BoardEncoder:
 
     def nmea(self, s: Sample) -> list[bytes]:
         lat, lon, alt, vn, ve, vd, h_acc, _ = s.values
-        when = dt.datetime.fromtimestamp(self.epoch + s.t, dt.timezone.utc)
+        when = dt.datetime.fromtimestamp(self.epoch + s.t, dt.UTC)
         hms = when.strftime("%H%M%S") + f".{when.microsecond // 10000:02d}"
         la = f"{int(abs(lat)):02d}{(abs(lat) % 1) * 60:07.4f},{'N' if lat >= 0 else 'S'}"
         lo = f"{int(abs(lon)):03d}{(abs(lon) % 1) * 60:07.4f},{'E' if lon >= 0 else 'W'}"

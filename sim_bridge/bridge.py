@@ -21,6 +21,7 @@ the sum and difference voltages), and it falls back to its own autopilot
 Link faults on demand (:class:`LinkFaults`): random frame loss, corrupted
 bytes, loss bursts, and :meth:`SimBridge.disconnect` for a while.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -62,16 +63,25 @@ MAX_TILT = math.radians(30.0)
 
 @dataclass
 class LinkFaults:
-    loss: float = 0.0          # probability a frame is lost
-    corrupt: float = 0.0       # probability a frame has one byte flipped
-    burst_every: float = 0.0   # mean seconds between loss bursts (0: none)
-    burst_len: float = 0.0     # seconds each burst lasts
+    loss: float = 0.0  # probability a frame is lost
+    corrupt: float = 0.0  # probability a frame has one byte flipped
+    burst_every: float = 0.0  # mean seconds between loss bursts (0: none)
+    burst_len: float = 0.0  # seconds each burst lasts
 
 
 class SimBridge:
-    def __init__(self, scenario: Scenario, *, udp_to: tuple[str, int] | None = None,
-                 pty: PtyPort | None = None, board: PtyPort | None = None, faults: LinkFaults | None = None,
-                 speed: float = 1.0, command_timeout: float = 0.5, sysid: int = 1) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        udp_to: tuple[str, int] | None = None,
+        pty: PtyPort | None = None,
+        board: PtyPort | None = None,
+        faults: LinkFaults | None = None,
+        speed: float = 1.0,
+        command_timeout: float = 0.5,
+        sysid: int = 1,
+    ) -> None:
         self.scenario = scenario
         self.sim = Simulator(scenario, command_timeout=command_timeout)
         self.sim.keep_truth = False
@@ -98,7 +108,7 @@ class SimBridge:
         self._burst_until = 0.0
         self._next_burst = math.inf
         self._stop = asyncio.Event()
-        self.truth_sink = None            # callable(row) for a live truth sidecar
+        self.truth_sink = None  # callable(row) for a live truth sidecar
 
     # -- transports --------------------------------------------------------------------------
     async def open(self) -> None:
@@ -134,7 +144,7 @@ class SimBridge:
             data, addr = self._sock.recvfrom(65536)
         except (BlockingIOError, OSError):
             return
-        self.udp_to = addr          # answer whoever talks to us
+        self.udp_to = addr  # answer whoever talks to us
         self._incoming(data)
 
     def _send(self, frame: bytes) -> None:
@@ -149,7 +159,7 @@ class SimBridge:
         if self._sock is not None and self.udp_to is not None:
             try:
                 self._sock.sendto(frame, self.udp_to)
-            except OSError:          # no listener yet (ICMP refused) or buffer full: counted
+            except OSError:  # no listener yet (ICMP refused) or buffer full: counted
                 self.send_errors += 1
         if self.pty is not None:
             self.pty.write(frame)
@@ -276,7 +286,7 @@ class SimBridge:
         while not self._stop.is_set():
             target = t0 + (time.monotonic() - start) * self.speed
             lag = target - self.sim.t - MAX_CATCH_UP * self.speed
-            if lag > 0.0:                 # a stall: the world paused with the process
+            if lag > 0.0:  # a stall: the world paused with the process
                 start += lag / self.speed
                 target -= lag
             if duration is not None:
@@ -286,5 +296,5 @@ class SimBridge:
                 break
             try:
                 await asyncio.wait_for(self._stop.wait(), tick)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass

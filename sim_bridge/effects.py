@@ -16,6 +16,7 @@ The names are the catalogue's canonical names, shared with the diagnosis
 which effects exist and which are *declared* to the ground station; an
 undeclared effect reaches it by no channel at all (see :mod:`sim_bridge.scenario`).
 """
+
 from __future__ import annotations
 
 import math
@@ -31,7 +32,7 @@ from groundstation.core.frames import a_ib
 class Param:
     default: float
     unit: str
-    low: float                 # realistic range
+    low: float  # realistic range
     high: float
     help: str = ""
 
@@ -46,8 +47,10 @@ class Effect:
     def __init__(self, **kw) -> None:
         unknown = set(kw) - set(self.params) - self.extra_keys()
         if unknown:
-            raise ValueError(f"effect {self.name}: unknown parameter(s) {', '.join(sorted(unknown))}; "
-                             f"known: {', '.join(self.params) or 'none'}")
+            raise ValueError(
+                f"effect {self.name}: unknown parameter(s) {', '.join(sorted(unknown))}; "
+                f"known: {', '.join(self.params) or 'none'}"
+            )
         self.values = {k: float(kw.get(k, p.default)) for k, p in self.params.items()}
         self.delay = {}
         self.setup(kw)
@@ -106,8 +109,11 @@ def register(cls):
 class AccelBias(Effect):
     name = "accel_bias"
     equation = "f_meas = f + b  (body FRD)"
-    params = {"x": Param(0.0, "m/s^2", -0.5, 0.5), "y": Param(0.0, "m/s^2", -0.5, 0.5),
-              "z": Param(0.2, "m/s^2", -0.5, 0.5, "a real IMU's z bias is typically 0.05-0.3")}
+    params = {
+        "x": Param(0.0, "m/s^2", -0.5, 0.5),
+        "y": Param(0.0, "m/s^2", -0.5, 0.5),
+        "z": Param(0.2, "m/s^2", -0.5, 0.5, "a real IMU's z bias is typically 0.05-0.3"),
+    }
 
     def setup(self, kw):
         self.b = np.array([self.x, self.y, self.z])
@@ -130,8 +136,11 @@ class AccelScale(Effect):
 class GyroBias(Effect):
     name = "gyro_bias"
     equation = "w_meas = w + b  (body FRD)"
-    params = {"x": Param(0.01, "rad/s", -0.05, 0.05), "y": Param(0.0, "rad/s", -0.05, 0.05),
-              "z": Param(0.0, "rad/s", -0.05, 0.05)}
+    params = {
+        "x": Param(0.01, "rad/s", -0.05, 0.05),
+        "y": Param(0.0, "rad/s", -0.05, 0.05),
+        "z": Param(0.0, "rad/s", -0.05, 0.05),
+    }
 
     def setup(self, kw):
         self.b = np.array([self.x, self.y, self.z])
@@ -144,8 +153,10 @@ class GyroBias(Effect):
 class BaroBiasDrift(Effect):
     name = "baro_bias_drift"
     equation = "h_err(t) = rate * t + sigma * W(t)  (W: standard Wiener process)"
-    params = {"rate": Param(0.02, "m/s", -0.15, 0.15, "Crazyflie logs drift 0.09-0.13 m/s in flight"),
-              "sigma": Param(0.05, "m/sqrt(s)", 0.0, 0.3)}
+    params = {
+        "rate": Param(0.02, "m/s", -0.15, 0.15, "Crazyflie logs drift 0.09-0.13 m/s in flight"),
+        "sigma": Param(0.05, "m/sqrt(s)", 0.0, 0.3),
+    }
 
     def setup(self, kw):
         self.err = 0.0
@@ -171,8 +182,10 @@ class BaroThermal(Effect):
 class BaroThrust(Effect):
     name = "baro_thrust"
     equation = "h_err = k * LPF(throttle),  LPF: first order, time constant tc (rotor wash)"
-    params = {"k": Param(2.0, "m per unit throttle", -8.0, 8.0, "Crazyflie: +4 m jump at spin-up"),
-              "tc": Param(0.5, "s", 0.05, 3.0)}
+    params = {
+        "k": Param(2.0, "m per unit throttle", -8.0, 8.0, "Crazyflie: +4 m jump at spin-up"),
+        "tc": Param(0.5, "s", 0.05, 3.0),
+    }
 
     def setup(self, kw):
         self.lp = 0.0
@@ -188,8 +201,10 @@ class BaroThrust(Effect):
 class BaroGroundEffect(Effect):
     name = "baro_ground_effect"
     equation = "h_err = A * exp(-h / h0) while the rotors run (pressure field near the ground)"
-    params = {"A": Param(-1.5, "m", -3.0, 0.0, "ArduPilot underpowered.log dips -2.7 m at spin-up"),
-              "h0": Param(0.5, "m", 0.2, 1.5)}
+    params = {
+        "A": Param(-1.5, "m", -3.0, 0.0, "ArduPilot underpowered.log dips -2.7 m at spin-up"),
+        "h0": Param(0.5, "m", 0.2, 1.5),
+    }
 
     def baro_alt(self, sim):
         if not sim.vehicle.motors_running:
@@ -203,10 +218,18 @@ class BaroAirflow(Effect):
     climb or descent moves past the static port lowers the pressure it reads by C q, q = rho v^2 / 2,
     so the baro reads high by C v^2 / (2 g) (ArduPilot's BARO1_WCF_UP/DN model it the same way for
     the body's vertical axis; the README's "outside the catalogue")."""
+
     name = "baro_airflow"
     equation = "h_err = k * vz^2  (static-port error from the vertical airflow, k = C / (2 g))"
-    params = {"k": Param(0.1, "m/(m/s)^2", 0.0, 0.3, "pressure coefficient C = 2 g k: 0-6; "
-                                                      "1-2 m in fast descents on poorly ported airframes")}
+    params = {
+        "k": Param(
+            0.1,
+            "m/(m/s)^2",
+            0.0,
+            0.3,
+            "pressure coefficient C = 2 g k: 0-6; 1-2 m in fast descents on poorly ported airframes",
+        )
+    }
 
     def baro_alt(self, sim):
         return self.k * float(sim.vehicle.kin.vel[2]) ** 2
@@ -216,6 +239,7 @@ class BaroAirflow(Effect):
 class RangeTilt(Effect):
     """Always physical: the range sensor reads the slant distance. The effect's
     presence in a scenario only says whether the ground station is told."""
+
     name = "range_tilt"
     equation = "d = h / (cos(phi) cos(theta))  (always simulated; declaring it tells the estimator)"
     params = {}
@@ -258,16 +282,18 @@ class SensorDelay(Effect):
 class ThrustVoltage(Effect):
     name = "thrust_voltage"
     equation = "thrust = thrust_nominal * (V / V_ref)^n  (no ESC voltage compensation)"
-    params = {"n": Param(2.0, "1", 1.0, 2.5, "thrust ~ rpm^2 ~ V^2"),
-              "v_ref": Param(0.0, "V", 0.0, 30.0, "0: a full pack's voltage under hover load")}
+    params = {
+        "n": Param(2.0, "1", 1.0, 2.5, "thrust ~ rpm^2 ~ V^2"),
+        "v_ref": Param(0.0, "V", 0.0, 30.0, "0: a full pack's voltage under hover load"),
+    }
 
     def thrust_factor(self, sim):
         v = getattr(sim.vehicle, "voltage", None)
         if v is None:
             return 1.0
-        if self.values["v_ref"] <= 0.0:   # the voltage the vehicle was tuned at
+        if self.values["v_ref"] <= 0.0:  # the voltage the vehicle was tuned at
             p = sim.vehicle.p
-            self.values["v_ref"] = p.n_cells * p.v_full - p.r_int * (p.i_idle + p.i_max * p.hover_throttle ** 2)
+            self.values["v_ref"] = p.n_cells * p.v_full - p.r_int * (p.i_idle + p.i_max * p.hover_throttle**2)
         return (v / self.v_ref) ** self.n
 
 
@@ -287,7 +313,7 @@ class ActuatorLag(Effect):
     name = "actuator_lag"
     equation = "u_applied' = (u_cmd - u_applied) / tc  (first order, on every actuator input)"
     params = {"tc": Param(0.08, "s", 0.01, 0.3)}
-    in_the_motors = True       # ESC and rotor spin-up: the logged outputs are the commands
+    in_the_motors = True  # ESC and rotor spin-up: the logged outputs are the commands
 
     def setup(self, kw):
         self.state = None
@@ -307,8 +333,11 @@ class ActuatorLag(Effect):
 class ImuMisalignment(Effect):
     name = "imu_misalignment"
     equation = "f_meas = C f,  w_meas = C w,  C = A_IB(roll, pitch, yaw)^T of the mounting error"
-    params = {"roll": Param(2.0, "deg", -5.0, 5.0), "pitch": Param(-1.5, "deg", -5.0, 5.0),
-              "yaw": Param(0.0, "deg", -5.0, 5.0)}
+    params = {
+        "roll": Param(2.0, "deg", -5.0, 5.0),
+        "pitch": Param(-1.5, "deg", -5.0, 5.0),
+        "yaw": Param(0.0, "deg", -5.0, 5.0),
+    }
 
     def setup(self, kw):
         self.C = a_ib(math.radians(self.roll), math.radians(self.pitch), math.radians(self.yaw)).T

@@ -8,6 +8,7 @@
 * ``OUT.truth.json``: the whole scenario, undeclared effects included (scoring only);
 * ``OUT.declared.json`` beside the log: what the ground station may be told.
 """
+
 from __future__ import annotations
 
 import csv
@@ -44,8 +45,9 @@ def declared_path(log: Path) -> Path:
     return log.with_suffix(".declared.json")
 
 
-def run_fast(scenario: Scenario, log: str | Path, truth: str | Path | None = None,
-             duration: float | None = None) -> FastResult:
+def run_fast(
+    scenario: Scenario, log: str | Path, truth: str | Path | None = None, duration: float | None = None
+) -> FastResult:
     log = Path(log)
     log.parent.mkdir(parents=True, exist_ok=True)
     seconds = scenario.duration if duration is None else duration

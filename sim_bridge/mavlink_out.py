@@ -20,6 +20,7 @@ simulator's clock. Frames are packed here with pymavlink's own definitions
 object per sample costs more than the whole simulation step. MAVLink 2 payloads
 are zero-truncated as the protocol prescribes. Sequence numbers are real.
 """
+
 from __future__ import annotations
 
 import math
@@ -49,8 +50,13 @@ class FramePacker:
         if s is None:
             cls = mavlink.mavlink_map[getattr(mavlink, f"MAVLINK_MSG_ID_{name}")]
             order = tuple(zip(cls.ordered_fieldnames, cls.lengths))
-            s = self._specs[name] = (cls.id, cls.unpacker.pack, bytes([cls.crc_extra]), order,
-                                     any(n > 1 for _, n in order))
+            s = self._specs[name] = (
+                cls.id,
+                cls.unpacker.pack,
+                bytes([cls.crc_extra]),
+                order,
+                any(n > 1 for _, n in order),
+            )
         return s
 
     def pack(self, name: str, **fields) -> bytes:
@@ -63,8 +69,7 @@ class FramePacker:
         else:
             vals = [fields.get(f, 0) for f, _ in order]
         payload = pack(*vals).rstrip(b"\x00") or b"\x00"
-        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid,
-                        msgid & 0xFFFF, msgid >> 16)
+        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
         self.seq = (self.seq + 1) & 0xFF
         body = hdr[1:] + payload
         crc = crc16.mcrf4xx(extra, crc16.mcrf4xx(body))
@@ -74,8 +79,7 @@ class FramePacker:
         """As :meth:`pack`, with every value given in wire order (the hot path)."""
         msgid, pack, extra, _, _ = self._spec(name)
         payload = pack(*values).rstrip(b"\x00") or b"\x00"
-        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid,
-                        msgid & 0xFFFF, msgid >> 16)
+        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
         self.seq = (self.seq + 1) & 0xFF
         body = hdr[1:] + payload
         return hdr[:1] + body + _CRC.pack(crc16.mcrf4xx(extra, crc16.mcrf4xx(body)))
@@ -91,9 +95,13 @@ class FramePacker:
 #: The message each sensor stream is sent as, hence requested by (SET_MESSAGE_INTERVAL);
 #: a request for any other message is answered UNSUPPORTED.
 STREAM_OF_MESSAGE = {
-    "HIGHRES_IMU": "imu", "SCALED_PRESSURE": "baro",
-    "DISTANCE_SENSOR": "range", "GPS_RAW_INT": "gps", "ATTITUDE": "attitude",
-    "SERVO_OUTPUT_RAW": "actuators", "SYS_STATUS": "battery",
+    "HIGHRES_IMU": "imu",
+    "SCALED_PRESSURE": "baro",
+    "DISTANCE_SENSOR": "range",
+    "GPS_RAW_INT": "gps",
+    "ATTITUDE": "attitude",
+    "SERVO_OUTPUT_RAW": "actuators",
+    "SYS_STATUS": "battery",
 }
 
 
@@ -109,45 +117,97 @@ class MavlinkEncoder:
         return getattr(self, "_" + s.sensor)(s)
 
     def heartbeat(self, armed: bool) -> bytes:
-        mav_type = {"quad": mavlink.MAV_TYPE_QUADROTOR, "coax": mavlink.MAV_TYPE_COAXIAL,
-                    "heli3dof": mavlink.MAV_TYPE_HELICOPTER}[self.vehicle]
+        mav_type = {
+            "quad": mavlink.MAV_TYPE_QUADROTOR,
+            "coax": mavlink.MAV_TYPE_COAXIAL,
+            "heli3dof": mavlink.MAV_TYPE_HELICOPTER,
+        }[self.vehicle]
         base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0)
         state = mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
-        return self.packer.pack("HEARTBEAT", type=mav_type, autopilot=mavlink.MAV_AUTOPILOT_GENERIC,
-                                base_mode=base, custom_mode=0, system_status=state, mavlink_version=3)
+        return self.packer.pack(
+            "HEARTBEAT",
+            type=mav_type,
+            autopilot=mavlink.MAV_AUTOPILOT_GENERIC,
+            base_mode=base,
+            custom_mode=0,
+            system_status=state,
+            mavlink_version=3,
+        )
 
     def _imu(self, s):
         v = s.values
         # wire order: time_usec, acc xyz, gyro xyz, mag xyz, abs/diff pressure, pressure_alt,
         # temperature, fields_updated (accel + gyro), id
-        return [self.packer.pack_ordered("HIGHRES_IMU", (int(round(s.t * 1e6)), v[0], v[1], v[2], v[3], v[4], v[5],
-                                                          0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0x3F, 0))]
+        return [
+            self.packer.pack_ordered(
+                "HIGHRES_IMU",
+                (int(round(s.t * 1e6)), v[0], v[1], v[2], v[3], v[4], v[5], 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0x3F, 0),
+            )
+        ]
 
     def _baro(self, s):
         p, temp = s.values
         self._last_baro_alt = float(altitude_at(p))
-        return [self.packer.pack("SCALED_PRESSURE", time_boot_ms=int(round(s.t * 1e3)), press_abs=p / 100.0,
-                                 temperature=int(round((temp - 273.15) * 100)))]
+        return [
+            self.packer.pack(
+                "SCALED_PRESSURE",
+                time_boot_ms=int(round(s.t * 1e3)),
+                press_abs=p / 100.0,
+                temperature=int(round((temp - 273.15) * 100)),
+            )
+        ]
 
     def _range(self, s):
         d = s.values[0]
-        return [self.packer.pack("DISTANCE_SENSOR", time_boot_ms=int(round(s.t * 1e3)), min_distance=5,
-                                 max_distance=400, current_distance=max(0, min(65535, int(round(d * 100)))),
-                                 type=mavlink.MAV_DISTANCE_SENSOR_LASER, id=0,
-                                 orientation=mavlink.MAV_SENSOR_ROTATION_PITCH_270, covariance=1)]
+        return [
+            self.packer.pack(
+                "DISTANCE_SENSOR",
+                time_boot_ms=int(round(s.t * 1e3)),
+                min_distance=5,
+                max_distance=400,
+                current_distance=max(0, min(65535, int(round(d * 100)))),
+                type=mavlink.MAV_DISTANCE_SENSOR_LASER,
+                id=0,
+                orientation=mavlink.MAV_SENSOR_ROTATION_PITCH_270,
+                covariance=1,
+            )
+        ]
 
     def _gps(self, s):
         lat, lon, alt, vn, ve, vd, h_acc, v_acc = s.values
-        return [self.packer.pack("GPS_RAW_INT", time_usec=int(round(s.t * 1e6)), fix_type=3,
-                                 lat=int(round(lat * 1e7)), lon=int(round(lon * 1e7)), alt=int(round(alt * 1e3)),
-                                 eph=80, epv=120, vel=int(round(math.hypot(vn, ve) * 100)),
-                                 cog=int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)), satellites_visible=12,
-                                 alt_ellipsoid=int(round(alt * 1e3)), h_acc=int(h_acc * 1e3), v_acc=int(v_acc * 1e3))]
+        return [
+            self.packer.pack(
+                "GPS_RAW_INT",
+                time_usec=int(round(s.t * 1e6)),
+                fix_type=3,
+                lat=int(round(lat * 1e7)),
+                lon=int(round(lon * 1e7)),
+                alt=int(round(alt * 1e3)),
+                eph=80,
+                epv=120,
+                vel=int(round(math.hypot(vn, ve) * 100)),
+                cog=int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)),
+                satellites_visible=12,
+                alt_ellipsoid=int(round(alt * 1e3)),
+                h_acc=int(h_acc * 1e3),
+                v_acc=int(v_acc * 1e3),
+            )
+        ]
 
     def _attitude(self, s):
         r, p, y, wx, wy, wz = s.values
-        return [self.packer.pack("ATTITUDE", time_boot_ms=int(round(s.t * 1e3)), roll=r, pitch=p, yaw=y,
-                                 rollspeed=wx, pitchspeed=wy, yawspeed=wz)]
+        return [
+            self.packer.pack(
+                "ATTITUDE",
+                time_boot_ms=int(round(s.t * 1e3)),
+                roll=r,
+                pitch=p,
+                yaw=y,
+                rollspeed=wx,
+                pitchspeed=wy,
+                yawspeed=wz,
+            )
+        ]
 
     def _encoders(self, s):
         p, e, lam = s.values
@@ -165,5 +225,11 @@ class MavlinkEncoder:
 
     def _battery(self, s):
         v, i, soc = s.values
-        return [self.packer.pack("SYS_STATUS", voltage_battery=int(round(v * 1000)),
-                                 current_battery=int(round(i * 100)), battery_remaining=int(round(soc * 100)))]
+        return [
+            self.packer.pack(
+                "SYS_STATUS",
+                voltage_battery=int(round(v * 1000)),
+                current_battery=int(round(i * 100)),
+                battery_remaining=int(round(soc * 100)),
+            )
+        ]

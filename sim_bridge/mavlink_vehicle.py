@@ -10,6 +10,7 @@ fallback), and keeps what the ground station sent.
 What it *says* is up to the caller (:meth:`send`); the physics that decide it
 live in the simulator's vehicle models.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -26,9 +27,17 @@ from .pty_port import PtyPort
 class MavlinkVehicle:
     """``ack``: 'accept', 'deny' or 'ignore' SET_MESSAGE_INTERVAL commands."""
 
-    def __init__(self, *, udp_to: tuple[str, int] | None = None, udp_listen: tuple[str, int] | None = None,
-                 pty: PtyPort | None = None, sysid: int = 1, compid: int = 1, mavlink1: bool = False,
-                 ack: str = "accept") -> None:
+    def __init__(
+        self,
+        *,
+        udp_to: tuple[str, int] | None = None,
+        udp_listen: tuple[str, int] | None = None,
+        pty: PtyPort | None = None,
+        sysid: int = 1,
+        compid: int = 1,
+        mavlink1: bool = False,
+        ack: str = "accept",
+    ) -> None:
         if sum(x is not None for x in (udp_to, udp_listen, pty)) != 1:
             raise ValueError("give exactly one of udp_to, udp_listen or pty")
         #: listen on this address and answer whoever wrote last (a vehicle the
@@ -43,7 +52,7 @@ class MavlinkVehicle:
         self._sock: socket.socket | None = None
         self.received: list = []
         self.received_types: Counter = Counter()
-        self.message_intervals: dict[int, float] = {}   # msg id -> interval [us]
+        self.message_intervals: dict[int, float] = {}  # msg id -> interval [us]
         self.data_stream_requests: list[tuple[int, int]] = []
         self.frames_sent = 0
         self.send_errors = 0
@@ -66,10 +75,12 @@ class MavlinkVehicle:
 
     def start_heartbeat(self, hz: float = 1.0) -> None:
         """Send HEARTBEAT periodically, as every autopilot does."""
+
         async def beat():
             while True:
                 self.heartbeat()
                 await asyncio.sleep(1.0 / hz)
+
         if self._hb_task is None:
             self._hb_task = asyncio.get_running_loop().create_task(beat())
 
@@ -98,10 +109,10 @@ class MavlinkVehicle:
     def send_bytes(self, data: bytes) -> None:
         if self._sock is not None:
             if self.udp_to is None:
-                return          # listening, and nobody has written yet
+                return  # listening, and nobody has written yet
             try:
                 self._sock.sendto(data, self.udp_to)
-            except OSError:          # no listener yet (ICMP refused) or buffer full: counted
+            except OSError:  # no listener yet (ICMP refused) or buffer full: counted
                 self.send_errors += 1
         elif self.pty is not None:
             self.pty.write(data)
@@ -113,9 +124,16 @@ class MavlinkVehicle:
         return data
 
     def heartbeat(self) -> bytes:
-        return self.send(mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
-            mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 0, mavlink.MAV_STATE_STANDBY, 3))
+        return self.send(
+            mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_QUADROTOR,
+                mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                0,
+                mavlink.MAV_STATE_STANDBY,
+                3,
+            )
+        )
 
     # -- receiving ---------------------------------------------------------------------
     def _udp_readable(self) -> None:
@@ -151,8 +169,10 @@ class MavlinkVehicle:
 
     async def wait_for(self, mtype: str, count: int = 1, timeout: float = 5.0) -> None:
         """Wait until ``count`` messages of ``mtype`` have come from the ground station."""
+
         async def _wait():
             while self.received_types[mtype] < count:
                 self._got.clear()
                 await self._got.wait()
+
         await asyncio.wait_for(_wait(), timeout)

@@ -25,6 +25,7 @@ sensors, not the autopilot) and on the *nominal* vehicle parameters, so an
 undeclared thrust effect shows up as it does in real logs: the throttle moves
 to compensate.
 """
+
 from __future__ import annotations
 
 import math
@@ -42,12 +43,12 @@ from .vehicles.quad import Quad, QuadCommand
 
 @dataclass
 class Setpoint:
-    height: float = 0.0        # [m], up
-    roll: float = 0.0          # [rad] (feed-forward tilt manoeuvres)
+    height: float = 0.0  # [m], up
+    roll: float = 0.0  # [rad] (feed-forward tilt manoeuvres)
     pitch: float = 0.0
     armed: bool = False
-    rate: float = 0.0          # [m/s] the height's rate and
-    accel: float = 0.0         # [m/s^2] acceleration, fed forward (only the ramps set them: FlightProfile._ramp)
+    rate: float = 0.0  # [m/s] the height's rate and
+    accel: float = 0.0  # [m/s^2] acceleration, fed forward (only the ramps set them: FlightProfile._ramp)
 
 
 FLIGHTS = ("standard", "thrust_test", "high")
@@ -60,7 +61,7 @@ class FlightProfile:
         if flight not in FLIGHTS:
             raise ValueError(f"unknown flight {flight!r}; use one of {', '.join(FLIGHTS)}")
         rng = np.random.default_rng(seed + 1000)
-        self.h1 = rng.uniform(1.0, 2.0)            # hover height
+        self.h1 = rng.uniform(1.0, 2.0)  # hover height
         self.h_hi = self.h1 + rng.uniform(0.8, 1.6)
         self.h_lo = max(0.6, self.h1 - rng.uniform(0.3, 0.8))
         self.sine_amp = rng.uniform(0.3, 0.7)
@@ -79,13 +80,13 @@ class FlightProfile:
     def __call__(self, t: float) -> Setpoint:
         land_at = max(20.0, self.duration - 7.0)
         if t < 2.0:
-            return Setpoint(0.0, armed=False)                 # ground idle, motors off
+            return Setpoint(0.0, armed=False)  # ground idle, motors off
         if t >= land_at + 4.0:
-            return Setpoint(0.0, armed=False)                 # landed
+            return Setpoint(0.0, armed=False)  # landed
         if t >= land_at:
             return Setpoint(self.h1 * max(0.0, 1 - (t - land_at) / 3.0) - 0.3, armed=True)
         if t < 5.0:
-            return Setpoint(self.h1 * (t - 2.0) / 3.0, armed=True)   # take-off ramp
+            return Setpoint(self.h1 * (t - 2.0) / 3.0, armed=True)  # take-off ramp
         # the middle repeats with a 40 s period for long runs
         u = (t - 5.0) % 40.0
         if u < 6.0:
@@ -98,9 +99,9 @@ class FlightProfile:
                 # without, overshoots into the ground
                 return self._ramp(u - 16.0, 5.0, self.h_lo, self.h_ground)
             if u < 25.0:
-                return Setpoint(self.h_ground, armed=True)             # low hover, in ground effect
+                return Setpoint(self.h_ground, armed=True)  # low hover, in ground effect
             sign = 1.0 if int((u - 25.0) / self.step_period) % 2 == 0 else -1.0
-            return Setpoint(self.h1 + sign * self.step, armed=True)     # throttle steps
+            return Setpoint(self.h1 + sign * self.step, armed=True)  # throttle steps
         if u < 28.0 and self.flight == "high":
             # the climb starts at 8 s, so that a 60 s flight's repeat (u = 40-48 before the landing at
             # 53 s) hovers instead of starting one
@@ -109,8 +110,9 @@ class FlightProfile:
             if u < 13.0:
                 return self._ramp(u - 8.0, 5.0, self.h1, self.h_top)
             if u < 22.0:
-                return Setpoint(self.h_top + self.sine_amp * math.sin(2 * math.pi * (u - 13.0) / self.sine_period),
-                                armed=True)
+                return Setpoint(
+                    self.h_top + self.sine_amp * math.sin(2 * math.pi * (u - 13.0) / self.sine_period), armed=True
+                )
             return self._ramp(min(u - 22.0, 5.0), 5.0, self.h_top, self.h1)
         if u < 28.0:
             return Setpoint(self.h1 + self.sine_amp * math.sin(2 * math.pi * (u - 16.0) / self.sine_period), armed=True)
@@ -122,8 +124,12 @@ class FlightProfile:
         """A cosine ramp from h0 to h1 over T seconds, its rate and acceleration fed forward."""
         w = math.pi / T
         dh = h1 - h0
-        return Setpoint(h0 + dh * (1 - math.cos(w * s)) / 2, armed=True,
-                        rate=dh * w / 2 * math.sin(w * s), accel=dh * w * w / 2 * math.cos(w * s))
+        return Setpoint(
+            h0 + dh * (1 - math.cos(w * s)) / 2,
+            armed=True,
+            rate=dh * w / 2 * math.sin(w * s),
+            accel=dh * w * w / 2 * math.cos(w * s),
+        )
 
 
 class QuadAutopilot:

@@ -5,13 +5,14 @@ USB radio. ``link_path`` optionally maintains a stable symlink (as udev's
 ``/dev/serial/by-id/...`` does), so a device can be "unplugged" (:meth:`unplug`)
 and "plugged back" (:meth:`plug`) under the same name with a new pty behind it.
 """
+
 from __future__ import annotations
 
 import asyncio
 import os
 import tty
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 
 class PtyPort:
@@ -30,7 +31,7 @@ class PtyPort:
 
     def plug(self) -> str:
         master, slave = os.openpty()
-        tty.setraw(slave)          # no line discipline: bytes pass unchanged
+        tty.setraw(slave)  # no line discipline: bytes pass unchanged
         os.set_blocking(master, False)
         self.master, self._slave = master, slave
         self.slave_path = os.ttyname(slave)

@@ -13,6 +13,7 @@ act on the simulated physics and sensors only; they reach the ground station
 by no channel at all (not the link, not the declared file). The truth sidecar
 (``*.truth.csv`` and ``*.truth.json``) records everything, for scoring.
 """
+
 from __future__ import annotations
 
 import json
@@ -38,7 +39,7 @@ class Scenario:
     declared: list[Effect] = field(default_factory=list)
     undeclared: list[Effect] = field(default_factory=list)
     sensors: SensorConfig = field(default_factory=SensorConfig)
-    flight: str = "standard"     # the built-in flight's manoeuvres (sim_bridge/profile.py)
+    flight: str = "standard"  # the built-in flight's manoeuvres (sim_bridge/profile.py)
 
     def __post_init__(self) -> None:
         if self.vehicle not in VEHICLES:
@@ -51,8 +52,16 @@ class Scenario:
         return self.declared + self.undeclared
 
     @classmethod
-    def from_args(cls, vehicle: str, seed: int, duration: float, effects: list[str], undeclared: list[str],
-                  file: str | Path | None = None, flight: str = "standard") -> "Scenario":
+    def from_args(
+        cls,
+        vehicle: str,
+        seed: int,
+        duration: float,
+        effects: list[str],
+        undeclared: list[str],
+        file: str | Path | None = None,
+        flight: str = "standard",
+    ) -> Scenario:
         base = cls.load(file) if file else cls(vehicle=vehicle, seed=seed, duration=duration, flight=flight)
         try:
             base.declared += [parse_effect(s) for s in effects]
@@ -62,7 +71,7 @@ class Scenario:
         return base
 
     @classmethod
-    def load(cls, path: str | Path) -> "Scenario":
+    def load(cls, path: str | Path) -> Scenario:
         p = Path(path)
         try:
             d = json.loads(p.read_text())
@@ -86,9 +95,15 @@ class Scenario:
                     setattr(cfg, k, v)
                 else:
                     raise ScenarioError(f"{p}: unknown sensor setting {k!r}")
-            return cls(vehicle=d.get("vehicle", "quad"), seed=int(d.get("seed", 0)),
-                       duration=float(d.get("duration", 60.0)), declared=effects("effects"),
-                       undeclared=effects("undeclared"), sensors=cfg, flight=d.get("flight", "standard"))
+            return cls(
+                vehicle=d.get("vehicle", "quad"),
+                seed=int(d.get("seed", 0)),
+                duration=float(d.get("duration", 60.0)),
+                declared=effects("effects"),
+                undeclared=effects("undeclared"),
+                sensors=cfg,
+                flight=d.get("flight", "standard"),
+            )
         except (KeyError, ValueError, TypeError) as e:
             raise ScenarioError(f"{p}: {e}") from None
 
@@ -97,6 +112,11 @@ class Scenario:
         return {"vehicle": self.vehicle, "effects": [e.describe() for e in self.declared]}
 
     def truth_json(self) -> dict:
-        return {"vehicle": self.vehicle, "seed": self.seed, "duration": self.duration, "flight": self.flight,
-                "declared": [e.describe() for e in self.declared],
-                "undeclared": [e.describe() for e in self.undeclared]}
+        return {
+            "vehicle": self.vehicle,
+            "seed": self.seed,
+            "duration": self.duration,
+            "flight": self.flight,
+            "declared": [e.describe() for e in self.declared],
+            "undeclared": [e.describe() for e in self.undeclared],
+        }

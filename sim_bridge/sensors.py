@@ -22,6 +22,7 @@ battery    5 Hz      V + N(0, 0.02 V), I + N(0, 0.1 A) (quadcopter)
 encoders   500 Hz    3-DOF helicopter angles, 4096 counts per revolution
 =========  ========  ==============================================================
 """
+
 from __future__ import annotations
 
 import math
@@ -35,19 +36,28 @@ from groundstation.core.frames import euler_from_matrix
 
 @dataclass
 class SensorConfig:
-    rates: dict[str, float] = field(default_factory=lambda: {
-        "imu": 500.0, "baro": 50.0, "range": 25.0, "gps": 5.0, "attitude": 50.0,
-        "actuators": 50.0, "battery": 5.0, "encoders": 500.0})
+    rates: dict[str, float] = field(
+        default_factory=lambda: {
+            "imu": 500.0,
+            "baro": 50.0,
+            "range": 25.0,
+            "gps": 5.0,
+            "attitude": 50.0,
+            "actuators": 50.0,
+            "battery": 5.0,
+            "encoders": 500.0,
+        }
+    )
     accel_sigma: float = 0.08
     accel_lsb: float = 16 * 9.80665 / 32768
     gyro_sigma: float = 0.005
     gyro_lsb: float = math.radians(2000.0) / 32768
-    baro_sigma: float = 4.0          # [Pa]
-    baro_lsb: float = 1.2            # [Pa]
-    ground_alt: float = 120.0        # ground altitude AMSL [m]
-    ambient_temp: float = 293.15     # [K]
-    heating: float = 8.0             # sensor warming while the motors run [K]
-    heating_tc: float = 60.0         # [s]
+    baro_sigma: float = 4.0  # [Pa]
+    baro_lsb: float = 1.2  # [Pa]
+    ground_alt: float = 120.0  # ground altitude AMSL [m]
+    ambient_temp: float = 293.15  # [K]
+    heating: float = 8.0  # sensor warming while the motors run [K]
+    heating_tc: float = 60.0  # [s]
     range_sigma: float = 0.01
     range_min: float = 0.05
     range_max: float = 4.0
@@ -131,8 +141,15 @@ class SensorSuite:
         ax, ay = round((fx + sa * n()) / la) * la, round((fy + sa * n()) / la) * la
         err = self._accel_error
         err[0], err[1], err[2] = err[0] + ax - fx, err[1] + ay - fy, err[2] + 1
-        return (ax, ay, round((fz + sa * n()) / la) * la, round((wx + sg * n()) / lg) * lg,
-                round((wy + sg * n()) / lg) * lg, round((wz + sg * n()) / lg) * lg, sim.temperature)
+        return (
+            ax,
+            ay,
+            round((fz + sa * n()) / la) * la,
+            round((wx + sg * n()) / lg) * lg,
+            round((wy + sg * n()) / lg) * lg,
+            round((wz + sg * n()) / lg) * lg,
+            sim.temperature,
+        )
 
     def take_accel_error(self) -> tuple[float, float, int]:
         """The accelerometer's own error (x, y: noise and rounding) averaged over the samples since
@@ -150,8 +167,8 @@ class SensorSuite:
 
     def _range(self, sim):
         k = sim.vehicle.kin
-        cos_tilt = max(0.2, k.R[2, 2])            # cos(phi) cos(theta) = A_IB[2, 2]
-        d = max(0.0, k.height) / cos_tilt           # slant range: always physical
+        cos_tilt = max(0.2, k.R[2, 2])  # cos(phi) cos(theta) = A_IB[2, 2]
+        d = max(0.0, k.height) / cos_tilt  # slant range: always physical
         for e in sim.effects:
             d = e.range(d, sim)
         return (d + self.cfg.range_sigma * self.normal(),)
@@ -181,8 +198,11 @@ class SensorSuite:
 
     def _battery(self, sim):
         v = sim.vehicle
-        return (v.voltage + self.rng.normal(0.0, self.cfg.battery_v_sigma),
-                v.current + self.rng.normal(0.0, self.cfg.battery_i_sigma), v.soc)
+        return (
+            v.voltage + self.rng.normal(0.0, self.cfg.battery_v_sigma),
+            v.current + self.rng.normal(0.0, self.cfg.battery_i_sigma),
+            v.soc,
+        )
 
     def _encoders(self, sim):
         x = sim.vehicle.x
@@ -191,5 +211,6 @@ class SensorSuite:
 
     def temperature(self, sim, dt: float) -> float:
         """Sensor temperature: ISA at the ground, warming while the motors run."""
-        return sim.temperature + ((self.cfg.ambient_temp + (self.cfg.heating if sim.vehicle.motors_running else 0.0))
-                                  - sim.temperature) * (1 - math.exp(-dt / self.cfg.heating_tc))
+        return sim.temperature + (
+            (self.cfg.ambient_temp + (self.cfg.heating if sim.vehicle.motors_running else 0.0)) - sim.temperature
+        ) * (1 - math.exp(-dt / self.cfg.heating_tc))

@@ -11,6 +11,7 @@ Commands from the ground station (:meth:`command`) override the built-in
 profile while they keep coming; ``command_timeout`` seconds after the last
 one the vehicle falls back to its own autopilot (a failsafe).
 """
+
 from __future__ import annotations
 
 import heapq
@@ -30,7 +31,7 @@ from .vehicles.quad import Quad
 
 
 class Sample(NamedTuple):
-    t: float           # vehicle time when the reading is delivered [s]
+    t: float  # vehicle time when the reading is delivered [s]
     sensor: str
     values: tuple
 
@@ -58,8 +59,9 @@ class Simulator:
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
         self.dt = 1.0 / self.rate
         self.effects = scenario.effects
-        self.imu_effects = [e for e in self.effects
-                            if type(e).accel is not Effect.accel or type(e).gyro is not Effect.gyro]
+        self.imu_effects = [
+            e for e in self.effects if type(e).accel is not Effect.accel or type(e).gyro is not Effect.gyro
+        ]
         self.sensors = SensorSuite(name, scenario.sensors, self.rng)
         self.temperature = scenario.sensors.ambient_temp
         self.temperature_start = self.temperature
@@ -83,9 +85,9 @@ class Simulator:
         self._external = None
         self._external_cmd = None
         self._external_until = -1.0
-        self.output_command = None         # what the outputs (PWM) show: the command from now on
-        self._next_command = None          # that command, for the next step
-        self.last_command = None           # what the vehicle was given (after the motors' effects)
+        self.output_command = None  # what the outputs (PWM) show: the command from now on
+        self._next_command = None  # that command, for the next step
+        self.last_command = None  # what the vehicle was given (after the motors' effects)
 
     # -- ground-station commands -------------------------------------------------------
     def command(self, cmd) -> None:
@@ -95,7 +97,7 @@ class Simulator:
         self._external = cmd
         self._external_cmd = None
         self._external_until = self.t + self.command_timeout
-        self._next_command = None          # flown from the next step, not after the held one
+        self._next_command = None  # flown from the next step, not after the held one
 
     @property
     def externally_commanded(self) -> bool:

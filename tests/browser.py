@@ -4,6 +4,7 @@ Real time, not ``--virtual-time-budget``: a live page must keep its websocket
 alive on the real clock. Tests wait for what the page shows (text in the DOM),
 then capture: no sleeps, no guessed delays.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -24,14 +25,28 @@ class Browser:
     def __init__(self, width: int = 1200, height: int = 900) -> None:
         self.profile = Path(tempfile.mkdtemp(prefix="gs-chromium-"))
         self.proc = subprocess.Popen(
-            [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader",
-             "--disable-background-networking", "--disable-component-update", "--disable-sync", "--no-first-run",
-             f"--user-data-dir={self.profile}", f"--window-size={width},{height}", "--remote-debugging-port=0",
-             "about:blank"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            [
+                CHROMIUM,
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+                "--enable-unsafe-swiftshader",
+                "--disable-background-networking",
+                "--disable-component-update",
+                "--disable-sync",
+                "--no-first-run",
+                f"--user-data-dir={self.profile}",
+                f"--window-size={width},{height}",
+                "--remote-debugging-port=0",
+                "about:blank",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         self._ws = None
         self._id = 0
 
-    async def __aenter__(self) -> "Browser":
+    async def __aenter__(self) -> Browser:
         port_file = self.profile / "DevToolsActivePort"
         deadline = time.monotonic() + 30
         while not port_file.exists() or not port_file.read_text().strip():
@@ -40,6 +55,7 @@ class Browser:
             await asyncio.sleep(0.05)
         port = int(port_file.read_text().split()[0])
         import urllib.request
+
         targets = json.loads(urllib.request.urlopen(f"http://127.0.0.1:{port}/json").read())
         page = next(t for t in targets if t["type"] == "page")
         self._ws = await websockets.connect(page["webSocketDebuggerUrl"], max_size=64 * 1024 * 1024)
@@ -74,8 +90,9 @@ class Browser:
         """Until ``text`` is in the page's visible text (polling the DOM)."""
         deadline = time.monotonic() + timeout
         while True:
-            r = await self.call("Runtime.evaluate", expression="document.body ? document.body.innerText : ''",
-                                returnByValue=True)
+            r = await self.call(
+                "Runtime.evaluate", expression="document.body ? document.body.innerText : ''", returnByValue=True
+            )
             if text in r.get("result", {}).get("value", ""):
                 return
             if time.monotonic() > deadline:
@@ -85,6 +102,7 @@ class Browser:
     async def screenshot(self, path: Path):
         import numpy as np
         from PIL import Image
+
         r = await self.call("Page.captureScreenshot", format="png")
         path.write_bytes(base64.b64decode(r["data"]))
         return np.asarray(Image.open(path).convert("RGB"), dtype=float)

@@ -31,9 +31,12 @@ def free_tcp_port() -> int:
 
 def async_test(timeout: float = 20.0):
     """Run an async test body on a fresh event loop, bounded in time."""
+
     def deco(fn):
         @functools.wraps(fn)
         def wrapper(*args, **kwargs):
             return asyncio.run(asyncio.wait_for(fn(*args, **kwargs), timeout))
+
         return wrapper
+
     return deco

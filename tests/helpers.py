@@ -1,4 +1,5 @@
 """Shared builders for tests: real pymavlink frames and tlogs."""
+
 import struct
 from pathlib import Path
 

@@ -1,5 +1,6 @@
 """The thrust curve read from a log's own accelerometer (groundstation/diagnosis/airframe.py): the thrust
 model's prior when no vehicle file gives the airframe."""
+
 import math
 
 import numpy as np
@@ -26,8 +27,11 @@ from sim_bridge.vehicles.quad import QuadParams
 
 def _flight(tmp_path, seed, undeclared=()):
     log = tmp_path / f"q{seed}.tlog"
-    run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], list(undeclared), flight="thrust_test"), log,
-             log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", seed, 60.0, ["range_tilt"], list(undeclared), flight="thrust_test"),
+        log,
+        log.with_suffix(".csv"),
+    )
     return log, list(Replay(log).iter_measurements())
 
 
@@ -60,8 +64,10 @@ def test_a_log_the_curve_cannot_be_read_from_gives_none_and_the_hover_prior_stay
     _, ms = _flight(tmp_path, 1018)
     no_imu = [m for m in ms if m.kind is not Kind.ACCEL]
     assert _curve(no_imu) is None
-    nan = [m._replace(value=np.full_like(m.value, np.nan)) if m.kind is Kind.ACCEL and i % 7 == 0 else m
-           for i, m in enumerate(ms)]
+    nan = [
+        m._replace(value=np.full_like(m.value, np.nan)) if m.kind is Kind.ACCEL and i % 7 == 0 else m
+        for i, m in enumerate(ms)
+    ]
     c = _curve(nan)
     assert c is not None and all(math.isfinite(v) for v in (c.alpha, c.beta, c.drag, c.n, c.tc))
     # the first 10 s (the take-off and a hover): too little flight to fit
@@ -71,7 +77,7 @@ def test_a_log_the_curve_cannot_be_read_from_gives_none_and_the_hover_prior_stay
     flying = [t for t, v in th if v >= TAU_GROUND]
     assert thrust_curve(short, th, flying[0], lift_off(short, flying[0]), 10.5) is None, w
     su = setup(no_imu, model_name="quad_thrust")
-    assert su.airframe is None                       # the hover prior: beta held at 0
+    assert su.airframe is None  # the hover prior: beta held at 0
     assert float(su.model.x0[su.model.index("beta")]) == 0.0
 
 
@@ -81,8 +87,13 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     hover prior (alpha 19.8, beta held at 0, G_acc 0.006) this lag was found on none of three flights, and
     0.1 s read 0.084-0.086 s. The report gives the curve it started from."""
     log, ms = _flight(tmp_path, 1000, ["actuator_lag:tc=0.05"])
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None), veto_with_truth=False)
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+        veto_with_truth=False,
+    )
     assert [e.name for e in d.effects][:1] == ["actuator_lag"], [e.name for e in d.effects]
     assert d.effects[0].params["tc"] == pytest.approx(0.05, rel=0.15)
     assert d.vehicle is None and d.airframe["source"] == "accelerometer"
@@ -92,19 +103,20 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     # the conclusion sets the accelerometer's own reading of the lag beside the filter's
     text = conclusion(d, as_json(d))
     assert "from the accelerometer" in text and "for actuator_lag's 0.0" in text, text
-    assert "thrust curve from the accelerometer (α 22." in markdown(as_json(d), 60.0)     # the dashboard's panel
+    assert "thrust curve from the accelerometer (α 22." in markdown(as_json(d), 60.0)  # the dashboard's panel
 
 
 def test_with_a_vehicle_file_the_accelerometers_curve_is_read_beside_it(tmp_path):
     """``--vehicle sim_quad``: the file's curve is the model's, and the accelerometer's is read beside it
     (22.2 here for the file's 22), for the report to say when a file is not the log's airframe."""
     log, ms = _flight(tmp_path, 1012)
-    su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-               vehicle="sim_quad")
+    su = setup(
+        ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")), vehicle="sim_quad"
+    )
     a = su.airframe
     assert a is not None and a["used"] is False and a["file_alpha"] == 22.0, a
     assert a["alpha"] == pytest.approx(22.0, rel=0.05)
-    assert float(su.model.x0[su.model.index("alpha")]) == 22.0          # the file's, not the fit's
+    assert float(su.model.x0[su.model.index("alpha")]) == 22.0  # the file's, not the fit's
 
 
 @pytest.mark.slow
@@ -115,11 +127,13 @@ def test_a_vehicle_file_that_is_not_the_logs_airframe_is_named_in_the_conclusion
     import json
 
     import groundstation.estimators as estimators
+
     (tmp_path / "other_quad.json").write_text(json.dumps({"quad_thrust": {"alpha0": 17.0, "beta0": 0.0}}))
     monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
     log, ms = _flight(tmp_path, 1012)
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 vehicle="other_quad")
+    d = diagnose(
+        ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")), vehicle="other_quad"
+    )
     text = conclusion(d, as_json(d))
     assert "The vehicle file's thrust curve (alpha = 17, beta = 0 m/s^2) is not this log's" in text, text
     assert "reads alpha = 22." in text, text

@@ -1,4 +1,5 @@
 """Chapter 8's complementary filter against an attitude EKF, on the same simulated flight."""
+
 import csv
 import math
 
@@ -62,19 +63,20 @@ def test_gyro_attitude_removes_the_gyros_bias_as_its_drift():
     (tilt ~ the horizontal acceleration of x = A (1 - cos wt): no mean, no trend), read by a gyro
     with a bias and noise, is recovered; the bias alone would drift 3 deg."""
     from groundstation.estimation.derived import gyro_attitude
+
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 30.0, 0.001)
-    w1, w2 = 2 * np.pi / 6.0, 2 * np.pi / 5.0                  # whole periods over 30 s
+    w1, w2 = 2 * np.pi / 6.0, 2 * np.pi / 5.0  # whole periods over 30 s
     roll, pitch = np.radians(8) * np.cos(w1 * t), np.radians(6) * np.cos(w2 * t)
     d_roll, d_pitch = -np.radians(8) * w1 * np.sin(w1 * t), -np.radians(6) * w2 * np.sin(w2 * t)
     # body rates for these Euler rates at yaw rate 0: q = d_pitch / cos(roll), p = d_roll - q sin(roll) tan(pitch)
     q = d_pitch / np.cos(roll)
     p = d_roll - q * np.sin(roll) * np.tan(pitch)
-    bias = np.array([0.0017, -0.0012, 0.003])                 # rad/s: 0.1 deg/s, 3 deg in 30 s
+    bias = np.array([0.0017, -0.0012, 0.003])  # rad/s: 0.1 deg/s, 3 deg in 30 s
     w = np.column_stack([p, q, np.zeros_like(t)]) + bias + rng.normal(0, 0.005, (len(t), 3))
     x = gyro_attitude(t, w)
     err = np.degrees(np.hypot(x[:, 0] - roll, x[:, 1] - pitch))
-    assert np.sqrt(np.mean(err**2)) < 0.06, np.sqrt(np.mean(err**2))     # 0.029 measured
+    assert np.sqrt(np.mean(err**2)) < 0.06, np.sqrt(np.mean(err**2))  # 0.029 measured
     # without the drift removed the same gyro is off by its bias's integral
     raw = np.cumsum(w[:, 0]) * 0.001
     assert abs(np.degrees(raw[-1] - roll[-1])) > 2.5
@@ -83,15 +85,16 @@ def test_gyro_attitude_removes_the_gyros_bias_as_its_drift():
 def test_with_attitude_inserts_the_derived_tilt_and_skips_a_clock_that_steps_back():
     from groundstation.core.measurement import Kind, Measurement
     from groundstation.estimation.derived import with_attitude
+
     ms = [Measurement(0.001 * k, Kind.GYRO, np.array([0.0, 0.0, 0.0]), "cf/1.1") for k in range(3000)]
-    ms.insert(1500, Measurement(0.5, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1"))   # clock jump back
+    ms.insert(1500, Measurement(0.5, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1"))  # clock jump back
     ms[2000:2000] = [Measurement(0.2 + 0.001 * k, Kind.GYRO, np.array([9.0, 9.0, 9.0]), "cf/1.1") for k in range(50)]
     ms.insert(10, Measurement(0.0105, Kind.GYRO, np.array([np.nan, 0.0, 0.0]), "cf/1.1"))
     out = with_attitude(ms, rate=100.0)
     att = [m for m in out if m.kind is Kind.ATTITUDE]
-    assert len(out) == len(ms) + len(att) and 295 <= len(att) <= 301      # 3 s at 100 Hz
+    assert len(out) == len(ms) + len(att) and 295 <= len(att) <= 301  # 3 s at 100 Hz
     assert all(m.source.startswith("derived/") for m in att)
-    assert max(abs(m.value[:2]).max() for m in att) < 1e-12       # the stepped-back and NaN readings add nothing
+    assert max(abs(m.value[:2]).max() for m in att) < 1e-12  # the stepped-back and NaN readings add nothing
     assert with_attitude([]) == []
 
 
@@ -104,6 +107,7 @@ def test_derived_tilt_against_vicon_on_the_crazyflie_logs(name):
     from groundstation.estimation.derived import with_attitude
 
     from .conftest import real_file
+
     ms = with_attitude(measurements(read_crazyflie(real_file(f"crazyflie_util/{name}"))))
     att = np.array([(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE])
     vicon = [m for m in ms if m.kind is Kind.TRUTH_POSE]

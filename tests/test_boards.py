@@ -1,4 +1,5 @@
 """Serial sensor boards: the binary frame protocol and NMEA GPS, against the spec and over a pty."""
+
 import asyncio
 import math
 import random
@@ -20,7 +21,7 @@ from .conftest import async_test
 
 
 def test_crc_is_ccitt_false():
-    assert bp.crc16_ccitt(b"123456789") == 0x29B1          # the catalogue's check value
+    assert bp.crc16_ccitt(b"123456789") == 0x29B1  # the catalogue's check value
 
 
 def test_a_frame_built_by_hand_from_the_spec_decodes():
@@ -29,7 +30,7 @@ def test_a_frame_built_by_hand_from_the_spec_decodes():
     frame = b"\xa5\x5a" + body + struct.pack("<H", bp.crc16_ccitt(body))
     sim = BinaryFramer()
     sim.seq = 7
-    assert sim.frame(0x01, payload) == frame             # the simulator's firmware agrees byte for byte
+    assert sim.frame(0x01, payload) == frame  # the simulator's firmware agrees byte for byte
     r = BinaryBoardReceiver()
     out = r.feed(frame, 0.0)
     acc = [m for m in out if m.kind is Kind.ACCEL][0]
@@ -57,7 +58,7 @@ def test_any_chunking_and_damage_is_survived():
     got, i, rng = [], 0, random.Random(5)
     while i < len(data):
         n = rng.choice([1, 3, 17, 64, 500])
-        got += r.feed(data[i:i + n], 0.0)
+        got += r.feed(data[i : i + n], 0.0)
         i += n
     assert [(m.t, m.kind) for m in got] == [(m.t, m.kind) for m in ref]
     # garbage, a flipped bit and an unknown message id
@@ -77,17 +78,19 @@ def test_encoder_counts_become_radians_and_the_clock_unwraps():
     a = r.feed(f.frame(0x04, struct.pack("<I3iH", 0xFFFFF000, 1024, -2048, 0, 4096)), 0.0)
     b = r.feed(f.frame(0x04, struct.pack("<I3iH", 0x00000800, 0, 0, 0, 4096)), 0.0)
     assert a[0].kind is Kind.ENCODERS and a[0].value == pytest.approx([math.pi / 2, -math.pi, 0.0])
-    assert b[0].t - a[0].t == pytest.approx((0x1000 + 0x800) * 1e-6)      # across the uint32 wrap
+    assert b[0].t - a[0].t == pytest.approx((0x1000 + 0x800) * 1e-6)  # across the uint32 wrap
 
 
 def test_nmea_gga_and_rmc_textbook_sentences():
     n = NmeaReceiver()
-    data = (b"$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A\r\n"
-            b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47\r\n")
+    data = (
+        b"$GPRMC,123519,A,4807.038,N,01131.000,E,022.4,084.4,230394,003.1,W*6A\r\n"
+        b"$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*47\r\n"
+    )
     out = n.feed(data[:50], 0.0) + n.feed(data[50:], 0.0)
     vel, gps = out
     assert gps.kind is Kind.GPS and gps.value == pytest.approx([48.1173, 11.516666666, 545.4])
-    assert gps.t == 764426119.0                         # 1994-03-23 12:35:19 UTC
+    assert gps.t == 764426119.0  # 1994-03-23 12:35:19 UTC
     assert gps.variance[2] == pytest.approx((1.5 * 0.9 * 2.5) ** 2)
     sog = 22.4 * 0.514444
     assert vel.value[:2] == pytest.approx([sog * math.cos(math.radians(84.4)), sog * math.sin(math.radians(84.4))])
@@ -96,8 +99,11 @@ def test_nmea_gga_and_rmc_textbook_sentences():
 
 def test_nmea_bad_checksum_garbage_and_no_fix_are_counted():
     n = NmeaReceiver()
-    out = n.feed(b"\xff\x00junk$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*48\r\n"
-                 b"$GPGGA,123520,,,,,0,00,,,M,,M,,*61\r\n$GPGSV,1,1,00*79\r\n", 0.0)
+    out = n.feed(
+        b"\xff\x00junk$GPGGA,123519,4807.038,N,01131.000,E,1,08,0.9,545.4,M,46.9,M,,*48\r\n"
+        b"$GPGGA,123520,,,,,0,00,,,M,,M,,*61\r\n$GPGSV,1,1,00*79\r\n",
+        0.0,
+    )
     assert out == [] and n.counters.crc_errors == 1 and n.counters.no_fix == 1
     assert n.counters.garbage_bytes == 6 and n.counters.unknown == 1
 
@@ -119,8 +125,8 @@ async def test_3dof_board_over_a_pty_with_unplug_and_replug(tmp_path):
                 break
         enc = [m for m in got if m.kind is Kind.ENCODERS]
         ts = np.array([m.t for m in enc])
-        assert len(enc) > 150 and np.diff(ts) == pytest.approx(0.002, abs=1e-6)     # 500 Hz
-        assert enc[0].value[1] == pytest.approx(-0.5, abs=0.01)                       # resting on the table
+        assert len(enc) > 150 and np.diff(ts) == pytest.approx(0.002, abs=1e-6)  # 500 Hz
+        assert enc[0].value[1] == pytest.approx(-0.5, abs=0.01)  # resting on the table
         board.unplug()
         async for ev in events:
             if ev.state is LinkState.LOST:

@@ -1,4 +1,5 @@
 """Bulk loading into numpy arrays agrees with pymavlink value for value, and reports damage by offset."""
+
 import numpy as np
 import pytest
 from pymavlink import mavutil
@@ -29,18 +30,18 @@ def assert_same_values(bulk, ref, skip=("BAD_DATA", "FMT", "FMTU", "UNIT", "MULT
         msgs = ref[name]
         assert len(arr) == len(msgs), name
         for col in arr.names:
-            if col not in msgs[0].__dict__:      # an extension field the frame did not carry
+            if col not in msgs[0].__dict__:  # an extension field the frame did not carry
                 continue
             got, want = arr[col], [getattr(m, col) for m in msgs]
             if got.dtype.kind == "S":
                 # raw bytes here; pymavlink gives str decoded with errors="replace"
                 text = [g.decode("utf-8", "replace").split("\0")[0] for g in got]
-                want = [(w.decode("utf-8", "replace") if isinstance(w, bytes) else str(w)).split("\0")[0]
-                        for w in want]
+                want = [(w.decode("utf-8", "replace") if isinstance(w, bytes) else str(w)).split("\0")[0] for w in want]
                 assert text == want, (name, col)
             else:
-                np.testing.assert_allclose(np.asarray(got, float), np.asarray(want, float), rtol=1e-6,
-                                           err_msg=f"{name}.{col}")
+                np.testing.assert_allclose(
+                    np.asarray(got, float), np.asarray(want, float), rtol=1e-6, err_msg=f"{name}.{col}"
+                )
 
 
 def test_vectorised_crc_is_mavlinks_x25():
@@ -56,15 +57,15 @@ def test_tlog_matches_pymavlink_message_for_message():
     bulk = load(p)
     ref = pymavlink_by_type(p)
     assert_same_values(bulk, ref)
-    assert sum(bulk.crc_errors.values()) == len(ref["BAD_DATA"])     # the same 4 damaged frames
+    assert sum(bulk.crc_errors.values()) == len(ref["BAD_DATA"])  # the same 4 damaged frames
     imu = bulk["SCALED_IMU2"] if "SCALED_IMU2" in bulk else bulk["RAW_IMU"]
-    assert np.all(np.diff(imu.t) >= -1.0)                             # receive times, in file order
+    assert np.all(np.diff(imu.t) >= -1.0)  # receive times, in file order
 
 
 def test_tlog_with_damage_counts_crc_errors_and_keeps_the_rest():
     p = FIXTURES / "dronekit_flight.tlog"
     bulk = load(p)
-    assert sum(bulk.crc_errors.values()) == 1314                    # as mavutil counts them
+    assert sum(bulk.crc_errors.values()) == 1314  # as mavutil counts them
     assert bulk.count == 75_477
     assert "truncated at offset 2723821" in bulk.damage_summary()
 
@@ -82,16 +83,16 @@ def test_damaged_dataflash_names_the_offset_and_keeps_data_on_both_sides(tmp_pat
     bad.write_bytes(raw[:400_000] + b"\xff" * 100 + raw[400_100:])
     bulk = load(bad)
     clean = load(real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin"))
-    assert bulk.skipped and 400_000 <= bulk.skipped[0][0] < 400_100      # the first bad header is in the hole
-    assert clean.count - 10 < bulk.count < clean.count             # only the records hit are lost
+    assert bulk.skipped and 400_000 <= bulk.skipped[0][0] < 400_100  # the first bad header is in the hole
+    assert clean.count - 10 < bulk.count < clean.count  # only the records hit are lost
     log = read_dataflash(bad)
     assert f"{bad}: " in log.damage and f"at offset {bulk.skipped[0][0]}" in log.damage
-    assert log.duration == pytest.approx(278.6, abs=0.5)            # data after the damage is kept too
+    assert log.duration == pytest.approx(278.6, abs=0.5)  # data after the damage is kept too
 
     cut = tmp_path / "cut.bin"
     starts = sorted(o for offs in walk_dataflash(raw).offsets.values() for o in offs)
     at = starts[int(np.searchsorted(starts, 300_000))]
-    cut.write_bytes(raw[:at + 5])                                     # mid-record
+    cut.write_bytes(raw[: at + 5])  # mid-record
     log = read_dataflash(cut)
     assert f"last record truncated at offset {at}" in log.damage and 50 < log.duration < 278
 

@@ -1,4 +1,5 @@
 """The command line, as a user runs it: exit codes, one-line errors, exports, crash safety."""
+
 import asyncio
 import csv
 import os
@@ -46,7 +47,7 @@ def test_replay_export_of_a_real_tlog(tmp_path):
     kinds = {row["kind"] for row in rows}
     assert {"attitude", "baro_pressure", "battery_voltage", "throttle"} <= kinds
     pressures = [float(row["value"]) for row in rows if row["kind"] == "baro_pressure"]
-    assert 80_000 < min(pressures) and max(pressures) < 300_000     # Pa (a depth sensor reads > 1 atm)
+    assert 80_000 < min(pressures) and max(pressures) < 300_000  # Pa (a depth sensor reads > 1 atm)
     ts = [float(row["t"]) for row in rows if row["kind"] == "attitude"]
     assert all(b >= a for a, b in zip(ts, ts[1:]))
 
@@ -58,19 +59,33 @@ def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
     anything starts."""
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
+
     log = tmp_path / "q.tlog"
     run_fast(Scenario.from_args("quad", 7, 6.0, ["range_tilt"], []), log)
     first = {}
     for vehicle in (None, "sim_quad"):
         est = tmp_path / f"{vehicle}.csv"
-        r = run("replay", str(log), "--speed", "max", "--no-web", "--quiet", "--model", "quad_thrust",
-                "--export", str(est), *(["--vehicle", vehicle] if vehicle else []))
+        r = run(
+            "replay",
+            str(log),
+            "--speed",
+            "max",
+            "--no-web",
+            "--quiet",
+            "--model",
+            "quad_thrust",
+            "--export",
+            str(est),
+            *(["--vehicle", vehicle] if vehicle else []),
+        )
         assert r.returncode == 0, r.stderr
         first[vehicle] = next(csv.DictReader(open(est)))
     assert float(first["sim_quad"]["alpha"]) == pytest.approx(22.0, abs=0.5)
     assert float(first["sim_quad"]["beta"]) == pytest.approx(-1.2, abs=0.3)
     assert float(first[None]["alpha"]) == pytest.approx(20.0, abs=0.5)
-    assert_one_line_error(run("replay", str(log), "--no-web", "--vehicle", "nosuch"), "no vehicle configuration 'nosuch'")
+    assert_one_line_error(
+        run("replay", str(log), "--no-web", "--vehicle", "nosuch"), "no vehicle configuration 'nosuch'"
+    )
 
 
 def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(tmp_path, monkeypatch):
@@ -79,22 +94,26 @@ def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(
     import json
 
     from groundstation.estimation import registry as estimators
+
     (tmp_path / "typo.json").write_text(json.dumps({"quad_thrust": {"alhpa0": 22.0, "drag": 0.35}}))
     monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
     with pytest.raises(ValueError, match="quad_thrust takes no 'alhpa0'; it takes .*alpha0"):
         estimators.vehicle_config("typo", "quad_thrust")
     assert estimators.vehicle_config("typo", "altitude") == {}
     monkeypatch.undo()
-    for name in ("sim_quad", "apm2_sonar", "crazyflie"):           # the shipped files all read
+    for name in ("sim_quad", "apm2_sonar", "crazyflie"):  # the shipped files all read
         for model in ("altitude", "quad_thrust", "attitude"):
             estimators.vehicle_config(name, model)
 
 
-@pytest.mark.parametrize("case,content,text", [
-    ("text", b"just some notes, not telemetry\n" * 500, "not a MAVLink tlog"),
-    ("empty", b"", "not a MAVLink tlog"),
-    ("garbage", None, "not a MAVLink tlog"),
-])
+@pytest.mark.parametrize(
+    "case,content,text",
+    [
+        ("text", b"just some notes, not telemetry\n" * 500, "not a MAVLink tlog"),
+        ("empty", b"", "not a MAVLink tlog"),
+        ("garbage", None, "not a MAVLink tlog"),
+    ],
+)
 def test_replay_of_a_file_that_is_not_a_tlog(tmp_path, case, content, text):
     p = tmp_path / f"{case}.tlog"
     p.write_bytes(content if content is not None else os.urandom(20000))
@@ -113,12 +132,15 @@ def test_replay_of_a_truncated_file_keeps_what_is_there(tmp_path):
     assert "297 measurements" in r.stdout
 
 
-@pytest.mark.parametrize("url,text", [
-    ("/dev/ttyNO_SUCH_PORT,57600", "no such device"),
-    ("bogus:thing", "unknown connection"),
-    ("udpin:127.0.0.1:99999", "out of range"),
-    ("udpin:203.0.113.7:14550", "cannot open"),     # an address this machine does not have
-])
+@pytest.mark.parametrize(
+    "url,text",
+    [
+        ("/dev/ttyNO_SUCH_PORT,57600", "no such device"),
+        ("bogus:thing", "unknown connection"),
+        ("udpin:127.0.0.1:99999", "out of range"),
+        ("udpin:203.0.113.7:14550", "cannot open"),  # an address this machine does not have
+    ],
+)
 def test_connect_errors_are_one_line(url, text):
     assert_one_line_error(run("connect", url, "--no-web", "--no-record"), text)
 
@@ -128,8 +150,16 @@ async def test_sigkill_loses_at_most_the_last_second(tmp_path):
     port = free_udp_port()
     rec = tmp_path / "killed.tlog"
     proc = await asyncio.create_subprocess_exec(
-        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--quiet", "--record", str(rec),
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        *GS,
+        "connect",
+        f"udpin:127.0.0.1:{port}",
+        "--no-web",
+        "--quiet",
+        "--record",
+        str(rec),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
     veh = MavlinkVehicle(udp_to=("127.0.0.1", port))
     try:
         line = await asyncio.wait_for(proc.stdout.readline(), 20)
@@ -150,13 +180,14 @@ async def test_sigkill_loses_at_most_the_last_second(tmp_path):
             while conn.recv_match(type="ATTITUDE") is not None:
                 n += 1
             return n
+
         while recorded() < 50 and time.monotonic() < deadline + 0.5:
             await asyncio.sleep(0.05)
         assert recorded() == 50
         assert time.monotonic() <= deadline + 0.5
         proc.send_signal(signal.SIGKILL)
         await proc.wait()
-        assert recorded() == 50          # a SIGKILLed session's file is intact and readable
+        assert recorded() == 50  # a SIGKILLed session's file is intact and readable
     finally:
         veh.close()
         if proc.returncode is None:
@@ -170,17 +201,26 @@ async def test_connect_records_until_sigint(tmp_path):
     rec = tmp_path / "s.tlog"
     out = tmp_path / "m.csv"
     proc = await asyncio.create_subprocess_exec(
-        *GS, "connect", f"udpin:127.0.0.1:{port}", "--no-web", "--record", str(rec), "--export-measurements", str(out),
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        *GS,
+        "connect",
+        f"udpin:127.0.0.1:{port}",
+        "--no-web",
+        "--record",
+        str(rec),
+        "--export-measurements",
+        str(out),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
     veh = MavlinkVehicle(udp_to=("127.0.0.1", port))
     try:
         assert b"link open" in await asyncio.wait_for(proc.stdout.readline(), 20)
         await veh.open()
         veh.heartbeat()
-        await veh.wait_for("HEARTBEAT", timeout=10)       # the GCS answered: it is running
+        await veh.wait_for("HEARTBEAT", timeout=10)  # the GCS answered: it is running
         for i in range(20):
             veh.send(mavlink.MAVLink_scaled_pressure_message(1000 + 40 * i, 1000.0, 0.0, 2000, 0))
-        await veh.wait_for("COMMAND_LONG", timeout=10)    # and it asked for streams
+        await veh.wait_for("COMMAND_LONG", timeout=10)  # and it asked for streams
         proc.send_signal(signal.SIGINT)
         stdout, stderr = await asyncio.wait_for(proc.communicate(), 20)
         assert proc.returncode == 0, stderr
@@ -196,8 +236,24 @@ async def test_connect_records_until_sigint(tmp_path):
 
 def test_sim_fast_writes_log_truth_and_declared(tmp_path):
     log, truth = tmp_path / "s.tlog", tmp_path / "s.csv"
-    r = run("sim", "--vehicle", "quad", "--seed", "3", "--fast", "--duration", "10", "--log", str(log),
-            "--truth", str(truth), "--effect", "baro_thrust:k=2", "--undeclared", "accel_bias:z=0.2")
+    r = run(
+        "sim",
+        "--vehicle",
+        "quad",
+        "--seed",
+        "3",
+        "--fast",
+        "--duration",
+        "10",
+        "--log",
+        str(log),
+        "--truth",
+        str(truth),
+        "--effect",
+        "baro_thrust:k=2",
+        "--undeclared",
+        "accel_bias:z=0.2",
+    )
     assert r.returncode == 0, r.stderr
     assert "x real time" in r.stdout
     assert log.stat().st_size > 100_000 and truth.exists() and (tmp_path / "s.declared.json").exists()
@@ -212,13 +268,16 @@ def test_sim_lists_its_effects():
         assert f"`{name}`" in r.stdout
 
 
-@pytest.mark.parametrize("args,text", [
-    (["--effect", "warp_drive:k=1"], "unknown effect 'warp_drive'"),
-    (["--effect", "accel_bias:q=1"], "unknown parameter"),
-    (["--effect", "accel_bias:z=lots"], "not a number"),
-    (["--undeclared", "sensor_delay:sensor=radar"], "sensor must be one of"),
-    (["--vehicle", "blimp"], "invalid choice"),
-])
+@pytest.mark.parametrize(
+    "args,text",
+    [
+        (["--effect", "warp_drive:k=1"], "unknown effect 'warp_drive'"),
+        (["--effect", "accel_bias:q=1"], "unknown parameter"),
+        (["--effect", "accel_bias:z=lots"], "not a number"),
+        (["--undeclared", "sensor_delay:sensor=radar"], "sensor must be one of"),
+        (["--vehicle", "blimp"], "invalid choice"),
+    ],
+)
 def test_sim_bad_arguments_are_one_line(tmp_path, args, text):
     r = run("sim", "--fast", "--log", str(tmp_path / "x.tlog"), *args)
     assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr
@@ -229,8 +288,9 @@ def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
     file of its own (a tlog appended run after run would read as one flight with hours of gaps)."""
     recorded = []
     for _ in range(2):
-        r = subprocess.run(GS + ["demo", "--duration", "2", "--no-web"], capture_output=True, text=True,
-                           timeout=120, cwd=tmp_path)
+        r = subprocess.run(
+            GS + ["demo", "--duration", "2", "--no-web"], capture_output=True, text=True, timeout=120, cwd=tmp_path
+        )
         assert r.returncode == 0, r.stderr
         assert "Traceback" not in r.stderr
         summary = r.stdout.strip().splitlines()[-1]

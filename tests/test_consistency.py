@@ -7,6 +7,7 @@ chi^2(n M) / M. Where the truth is not at the filter's prior mean (thrust
 coefficients, biases, offsets), it is drawn from the prior, so that the test
 asks exactly "is P honest?". The altitude filter's run is in test_estimation.py.
 """
+
 import csv
 
 import numpy as np
@@ -57,20 +58,28 @@ def test_quad_thrust_filter_is_consistent(tmp_path):
     for k in range(M):
         m = quad_thrust_model()
         sd = np.sqrt(np.diag(m.P0))
-        o = float(rng.normal(0.0, sd[5]))                    # ToF offset, from the prior
+        o = float(rng.normal(0.0, sd[5]))  # ToF offset, from the prior
         sc = Scenario.from_args("quad", 200 + k, 60.0, ["range_tilt", f"range_offset:o={o}"], [])
         run_fast(sc, tmp_path / "q.tlog", tmp_path / "q.csv")
         tr = truth_of(tmp_path / "q.csv")
-        x0 = m.x0.copy()                                     # the prior mean drawn around the truth
+        x0 = m.x0.copy()  # the prior mean drawn around the truth
         x0[2], x0[3] = 22.0 + rng.normal(0, sd[2]), -1.2 + rng.normal(0, sd[3])
         m.x0 = x0
         est = quad_thrust_estimator(m)
         t, X, P = run_loop(est, tmp_path / "q.tlog")
         t_land = tr["t"][np.flatnonzero(tr["h"] > 0.3)[-1]]
-        keep = (t > 15.0) & (t < t_land - 1.0)               # in the air, after take-off
-        T = np.stack([np.interp(t, tr["t"], tr["h"]), -np.interp(t, tr["t"], tr["vd"]), np.full(len(t), 22.0),
-                      np.full(len(t), -1.2), np.full(len(t), o)], 1)
-        idx = [0, 1, 2, 3, 5]                                # d_bar: relative to the filter's own reference
+        keep = (t > 15.0) & (t < t_land - 1.0)  # in the air, after take-off
+        T = np.stack(
+            [
+                np.interp(t, tr["t"], tr["h"]),
+                -np.interp(t, tr["t"], tr["vd"]),
+                np.full(len(t), 22.0),
+                np.full(len(t), -1.2),
+                np.full(len(t), o),
+            ],
+            1,
+        )
+        idx = [0, 1, 2, 3, 5]  # d_bar: relative to the filter's own reference
         runs.append(nees((X[:, idx] - T)[keep], P[keep][:, idx][:, :, idx]))
         for s in nis:
             a = est.filter.log.arrays(s)
@@ -89,11 +98,11 @@ def test_heli3dof_filter_is_consistent_with_the_arm_acceleration_removed(tmp_pat
         run_fast(Scenario("heli3dof", seed=k, duration=24), tmp_path / "h.tlog", tmp_path / "h.csv")
         tr = truth_of(tmp_path / "h.csv")
         est = heli3dof_estimator(heli3dof_model())
-        est._by_kind.pop(Kind.ATTITUDE, None)                # the lab's IMU-only filter
+        est._by_kind.pop(Kind.ATTITUDE, None)  # the lab's IMU-only filter
         t, X, P = run_loop(est, tmp_path / "h.tlog")
         keep = (t > 8.0) & (t < 22.0)
         T = np.stack([np.interp(t, tr["t"], tr[n]) for n in est.model.states], 1)
-        idx = [0, 1, 2, 3, 5]                                # travel itself is unobservable from the IMU
+        idx = [0, 1, 2, 3, 5]  # travel itself is unobservable from the IMU
         runs.append(nees((X - T)[keep][:, idx], P[keep][:, idx][:, :, idx]))
         for s in nis:
             a = est.filter.log.arrays(s)
@@ -110,9 +119,12 @@ def test_drag_attitude_ekf_is_consistent_on_a_multirotor(tmp_path):
     rng = np.random.default_rng(5)
     runs, nis = [], []
     for k in range(M):
-        bx, by = rng.normal(0.0, 0.05, 2)                  # gyro biases from the prior (P0_bias = 0.05)
-        run_fast(Scenario.from_args("quad", 300 + k, 50.0, [], [f"gyro_bias:x={bx},y={by},z=0"]),
-                 tmp_path / "q.tlog", tmp_path / "q.csv")
+        bx, by = rng.normal(0.0, 0.05, 2)  # gyro biases from the prior (P0_bias = 0.05)
+        run_fast(
+            Scenario.from_args("quad", 300 + k, 50.0, [], [f"gyro_bias:x={bx},y={by},z=0"]),
+            tmp_path / "q.tlog",
+            tmp_path / "q.csv",
+        )
         tr = truth_of(tmp_path / "q.csv")
         ekf = DragAttitudeEKF()
         E, P, n0 = [], [], 0
@@ -125,7 +137,7 @@ def test_drag_attitude_ekf_is_consistent_on_a_multirotor(tmp_path):
                 E.append(ekf.ekf.x[:4] - x)
                 P.append(ekf.P[:4, :4].copy())
         runs.append(nees(np.array(E), np.array(P)))
-        nis.append(np.mean(ekf.nis[n0:n0 + len(E)]))
+        nis.append(np.mean(ekf.nis[n0 : n0 + len(E)]))
     lo, hi = band(4)
     assert lo <= np.mean(runs) <= hi, (np.mean(runs), lo, hi)
     lo, hi = band(2)
@@ -136,19 +148,20 @@ def test_recursive_least_squares_is_consistent_under_its_own_assumptions():
     """Chapter 7's RLS: white noise on y, an exact regressor. (With the noisy pressure as the
     regressor, as in flight, least squares is biased by regression dilution: rls.py says so.)"""
     from groundstation.estimation.rls import RecursiveLeastSquares
+
     rng = np.random.default_rng(21)
     sigma = 0.02
     nees_runs, nis_runs = [], []
     for _ in range(M):
-        theta = np.array([rng.normal(-0.083, 0.01), rng.normal(0.0, 1.0)])     # m/Pa, m
+        theta = np.array([rng.normal(-0.083, 0.01), rng.normal(0.0, 1.0)])  # m/Pa, m
         rls = RecursiveLeastSquares(2)
         nees_k, nis_k = [], []
         for k in range(400):
-            phi = np.array([rng.uniform(-40, 40), 1.0])                         # Pa about the reference
+            phi = np.array([rng.uniform(-40, 40), 1.0])  # Pa about the reference
             y = float(phi @ theta + rng.normal(0.0, sigma))
             s = sigma**2 * (1.0 + phi @ rls.P @ phi)
             e = rls.update(phi, y)
-            if k >= 10:                                                         # after the diffuse start
+            if k >= 10:  # after the diffuse start
                 nis_k.append(e**2 / s)
                 d = rls.theta - theta
                 nees_k.append(d @ np.linalg.solve(rls.covariance(sigma**2), d))

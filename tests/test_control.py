@@ -5,6 +5,7 @@ The live tests run the simulated vehicle in real time on a real pseudo-terminal
 station's own link, commander, controller and feedback, and wait on what the
 loop publishes, never on sleeps.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -47,6 +48,7 @@ from .conftest import async_test, free_udp_port
 
 # -- designs against the document's equations ----------------------------------------------------
 
+
 def test_lqr_matches_the_closed_form_of_a_double_integrator():
     """Pitch is a double integrator p_dd = K1 V_d: with Q = diag(q1, q2), R = r the
     Riccati solution is K = (sqrt(q1/r), sqrt(q2/r + 2 sqrt(q1/r) / K1))."""
@@ -54,7 +56,7 @@ def test_lqr_matches_the_closed_form_of_a_double_integrator():
     c = LQRFeedForward(np.diag([20.0, 10.0, 30.0]), np.eye(2))
     assert c.K[1, 0] == pytest.approx(np.sqrt(20.0))
     assert c.K[1, 1] == pytest.approx(np.sqrt(10.0 + 2 * np.sqrt(20.0) / K1))
-    assert c.K[0, 2] == pytest.approx(np.sqrt(30.0))           # e_dot: a single integrator, K = sqrt(q/r)
+    assert c.K[0, 2] == pytest.approx(np.sqrt(30.0))  # e_dot: a single integrator, K = sqrt(q/r)
     A, B, C = design.pitch_model()
     # eq. 36-37: at equilibrium y = r
     r = np.array([0.1, -0.05])
@@ -76,7 +78,7 @@ def test_pole_placement_puts_the_poles_where_asked():
     K1, _ = design.k1_k2()
     for w, z in [(4.0, 1.0), (7.39, 0.92), (5.2, 0.0)]:
         pd = PitchPD.place(w, z)
-        poles = np.roots([1.0, K1 * pd.K_pd, K1 * pd.K_pp])                       # eq. 22-23
+        poles = np.roots([1.0, K1 * pd.K_pd, K1 * pd.K_pp])  # eq. 22-23
         assert np.abs(poles) == pytest.approx([w, w])
         assert design.omega_zeta(K1, pd.K_pp, pd.K_pd) == pytest.approx((w, z))
     pd = PitchPD.from_poles(-17.1, -3.2)
@@ -89,7 +91,7 @@ def test_responses_are_named_as_the_lab_names_them():
     for zeta in (0.0, 0.5, 1.0, 1.38):
         _, y = signal.step(signal.lti([16.0], [1.0, 8.0 * zeta, 16.0]), T=t)
         names.append(classify(t + 1.0, 0.2 * y, 1.0, 0.0, 0.2))
-    growing = 0.2 - 0.2 * np.exp(0.15 * t) * np.cos(4 * t)        # stays within the limit, grows
+    growing = 0.2 - 0.2 * np.exp(0.15 * t) * np.cos(4 * t)  # stays within the limit, grows
     names.append(classify(t, growing, 0.0, 0.0, 0.2))
     assert names == ["undamped", "underdamped", "critically damped", "overdamped", "unstable"]
     w, z, _ = step_fit(t + 1.0, 0.2 * signal.step(signal.lti([16.0], [1.0, 5.6, 16.0]), T=t)[1], 1.0, 0.0, 0.2)
@@ -97,15 +99,16 @@ def test_responses_are_named_as_the_lab_names_them():
 
 
 def test_saturation_keeps_lift_first():
-    cmd, u, sat = motor_voltages(0.0, 20.0)              # V_s = 8 V: |V_d| <= 8
+    cmd, u, sat = motor_voltages(0.0, 20.0)  # V_s = 8 V: |V_d| <= 8
     assert sat and u[1] == pytest.approx(8.0) and cmd == pytest.approx([0.0, 8.0])
-    cmd, u, sat = motor_voltages(20.0, 1.0)               # V_s clipped to 24 V, no room for V_d
+    cmd, u, sat = motor_voltages(20.0, 1.0)  # V_s clipped to 24 V, no room for V_d
     assert sat and cmd == pytest.approx([12.0, 12.0])
     cmd, u, sat = motor_voltages(0.5, -1.0)
     assert not sat and cmd == pytest.approx([4.75, 3.75])
 
 
 # -- fast closed loops (same bytes, simulator stepped as fast as it goes) -----------------------
+
 
 def _pitch_step(t):
     return {"p_c": 0.1 if t >= 5.0 else 0.0, "e_dot_c": 0.0}
@@ -118,7 +121,7 @@ def test_integral_action_removes_a_constant_disturbance_the_plain_lqr_cannot():
         f = fly(sc, c, EncoderFeedback(), seconds=25.0, reference=_pitch_step)
         late = f.t > 18.0
         errors[c.name] = float(np.mean(f.truth["p"][late]) - 0.1)
-    assert abs(errors["lqr"]) > 0.05                 # 0.8 V of imbalance against K's pitch gain
+    assert abs(errors["lqr"]) > 0.05  # 0.8 V of imbalance against K's pitch gain
     assert abs(errors["lqr_i"]) < 0.005
 
 
@@ -132,7 +135,7 @@ def test_anti_windup_freezes_the_integrators_while_saturated_and_lets_them_unwin
         assert with_aw.update(x, held, 0.01).saturated
         without.update(x, held, 0.01)
     assert with_aw.z[0] == 0.0 and without.z[0] == pytest.approx(-without.integral_limit)
-    with_aw.update(x, {"p_c": 0.0, "e_dot_c": 0.0}, 0.01)        # error reversed: it unwinds
+    with_aw.update(x, {"p_c": 0.0, "e_dot_c": 0.0}, 0.01)  # error reversed: it unwinds
     assert with_aw.z[0] > 0.0
     # the altitude hold, on the ground with its collective at the top
     hold = AltitudeHold()
@@ -144,8 +147,14 @@ def test_anti_windup_freezes_the_integrators_while_saturated_and_lets_them_unwin
 @pytest.mark.parametrize("vehicle,thrust", [("quad", None), ("coax", COAX_THRUST)])
 def test_altitude_hold_flies_the_altitude_filter_to_the_reference(vehicle, thrust):
     c = AltitudeHold(thrust) if thrust else AltitudeHold()
-    f = fly(Scenario(vehicle, seed=5), c, EstimatorFeedback(altitude_estimator()), seconds=25.0, arm_at=1.0,
-            reference=lambda t: {"z_c": 1.0 if t < 12.0 else 1.8})
+    f = fly(
+        Scenario(vehicle, seed=5),
+        c,
+        EstimatorFeedback(altitude_estimator()),
+        seconds=25.0,
+        arm_at=1.0,
+        reference=lambda t: {"z_c": 1.0 if t < 12.0 else 1.8},
+    )
     h = f.truth["h"]
     assert abs(np.mean(h[(f.t > 9) & (f.t < 12)]) - 1.0) < 0.05
     assert abs(np.mean(h[f.t > 21]) - 1.8) < 0.05
@@ -153,6 +162,7 @@ def test_altitude_hold_flies_the_altitude_filter_to_the_reference(vehicle, thrus
 
 
 # -- live, over the real transports --------------------------------------------------------------
+
 
 class _Live:
     """A live loop: the simulated vehicle, the ground station's link and commander, each
@@ -164,8 +174,11 @@ class _Live:
         sub = link.measurements()
         self.records = commander.records.subscribe()
         await link.open()
-        self.tasks = [asyncio.create_task(self.bridge.run()), asyncio.create_task(commander.run()),
-                      asyncio.create_task(commander.follow(sub))]
+        self.tasks = [
+            asyncio.create_task(self.bridge.run()),
+            asyncio.create_task(commander.run()),
+            asyncio.create_task(commander.follow(sub)),
+        ]
 
     async def __aexit__(self, *exc):
         self.cmd.stop()
@@ -187,10 +200,12 @@ class _Live:
 
     async def until(self, cond, timeout=15.0):
         """Wait on the commander's records until cond(record) holds."""
+
         async def go():
             async for rec in self.records:
                 if cond(rec):
                     return rec
+
         return await asyncio.wait_for(go(), timeout)
 
 
@@ -230,8 +245,9 @@ async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_pat
     async with Live3dof(tmp_path, PitchPD.place(w0, z0), EncoderFeedback()) as live:
         await live.arm()
         # lift off the table and settle level
-        await live.until(lambda r: abs(r.state["e"]) < 0.02 and abs(r.state["e_dot"]) < 0.02
-                         and abs(r.state["p"]) < 0.005)
+        await live.until(
+            lambda r: abs(r.state["e"]) < 0.02 and abs(r.state["e_dot"]) < 0.02 and abs(r.state["p"]) < 0.005
+        )
         t_step = live.bridge.sim.t
         live.cmd.set_reference(p_c=0.15)
         stalled = []
@@ -239,8 +255,9 @@ async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_pat
         def done(r):
             if stall is not None and not stalled and live.bridge.sim.t > t_step + stall:
                 stalled.append(live.bridge.sim.t)
-                time.sleep(0.2)                 # blocks the event loop: every task stalls
+                time.sleep(0.2)  # blocks the event loop: every task stalls
             return live.bridge.sim.t > t_step + 3.0
+
         await live.until(done)
         assert live.cmd.armed and len(stalled) == (stall is not None)
     tr = {k: np.array([row[k] for row in live.truth]) for k in ("t", "p")}
@@ -267,13 +284,13 @@ async def test_live_integral_action_removes_a_constant_disturbance(tmp_path):
 
     async with Live3dof(tmp_path, c, EncoderFeedback(), scenario=sc) as live:
         await live.arm()
-        await live.until(lambda r: live.bridge.sim.t > 4.0)             # off the table
+        await live.until(lambda r: live.bridge.sim.t > 4.0)  # off the table
         live.cmd.set_reference(p_c=0.1)
         t0 = live.bridge.sim.t
         await live.until(lambda r: tail_error(t0) < 0.003 or live.bridge.sim.t > t0 + 20.0, timeout=60.0)
         assert live.cmd.armed
         assert tail_error(t0) < 0.003, f"pitch still {tail_error(t0):.4f} rad off 20 s after the step"
-    assert abs(c.z[0]) > 0.05                       # the integrator holds what the model lacks
+    assert abs(c.z[0]) > 0.05  # the integrator holds what the model lacks
 
 
 @async_test(timeout=60)
@@ -283,7 +300,7 @@ async def test_live_link_loss_stops_commanding_within_half_a_second(tmp_path):
         await live.until(lambda r: live.bridge.sim.t > 3.0)
         sent_before = live.cmd.uplink.sent
         notes = live.cmd.notes.subscribe()
-        live.port.unplug()                    # the USB cable is pulled
+        live.port.unplug()  # the USB cable is pulled
         t_pull = time.monotonic()
         note = await asyncio.wait_for(notes.__anext__(), 2.0)
         assert note.startswith("disarmed: link") and live.link.state is LinkState.LOST
@@ -302,6 +319,7 @@ async def test_live_link_loss_stops_commanding_within_half_a_second(tmp_path):
         async def fallback():
             while sim.externally_commanded:
                 await live.next_record_or_data()
+
         await asyncio.wait_for(fallback(), 3.0)
         assert not live.cmd.armed
 
@@ -323,7 +341,7 @@ class LiveQuad(_Live):
 @async_test(timeout=40)
 async def test_live_nothing_is_sent_to_a_vehicle_nobody_armed():
     async with LiveQuad() as live:
-        await asyncio.wait_for(live.measurements(3000), 10.0)     # about 1.5 s of a live link
+        await asyncio.wait_for(live.measurements(3000), 10.0)  # about 1.5 s of a live link
         assert live.link.state is LinkState.ALIVE
         assert live.cmd.uplink.sent == 0
         assert "SET_ATTITUDE_TARGET" not in live.bridge.received and "MANUAL_CONTROL" not in live.bridge.received
@@ -340,12 +358,14 @@ async def test_live_udp_silence_disarms_and_the_vehicle_falls_back():
         assert rec.command[0] > 0.0
         await asyncio.wait_for(live.measurements(500), 10.0)
         assert live.bridge.commands_received > 10 and live.bridge.sim.externally_commanded
-        live.bridge.disconnect(3.0)                 # the radio goes silent both ways
+        live.bridge.disconnect(3.0)  # the radio goes silent both ways
         t_cut = time.monotonic()
+
         async def disarmed():
             async for note in notes:
                 if note.startswith("disarmed"):
                     return
+
         await asyncio.wait_for(disarmed(), 2.0)
         assert live.cmd.uplink.last_sent_wall - t_cut < 0.5
         assert "no measurement" in live.cmd.status
@@ -401,7 +421,7 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
     try:
         probe_sub = link.measurements()
         k = 0
-        async for _ in probe_sub:                 # a live link with fresh estimates
+        async for _ in probe_sub:  # a live link with fresh estimates
             k += 1
             if k >= 500:
                 break
@@ -419,9 +439,13 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
                 # record with z_c came first and the message was still empty)
                 async for _, messages in probe.frames():
                     for m in messages:
-                        if (m["type"] == "GuiUpdateMessage" and m.get("uuid") == status_id
-                                and "disarm before" in m["updates"].get("_markdown", "")):
+                        if (
+                            m["type"] == "GuiUpdateMessage"
+                            and m.get("uuid") == status_id
+                            and "disarm before" in m["updates"].get("_markdown", "")
+                        ):
                             return
+
             await asyncio.wait_for(refusal_shown(), 10.0)
             records = station.commander.records.subscribe()
 
@@ -429,8 +453,9 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
                 async for rec in records:
                     if rec.reference["z_c"] == 1.5:
                         return rec
+
             rec = await asyncio.wait_for(reference_applied(), 5.0)
-            assert rec.command[0] > 0 and station.feedback_name == "altitude"      # refused while armed
+            assert rec.command[0] > 0 and station.feedback_name == "altitude"  # refused while armed
             assert "disarm before" in panel.message
             plot_id = gui_id(panel.plot)
 
@@ -439,6 +464,7 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
                     for m in messages:
                         if m["type"] == "GuiUpdateMessage" and m.get("uuid") == plot_id:
                             return m
+
             await asyncio.wait_for(plotted(), 5.0)
             await probe.set_gui(gui_id(panel.disarm), value=True)
             assert (await asyncio.wait_for(notes.__anext__(), 5.0)).startswith("disarmed: by the user")

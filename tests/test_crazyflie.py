@@ -1,4 +1,5 @@
 """Crazyflie uSD logs (real flights with Vicon truth, read from ../shared; never copied here)."""
+
 import struct
 import subprocess
 import sys
@@ -29,13 +30,13 @@ def test_reads_every_log_with_its_crc_and_converts_units_and_frames(name):
     ms = measurements(log)
     kinds = {m.kind for m in ms}
     assert {Kind.ACCEL, Kind.GYRO, Kind.BARO_ALTITUDE, Kind.RANGE, Kind.TRUTH_POSE} <= kinds
-    t0 = ms[0].t                                                            # microseconds since boot
+    t0 = ms[0].t  # microseconds since boot
     still = [m.value for m in ms if m.kind is Kind.ACCEL and m.t < t0 + 1.0]
-    assert np.mean(still, axis=0)[2] == pytest.approx(-9.81, abs=0.15)      # FRD: level reads -g on z
+    assert np.mean(still, axis=0)[2] == pytest.approx(-9.81, abs=0.15)  # FRD: level reads -g on z
     vicon = [m for m in ms if m.kind is Kind.TRUTH_POSE]
-    assert -2.1 < min(m.value[2] for m in vicon) and max(m.value[2] for m in vicon) < 0.0   # NED: down is +
+    assert -2.1 < min(m.value[2] for m in vicon) and max(m.value[2] for m in vicon) < 0.0  # NED: down is +
     baro = [m.t for m in ms if m.kind is Kind.BARO_ALTITUDE]
-    assert 20 < len(baro) / log.duration < 30                               # repeats dropped: ~25 Hz
+    assert 20 < len(baro) / log.duration < 30  # repeats dropped: ~25 Hz
 
 
 def test_truncated_and_corrupted_files_keep_what_came_before(tmp_path):
@@ -46,14 +47,20 @@ def test_truncated_and_corrupted_files_keep_what_came_before(tmp_path):
     assert log.damage and "cut" in log.damage and "offset" in log.damage
     assert len(measurements(log)) > 10_000
     bad = bytearray(raw)
-    bad[500_000] ^= 0xFF                   # a value byte: records stay aligned, the CRC catches it
+    bad[500_000] ^= 0xFF  # a value byte: records stay aligned, the CRC catches it
     (tmp_path / "bad").write_bytes(bytes(bad))
     log = read_crazyflie(tmp_path / "bad")
     assert not log.crc_ok and "CRC-32 mismatch" in log.damage
 
 
-@pytest.mark.parametrize("content,text", [(b"\xbc\x03\x00\x00\x00" + b"\x00" * 10, "version 3"),
-                                          (b"hello", "not a Crazyflie"), (b"\xbc\x02\x00\x05\x00\x01", "damaged")])
+@pytest.mark.parametrize(
+    "content,text",
+    [
+        (b"\xbc\x03\x00\x00\x00" + b"\x00" * 10, "version 3"),
+        (b"hello", "not a Crazyflie"),
+        (b"\xbc\x02\x00\x05\x00\x01", "damaged"),
+    ],
+)
 def test_foreign_files_are_clear_errors(tmp_path, content, text):
     p = tmp_path / "x"
     body = content
@@ -85,13 +92,14 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     candidate a full filter run."""
     from groundstation.diagnosis.engine import diagnose, truth_from
     from groundstation.estimation.logs import load_measurements
+
     p = real_file("crazyflie_util/0422-log00")
-    ms, _desc, vehicle = load_measurements(p)                  # as `groundstation diagnose` reads it
+    ms, _desc, vehicle = load_measurements(p)  # as `groundstation diagnose` reads it
     assert vehicle == "crazyflie"
     d = diagnose(ms, source=str(p), vehicle=vehicle, truth=truth_from(ms, None, None))
     found = {e.name: e.params for e in d.effects}
     assert list(found)[:2] == ["baro_thrust", "baro_bias_drift"], list(found)
-    assert 6.0 < found["baro_thrust"]["k"] < 11.0            # per unit throttle; ~0.9 at hover here
+    assert 6.0 < found["baro_thrust"]["k"] < 11.0  # per unit throttle; ~0.9 at hover here
     assert 0.07 < found["baro_bias_drift"]["rate"] < 0.14
     offset = {e.name: e.params for e in d.against_truth}["range_offset"]["o"]
     assert -0.042 < offset < -0.030
@@ -102,6 +110,7 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     drift = {e.name: e.evidence for e in d.effects}["baro_bias_drift"]
     assert drift["innovation_colour"]["baro"] > 10 and drift["delta_bic_effective"] > drift["delta_bic"]
     from groundstation.diagnosis.report import as_json, conclusion
+
     assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
     # what still colours the baro after both: the regression names the throttle's shape (README: 60 %)
     x = {x.sensor: x for x in d.discoveries}["baro"]
@@ -116,6 +125,7 @@ def test_attitude_diagnosis_rejects_a_mounting_error_that_vicon_contradicts():
     from groundstation.diagnosis.engine import diagnose, truth_from
     from groundstation.diagnosis.report import as_json, conclusion
     from groundstation.estimation.logs import load_measurements
+
     p = real_file("crazyflie_util/0422-log00")
     ms, _desc, vehicle = load_measurements(p)
     truth = truth_from(ms, None, None)
@@ -142,6 +152,7 @@ def test_diagnose_finds_the_tofs_slant_under_tilt_on_0425_traj4():
     (3.05 -> 0.96 cm measured; with the accelerometer's tilt it was vetoed, 3.21 -> 7.33 cm)."""
     from groundstation.diagnosis.engine import diagnose, truth_from
     from groundstation.estimation.logs import load_measurements
+
     p = real_file("crazyflie_util/0425-traj4")
     ms, _desc, vehicle = load_measurements(p)
     d = diagnose(ms, source=str(p), vehicle=vehicle, truth=truth_from(ms, None, None))

@@ -1,4 +1,5 @@
 """The dashboard in a real browser (Debian's headless Chromium): screenshots kept in artifacts/."""
+
 import asyncio
 import math
 import re
@@ -20,7 +21,7 @@ ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
 
 
 def test_ned_maps_to_a_right_handed_z_up_view():
-    np.testing.assert_allclose(ned_to_view([1.0, 2.0, -3.0]), [1.0, -2.0, 3.0])     # 3 m up is +z
+    np.testing.assert_allclose(ned_to_view([1.0, 2.0, -3.0]), [1.0, -2.0, 3.0])  # 3 m up is +z
     assert frd_quat_to_view((1.0, 0.0, 0.0, 0.0)) == (1.0, 0.0, 0.0, 0.0)
     # a yaw of +90 deg (nose east, NED) becomes a turn to -y (east is -y in the view)
     c = np.sqrt(0.5)
@@ -45,28 +46,39 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
     run_fast(Scenario.from_args("quad", 2, 60.0, ["range_tilt"], []), tmp_path / "q.tlog")
     port = free_tcp_port()
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "groundstation", "replay", str(tmp_path / "q.tlog"), "--speed", "1",
-        "--port", str(port), "--quiet", stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
+        sys.executable,
+        "-m",
+        "groundstation",
+        "replay",
+        str(tmp_path / "q.tlog"),
+        "--speed",
+        "1",
+        "--port",
+        str(port),
+        "--quiet",
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
     try:
         url = None
-        while url is None:                          # wait for the server's own announcement
+        while url is None:  # wait for the server's own announcement
             line = (await proc.stdout.readline()).decode()
             assert line, (await proc.stderr.read()).decode()
             if line.startswith("dashboard: "):
                 url = line.split()[1]
         async with Browser() as b:
             await b.goto(url)
-            await b.wait_for_text("NIS and its 95 % band")          # the panels have arrived
+            await b.wait_for_text("NIS and its 95 % band")  # the panels have arrived
             await b.wait_for_text("bias / parameter state")
-            await b.wait_for_text("±")                              # the state table is live
+            await b.wait_for_text("±")  # the state table is live
             a = await _drawn(b, ARTIFACTS / "dashboard_1.png")
             t_first, z_first = await _replay_state(b)
             t, z = t_first, z_first
-            while not abs(z - z_first) >= 0.3:                      # until the vehicle has visibly moved
+            while not abs(z - z_first) >= 0.3:  # until the vehicle has visibly moved
                 assert t < 52.0, f"the replay reached t = {t} s (first screenshot at {t_first} s) with no 0.3 m move"
                 await asyncio.sleep(0.1)
                 t, z = await _replay_state(b)
-            await asyncio.sleep(0.3)                                # a few scene frames (30 Hz) later
+            await asyncio.sleep(0.3)  # a few scene frames (30 Hz) later
             c = await _drawn(b, ARTIFACTS / "dashboard_2.png")
         scene_a, scene_c = _scene(a), _scene(c)
         # the vehicle (a 35 cm box, in view with the dashboard's camera) moved by >= 0.3 m: some
@@ -74,10 +86,11 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
         # counts; the covariance disc, seen from above, can veil it to a few grey levels.
         diff = np.abs(scene_a - scene_c).max(axis=2)
         moved = np.mean(diff > 2)
-        assert moved > 5e-4, (f"{moved:.1e} of the view changed (largest by {diff.max():.0f} levels) "
-                              f"between t = {t_first} s and {t} s")
+        assert moved > 5e-4, (
+            f"{moved:.1e} of the view changed (largest by {diff.max():.0f} levels) between t = {t_first} s and {t} s"
+        )
         for img in (a, c):
-            assert dark_pixels(img[:, -380:]) > 1000                # panels: text, tables, plot axes
+            assert dark_pixels(img[:, -380:]) > 1000  # panels: text, tables, plot axes
     finally:
         if proc.returncode is None:
             proc.terminate()
@@ -95,8 +108,9 @@ async def _drawn(b: Browser, path: Path, *, within: float = 60.0) -> np.ndarray:
     folders are painted some frames after their text is in the page (a screenshot taken as soon
     as the text was there showed the panel's frame empty: 283 dark pixels)."""
     deadline = time.monotonic() + within
-    while (non_white(_scene(img := await b.screenshot(path))) < 0.01 or dark_pixels(img[:, -380:]) <= 1000) \
-            and time.monotonic() < deadline:
+    while (
+        non_white(_scene(img := await b.screenshot(path))) < 0.01 or dark_pixels(img[:, -380:]) <= 1000
+    ) and time.monotonic() < deadline:
         await asyncio.sleep(0.2)
     return img
 
@@ -115,20 +129,21 @@ async def _replay_state(b: Browser) -> tuple[float, float]:
 async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
     ARTIFACTS.mkdir(exist_ok=True)
     port = free_tcp_port()
-    code = ("import sys, time; sys.path.insert(0, %r)\n"
-            "from web.dashboard import Dashboard\n"
-            "d = Dashboard(port=%d); d.update_panels(); print('ready', flush=True); time.sleep(60)\n"
-            % (str(Path(__file__).resolve().parents[1]), port))
+    code = (
+        f"import sys, time; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})\n"
+        "from web.dashboard import Dashboard\n"
+        f"d = Dashboard(port={port}); d.update_panels(); print('ready', flush=True); time.sleep(60)\n"
+    )
     proc = await asyncio.create_subprocess_exec(sys.executable, "-c", code, stdout=asyncio.subprocess.PIPE)
     try:
         while (line := (await proc.stdout.readline()).decode()) and line.strip() != "ready":
-            pass                                                    # viser's banner comes first
+            pass  # viser's banner comes first
         assert line.strip() == "ready"
         async with Browser() as b:
             await b.goto(f"http://127.0.0.1:{port}")
             await b.wait_for_text("No diagnosis has been run")
             img = await _drawn(b, ARTIFACTS / "dashboard_panels.png")
-        assert dark_pixels(img[:, -380:]) > 1000                    # folders, tables and uPlot axes
+        assert dark_pixels(img[:, -380:]) > 1000  # folders, tables and uPlot axes
     finally:
         if proc.returncode is None:
             proc.terminate()
@@ -152,8 +167,17 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
         k = 0
         while True:
             k += 1
-            d.feed_snapshot(Snapshot(k * 0.005, "altitude", ("z", "vz", "b_acc"), np.array([1.0 + 1e-3 * k, 0, 0]),
-                                     np.eye(3) * 1e-4, None, time.monotonic()))
+            d.feed_snapshot(
+                Snapshot(
+                    k * 0.005,
+                    "altitude",
+                    ("z", "vz", "b_acc"),
+                    np.array([1.0 + 1e-3 * k, 0, 0]),
+                    np.eye(3) * 1e-4,
+                    None,
+                    time.monotonic(),
+                )
+            )
             await asyncio.sleep(0.005)
 
     feeder = asyncio.create_task(estimates())
@@ -169,7 +193,7 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
                     elif m["type"] == "GuiUpdateMessage" and m.get("uuid", m.get("id")) == plot_id:
                         plot.append(t)
                 if scene and t_end is None:
-                    t_end = scene[0] + 4.0                    # four seconds after the first update
+                    t_end = scene[0] + 4.0  # four seconds after the first update
                 if t_end is not None and t > t_end:
                     break
         scene_hz = (len(scene) - 1) / (scene[-1] - scene[0])
@@ -209,8 +233,11 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
             await probe.set_gui(gui_id(d.diagnosis_window), value=40.0)
             await probe.set_gui(gui_id(d.diagnose_button), value=True)
             async for _, messages in probe.frames():
-                texts = [m["updates"].get("_markdown", "") for m in messages
-                         if m["type"] == "GuiUpdateMessage" and m.get("uuid") == md_id]
+                texts = [
+                    m["updates"].get("_markdown", "")
+                    for m in messages
+                    if m["type"] == "GuiUpdateMessage" and m.get("uuid") == md_id
+                ]
                 if any("baro_thrust" in t for t in texts):
                     assert any("model altitude, vehicle sim_quad" in t for t in texts), texts
                     break
@@ -229,6 +256,7 @@ def test_the_state_panel_lists_what_the_estimator_skipped():
     from groundstation.estimation.estimator import EstimatorCounters
     from groundstation.estimation.loop import Snapshot
     from web.dashboard import Dashboard
+
     dash = Dashboard(port=0)
     try:
         counters = EstimatorCounters(skipped={"range_on_ground": 310, "baro_not_used": 49, "landed_not_used": 9})
@@ -247,6 +275,7 @@ def test_the_diagnosis_panel_follows_the_session():
     """The panel offers the session's own model where it can diagnose it, and leaves the choice as
     it was for one it cannot (the 3-DOF rig's)."""
     from web.dashboard import Dashboard
+
     dash = Dashboard(port=0)
     try:
         dash.attach_session(model="quad_thrust", declared=[], vehicle="apm2_sonar")

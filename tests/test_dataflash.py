@@ -1,4 +1,5 @@
 """ArduPilot DataFlash logs through pymavlink's DFReader, with the time base fixed."""
+
 import re
 import subprocess
 import sys
@@ -11,8 +12,12 @@ from groundstation.core.measurement import Kind
 
 from .conftest import real_file
 
-DURATIONS = {"ardupilot_loganalyzer_underpowered.log": 430.1, "ardupilot_loganalyzer_mechanical_fail.log": 110.0,
-             "pyflightcoach_pilot_0004.BIN": 99.4, "erle_pxf_copter_Loiter_RTL.bin": 278.6}
+DURATIONS = {
+    "ardupilot_loganalyzer_underpowered.log": 430.1,
+    "ardupilot_loganalyzer_mechanical_fail.log": 110.0,
+    "pyflightcoach_pilot_0004.BIN": 99.4,
+    "erle_pxf_copter_Loiter_RTL.bin": 278.6,
+}
 
 
 @pytest.mark.parametrize("name,duration", DURATIONS.items())
@@ -26,15 +31,17 @@ def test_reads_every_log(name, duration):
 def test_clockless_text_log_gets_the_control_loop_clock_and_shows_the_voltage_sag():
     log = read_dataflash(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
     assert log.clock.startswith("row count of CTUN")
-    by = {k: np.array([(m.t, m.value[0]) for m in log.measurements if m.kind is k])
-          for k in (Kind.THROTTLE, Kind.BATTERY_VOLTAGE, Kind.RANGE, Kind.BARO_ALTITUDE)}
+    by = {
+        k: np.array([(m.t, m.value[0]) for m in log.measurements if m.kind is k])
+        for k in (Kind.THROTTLE, Kind.BATTERY_VOLTAGE, Kind.RANGE, Kind.BARO_ALTITUDE)
+    }
     v = by[Kind.BATTERY_VOLTAGE]
     thr = np.interp(v[:, 0], by[Kind.THROTTLE][:, 0], by[Kind.THROTTLE][:, 1])
     air = thr > 0.3
     # the data README: volts 10.9 -> 9.2 in the air, corr(throttle, volt) = -0.86
     assert v[air, 1][:20].mean() > 10.5 and v[air, 1].min() < 9.3
     assert np.corrcoef(thr[air], v[air, 1])[0, 1] < -0.8
-    assert by[Kind.RANGE][:, 1].max() < 8.0          # sonar 0.2-7.7 m
+    assert by[Kind.RANGE][:, 1].max() < 8.0  # sonar 0.2-7.7 m
 
 
 def test_the_sonars_clamped_readings_are_skipped_with_the_limits_the_log_gives():
@@ -43,6 +50,7 @@ def test_the_sonars_clamped_readings_are_skipped_with_the_limits_the_log_gives()
     the vehicle 7.65 m up: they are counted skips, not heights. Newer logs give the limits as
     RNGFND parameters; a log with no rangefinder parameters keeps every positive reading."""
     from drivers.logs.dataflash import rangefinder_limits
+
     log = read_dataflash(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
     assert log.range_limits == (0.2, 7.65) and log.skipped["range_out_of_bounds"] == 564
     r = np.array([m.value[0] for m in log.measurements if m.kind is Kind.RANGE])
@@ -57,9 +65,9 @@ def test_the_sonars_clamped_readings_are_skipped_with_the_limits_the_log_gives()
 def test_binary_log_units_and_frames():
     log = read_dataflash(real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin"))
     acc = np.array([m.value for m in log.measurements if m.kind is Kind.ACCEL][:50])
-    assert acc[:, 2].mean() == pytest.approx(-9.8, abs=0.2)          # FRD, at rest
+    assert acc[:, 2].mean() == pytest.approx(-9.8, abs=0.2)  # FRD, at rest
     temps = [m.value[0] for m in log.measurements if m.kind is Kind.TEMPERATURE]
-    assert 280 < min(temps) and max(temps) < 330                      # kelvin
+    assert 280 < min(temps) and max(temps) < 330  # kelvin
 
 
 def test_foreign_and_truncated_files(tmp_path):
@@ -69,20 +77,38 @@ def test_foreign_and_truncated_files(tmp_path):
     raw = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin").read_bytes()
     (tmp_path / "cut.bin").write_bytes(raw[:400_000])
     log = read_dataflash(tmp_path / "cut.bin")
-    assert 50 < log.duration < 278                                      # what came before the cut is kept
+    assert 50 < log.duration < 278  # what came before the cut is kept
 
 
 def test_replay_export_and_evaluate_on_dataflash(tmp_path):
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "e.csv"
-    r = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(p), "--speed", "max", "--no-web",
-                        "--export-measurements", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "groundstation",
+            "replay",
+            str(p),
+            "--speed",
+            "max",
+            "--no-web",
+            "--export-measurements",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     assert "battery_voltage" in out.read_text()
     n_max = int(re.search(r"done: (\d+) measurements", r.stdout).group(1))
     # paced: 430 s of log at 100x, every record delivered
-    r = subprocess.run([sys.executable, "-m", "groundstation", "replay", str(p), "--no-web", "--quiet",
-                        "--speed", "100"], capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "groundstation", "replay", str(p), "--no-web", "--quiet", "--speed", "100"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 0, r.stderr
     assert int(re.search(r"done: (\d+) measurements", r.stdout).group(1)) == n_max
 
@@ -91,9 +117,10 @@ def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero()
     """DataFlash BARO carries Press and Alt for one sample: the filter reads it once (it once
     read it twice, the two against one shared zero, and NIS came out at 5e5)."""
     from groundstation.estimation.evaluate import evaluate
+
     p = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin")
     n_baro = sum(1 for m in read_dataflash(p).measurements if m.kind is Kind.BARO_PRESSURE)
     rows = {r.sensor: r for r in evaluate(p).rows}
     row = rows["baro"]
     assert n_baro - 60 <= row.n <= n_baro and row.nis < 10.0
-    assert "landed" not in rows         # the ground's pseudo-sensor (models.ground) is not a sensor's row
+    assert "landed" not in rows  # the ground's pseudo-sensor (models.ground) is not a sensor's row

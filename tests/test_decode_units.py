@@ -1,4 +1,5 @@
 """Unit and frame conversions, checked against the MAVLink message definitions."""
+
 import math
 
 import numpy as np
@@ -10,11 +11,31 @@ from drivers.mavlink.receiver import MavlinkReceiver
 from drivers.mavlink.units import G0, UNIT_TO_SI
 from groundstation.core.measurement import Kind
 
-ISSUE_TYPES = ["HEARTBEAT", "SYS_STATUS", "BATTERY_STATUS", "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2",
-               "SCALED_IMU3", "RAW_IMU", "SCALED_PRESSURE", "SCALED_PRESSURE2", "SCALED_PRESSURE3",
-               "DISTANCE_SENSOR", "ATTITUDE", "ATTITUDE_QUATERNION", "GPS_RAW_INT", "GLOBAL_POSITION_INT",
-               "LOCAL_POSITION_NED", "VFR_HUD", "SERVO_OUTPUT_RAW", "RC_CHANNELS", "MANUAL_CONTROL",
-               "ATT_POS_MOCAP", "EKF_STATUS_REPORT"]
+ISSUE_TYPES = [
+    "HEARTBEAT",
+    "SYS_STATUS",
+    "BATTERY_STATUS",
+    "HIGHRES_IMU",
+    "SCALED_IMU",
+    "SCALED_IMU2",
+    "SCALED_IMU3",
+    "RAW_IMU",
+    "SCALED_PRESSURE",
+    "SCALED_PRESSURE2",
+    "SCALED_PRESSURE3",
+    "DISTANCE_SENSOR",
+    "ATTITUDE",
+    "ATTITUDE_QUATERNION",
+    "GPS_RAW_INT",
+    "GLOBAL_POSITION_INT",
+    "LOCAL_POSITION_NED",
+    "VFR_HUD",
+    "SERVO_OUTPUT_RAW",
+    "RC_CHANNELS",
+    "MANUAL_CONTROL",
+    "ATT_POS_MOCAP",
+    "EKF_STATUS_REPORT",
+]
 
 
 def _cls(name):
@@ -32,7 +53,9 @@ def test_declared_units_match_the_message_definition(name):
     declared.update(SPECIAL_UNITS.get(name, {}))
     for field, unit in declared.items():
         assert field in _cls(name).fieldnames, (name, field)
-        assert defined.get(field) == unit, f"{name}.{field}: definition says {defined.get(field)!r}, decoder assumes {unit!r}"
+        assert defined.get(field) == unit, (
+            f"{name}.{field}: definition says {defined.get(field)!r}, decoder assumes {unit!r}"
+        )
         assert unit in UNIT_TO_SI
 
 
@@ -51,9 +74,9 @@ def test_scaled_imu_milli_g_and_milliradians():
     out, _ = decode(mavlink.MAVLink_scaled_imu2_message(12345, 1000, -500, -1000, 100, -200, 300, 250, 0, -250, 2150))
     acc = out[(Kind.ACCEL, 1)]
     assert acc.t == pytest.approx(12.345)
-    np.testing.assert_allclose(acc.value, [G0, -G0 / 2, -G0])        # FRD, z down: level vehicle reads -g
+    np.testing.assert_allclose(acc.value, [G0, -G0 / 2, -G0])  # FRD, z down: level vehicle reads -g
     np.testing.assert_allclose(out[(Kind.GYRO, 1)].value, [0.1, -0.2, 0.3])
-    np.testing.assert_allclose(out[(Kind.MAG, 1)].value, [25e-6, 0, -25e-6])   # 250 mG = 25 uT
+    np.testing.assert_allclose(out[(Kind.MAG, 1)].value, [25e-6, 0, -25e-6])  # 250 mG = 25 uT
 
 
 def test_raw_imu_uses_time_usec_and_id():
@@ -64,9 +87,12 @@ def test_raw_imu_uses_time_usec_and_id():
 
 
 def test_highres_imu_si_and_fields_updated():
-    flags = 0x7 | 0x38 | 0x200 | 0x1000        # acc, gyro, abs pressure, temperature; no mag
-    out, _ = decode(mavlink.MAVLink_highres_imu_message(3_000_000, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4,
-                                                        1013.25, 0.5, 11.0, 21.5, flags, 0))
+    flags = 0x7 | 0x38 | 0x200 | 0x1000  # acc, gyro, abs pressure, temperature; no mag
+    out, _ = decode(
+        mavlink.MAVLink_highres_imu_message(
+            3_000_000, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4, 1013.25, 0.5, 11.0, 21.5, flags, 0
+        )
+    )
     assert out[(Kind.ACCEL, 0)].value == pytest.approx([0.1, 0.2, -9.8], rel=1e-6)
     assert out[(Kind.BARO_PRESSURE, 0)].value[0] == pytest.approx(101325.0, rel=1e-6)
     assert out[(Kind.TEMPERATURE, 0)].value[0] == pytest.approx(294.65, rel=1e-6)
@@ -84,7 +110,7 @@ def test_distance_sensor_cm_to_m_with_variance_and_bounds():
     out, _ = decode(mavlink.MAVLink_distance_sensor_message(7000, 20, 400, 153, 0, 3, 25, 4))
     m = out[(Kind.RANGE, 3)]
     assert m.value[0] == pytest.approx(1.53)
-    assert m.variance[0] == pytest.approx(4e-4)            # 4 cm^2
+    assert m.variance[0] == pytest.approx(4e-4)  # 4 cm^2
     out, r = decode(mavlink.MAVLink_distance_sensor_message(7000, 20, 400, 401, 0, 3, 25, 255))
     assert (Kind.RANGE, 3) not in out
     assert r.decoder.skipped["range_out_of_bounds"] == 1
@@ -99,19 +125,24 @@ def test_attitude_and_quaternion():
 
 
 def test_gps_raw_int_degrees_metres_and_accuracy():
-    out, _ = decode(mavlink.MAVLink_gps_raw_int_message(1_700_000_000_000_000, 3, -353632610, 1491652300, 584070,
-                                                        120, 200, 150, 9000, 10, h_acc=1500, v_acc=3000))
+    out, _ = decode(
+        mavlink.MAVLink_gps_raw_int_message(
+            1_700_000_000_000_000, 3, -353632610, 1491652300, 584070, 120, 200, 150, 9000, 10, h_acc=1500, v_acc=3000
+        )
+    )
     m = out[(Kind.GPS, 0)]
     assert m.value == pytest.approx([-35.363261, 149.16523, 584.07])
-    assert m.variance[2] == pytest.approx(9.0)                    # (3 m)^2
-    assert m.variance[0] == pytest.approx((1.5 / 111320) ** 2)    # 1.5 m as degrees of latitude
-    assert m.t == pytest.approx(5.0, abs=0.01)   # UNIX-epoch time_usec: aligned clock, not the epoch
+    assert m.variance[2] == pytest.approx(9.0)  # (3 m)^2
+    assert m.variance[0] == pytest.approx((1.5 / 111320) ** 2)  # 1.5 m as degrees of latitude
+    assert m.t == pytest.approx(5.0, abs=0.01)  # UNIX-epoch time_usec: aligned clock, not the epoch
     out, r = decode(mavlink.MAVLink_gps_raw_int_message(0, 1, 0, 0, 0, 0, 0, 0, 0, 0))
     assert (Kind.GPS, 0) not in out and r.decoder.skipped["gps_no_3d_fix"] == 1
 
 
 def test_global_and_local_position():
-    out, _ = decode(mavlink.MAVLink_global_position_int_message(1000, 473977418, 85455938, 500000, 12345, 100, -200, 50, 0))
+    out, _ = decode(
+        mavlink.MAVLink_global_position_int_message(1000, 473977418, 85455938, 500000, 12345, 100, -200, 50, 0)
+    )
     assert out[(Kind.GLOBAL_POSITION, 0)].value == pytest.approx([47.3977418, 8.5455938, 500.0, 12.345])
     assert out[(Kind.VELOCITY_NED, 0)].value == pytest.approx([1.0, -2.0, 0.5])
     out, _ = decode(mavlink.MAVLink_local_position_ned_message(1000, 1, 2, -3, 0.1, 0.2, -0.3))
@@ -124,7 +155,7 @@ def test_vfr_hud_throttle_fraction_altitude_up():
     assert out[(Kind.ALTITUDE, 0)].value[0] == pytest.approx(12.5)
     assert out[(Kind.CLIMB_RATE, 0)].value[0] == pytest.approx(-0.5)
     assert out[(Kind.AIRSPEED, 0)].value[2] == pytest.approx(math.pi / 2)
-    assert out[(Kind.THROTTLE, 0)].t == pytest.approx(5.0)          # on the aligned vehicle clock
+    assert out[(Kind.THROTTLE, 0)].t == pytest.approx(5.0)  # on the aligned vehicle clock
 
 
 def test_battery_from_sys_status_and_battery_status():
@@ -172,7 +203,7 @@ def test_untimed_messages_wait_for_the_vehicle_clock():
     assert r.feed(mavlink.MAVLink_vfr_hud_message(0, 0, 0, 40, 3.0, 0).pack(enc), 100.0) == []
     out = r.feed(mavlink.MAVLink_attitude_message(20_000, 0, 0, 0, 0, 0, 0).pack(enc), 100.5)
     thr = [m for m in out if m.kind is Kind.THROTTLE][0]
-    assert thr.t == pytest.approx(19.5)       # stamped on the vehicle clock once it was known
+    assert thr.t == pytest.approx(19.5)  # stamped on the vehicle clock once it was known
     # A system that never sends a time field goes on receive time after the wait.
     enc2 = mavlink.MAVLink(None, 8, 1)
     assert r.feed(mavlink.MAVLink_vfr_hud_message(0, 0, 0, 40, 3.0, 0).pack(enc2), 200.0) == []
@@ -188,9 +219,9 @@ def test_untimed_messages_keep_to_the_timed_ones_when_the_delay_grows():
     enc = mavlink.MAVLink(None, 7, 1)
     r = MavlinkReceiver("t")
     lead = []
-    for k in range(1, 600):                                  # (a zero time field counts as none)
+    for k in range(1, 600):  # (a zero time field counts as none)
         t = 0.1 * k
-        rx = 1000.0 + t * 1.03                               # 3 % behind: 1.8 s after 60 s
+        rx = 1000.0 + t * 1.03  # 3 % behind: 1.8 s after 60 s
         timed = r.feed(mavlink.MAVLink_attitude_message(int(t * 1000), 0, 0, 0, 0, 0, 0).pack(enc), rx)
         hud = r.feed(mavlink.MAVLink_vfr_hud_message(0, 0, 0, 40, 3.0, 0).pack(enc), rx + 0.001)
         lead.append(hud[0].t - timed[0].t)
@@ -212,14 +243,18 @@ def test_ground_station_heartbeats_are_not_vehicle_status():
     assert (Kind.VEHICLE_STATUS, 0) not in out
 
 
-@pytest.mark.parametrize("mav_type,throttle", [
-    (mavlink.MAV_TYPE_QUADROTOR, 0.575),            # four motors
-    (mavlink.MAV_TYPE_COAXIAL, 0.6),                # two rotors; outputs 3-4 are swash-plate servos
-    (mavlink.MAV_TYPE_HELICOPTER, 0.6),             # one main rotor
-])
+@pytest.mark.parametrize(
+    "mav_type,throttle",
+    [
+        (mavlink.MAV_TYPE_QUADROTOR, 0.575),  # four motors
+        (mavlink.MAV_TYPE_COAXIAL, 0.6),  # two rotors; outputs 3-4 are swash-plate servos
+        (mavlink.MAV_TYPE_HELICOPTER, 0.6),  # one main rotor
+    ],
+)
 def test_the_throttle_averages_only_the_outputs_that_drive_rotors(mav_type, throttle):
     from groundstation.estimation.models.base import Context
     from groundstation.estimation.routing import read_throttle, read_vehicle_status
+
     ctx = Context({})
     out, _ = decode(mavlink.MAVLink_heartbeat_message(mav_type, 3, mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3))
     read_vehicle_status(out[(Kind.VEHICLE_STATUS, 0)], ctx)

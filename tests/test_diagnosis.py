@@ -4,6 +4,7 @@ The fast subset of the sweep (``bench/diagnosis.py`` runs effect x magnitude x
 seed): one seed per effect here, each a 60 s simulated flight and a full
 diagnosis (15-30 s each), so they are marked slow; CI runs them.
 """
+
 import json
 import subprocess
 import sys
@@ -24,8 +25,12 @@ def run_case(tmp_path, undeclared, *, declared=("range_tilt",), seed=11, vehicle
     log = tmp_path / f"s{seed}.tlog"
     run_fast(sc, log, log.with_suffix(".csv"))
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, source=str(log), declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None))
+    d = diagnose(
+        ms,
+        source=str(log),
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+    )
     rmse = [d.truth.rmse(r.t, r.x[:, 0], 8.0, 50.0) for r in (d.before, d.after)]
     return d, rmse
 
@@ -57,37 +62,40 @@ def test_the_excursion_test_finds_a_two_second_transient_and_says_when_and_what_
     assert ok["excursion"].passed and ok["CUSUM"].passed, ok["excursion"]
     dip = (t >= 100.0) & (t < 102.0)
     throttle[dip] = np.linspace(0.2, 0.6, dip.sum())
-    e = white - 4.0 * dip                       # -2 m at sigma 0.5 m
+    e = white - 4.0 * dip  # -2 m at sigma 0.5 m
     res = {f.test: f for f in detect("baro", t, e, e**2, 1, {"throttle": throttle}, nu=0.5 * e)}
     x = res["excursion"]
     assert not x.passed and x.statistic < 0, x
-    start, end = (float(v) for v in x.where.split(" s,")[0][len("t = "):].split("-"))
+    start, end = (float(v) for v in x.where.split(" s,")[0][len("t = ") :].split("-"))
     assert 99.0 <= start <= 100.5 and 100.5 <= end <= 102.5, x.where
     mean = float(x.where.split("mean ")[1].split(",")[0])
     assert -2.2 < mean < -1.5 and "throttle 0.2" in x.where, x.where
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("undeclared,name,param,value,bar,flight", [
-    # bar: the largest height error after / before. The baro's effects fly the high flight, whose
-    # climb above the range sensor's 4 m leaves the height to the baro; on the standard flight the
-    # range carries it throughout and a baro effect moves it by a few tenths of a millimetre
-    (["baro_thrust:k=3.0"], "baro_thrust", "k", 3.0, 0.5, "high"),
-    (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 0.5, "high"),
-    (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 1.05, "standard"),
-    # s g is a bias on the vertical (b_acc takes it): what is left, s a, is a few hundredths of a
-    # m/s^2, and s is read to +-0.002 (1 sigma): 0.02 is found, but 15 % of it is 1.5 sigma
-    (["accel_scale:s=0.04"], "accel_scale", "s", 0.04, 0.8, "standard"),
-    (["sensor_delay:sensor=range,seconds=0.06"], "sensor_delay", "seconds", 0.06, 0.2, "standard"),
-    ([], "range_tilt", None, None, 0.2, "standard"),   # range_tilt left undeclared (it is always physical)
-])
-def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undeclared, name, param, value, bar,
-                                                                flight):
+@pytest.mark.parametrize(
+    "undeclared,name,param,value,bar,flight",
+    [
+        # bar: the largest height error after / before. The baro's effects fly the high flight, whose
+        # climb above the range sensor's 4 m leaves the height to the baro; on the standard flight the
+        # range carries it throughout and a baro effect moves it by a few tenths of a millimetre
+        (["baro_thrust:k=3.0"], "baro_thrust", "k", 3.0, 0.5, "high"),
+        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 0.5, "high"),
+        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 1.05, "standard"),
+        # s g is a bias on the vertical (b_acc takes it): what is left, s a, is a few hundredths of a
+        # m/s^2, and s is read to +-0.002 (1 sigma): 0.02 is found, but 15 % of it is 1.5 sigma
+        (["accel_scale:s=0.04"], "accel_scale", "s", 0.04, 0.8, "standard"),
+        (["sensor_delay:sensor=range,seconds=0.06"], "sensor_delay", "seconds", 0.06, 0.2, "standard"),
+        ([], "range_tilt", None, None, 0.2, "standard"),  # range_tilt left undeclared (it is always physical)
+    ],
+)
+def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undeclared, name, param, value, bar, flight):
     declared = () if name == "range_tilt" else ("range_tilt",)
-    d, (before, after) = run_case(tmp_path, undeclared, declared=declared, flight=flight,
-                                  seed=8 if flight == "high" else 11)
+    d, (before, after) = run_case(
+        tmp_path, undeclared, declared=declared, flight=flight, seed=8 if flight == "high" else 11
+    )
     assert d.effects and d.effects[0].name == name, [e.name for e in d.effects]
-    assert "alternative" not in d.effects[0].evidence, d.effects[0].evidence    # told from the rest
+    assert "alternative" not in d.effects[0].evidence, d.effects[0].evidence  # told from the rest
     if param is not None:
         assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
     assert after < bar * before, (before, after)
@@ -104,13 +112,14 @@ def test_a_small_accelerometer_scale_is_weighed_over_the_updates_it_acts_on(tmp_
     trace.MATERIAL, and went unclaimed; over the 185 of 1262 updates its signature covers
     (trace.signature_support) it gains 0.12, and is found."""
     from groundstation.diagnosis.trace import MATERIAL
+
     d, (before, after) = run_case(tmp_path, ["accel_scale:s=0.015"])
     assert d.effects and d.effects[0].name == "accel_scale", [e.name for e in d.effects]
     e = d.effects[0]
     assert abs(e.params["s"] - 0.015) < 2.5 * e.params["sigma_s"] and e.params["sigma_s"] < 0.003, e.params
     ev, n_range = e.evidence, int((d.before.sensors["range"].t >= d.before.t[0] + 5.0).sum())
     assert 100 <= ev["support"] < 0.4 * n_range and ev["gain_per_update"] >= MATERIAL, (ev, n_range)
-    assert ev["loglik_gain"] / n_range < MATERIAL        # what the old count would have said
+    assert ev["loglik_gain"] / n_range < MATERIAL  # what the old count would have said
     assert after <= before
 
 
@@ -130,12 +139,13 @@ def test_a_large_accelerometer_bias_along_the_body_axis_leaves_the_range_innovat
 
 @pytest.mark.slow
 def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tmp_path):
-    """"Nothing claimed" comes with what the log could have shown (trace.smallest_claimed): the
+    """ "Nothing claimed" comes with what the log could have shown (trace.smallest_claimed): the
     size of each effect claimed about half the time. On the same flight, effects at half those
     sizes go unclaimed and at twice them are found. The range delay's limit comes from its
     profile's curvature at zero (trace.profile_sigma): delays of 0.01-0.015 s, once never
     located on the 0.04 s grid, are found (0.0100, 0.0147 s)."""
     from groundstation.diagnosis.report import as_json, conclusion
+
     d, _ = run_case(tmp_path, [])
     assert d.effects == []
     size = {x["name"]: x["size"] for x in d.detectable}
@@ -144,8 +154,9 @@ def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tm
     assert "The smallest sizes they would have shown about half the time: " in conclusion(d, as_json(d))
     for k in (0.5, 2.0):
         (tmp_path / str(k)).mkdir()
-        dk, (before, after) = run_case(tmp_path / str(k), [f"accel_scale:s={k * s50:.4f}",
-                                                           f"sensor_delay:sensor=range,seconds={k * d50:.4f}"])
+        dk, (before, after) = run_case(
+            tmp_path / str(k), [f"accel_scale:s={k * s50:.4f}", f"sensor_delay:sensor=range,seconds={k * d50:.4f}"]
+        )
         found = {e.name: e.params for e in dk.effects}
         if k < 1:
             assert found == {}, found
@@ -157,11 +168,18 @@ def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tm
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("vehicle,seed,flight", [
-    ("quad", 12, "standard"),
-    ("coax", 1056, "standard"),  # its baro zero drew a 10 cm (2 sigma) calibration error: once taken for baro_thrust
-    ("coax", 7, "high"),         # the baro alone above 4 m, the range back below
-])
+@pytest.mark.parametrize(
+    "vehicle,seed,flight",
+    [
+        ("quad", 12, "standard"),
+        (
+            "coax",
+            1056,
+            "standard",
+        ),  # its baro zero drew a 10 cm (2 sigma) calibration error: once taken for baro_thrust
+        ("coax", 7, "high"),  # the baro alone above 4 m, the range back below
+    ],
+)
 def test_a_clean_flight_claims_nothing(tmp_path, vehicle, seed, flight):
     d, (before, after) = run_case(tmp_path, [], seed=seed, vehicle=vehicle, flight=flight)
     assert d.effects == [] and d.discoveries == [] and d.modelled == []
@@ -175,6 +193,7 @@ def test_a_drift_the_log_barely_tells_from_a_thermal_error_is_reported_with_its_
     -7168.5 against -7161.9. Less than very strong evidence (engine.CLOSE_CALL): the report gives the
     drift beside it, sized right, and the conclusion says the log barely tells the two apart."""
     from groundstation.diagnosis.report import as_json, conclusion
+
     d, (before, after) = run_case(tmp_path, ["baro_bias_drift:rate=0.03,sigma=0.01"], seed=1147, flight="high")
     e = d.effects[0]
     alt = e.evidence["alternative"]
@@ -195,6 +214,7 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_regression_with_its_siz
     that without it the baro's innovations are white. It explains only 5-7 % of their variance (the
     baro's noise is 0.33 m): what names it is that it is their colour (discover.WHITENS)."""
     from groundstation.diagnosis.report import as_json, conclusion
+
     d, _ = run_case(tmp_path, [f"baro_airflow:k={k}"], seed=seed, vehicle=vehicle, flight="high")
     assert d.effects == [], [e.name for e in d.effects]
     x = {x.sensor: x for x in d.discoveries}["baro"]
@@ -205,8 +225,7 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_regression_with_its_siz
 
 @pytest.mark.slow
 def test_two_effects_at_once_are_both_found(tmp_path):
-    d, (before, after) = run_case(tmp_path, ["baro_thermal:k=0.5", "sensor_delay:sensor=range,seconds=0.05"],
-                                  seed=13)
+    d, (before, after) = run_case(tmp_path, ["baro_thermal:k=0.5", "sensor_delay:sensor=range,seconds=0.05"], seed=13)
     names = {e.name: e for e in d.effects}
     assert {"baro_thermal", "sensor_delay"} <= set(names), list(names)
     assert names["baro_thermal"].params["k"] == pytest.approx(0.5, rel=0.15)
@@ -219,11 +238,15 @@ def test_diagnose_command_writes_the_reports(tmp_path):
     log = tmp_path / "q.tlog"
     run_fast(Scenario.from_args("quad", 14, 40.0, ["range_tilt"], ["baro_thrust:k=2.5"]), log, tmp_path / "q.csv")
     out = tmp_path / "rep"
-    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out)],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
-    assert j["vehicle"] is None                           # no airframe file: the constants are the log's
+    assert j["vehicle"] is None  # no airframe file: the constants are the log's
     assert j["effects"][0]["name"] == "baro_thrust" and j["effects"][0]["params"]["k"] == pytest.approx(2.5, rel=0.15)
     for side in ("before", "after"):
         assert set(j[side]["sensors"]) >= {"range", "baro"} and "rmse_vs_truth" in j[side]
@@ -245,11 +268,12 @@ def test_an_innovation_plot_breaks_where_a_sensor_had_no_readings():
     """A range sensor out of reach above 4 m for 15 s: its innovations are drawn with a break there,
     not a straight line across (a NaN between the last reading before and the first after)."""
     from groundstation.diagnosis.report import _broken_at_gaps
+
     t = np.concatenate([np.arange(0.0, 15.0, 0.05), np.arange(30.0, 40.0, 0.05)])
     tb, yb = _broken_at_gaps(t, np.zeros_like(t))
     assert len(tb) == len(t) + 1 and np.isnan(tb[300]) and np.isnan(yb[300])
     assert tb[299] == pytest.approx(14.95) and tb[301] == 30.0
-    t2 = np.cumsum(np.random.default_rng(0).uniform(0.03, 0.07, 500))      # jitter only: no break
+    t2 = np.cumsum(np.random.default_rng(0).uniform(0.03, 0.07, 500))  # jitter only: no break
     assert len(_broken_at_gaps(t2, t2)[0]) == 500
 
 
@@ -262,7 +286,8 @@ def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
 
 def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
     from .conftest import real_file
-    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
+
+    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")  # no IMU in it
     r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p)], capture_output=True, text=True)
     assert r.returncode == 2 and "takes the accelerometer as its input" in r.stderr and "Traceback" not in r.stderr
 
@@ -273,33 +298,50 @@ def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp
     flight: n reads 2.02 with the thrust curve from the accelerometer (airframe.py); until session 24,
     from the hover throttle, this test could ask only for 1 < n < 2.5."""
     from sim_bridge.scenario import Scenario
+
     log = tmp_path / "tv.tlog"
     run_fast(Scenario.from_args("quad", 21, 60.0, ["range_tilt"], ["thrust_voltage:n=2"]), log, tmp_path / "tv.csv")
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None))
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+    )
     assert [e.name for e in d.effects][:1] == ["thrust_voltage"]
     assert d.effects[0].params["n"] == pytest.approx(2.0, rel=0.15)
-    assert "accel_scale" in d.unobservable          # the thrust model does not read the IMU
+    assert "accel_scale" in d.unobservable  # the thrust model does not read the IMU
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("undeclared, name, param, value, seed", [
-    ("actuator_lag:tc=0.2", "actuator_lag", "tc", 0.2, 1006),
-    ("thrust_ground_effect:R=0.25", "thrust_ground_effect", "R", 0.25, 1003),
-])
-def test_the_thrust_test_flight_shows_lag_and_ground_effect_to_the_thrust_model(tmp_path, undeclared, name,
-                                                                                  param, value, seed):
+@pytest.mark.parametrize(
+    "undeclared, name, param, value, seed",
+    [
+        ("actuator_lag:tc=0.2", "actuator_lag", "tc", 0.2, 1006),
+        ("thrust_ground_effect:R=0.25", "thrust_ground_effect", "R", 0.25, 1003),
+    ],
+)
+def test_the_thrust_test_flight_shows_lag_and_ground_effect_to_the_thrust_model(
+    tmp_path, undeclared, name, param, value, seed
+):
     """Undeclared, on the thrust test flight (a low hover, throttle steps; the sweep's seeds). In the
     standard flight neither acts where a sensor sees it. The lag was never found before the logged
     outputs became the commands (the simulator logged the lagged throttle, which hid the lag) and
     the candidate's reshaping stopped resetting at every sample."""
     log = tmp_path / "t.tlog"
-    run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"), log,
-             log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"),
+        log,
+        log.with_suffix(".csv"),
+    )
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None), veto_with_truth=False)
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+        veto_with_truth=False,
+    )
     assert [e.name for e in d.effects][:1] == [name], [e.name for e in d.effects]
     assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
     before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
@@ -311,27 +353,41 @@ def test_the_simulated_quads_vehicle_file_is_its_airframe():
     they must be the simulator's own."""
     from groundstation.estimation.registry import vehicle_config
     from sim_bridge.vehicles.quad import QuadParams
+
     cfg, p = vehicle_config("sim_quad", "quad_thrust"), QuadParams()
     assert (cfg["alpha0"], cfg["beta0"], cfg["drag"]) == (p.alpha, p.beta, p.drag)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("undeclared, name, param, value, seed", [
-    ("actuator_lag:tc=0.1", "actuator_lag", "tc", 0.1, 1004),
-    ("thrust_voltage:n=1.5", "thrust_voltage", "n", 1.5, 1005),
-])
-def test_with_the_airframe_known_thrust_effects_are_sized_within_15_percent(tmp_path, undeclared, name, param,
-                                                                             value, seed):
+@pytest.mark.parametrize(
+    "undeclared, name, param, value, seed",
+    [
+        ("actuator_lag:tc=0.1", "actuator_lag", "tc", 0.1, 1004),
+        ("thrust_voltage:n=1.5", "thrust_voltage", "n", 1.5, 1005),
+    ],
+)
+def test_with_the_airframe_known_thrust_effects_are_sized_within_15_percent(
+    tmp_path, undeclared, name, param, value, seed
+):
     """The airframe's thrust curve from its vehicle file (as from a thrust stand): the lag and the voltage
     exponent within 15 %. With beta held near 0 instead (no vehicle file: alpha 19.8 for the simulator's 22)
     these read 0.083-0.085 s and 1.12-1.15 over the sweep's seeds, 15-26 % low: each effect was sized against
     a throttle that buys 10 % too little thrust."""
     log = tmp_path / "t.tlog"
-    run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"), log,
-             log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"),
+        log,
+        log.with_suffix(".csv"),
+    )
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None), veto_with_truth=False, vehicle="sim_quad")
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+        veto_with_truth=False,
+        vehicle="sim_quad",
+    )
     assert [e.name for e in d.effects][:1] == [name], [e.name for e in d.effects]
     assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
 
@@ -345,12 +401,22 @@ def test_ground_effect_below_one_rotor_radius_is_held_at_its_h_equals_r_value(tm
     22) Cheeseman and Bennett's first order, 0.4 % of the thrust short at h = R, read R 0.269 m and the NIS
     1.12; the exact 1 / (1 - (R/4h)^2), linearised about R's estimate, reads 0.252 m (0.251 m with 0.0001)."""
     from scipy.stats import chi2
+
     log = tmp_path / "ge.tlog"
-    run_fast(Scenario.from_args("quad", 1063, 60.0, ["range_tilt"], ["thrust_ground_effect:R=0.25"],
-                                flight="thrust_test"), log, log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", 1063, 60.0, ["range_tilt"], ["thrust_ground_effect:R=0.25"], flight="thrust_test"),
+        log,
+        log.with_suffix(".csv"),
+    )
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None), veto_with_truth=False, vehicle="sim_quad")
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+        veto_with_truth=False,
+        vehicle="sim_quad",
+    )
     assert [e.name for e in d.effects][:1] == ["thrust_ground_effect"], [e.name for e in d.effects]
     assert d.effects[0].params["R"] == pytest.approx(0.25, rel=0.05)
     tr = d.after.sensors["range"]
@@ -372,12 +438,15 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.estimation.whiteness import ljung_box
+
     log = tmp_path / "clean.tlog"
-    run_fast(Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [], flight="thrust_test"), log,
-             log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [], flight="thrust_test"), log, log.with_suffix(".csv")
+    )
     ms = list(Replay(log).iter_measurements())
-    su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-               vehicle="sim_quad")
+    su = setup(
+        ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")), vehicle="sim_quad"
+    )
     tr = run_model(su.model, su.prep, su.make).sensors["range"]
     k = tr.t >= tr.t[0] + 5.0
     nis, n = float(np.mean(tr.nis[k])), int(k.sum())
@@ -395,8 +464,13 @@ def test_two_thrust_effects_at_once_are_both_found_and_sized_jointly(tmp_path):
     touchdown's "the thrust lifts the vehicle" counted the voltage's factor, its model fell through
     the ground after the landing (1.2 m), and the veto by truth rejected it (height error 26 mm)."""
     log = tmp_path / "two.tlog"
-    run_fast(Scenario.from_args("quad", 1101, 60.0, [], ["thrust_voltage:n=1.5", "actuator_lag:tc=0.1"],
-                                flight="thrust_test"), log, log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args(
+            "quad", 1101, 60.0, [], ["thrust_voltage:n=1.5", "actuator_lag:tc=0.1"], flight="thrust_test"
+        ),
+        log,
+        log.with_suffix(".csv"),
+    )
     ms = list(Replay(log).iter_measurements())
     d = diagnose(ms, model_name="quad_thrust", truth=truth_from(ms, log, None), vehicle="sim_quad")
     found = {e.name: e for e in d.effects}
@@ -417,8 +491,12 @@ def test_a_clean_flight_claims_nothing_in_the_thrust_model(tmp_path):
     log = tmp_path / "clean.tlog"
     run_fast(Scenario.from_args("quad", 1036, 60.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None))
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+    )
     assert d.effects == [] and d.discoveries == [], [e.name for e in d.effects]
     assert "landed" in d.before.sensors and "landed" not in d.before.loglik_by
 
@@ -433,10 +511,26 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     sonar's spurious echoes as the motors spin up on the ground are skipped: taken, they launched
     the model to 8 m, and the range's NIS after the fix was 13. And the sonar reads 0.45 s late."""
     from .conftest import real_file
+
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "up"
-    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "quad_thrust",
-                        "--vehicle", "apm2_sonar", "--out", str(out)], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "groundstation",
+            "diagnose",
+            str(p),
+            "--model",
+            "quad_thrust",
+            "--vehicle",
+            "apm2_sonar",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
     assert j["vehicle"] == "apm2_sonar" and "vehicles/apm2_sonar.json" in (out / "report.html").read_text()
@@ -449,7 +543,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert found["sensor_delay"]["sensor"] == "range" and 0.25 <= found["sensor_delay"]["seconds"] <= 0.5
     rng = j["after"]["sensors"]["range"]
     assert rng["skipped_spurious"] >= 6 and rng["nis_mean"] < 5.0, rng
-    assert any(t0 <= 55.0 <= t1 for t0, t1 in rng["skipped_spurious_at"]), rng     # the spin-up's echoes
+    assert any(t0 <= 55.0 <= t1 for t0, t1 in rng["skipped_spurious_at"]), rng  # the spin-up's echoes
     # and the dip itself, located in time before the fix: the baro low while the motors spin up
     x = next(f for f in j["findings_before"] if f["sensor"] == "baro" and f["test"] == "excursion")
     windows = [w.split(", ") for w in x["where"].split("; ")]
@@ -478,6 +572,7 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import hover_prior, thrust_model
+
     log = tmp_path / "land.tlog"
     run_fast(Scenario.from_args("quad", 1000, 60.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
     ms = list(Replay(log).iter_measurements())
@@ -489,7 +584,7 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     alpha, beta = run.final("alpha")[0], run.final("beta")[0]
     assert alpha == pytest.approx(22.0, rel=0.05) and beta == pytest.approx(-1.2, abs=0.4), (alpha, beta)
     landed = run.sensors["landed"]
-    assert (landed.t > ms[0].t + 55.8).sum() > 50       # the touchdown is held as landed
+    assert (landed.t > ms[0].t + 55.8).sum() > 50  # the touchdown is held as landed
     # and on the ground: the contact resets z to 0. With vz = 0 alone, applied as a full update against
     # the touchdown's 0.8 m/s, the estimate was pushed up and held 10-15 cm above the ground
     truth = truth_from(ms, log, None)
@@ -505,10 +600,11 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     sample before, and a step written at a sample read 20 ms early."""
     from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.thrust import lag_throttle
+
     ms = []
     for k in range(50):
         t = 0.02 * k
-        u = 0.0 if t < 0.2 else 1.0                                     # a step at 0.2 s
+        u = 0.0 if t < 0.2 else 1.0  # a step at 0.2 s
         ms.append(Measurement(t, Kind.ACTUATOR, np.array([u, u, u, u, np.nan, np.nan]), "sim"))
         if k % 5 == 0:
             ms.append(Measurement(t, Kind.THROTTLE, np.array([u]), "sim"))
@@ -522,13 +618,13 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
         s = np.linspace(t, t + d, 20001)
         return np.trapezoid(1 - np.exp(-(s - t_step) / tc), s) / d
 
-    assert pwm[0.18][0] == 0.0                               # nothing before the step is written
+    assert pwm[0.18][0] == 0.0  # nothing before the step is written
     for t in (0.2, 0.3, 0.5):
         assert pwm[t][0] == pytest.approx(mean_over(t, 0.02), abs=1e-6)
     thr = {round(m.t, 2): m.value[0] for m in out if m.kind is Kind.THROTTLE}
-    assert thr[0.3] == pytest.approx(mean_over(0.3, 0.1), abs=1e-6)      # its own samples, 0.1 s apart
+    assert thr[0.3] == pytest.approx(mean_over(0.3, 0.1), abs=1e-6)  # its own samples, 0.1 s apart
     assert lag_throttle(ms, 0.0) is ms
-    assert lag_throttle(ms, 1e-6)[-2].value[0] == pytest.approx(1.0)      # tc -> 0: the outputs themselves
+    assert lag_throttle(ms, 1e-6)[-2].value[0] == pytest.approx(1.0)  # tc -> 0: the outputs themselves
 
 
 def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
@@ -544,18 +640,20 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     from groundstation.diagnosis.thrust import lag_throttle
     from groundstation.estimation.models.base import Context
     from groundstation.estimation.models.ground import H_LANDED, TAU_GROUND, landed
+
     assert landed(Context({"throttle": 0.1, "_x": np.array([0.05, 0.0])}))
     assert not landed(Context({"throttle": 0.1, "_x": np.array([3.0, -2.0])}))
     assert not landed(Context({"throttle": 0.5, "_x": np.array([0.0, 0.0])}))
-    assert landed(Context({"throttle": 0.0, "_x": np.array([5.0, 0.0])}))      # motors stopped: landed
+    assert landed(Context({"throttle": 0.0, "_x": np.array([5.0, 0.0])}))  # motors stopped: landed
     log = tmp_path / "dip.tlog"
-    run_fast(Scenario.from_args("quad", 1002, 60.0, ["range_tilt"], [], flight="thrust_test"), log,
-             log.with_suffix(".csv"))
+    run_fast(
+        Scenario.from_args("quad", 1002, 60.0, ["range_tilt"], [], flight="thrust_test"), log, log.with_suffix(".csv")
+    )
     with open(log.with_suffix(".csv")) as f:
         rows = list(csv.DictReader(f))
     h = np.array([float(r["h"]) for r in rows])
     th = np.array([float(r["throttle"]) for r in rows])
-    assert (th[h > 1.0] < TAU_GROUND).sum() >= 2           # the dip is in this flight, well above the ground
+    assert (th[h > 1.0] < TAU_GROUND).sum() >= 2  # the dip is in this flight, well above the ground
     ms = list(Replay(log).iter_measurements())
     su = setup(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")))
     base = run_model(su.model, su.prep, su.make)
@@ -574,8 +672,12 @@ def test_the_thrust_model_names_an_undeclared_slant_range(tmp_path):
     log = tmp_path / "slant.tlog"
     run_fast(Scenario.from_args("quad", 1002, 60.0, [], [], flight="thrust_test"), log, log.with_suffix(".csv"))
     ms = list(Replay(log).iter_measurements())
-    d = diagnose(ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")),
-                 truth=truth_from(ms, log, None))
+    d = diagnose(
+        ms,
+        model_name="quad_thrust",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+        truth=truth_from(ms, log, None),
+    )
     assert [e.name for e in d.effects][:1] == ["range_tilt"], [e.name for e in d.effects]
     before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
     assert after < 0.5 * before, (before, after)
@@ -602,8 +704,14 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
     run_fast(Scenario.from_args("quad", 5, 20.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
     su = setup(list(Replay(log).iter_measurements()), model_name="altitude")
     base = run_model(su.model, su.prep, su.make)
-    out = rank([Candidate("blind", 0, set(), "range", blind_range, None)], su.model, base, su.prep, su.make,
-               su.prep.measurements)
+    out = rank(
+        [Candidate("blind", 0, set(), "range", blind_range, None)],
+        su.model,
+        base,
+        su.prep,
+        su.make,
+        su.prep.measurements,
+    )
     assert out[0].delta_bic == float("inf") and out[0].params == {"note": "the filter diverged"}
     assert not out[0].accepted
 
@@ -621,10 +729,14 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
     from groundstation.diagnosis.run import run_model
 
     log = tmp_path / "l.tlog"
-    run_fast(Scenario.from_args("quad", 1041, 60.0, ["range_tilt"], ["accel_scale:s=0.02"]), log,
-             log.with_suffix(".csv"))
-    su = setup(list(Replay(log).iter_measurements()), model_name="altitude",
-               declared=declared_effects(log.with_suffix(".declared.json")))
+    run_fast(
+        Scenario.from_args("quad", 1041, 60.0, ["range_tilt"], ["accel_scale:s=0.02"]), log, log.with_suffix(".csv")
+    )
+    su = setup(
+        list(Replay(log).iter_measurements()),
+        model_name="altitude",
+        declared=declared_effects(log.with_suffix(".declared.json")),
+    )
     aug = accel_scale(su.model)
     r = run_model(aug, su.prep, su.make)
     c = r.x[:, aug.index("accel_scale")]
@@ -636,6 +748,7 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
 
 def _range(t: float, d: float):
     from groundstation.core.measurement import Kind, Measurement
+
     return Measurement(t, Kind.RANGE, np.array([d]), "test")
 
 
@@ -644,12 +757,15 @@ def test_lift_off_is_where_the_range_keeps_reading_inside_its_limits_not_the_spi
     no-echo maximum, then spurious echoes for 0.9 s, then its floor for 5 s with the vehicle still
     on the ground, then a climb from 6.1 s. The hover throttle is read from there, not from the spin-up."""
     from groundstation.diagnosis.thrust import lift_off
-    ms = ([_range(0.1 * k, 7.65) for k in range(30)] + [_range(3.0 + 0.1 * k, d) for k, d in
-                                                        enumerate([6.46, 6.46, 5.28, 5.28, 1.94, 1.94, 0.28, 0.29])]
-          + [_range(3.8 + 0.1 * k, 0.2) for k in range(23)] + [_range(6.1 + 0.1 * k, 0.23 + 0.035 * k)
-                                                                for k in range(40)])
-    assert lift_off(ms, 0.0, (0.25, 7.0)) == pytest.approx(6.2)    # 0.23 is under the floor
-    assert lift_off([m for m in ms if m.t < 6.0], 0.0, (0.25, 7.0)) == 0.0     # never: the spin-up
+
+    ms = (
+        [_range(0.1 * k, 7.65) for k in range(30)]
+        + [_range(3.0 + 0.1 * k, d) for k, d in enumerate([6.46, 6.46, 5.28, 5.28, 1.94, 1.94, 0.28, 0.29])]
+        + [_range(3.8 + 0.1 * k, 0.2) for k in range(23)]
+        + [_range(6.1 + 0.1 * k, 0.23 + 0.035 * k) for k in range(40)]
+    )
+    assert lift_off(ms, 0.0, (0.25, 7.0)) == pytest.approx(6.2)  # 0.23 is under the floor
+    assert lift_off([m for m in ms if m.t < 6.0], 0.0, (0.25, 7.0)) == 0.0  # never: the spin-up
 
 
 def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust_model(tmp_path, monkeypatch):
@@ -659,6 +775,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     from groundstation.diagnosis import thrust
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
+
     log = tmp_path / "t.tlog"
     run_fast(Scenario.from_args("quad", 1012, 20.0, ["range_tilt"], [], flight="thrust_test"), log)
     ms = list(Replay(log).iter_measurements())
@@ -670,8 +787,9 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
         run = run_model(su.model, su.prep, su.make)
         k = (run.t > spin) & (run.t < spin + 0.8)
         return float(run.x[k, 0].max()), len(run.estimator.filter.ctx.values.get("range_spurious", ()))
+
     z, skipped = highest()
-    assert z < 0.15 and skipped == 6, (z, skipped)      # the model floats within 0.1 m at spin-up
+    assert z < 0.15 and skipped == 6, (z, skipped)  # the model floats within 0.1 m at spin-up
     monkeypatch.setattr(thrust, "LIFTOFF_REACH", np.inf)
     z, skipped = highest()
     assert z > 1.0 and skipped == 0, (z, skipped)
@@ -681,6 +799,7 @@ def test_a_short_sum_of_coloured_innovations_varies_as_an_ar1_sum_does():
     """The excursion test's spread: the exact variance of an m-sample sum of an AR(1) sequence, checked
     against the direct double sum and against 4000 simulated 20-sample sums at r = 0.9."""
     from groundstation.diagnosis.detect import ar1_sum_variance
+
     r, m = 0.95, 20
     direct = m + 2 * sum((m - k) * r**k for k in range(1, m))
     assert float(ar1_sum_variance(m, r)) == pytest.approx(direct) and float(ar1_sum_variance(m, 0.0)) == m
@@ -702,19 +821,24 @@ def test_the_throttle_is_held_at_its_intervals_mean_and_a_jump_where_it_shows():
     NaN and a stand-in 0/1 throttle as it is."""
     from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.outputs import interval_means
+
     t = np.round(np.arange(0.0, 0.2, 0.02), 3)
     tau = np.array([0.5, 0.5, 0.2, 0.21, 0.22, 0.23, 0.24, 0.25, 0.26, 0.27])
-    ms = [Measurement(float(ti), Kind.ACTUATOR, np.array([v, v, v, v, np.nan]), "replay/1.1", float(ti))
-          for ti, v in zip(t, tau)]
+    ms = [
+        Measurement(float(ti), Kind.ACTUATOR, np.array([v, v, v, v, np.nan]), "replay/1.1", float(ti))
+        for ti, v in zip(t, tau)
+    ]
     ms.insert(5, Measurement(0.09, Kind.RANGE, np.array([1.0]), "replay/1.1", 0.09))
     gap = Measurement(0.6, Kind.ACTUATOR, np.array([0.6, 0.6, 0.6, 0.6, np.nan]), "replay/1.1", 0.6)
-    stand_in = [Measurement(x, Kind.THROTTLE, np.array([v]), "derived/vibration", x)
-                for x, v in ((0.0, 0.0), (0.05, 1.0), (0.1, 1.0))]
+    stand_in = [
+        Measurement(x, Kind.THROTTLE, np.array([v]), "derived/vibration", x)
+        for x, v in ((0.0, 0.0), (0.05, 1.0), (0.1, 1.0))
+    ]
     out = interval_means(ms + [gap] + stand_in)
     held = [float(m.value[0]) for m in out if m.kind is Kind.ACTUATOR]
-    assert held[:2] == [0.5, 0.5]                        # level, then the step's record before it
+    assert held[:2] == [0.5, 0.5]  # level, then the step's record before it
     assert held[2:9] == pytest.approx([0.205, 0.215, 0.225, 0.235, 0.245, 0.255, 0.265])
-    assert held[9:] == [0.27, 0.6]                       # 0.4 s to the next record: held as logged
+    assert held[9:] == [0.27, 0.6]  # 0.4 s to the next record: held as logged
     assert all(np.isnan(m.value[4]) for m in out if m.kind is Kind.ACTUATOR)
     assert [float(m.value[0]) for m in out if m.kind is Kind.THROTTLE] == [0.0, 1.0, 1.0]
     assert out[5].kind is Kind.RANGE and [m.t for m in out] == [m.t for m in ms + [gap] + stand_in]

@@ -4,6 +4,7 @@ Each case is a 60 s simulated quadcopter flight with the effect undeclared and a
 full ``diagnose --model attitude`` (about 10 s together). The sweep over 5 seeds
 and 3 magnitudes is ``bench/diagnosis.py --effects gyro_bias,imu_misalignment,clean_attitude``.
 """
+
 import json
 import math
 import subprocess
@@ -45,10 +46,13 @@ def test_the_jacobian_is_the_derivative_of_the_dynamics(v_d):
     assert np.allclose(J, num, atol=1e-6), np.round(J - num, 6)
 
 
-@pytest.mark.parametrize("undeclared,name,expect,seed", [
-    (["gyro_bias:x=0.015,y=-0.01,z=0"], "gyro_bias", {"x": 0.015, "y": -0.01}, 41),
-    (["imu_misalignment:roll=2.5,pitch=-1.5,yaw=0"], "imu_misalignment", {"roll": 2.5, "pitch": -1.5}, 42),
-])
+@pytest.mark.parametrize(
+    "undeclared,name,expect,seed",
+    [
+        (["gyro_bias:x=0.015,y=-0.01,z=0"], "gyro_bias", {"x": 0.015, "y": -0.01}, 41),
+        (["imu_misalignment:roll=2.5,pitch=-1.5,yaw=0"], "imu_misalignment", {"roll": 2.5, "pitch": -1.5}, 42),
+    ],
+)
 def test_an_undeclared_imu_effect_is_found_with_its_parameters(tmp_path, undeclared, name, expect, seed):
     log, ms = fly(tmp_path, undeclared, seed)
     d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
@@ -56,9 +60,9 @@ def test_an_undeclared_imu_effect_is_found_with_its_parameters(tmp_path, undecla
     for k, v in expect.items():
         assert d.effects[0].params[k] == pytest.approx(v, rel=0.15), d.effects[0].params
     before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
-    assert after < 0.2 * before, (math.degrees(before), math.degrees(after))      # a geometric effect: >= 80 %
+    assert after < 0.2 * before, (math.degrees(before), math.degrees(after))  # a geometric effect: >= 80 %
     nis = {f.test: f for f in d.findings_after if f.sensor == "accel"}["NIS mean"]
-    assert 1.8 < nis.statistic < 2.2, nis          # two components: consistent again
+    assert 1.8 < nis.statistic < 2.2, nis  # two components: consistent again
 
 
 def test_a_clean_flight_claims_nothing_in_the_attitude_model(tmp_path):
@@ -87,12 +91,13 @@ def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_pat
     (from microsecond stamps, three in four took a sixth before session 20's slack, and the grid
     drifted), and on a clean flight the model's x innovations are that noise."""
     from groundstation.diagnosis.run import run_model
+
     log, ms = fly(tmp_path, [], 43)
     su = setup(ms, model_name="attitude")
     assert {m.samples for m in su.prep.measurements if m.kind is Kind.ACCEL} == {5}
     acc = run_model(su.model, su.prep, su.make).sensors["accel"]
     truth = np.genfromtxt(log.with_suffix(".csv"), delimiter=",", names=True)
-    row = np.searchsorted(truth["t"], acc.t + 0.01 - 1e-6)      # a block stamped t closes at t + 10 ms
+    row = np.searchsorted(truth["t"], acc.t + 0.01 - 1e-6)  # a block stamped t closes at t + 10 ms
     ok = (row < len(truth)) & (acc.t > 5.0)
     assert np.allclose(truth["t"][row[ok]], acc.t[ok] + 0.01)
     noise = truth["accel_err_x"][row[ok]]
@@ -133,8 +138,12 @@ def test_a_gyro_bias_and_a_mounting_error_at_once_are_both_found(tmp_path):
 def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
     log, _ = fly(tmp_path, ["gyro_bias:x=0.02,y=0,z=0"], 44)
     out = tmp_path / "rep"
-    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "attitude",
-                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    r = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "attitude", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     j = json.loads((out / "report.json").read_text())
     assert j["effects"][0]["name"] == "gyro_bias" and j["after"]["rmse_of"] == "roll and pitch [rad]"
@@ -147,9 +156,13 @@ def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
 
 def test_attitude_diagnosis_needs_a_raw_imu():
     from .conftest import real_file
-    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")     # no IMU in it
-    r = subprocess.run([sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "attitude"],
-                       capture_output=True, text=True)
+
+    p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")  # no IMU in it
+    r = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "attitude"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "no raw IMU" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -159,6 +172,7 @@ def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
     from groundstation.core.measurement import Kind
     from groundstation.diagnosis.live import SessionBuffer
     from groundstation.diagnosis.run import prepare
+
     log = tmp_path / "b.tlog"
     run_fast(Scenario.from_args("quad", 45, 12.0, ["range_tilt"], []), log)
     ms = list(Replay(log).iter_measurements())
@@ -168,7 +182,7 @@ def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
     for kind in (Kind.ACCEL, Kind.GYRO):
         live = [m for m in buf.window(1e9) if m.kind is kind]
         logged = [m for m in prepare(ms).measurements if m.kind is kind]
-        assert len(live) == len(logged) - 1 > 1000          # the last block is still open
+        assert len(live) == len(logged) - 1 > 1000  # the last block is still open
         assert np.allclose([m.t for m in live], [m.t for m in logged[:-1]])
         assert np.allclose([m.value for m in live], [m.value for m in logged[:-1]])
 

@@ -1,4 +1,5 @@
 """The altitude filter and the estimation loop, against the document and the simulator's truth."""
+
 import csv
 import math
 
@@ -24,20 +25,24 @@ def test_exact_discretisation_reproduces_the_documents_closed_forms():
     m = altitude_model(G_acc=0.7, G_bias=0.3)
     T, Ga, Gb = 0.01, 0.7, 0.3
     Phi, G, Qk = discretize(m.A(None), m.B, m.Qc, T)
-    np.testing.assert_allclose(Phi, [[1, T, -T**2 / 2], [0, 1, -T], [0, 0, 1]], atol=1e-15)        # (9.14)
-    np.testing.assert_allclose(G[:, 0], [T**2 / 2, T, 0], atol=1e-15)                               # (9.16)
-    np.testing.assert_array_equal(G[:, 1], 0.0)              # cos_tilt acts through A only (the bias's share)
-    Q924 = np.array([
-        [T**3 / 3 * Ga + T**5 / 20 * Gb, T**2 / 2 * Ga + T**4 / 8 * Gb, -T**3 / 6 * Gb],
-        [T**2 / 2 * Ga + T**4 / 8 * Gb, T * Ga + T**3 / 3 * Gb, -T**2 / 2 * Gb],
-        [-T**3 / 6 * Gb, -T**2 / 2 * Gb, T * Gb]])
-    np.testing.assert_allclose(Qk, Q924, rtol=1e-9, atol=1e-18)                                      # (9.24)
+    np.testing.assert_allclose(Phi, [[1, T, -(T**2) / 2], [0, 1, -T], [0, 0, 1]], atol=1e-15)  # (9.14)
+    np.testing.assert_allclose(G[:, 0], [T**2 / 2, T, 0], atol=1e-15)  # (9.16)
+    np.testing.assert_array_equal(G[:, 1], 0.0)  # cos_tilt acts through A only (the bias's share)
+    Q924 = np.array(
+        [
+            [T**3 / 3 * Ga + T**5 / 20 * Gb, T**2 / 2 * Ga + T**4 / 8 * Gb, -(T**3) / 6 * Gb],
+            [T**2 / 2 * Ga + T**4 / 8 * Gb, T * Ga + T**3 / 3 * Gb, -(T**2) / 2 * Gb],
+            [-(T**3) / 6 * Gb, -(T**2) / 2 * Gb, T * Gb],
+        ]
+    )
+    np.testing.assert_allclose(Qk, Q924, rtol=1e-9, atol=1e-18)  # (9.24)
 
 
 def test_the_series_discretisation_matches_the_exponentials_where_the_filter_uses_it():
     """Input-dependent and nonlinear models sum the integrals as a series while |A| dt < 0.2
     (filters.SERIES_LIMIT): there it must agree with Van Loan's exponentials."""
     from groundstation.estimation.filters import SERIES_LIMIT
+
     rng = np.random.default_rng(0)
     for _ in range(20):
         A = rng.standard_normal((6, 6))
@@ -59,10 +64,11 @@ def test_the_accelerometers_bias_acts_along_the_body_axis():
     from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.models.base import Context
     from groundstation.estimation.routing import vertical_acceleration
+
     b, roll = 0.4, math.radians(20.0)
     c = math.cos(roll)
-    ctx = Context({"down_row": (0.0, math.sin(roll), c)})         # (A_IB)_down for roll only
-    f_body = np.array([0.0, 0.0, -9.80665 / c - b])               # thrust holding the height; the bias (FRD z)
+    ctx = Context({"down_row": (0.0, math.sin(roll), c)})  # (A_IB)_down for roll only
+    f_body = np.array([0.0, 0.0, -9.80665 / c - b])  # thrust holding the height; the bias (FRD z)
     u = vertical_acceleration(_m(0.0, Kind.ACCEL, f_body), ctx)
     assert u == pytest.approx([c * b, c])
     f = ModelFilter(altitude_model())
@@ -95,8 +101,9 @@ def run_altitude(tmp_path, seed, *, bias=0.0, seconds=60.0):
 def errors(snaps, truth, bias, t0=6.0, t1=50.0):
     t = np.array([s.t for s in snaps])
     keep = (t > t0) & (t < t1)
-    xt = np.stack([np.interp(t, truth["t"], truth["h"]), -np.interp(t, truth["t"], truth["vd"]),
-                   np.full(len(t), bias)], 1)
+    xt = np.stack(
+        [np.interp(t, truth["t"], truth["h"]), -np.interp(t, truth["t"], truth["vd"]), np.full(len(t), bias)], 1
+    )
     e = np.array([s.x for s in snaps]) - xt
     P = np.array([s.P for s in snaps])
     return t[keep], e[keep], P[keep]
@@ -108,9 +115,9 @@ def test_nees_and_nis_inside_their_95_percent_bands_over_20_seeded_runs(tmp_path
     rng = np.random.default_rng(2024)
     nees_runs, nis_runs = [], {"range": [], "baro": []}
     for seed in range(M):
-        bias = float(rng.normal(0.0, 0.2))                 # drawn from the filter's prior (P0_bias = 0.2^2)
+        bias = float(rng.normal(0.0, 0.2))  # drawn from the filter's prior (P0_bias = 0.2^2)
         est, snaps, truth, _ = run_altitude(tmp_path, 100 + seed, bias=bias)
-        _, e, P = errors(snaps, truth, -bias)     # a body-z (down) bias is -b on gamma_z (up)
+        _, e, P = errors(snaps, truth, -bias)  # a body-z (down) bias is -b on gamma_z (up)
         nees_runs.append(np.mean([ei @ np.linalg.solve(Pi, ei) for ei, Pi in zip(e, P)]))
         for s in nis_runs:
             a = est.filter.log.arrays(s)
@@ -129,7 +136,9 @@ def test_rmse_below_the_range_sensor_noise_and_below_a_low_pass_of_equal_lag(tmp
     rmse = np.sqrt(np.mean(e[:, 0] ** 2))
     # the range sensor's own error (against the slant it really measures)
     slant = np.interp(rng[:, 0], truth["t"], truth["h"]) / (
-        np.cos(np.interp(rng[:, 0], truth["t"], truth["roll"])) * np.cos(np.interp(rng[:, 0], truth["t"], truth["pitch"])))
+        np.cos(np.interp(rng[:, 0], truth["t"], truth["roll"]))
+        * np.cos(np.interp(rng[:, 0], truth["t"], truth["pitch"]))
+    )
     keep = (rng[:, 0] > 6) & (rng[:, 0] < 50)
     sensor_noise = np.std(rng[keep, 1] - slant[keep])
     assert rmse < sensor_noise
@@ -150,19 +159,20 @@ def test_rmse_below_the_range_sensor_noise_and_below_a_low_pass_of_equal_lag(tmp
 
 
 def _m(t, kind, value, source="sim/1.1", t_rx=None, instance=0):
-    return Measurement(t, kind, np.atleast_1d(np.asarray(value, dtype=float)), source,
-                       t if t_rx is None else t_rx, None, instance)
+    return Measurement(
+        t, kind, np.atleast_1d(np.asarray(value, dtype=float)), source, t if t_rx is None else t_rx, None, instance
+    )
 
 
 def test_loop_orders_within_the_window_counts_late_and_reinitialises_on_a_clock_jump():
     est = altitude_estimator()
     loop = EstimationLoop([est], reorder_s=0.05)
     out = loop.snapshots.subscribe()
-    for k in range(100):                                   # 1 s of IMU at 100 Hz, level and still
+    for k in range(100):  # 1 s of IMU at 100 Hz, level and still
         loop.push(_m(10 + k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
         if k % 4 == 0 and k:
-            loop.push(_m(10 + k * 0.01 - 0.02, Kind.RANGE, [1.0]))   # 20 ms late: inside the window
-    loop.push(_m(10.2, Kind.RANGE, [1.0]))                 # 0.8 s late: dropped, counted
+            loop.push(_m(10 + k * 0.01 - 0.02, Kind.RANGE, [1.0]))  # 20 ms late: inside the window
+    loop.push(_m(10.2, Kind.RANGE, [1.0]))  # 0.8 s late: dropped, counted
     assert loop.counters.late == 1 and loop.counters.rollbacks == 24
     loop.flush()
     snaps = out.get_nowait()
@@ -194,19 +204,20 @@ def test_a_mavlink_streams_untimed_outputs_roll_back_to_the_ordered_result(tmp_p
     lost (a 60 s flight's alpha 2 m/s^2 off); the first outputs, late to the filter's start, were
     dropped; and VFR_HUD's throttle overtook the outputs stamped at its instant."""
     from groundstation.estimation.routing import quad_thrust_estimator
+
     run_fast(Scenario.from_args("quad", 7, 20.0, [], []), tmp_path / "q.tlog", tmp_path / "q.csv")
     ms = list(Replay(tmp_path / "q.tlog").iter_measurements())
     late = sum(b.t < a.t for a, b in zip(ms, ms[1:]) if b.kind in (Kind.ACTUATOR, Kind.THROTTLE))
-    assert late > 400                                      # the stream really is out of order
+    assert late > 400  # the stream really is out of order
     live, ordered = quad_thrust_estimator(), quad_thrust_estimator()
     loop = EstimationLoop([live])
     for m in ms:
         loop.push(m)
-    for m in sorted(ms, key=lambda m: m.t):                # stable: arrival order at equal times
+    for m in sorted(ms, key=lambda m: m.t):  # stable: arrival order at equal times
         ordered.handle(m)
     assert loop.counters.rollbacks >= late
     assert live.filter.t == ordered.filter.t
-    np.testing.assert_allclose(live.filter.x, ordered.filter.x, rtol=1e-5, atol=1e-6)   # the input cache: u to 1e-6
+    np.testing.assert_allclose(live.filter.x, ordered.filter.x, rtol=1e-5, atol=1e-6)  # the input cache: u to 1e-6
     np.testing.assert_allclose(live.filter.P, ordered.filter.P, rtol=1e-4, atol=1e-10)
     assert loop.counters.late == 0
 
@@ -219,7 +230,7 @@ def test_prediction_through_a_dropout_grows_the_covariance():
         if k % 4 == 0:
             loop.push(_m(k * 0.01, Kind.RANGE, [1.0]))
     p_before = est.filter.P[0, 0]
-    for k in range(200, 400):                              # the range sensor goes quiet for 2 s
+    for k in range(200, 400):  # the range sensor goes quiet for 2 s
         loop.push(_m(k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
     loop.flush()
     assert est.filter.P[0, 0] > 10 * p_before
@@ -256,17 +267,24 @@ def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():
 
     from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.models.base import MeasurementModel
+
     model = altitude_model()
     f = ModelFilter(model)
     f.kf.P = np.array([[0.04, 0.01, 0.002], [0.01, 0.09, 0.003], [0.002, 0.003, 0.01]])
     f.kf.x = np.array([0.3, -0.8, 0.05])
     x0, P0 = f.kf.x.copy(), f.kf.P.copy()
-    vz = MeasurementModel("landed", Kind.THROTTLE, lambda m, c: np.array([0.0]),
-                          lambda c: np.array([[0.0, 1.0, 0.0]]), np.array([[0.05**2]]), corrects=(1,))
+    vz = MeasurementModel(
+        "landed",
+        Kind.THROTTLE,
+        lambda m, c: np.array([0.0]),
+        lambda c: np.array([[0.0, 1.0, 0.0]]),
+        np.array([[0.05**2]]),
+        corrects=(1,),
+    )
     f.update(vz, np.array([0.0]))
     k = 0.09 / (0.09 + 0.05**2)
     assert f.kf.x[1] == pytest.approx(-0.8 * (1 - k))
-    assert f.kf.x[[0, 2]] == pytest.approx(x0[[0, 2]])                       # a full update moves z by P_zv/S*nu
+    assert f.kf.x[[0, 2]] == pytest.approx(x0[[0, 2]])  # a full update moves z by P_zv/S*nu
     assert f.kf.P[np.ix_([0, 2], [0, 2])] == pytest.approx(P0[np.ix_([0, 2], [0, 2])])
     assert f.kf.P[1, 1] == pytest.approx(0.09 * (1 - k))
     assert np.allclose(f.kf.P, f.kf.P.T) and np.all(np.linalg.eigvalsh(f.kf.P) > 0)
@@ -282,6 +300,7 @@ def test_landed_the_filter_holds_still_and_a_quiet_range_puts_it_on_the_ground(r
     range carries the height and the ground constraint only holds it still."""
     from groundstation.estimation.models.ground import LANDED
     from groundstation.estimation.registry import build_estimator
+
     est = build_estimator("altitude")
     ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -9.80665]) for k in range(600)]
     ms += [_m(k * 0.02, Kind.THROTTLE, 0.5 if k * 0.02 < 2.0 else 0.0) for k in range(300)]
@@ -293,12 +312,12 @@ def test_landed_the_filter_holds_still_and_a_quiet_range_puts_it_on_the_ground(r
         z[round(m.t, 3)] = float(est.filter.kf.x[0])
     assert z[1.98] == pytest.approx(0.30, abs=0.01)
     landed = est.filter.log.arrays(LANDED)
-    assert len(landed["t"]) > 0 and landed["t"].min() >= 2.0          # only once the motors stopped
+    assert len(landed["t"]) > 0 and landed["t"].min() >= 2.0  # only once the motors stopped
     if range_reads_on:
         assert z[5.98] == pytest.approx(0.30, abs=0.01)
     else:
         assert abs(z[5.98]) < 0.02, z[5.98]
-        assert z[2.2] > 0.25                # held still while the range may only have missed a reading
+        assert z[2.2] > 0.25  # held still while the range may only have missed a reading
 
 
 def test_a_throttle_message_dated_ahead_of_the_sensors_does_not_move_the_filters_clock():
@@ -306,15 +325,16 @@ def test_a_throttle_message_dated_ahead_of_the_sensors_does_not_move_the_filters
     the live simulated link SERVO_OUTPUT_RAW led the IMU by 90 ms): applied at the filter's own
     time, they leave the IMU blocks after them in order (MeasurementModel.untimed)."""
     from groundstation.estimation.registry import build_estimator
+
     est = build_estimator("altitude")
     ms = [_m(k * 0.01, Kind.ACCEL, [0.0, 0.0, -9.80665]) for k in range(200)]
     ms += [_m(k * 0.02 + 0.09, Kind.ACTUATOR, [0.0, 0.0, 0.0, 0.0], t_rx=k * 0.02) for k in range(100)]
-    ms.sort(key=lambda m: m.t_rx)              # in arrival order: each output 90 ms ahead of the IMU
+    ms.sort(key=lambda m: m.t_rx)  # in arrival order: each output 90 ms ahead of the IMU
     for m in ms:
         est.handle(m)
     assert "out_of_order" not in est.counters.skipped, est.counters.skipped
     assert est.filter.t == pytest.approx(1.99)
-    assert len(est.filter.log.arrays("landed")["t"]) > 50        # and the constraint still applies
+    assert len(est.filter.log.arrays("landed")["t"]) > 50  # and the constraint still applies
 
 
 def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_them():
@@ -324,16 +344,17 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     from groundstation.diagnosis.thrust import throttle_series
     from groundstation.estimation.models.base import Context
     from groundstation.estimation.routing import read_throttle
+
     ctx = Context({})
     thr = [Measurement(t, Kind.THROTTLE, np.array([0.50]), "sim") for t in (0.0, 0.1)]
     pwm = Measurement(0.05, Kind.ACTUATOR, np.array([0.503] * 4 + [math.nan] * 4), "sim")
     read_throttle(thr[0], ctx)
-    assert ctx.values["throttle"] == 0.50             # no outputs yet: THROTTLE is all there is
+    assert ctx.values["throttle"] == 0.50  # no outputs yet: THROTTLE is all there is
     read_throttle(pwm, ctx)
     read_throttle(thr[1], ctx)
     assert ctx.values["throttle"] == pytest.approx(0.503)
     assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
-    assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]                 # a log without outputs
+    assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]  # a log without outputs
 
 
 def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
@@ -344,6 +365,7 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     from groundstation.diagnosis.battery import load_line
     from groundstation.estimation.models.base import Context
     from groundstation.estimation.routing import read_throttle, throttle_at_reading
+
     ctx = Context({})
     read_throttle(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
     read_throttle(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
@@ -355,7 +377,7 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     for j, tau in enumerate(taus):
         t = 0.2 * j
         drawn = taus[j - 1] if j else tau
-        ms.append(Measurement(t, Kind.BATTERY_VOLTAGE, np.array([12.0 - 4.0 * drawn ** 2]), "sim"))
+        ms.append(Measurement(t, Kind.BATTERY_VOLTAGE, np.array([12.0 - 4.0 * drawn**2]), "sim"))
         throttle.append((t, float(tau)))
     k, _ = load_line(ms, throttle)
     assert k == pytest.approx(4.0, rel=1e-6)

@@ -1,4 +1,5 @@
 """The fast frame walker agrees with pymavlink on every frame, however the bytes arrive."""
+
 import random
 import sys
 from pathlib import Path
@@ -32,7 +33,7 @@ def test_any_chunking_gives_the_same_result(stream):
     got, i = [], 0
     while i < len(stream):
         n = rng.choice([1, 2, 3, 7, 64, 300, 4096])
-        got += [_key(m) for m in pieces.feed(stream[i:i + n], 1.0)]
+        got += [_key(m) for m in pieces.feed(stream[i : i + n], 1.0)]
         i += n
     assert got == ref
     assert pieces.counters.messages == whole.counters.messages == 3000

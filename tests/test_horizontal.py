@@ -1,4 +1,5 @@
 """Horizontal position (IMU + GPS with its correlated error as states), and how the dashboard shows it."""
+
 import csv
 
 import numpy as np
@@ -25,7 +26,7 @@ def test_horizontal_filter_tracks_velocity_and_says_what_gps_allows(tmp_path):
     X, P = np.array([x.x for x in s]), np.array([x.P for x in s])
     k = t > 10.0
     gps = est.filter.log.arrays("gps")
-    t0 = gps["t"][0]                                     # the local origin is the first fix
+    t0 = gps["t"][0]  # the local origin is the first fix
     err_n = X[k, 0] - (np.interp(t[k], tt, truth["n"]) - np.interp(t0, tt, truth["n"]))
     err_e = X[k, 1] - (np.interp(t[k], tt, truth["e"]) - np.interp(t0, tt, truth["e"]))
     sig = np.sqrt(P[k, 0, 0])
@@ -35,19 +36,32 @@ def test_horizontal_filter_tracks_velocity_and_says_what_gps_allows(tmp_path):
     # the IMU carries velocity between fixes
     v_rmse = np.sqrt(np.mean((X[k, 2] - np.interp(t[k], tt, truth["vn"])) ** 2))
     assert v_rmse < 0.3
-    assert 1.0 < gps["nis"][gps["t"] > 10].mean() < 3.0           # 2 dof
+    assert 1.0 < gps["nis"][gps["t"] > 10].mean() < 3.0  # 2 dof
 
 
 def test_dashboard_ellipsoid_takes_the_horizontal_covariance():
     from web.dashboard import Dashboard
+
     d = Dashboard(port=0)
     try:
-        d.feed_snapshot(Snapshot(1.0, "altitude", ("z", "vz", "b_acc"), np.array([2.0, 0, 0]),
-                                 np.diag([0.01**2, 1e-4, 1e-4]), None, 0.0))
-        d.feed_snapshot(Snapshot(1.0, "horizontal", ("n", "e", "vn", "ve", "b_n", "b_e"),
-                                 np.array([3.0, -1.0, 0, 0, 0, 0]), np.diag([4.0, 1.0, 0.1, 0.1, 1, 1]), None, 0.0))
+        d.feed_snapshot(
+            Snapshot(
+                1.0, "altitude", ("z", "vz", "b_acc"), np.array([2.0, 0, 0]), np.diag([0.01**2, 1e-4, 1e-4]), None, 0.0
+            )
+        )
+        d.feed_snapshot(
+            Snapshot(
+                1.0,
+                "horizontal",
+                ("n", "e", "vn", "ve", "b_n", "b_e"),
+                np.array([3.0, -1.0, 0, 0, 0, 0]),
+                np.diag([4.0, 1.0, 0.1, 0.1, 1, 1]),
+                None,
+                0.0,
+            )
+        )
         d.update_scene()
-        np.testing.assert_allclose(d.vehicle.position, [3.0, 1.0, 2.0])       # (n, -e, -d)
-        assert sorted(np.round(d.ellipsoid.scale, 4)) == [0.03, 3.0, 6.0]      # 3 sigma: z, e, n
+        np.testing.assert_allclose(d.vehicle.position, [3.0, 1.0, 2.0])  # (n, -e, -d)
+        assert sorted(np.round(d.ellipsoid.scale, 4)) == [0.03, 3.0, 6.0]  # 3 sigma: z, e, n
     finally:
         d.stop()

@@ -16,7 +16,7 @@ from .test_link_udp import _next_state, _take
 
 @async_test(timeout=30)
 async def test_serial_link_survives_unplug_and_replug(tmp_path):
-    port = PtyPort(tmp_path / "ttyVEHICLE")      # a stable name, like /dev/serial/by-id/...
+    port = PtyPort(tmp_path / "ttyVEHICLE")  # a stable name, like /dev/serial/by-id/...
     port.plug()
     veh = MavlinkVehicle(pty=port)
     await veh.open()
@@ -30,9 +30,9 @@ async def test_serial_link_survives_unplug_and_replug(tmp_path):
             veh.send(mavlink.MAVLink_distance_sensor_message(1000 + i, 10, 500, 100 + i, 0, 0, 25, 0))
         got = await _take(sub, 11)
         assert [m.value[0] for m in got if m.kind is Kind.RANGE] == pytest.approx([1.0 + 0.01 * i for i in range(10)])
-        await veh.wait_for("HEARTBEAT")                 # GCS heartbeat came down the serial line
+        await veh.wait_for("HEARTBEAT")  # GCS heartbeat came down the serial line
 
-        port.unplug()                                    # the USB radio is pulled out
+        port.unplug()  # the USB radio is pulled out
         lost = await _next_state(events, LinkState.LOST)
         assert "ttyVEHICLE" in lost.reason or "/dev/pts" in lost.reason
         link.recorder.flush()
@@ -40,11 +40,11 @@ async def test_serial_link_survives_unplug_and_replug(tmp_path):
         n = 0
         while conn.recv_match(type="DISTANCE_SENSOR") is not None:
             n += 1
-        assert n == 10                                   # nothing recorded so far is lost
+        assert n == 10  # nothing recorded so far is lost
 
-        port.plug()                                      # ... and plugged back in
+        port.plug()  # ... and plugged back in
         await veh.open()
-        veh.start_heartbeat(10.0)                        # pyserial flushes input on open
+        veh.start_heartbeat(10.0)  # pyserial flushes input on open
         await _next_state(events, LinkState.ALIVE, timeout=10)
         veh.send(mavlink.MAVLink_distance_sensor_message(2000, 10, 500, 250, 0, 0, 25, 0))
         got = await _take(sub, 2)

@@ -1,4 +1,5 @@
 """The MAVLink link over real loopback UDP and TCP, against a vehicle sending real frames."""
+
 import asyncio
 import os
 
@@ -18,6 +19,7 @@ async def _next_state(events, want: LinkState, timeout=5.0):
         async for ev in events:
             if ev.state is want:
                 return ev
+
     return await asyncio.wait_for(_w(), timeout)
 
 
@@ -29,14 +31,16 @@ async def _take(sub, n, timeout=5.0):
             out.append(m)
             if len(out) >= n:
                 return
+
     await asyncio.wait_for(_w(), timeout)
     return out
 
 
 async def _udp_pair(tmp_path=None, ack="accept", mavlink1=False, **kw):
     port = free_udp_port()
-    link = MavlinkLink(f"udpin:127.0.0.1:{port}", record=tmp_path / "s.tlog" if tmp_path else None,
-                       ack_timeout=0.3, **kw)
+    link = MavlinkLink(
+        f"udpin:127.0.0.1:{port}", record=tmp_path / "s.tlog" if tmp_path else None, ack_timeout=0.3, **kw
+    )
     sub, events = link.measurements(), link.events()
     await link.open()
     veh = MavlinkVehicle(udp_to=("127.0.0.1", port), ack=ack, mavlink1=mavlink1)
@@ -111,7 +115,7 @@ async def test_link_lost_after_silence_and_resumes():
     try:
         veh.heartbeat()
         await _next_state(events, LinkState.ALIVE)
-        lost = await _next_state(events, LinkState.LOST)     # the vehicle says nothing more
+        lost = await _next_state(events, LinkState.LOST)  # the vehicle says nothing more
         assert "no valid message" in lost.reason
         veh.heartbeat()
         await _next_state(events, LinkState.ALIVE)
@@ -128,7 +132,7 @@ async def test_counters_sequence_gaps_bad_crc_and_garbage():
         await _next_state(events, LinkState.ALIVE)
         for i in range(10):
             veh.send(mavlink.MAVLink_attitude_message(100 + i, 0, 0, 0, 0, 0, 0))
-        veh.mav.seq = (veh.mav.seq + 5) % 256           # five frames "lost in the air"
+        veh.mav.seq = (veh.mav.seq + 5) % 256  # five frames "lost in the air"
         good = veh.send(mavlink.MAVLink_attitude_message(200, 0, 0, 0, 0, 0, 0))
         bad = bytearray(veh.encode(mavlink.MAVLink_attitude_message(300, 0.5, 0, 0, 0, 0, 0)))
         bad[15] ^= 0x55
@@ -137,7 +141,7 @@ async def test_counters_sequence_gaps_bad_crc_and_garbage():
         veh.send(mavlink.MAVLink_attitude_message(400, 0.25, 0, 0, 0, 0, 0))
         got = await _take(sub, 1 + 2 * 12)
         c = link.counters
-        assert c.seq_lost == 6             # five skipped + the corrupted frame
+        assert c.seq_lost == 6  # five skipped + the corrupted frame
         assert c.crc_errors == 1 and c.bad_data >= 1
         assert got[-2].kind is Kind.ATTITUDE and got[-2].value[0] == pytest.approx(0.25)
         assert c.by_type["ATTITUDE"] == 12 and good
@@ -155,13 +159,13 @@ async def test_flooding_peer_is_bounded_and_counted():
         await _next_state(events, LinkState.ALIVE)
         frame = veh.encode(mavlink.MAVLink_attitude_message(1, 0, 0, 0, 0, 0, 0))
         sock = veh._sock
-        for _ in range(400):           # 20,000 frames in bursts the socket buffer holds
+        for _ in range(400):  # 20,000 frames in bursts the socket buffer holds
             for _ in range(50):
                 try:
                     sock.sendto(frame, veh.udp_to)
                 except BlockingIOError:
                     break
-            await asyncio.sleep(0)          # let the link read them
+            await asyncio.sleep(0)  # let the link read them
         # The kernel drops what overflows the socket buffer, so a heartbeat sent
         # once might never arrive: beat until one after the flood gets through.
         after = asyncio.Event()
@@ -187,8 +191,8 @@ async def test_tcp_client_reconnects_when_the_peer_returns():
         writer.write(hb)
         await writer.drain()
         served.set()
-        await reader.read(1)          # wait for the ground station's heartbeat
-        writer.close()                # then drop the connection
+        await reader.read(1)  # wait for the ground station's heartbeat
+        writer.close()  # then drop the connection
 
     server = await asyncio.start_server(handle, "127.0.0.1", port)
     link = MavlinkLink(f"tcp:127.0.0.1:{port}", streams={})
@@ -198,7 +202,7 @@ async def test_tcp_client_reconnects_when_the_peer_returns():
         await _next_state(events, LinkState.ALIVE)
         await _next_state(events, LinkState.LOST)
         served.clear()
-        await asyncio.wait_for(served.wait(), 5)      # the link came back by itself
+        await asyncio.wait_for(served.wait(), 5)  # the link came back by itself
         await _next_state(events, LinkState.ALIVE)
     finally:
         await link.close()
@@ -214,7 +218,7 @@ async def test_udpout_reaches_a_listening_vehicle():
     sub = link.measurements()
     await link.open()
     try:
-        await veh.wait_for("HEARTBEAT")          # our heartbeat tells the vehicle where we are
+        await veh.wait_for("HEARTBEAT")  # our heartbeat tells the vehicle where we are
         veh.heartbeat()
         veh.send(mavlink.MAVLink_attitude_message(1000, 0.3, 0, 0, 0, 0, 0))
         got = await _take(sub, 3)

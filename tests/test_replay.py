@@ -1,4 +1,5 @@
 """Replay: speed, pause/resume, seek and loop, through the live receive path."""
+
 import asyncio
 import math
 import time
@@ -14,7 +15,7 @@ from .helpers import imu_frames, write_tlog
 
 @pytest.fixture
 def two_seconds(tmp_path):
-    return write_tlog(tmp_path / "two.tlog", imu_frames(200), dt=0.01)   # 200 records over 1.99 s
+    return write_tlog(tmp_path / "two.tlog", imu_frames(200), dt=0.01)  # 200 records over 1.99 s
 
 
 @async_test()
@@ -26,7 +27,7 @@ async def test_speed_paces_playback(two_seconds):
     elapsed = time.monotonic() - t0
     got = sub.get_nowait()
     assert len(got) == 600
-    assert 0.18 <= elapsed < 2.0          # 1.99 s of recording at 10x
+    assert 0.18 <= elapsed < 2.0  # 1.99 s of recording at 10x
 
 
 @async_test()
@@ -41,6 +42,7 @@ async def test_max_speed_is_lossless_with_a_slow_consumer(two_seconds):
             n += 1
             if n % 50 == 0:
                 await asyncio.sleep(0)
+
     await asyncio.gather(rp.run(), slow())
     assert n == 600 and sub.dropped == 0
 
@@ -51,7 +53,7 @@ async def test_pause_holds_and_resume_continues(two_seconds):
     sub = rp.measurements()
     rp.pause()
     task = asyncio.create_task(rp.run())
-    for _ in range(20):                   # event-loop turns, no wall-clock wait
+    for _ in range(20):  # event-loop turns, no wall-clock wait
         await asyncio.sleep(0)
     assert sub.backlog == 0 and rp.status.state is ReplayState.PAUSED
     rp.resume()
@@ -67,7 +69,7 @@ async def test_seek_jumps_by_recording_time(two_seconds):
     sub = rp.measurements()
     await rp.run()
     ts = [m.t for m in sub.get_nowait() if m.kind is Kind.ACCEL]
-    assert len(ts) == 50 and ts[0] == pytest.approx(1.0 + 1.5, abs=0.011)   # vehicle time 2.5 s
+    assert len(ts) == 50 and ts[0] == pytest.approx(1.0 + 1.5, abs=0.011)  # vehicle time 2.5 s
 
 
 @async_test()
@@ -78,7 +80,7 @@ async def test_loop_plays_again(two_seconds):
     n = 0
     async for _ in sub:
         n += 1
-        if n == 1500:                    # two and a half passes
+        if n == 1500:  # two and a half passes
             break
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
@@ -89,12 +91,14 @@ async def test_loop_plays_again(two_seconds):
 def test_speed_limits():
     with pytest.raises(ValueError):
         from drivers.replay import check_speed
+
         check_speed(1000)
 
 
 @async_test()
 async def test_typed_replay_commands(two_seconds):
     from groundstation.app.console import replay_command
+
     rp = Replay(two_seconds, speed=1.0)
     stop = asyncio.Event()
     assert replay_command("p", rp, stop) == "paused" and rp.status.state is ReplayState.PAUSED

@@ -1,5 +1,6 @@
 """Recursive least squares (coaxial document ch. 7): exact against the offline solution,
 and calibrating the barometer against the range sensor on a simulated flight."""
+
 import numpy as np
 import pytest
 
@@ -20,7 +21,7 @@ def test_recursion_equals_the_offline_solution():
     rls = RecursiveLeastSquares(3, P0=1e9)
     for phi, yk in zip(X, y):
         rls.update(phi, yk)
-    np.testing.assert_allclose(rls.theta, least_squares(X, y), atol=1e-6)       # eq. 7.10
+    np.testing.assert_allclose(rls.theta, least_squares(X, y), atol=1e-6)  # eq. 7.10
 
 
 def test_forgetting_factor_tracks_a_drifting_parameter():
@@ -28,7 +29,7 @@ def test_forgetting_factor_tracks_a_drifting_parameter():
     plain, forget = RecursiveLeastSquares(2), RecursiveLeastSquares(2, lam=0.98)
     for k in range(2000):
         x = rng.normal()
-        b = 0.002 * k                                    # the offset drifts
+        b = 0.002 * k  # the offset drifts
         y = 2.0 * x + b + rng.normal(scale=0.05)
         plain.update([x, 1.0], y)
         forget.update([x, 1.0], y)

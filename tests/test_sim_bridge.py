@@ -1,4 +1,5 @@
 """The simulated vehicle over real transports, and its recorded sessions."""
+
 import asyncio
 import csv
 import json
@@ -19,8 +20,15 @@ from sim_bridge.scenario import Scenario
 
 from .conftest import async_test
 
-REQUESTED = {Kind.ACCEL: 250.0, Kind.BARO_PRESSURE: 50.0, Kind.RANGE: 25.0, Kind.ATTITUDE: 50.0,
-             Kind.GPS: 5.0, Kind.ACTUATOR: 50.0, Kind.BATTERY_VOLTAGE: 5.0}
+REQUESTED = {
+    Kind.ACCEL: 250.0,
+    Kind.BARO_PRESSURE: 50.0,
+    Kind.RANGE: 25.0,
+    Kind.ATTITUDE: 50.0,
+    Kind.GPS: 5.0,
+    Kind.ACTUATOR: 50.0,
+    Kind.BATTERY_VOLTAGE: 5.0,
+}
 
 
 async def _fly(bridge: SimBridge, link: MavlinkLink, seconds: float):
@@ -30,9 +38,10 @@ async def _fly(bridge: SimBridge, link: MavlinkLink, seconds: float):
     async def consume():
         async for m in sub:
             got.append(m)
+
     task = asyncio.create_task(consume())
     await bridge.run(seconds)
-    await asyncio.sleep(0.1)         # the last datagrams in flight (loopback)
+    await asyncio.sleep(0.1)  # the last datagrams in flight (loopback)
     task.cancel()
     return got
 
@@ -49,8 +58,9 @@ def _rates(ms, t0, t1):
 async def test_udp_every_sensor_at_its_requested_rate_and_the_recording_replays(tmp_path):
     link = MavlinkLink("udpin:127.0.0.1:0", record=tmp_path / "s.tlog")
     await link.open()
-    bridge = SimBridge(Scenario("quad", seed=2, duration=60), udp_to=("127.0.0.1", link.transport.local_address[1]),
-                       speed=4.0)
+    bridge = SimBridge(
+        Scenario("quad", seed=2, duration=60), udp_to=("127.0.0.1", link.transport.local_address[1]), speed=4.0
+    )
     await bridge.open()
     try:
         live = await _fly(bridge, link, 12.0)
@@ -59,7 +69,7 @@ async def test_udp_every_sensor_at_its_requested_rate_and_the_recording_replays(
         await link.close()
     assert link.stream_method[1] == "SET_MESSAGE_INTERVAL"
     assert link.counters.seq_lost == 0 and link.counters.crc_errors == 0
-    rates = _rates(live, 6.0, 12.0)          # after the streams were set, in flight (range valid)
+    rates = _rates(live, 6.0, 12.0)  # after the streams were set, in flight (range valid)
     for kind, hz in REQUESTED.items():
         assert rates[kind] == pytest.approx(hz, rel=0.05), (kind, rates[kind])
     # the recording plays back to the very same measurements
@@ -96,13 +106,13 @@ async def test_serial_pty_link_and_commands_fly_the_vehicle(tmp_path):
             await asyncio.sleep(0.02)
         assert bridge.commands_received > 10 and bridge.sim.externally_commanded
         assert bridge.sim.vehicle.tau == pytest.approx(0.8)
-        assert bridge.sim.vehicle.kin.height > 0.2          # it climbed on our command
+        assert bridge.sim.vehicle.kin.height > 0.2  # it climbed on our command
         # commands stop: the vehicle falls back to its own autopilot within the timeout
         t_stop = bridge.sim.t
         while bridge.sim.externally_commanded:
             await asyncio.sleep(0.02)
         assert bridge.sim.t - t_stop <= 0.3 + 0.1
-        assert bridge.received.get("HEARTBEAT", 0) > 0      # GCS heartbeats came down the pty
+        assert bridge.received.get("HEARTBEAT", 0) > 0  # GCS heartbeats came down the pty
         bridge.close()
         await runner
     finally:
@@ -114,8 +124,12 @@ async def test_serial_pty_link_and_commands_fly_the_vehicle(tmp_path):
 async def test_injected_loss_and_corruption_are_seen_by_the_ground_station():
     link = MavlinkLink("udpin:127.0.0.1:0", streams={})
     await link.open()
-    bridge = SimBridge(Scenario("quad", seed=4), udp_to=("127.0.0.1", link.transport.local_address[1]),
-                       faults=LinkFaults(loss=0.2, corrupt=0.05), speed=4.0)
+    bridge = SimBridge(
+        Scenario("quad", seed=4),
+        udp_to=("127.0.0.1", link.transport.local_address[1]),
+        faults=LinkFaults(loss=0.2, corrupt=0.05),
+        speed=4.0,
+    )
     await bridge.open()
     try:
         await _fly(bridge, link, 8.0)
@@ -164,13 +178,14 @@ def test_every_vehicle_records_a_session(tmp_path, vehicle):
 
 def test_baro_reads_the_standard_atmosphere(tmp_path):
     from groundstation.core.atmosphere import altitude_at
+
     run_fast(Scenario("quad", seed=6, duration=20.0), tmp_path / "q.tlog", tmp_path / "q.csv")
     rows = list(csv.DictReader(open(tmp_path / "q.csv")))
     tt = np.array([float(r["t"]) for r in rows])
     h = np.array([float(r["h"]) for r in rows])
     baro = [(m.t, m.value[0]) for m in Replay(tmp_path / "q.tlog").iter_measurements() if m.kind is Kind.BARO_PRESSURE]
     err = np.array([altitude_at(p) - 120.0 - np.interp(t, tt, h) for t, p in baro])
-    assert abs(err.mean()) < 0.1 and 0.2 < err.std() < 0.5          # 4 Pa of noise is ~0.33 m
+    assert abs(err.mean()) < 0.1 and 0.2 < err.std() < 0.5  # 4 Pa of noise is ~0.33 m
 
 
 @async_test(timeout=40)
@@ -188,13 +203,13 @@ async def test_set_attitude_target_and_disconnect_on_demand(tmp_path):
             if ev.state is LinkState.ALIVE:
                 break
         half = math.radians(10) / 2
-        q = [math.cos(half), math.sin(half), 0.0, 0.0]            # 10 deg of roll
+        q = [math.cos(half), math.sin(half), 0.0, 0.0]  # 10 deg of roll
         for _ in range(30):
             link.send(mavlink.MAVLink_set_attitude_target_message(0, 1, 1, 0b00000111, q, 0, 0, 0.0, 0.7))
             await asyncio.sleep(0.02)
         assert bridge.sim.externally_commanded and bridge.sim.vehicle.tau == pytest.approx(0.7)
         assert bridge.sim.last_command.roll == pytest.approx(math.radians(10), abs=1e-6)
-        bridge.disconnect(1.0)                                     # the radio drops out for a second
+        bridge.disconnect(1.0)  # the radio drops out for a second
         async for ev in events:
             if ev.state is LinkState.LOST:
                 break

@@ -1,4 +1,5 @@
 """Every effect of the catalogue does what its documented equation says."""
+
 import math
 
 import numpy as np
@@ -60,25 +61,31 @@ def test_baro_bias_drift_rate():
     assert np.polyfit(t, err, 1)[0] == pytest.approx(0.1, abs=0.01)
 
 
-@pytest.mark.parametrize("spec,check", [
-    ("baro_thermal:k=0.5", lambda tr: 0.5 * (tr["temperature"] - 293.15)),
-    ("baro_ground_effect:A=-2,h0=0.5", lambda tr: -2 * math.exp(-max(0.0, tr["h"]) / 0.5) if tr["throttle"] > 0.05 else 0.0),
-    ("baro_airflow:k=0.3", lambda tr: 0.3 * tr["vd"] ** 2),
-])
+@pytest.mark.parametrize(
+    "spec,check",
+    [
+        ("baro_thermal:k=0.5", lambda tr: 0.5 * (tr["temperature"] - 293.15)),
+        (
+            "baro_ground_effect:A=-2,h0=0.5",
+            lambda tr: -2 * math.exp(-max(0.0, tr["h"]) / 0.5) if tr["throttle"] > 0.05 else 0.0,
+        ),
+        ("baro_airflow:k=0.3", lambda tr: 0.3 * tr["vd"] ** 2),
+    ],
+)
 def test_baro_errors_follow_their_equation(spec, check):
     _, rows = fly([spec], seconds=30)
     e = _baro_error(rows)
     resid = np.array([err - check(tr) for _, err, tr in e])
-    assert abs(resid.mean()) < 0.05 and resid.std() < 0.5         # what remains is the 4 Pa noise
-    assert max(abs(check(tr)) for *_, tr in e) > 0.3               # and the effect was large
+    assert abs(resid.mean()) < 0.05 and resid.std() < 0.5  # what remains is the 4 Pa noise
+    assert max(abs(check(tr)) for *_, tr in e) > 0.3  # and the effect was large
 
 
 def test_baro_thrust_is_low_passed_throttle():
     _, rows = fly(["baro_thrust:k=4,tc=0.5"], seconds=30)
     e = [(s.t, float(altitude_at(s.values[0])) - 120.0 - h, tr) for s, _, h, _, tr in series(rows, "baro", t0=0.0)]
-    before = np.mean([err for t, err, _ in e if t < 1.9])                 # motors off
+    before = np.mean([err for t, err, _ in e if t < 1.9])  # motors off
     flying = [(err, tr["throttle"]) for t, err, tr in e if t > 8.0]
-    assert abs(before) < 0.15                                             # no wash without rotors
+    assert abs(before) < 0.15  # no wash without rotors
     assert np.mean([x[0] for x in flying]) == pytest.approx(4 * np.mean([x[1] for x in flying]), abs=0.2)
     # the step at spin-up is smoothed with tc = 0.5 s: about 63 % of it after 0.5 s
     spin = next(t for t, _, tr in e if tr["throttle"] > 0.05)
@@ -95,7 +102,7 @@ def test_range_is_slant_and_offset_adds():
     tilted = [(s, h, c) for s, _, h, c, _ in rng if c < math.cos(math.radians(8))]
     assert tilted, "the profile tilts the vehicle"
     slant = np.array([s.values[0] + 0.04 - h for s, h, c in tilted])
-    assert slant.mean() > 0.01                                      # longer than the height: slant
+    assert slant.mean() > 0.01  # longer than the height: slant
 
 
 def test_sensor_delay_delivers_late():
@@ -123,7 +130,7 @@ def test_thrust_ground_effect_and_actuator_lag():
     sim, rows = fly(["actuator_lag:tc=0.1"], seconds=8)
     applied = [r["throttle"] for r in sim.truth_rows]
     steps = np.abs(np.diff(applied))
-    assert steps.max() < 0.1                                          # no jumps: the motors lag
+    assert steps.max() < 0.1  # no jumps: the motors lag
     # the lag is in the motors: the outputs the log records (PWM) are the commands, which jump at arming
     pwm = [s.values[0] for s, *_ in rows if s.sensor == "actuators"]
     assert np.abs(np.diff(pwm)).max() > 0.3
@@ -142,12 +149,12 @@ def test_the_logged_outputs_are_the_command_the_motors_fly_from_then_on():
             assert flown == shown, sim.t
             changed += flown != previous
         previous, shown = flown, sim.actuator_outputs()[0]
-    assert changed > 1000          # the autopilot moved the throttle at most of its ticks
+    assert changed > 1000  # the autopilot moved the throttle at most of its ticks
 
 
 def test_imu_misalignment_rotates_and_vibration_shakes():
     _, rows = fly(["imu_misalignment:roll=3,pitch=0,yaw=0"], seconds=10)
-    imu = [s for s, *_ in series(rows, "imu", t0=0.5) if s.t < 1.9]     # standing level
+    imu = [s for s, *_ in series(rows, "imu", t0=0.5) if s.t < 1.9]  # standing level
     fy = np.mean([s.values[1] for s in imu])
     assert fy == pytest.approx(-9.80665 * math.sin(math.radians(3)), abs=0.02)
     _, calm = fly([], seconds=12)

@@ -1,4 +1,5 @@
 """The .tlog format: our files open in pymavlink's reader, theirs in ours; damage is survivable."""
+
 import os
 
 import numpy as np
@@ -28,10 +29,13 @@ def test_our_recording_reads_in_pymavlink(tmp_path):
     assert got[10]._timestamp == pytest.approx(1_700_000_000.1, abs=1e-6)
 
 
-@pytest.mark.parametrize("name,messages,crc_errors,mavlink2", [
-    ("dronekit_flight_replay_flight.tlog", 75477, 1314, False),   # MAVProxy, MAVLink 1, radio damage
-    ("ardusub_small.tlog", 35912, 4, True),                        # QGroundControl, MAVLink 2
-])
+@pytest.mark.parametrize(
+    "name,messages,crc_errors,mavlink2",
+    [
+        ("dronekit_flight_replay_flight.tlog", 75477, 1314, False),  # MAVProxy, MAVLink 1, radio damage
+        ("ardusub_small.tlog", 35912, 4, True),  # QGroundControl, MAVLink 2
+    ],
+)
 def test_their_recordings_read_here_as_pymavlink_reads_them(name, messages, crc_errors, mavlink2):
     p = real_file(f"mavlink_tlog/{name}")
     rp = Replay(p)
@@ -49,7 +53,7 @@ def test_their_recordings_read_here_as_pymavlink_reads_them(name, messages, crc_
 def test_truncated_last_record_is_tolerated(tmp_path):
     p = write_tlog(tmp_path / "t.tlog", imu_frames(100))
     data = p.read_bytes()
-    p.write_bytes(data[:-7])           # cut into the last frame
+    p.write_bytes(data[:-7])  # cut into the last frame
     idx = TlogIndex.scan(p)
     assert len(idx) == 99 and idx.truncated_at == len(data) - 8 - len(imu_frames(1)[0])
     rp = Replay(p)
@@ -60,7 +64,7 @@ def test_truncated_last_record_is_tolerated(tmp_path):
 def test_bad_crc_frames_are_counted_and_skipped(tmp_path):
     frames = imu_frames(100)
     bad = bytearray(frames[40])
-    bad[12] ^= 0xFF                    # payload byte: CRC no longer matches
+    bad[12] ^= 0xFF  # payload byte: CRC no longer matches
     frames[40] = bytes(bad)
     p = write_tlog(tmp_path / "c.tlog", frames)
     rp = Replay(p)
@@ -73,7 +77,7 @@ def test_garbage_between_records_is_resynchronised(tmp_path):
     data = p.read_bytes()
     rec = len(data) // 100
     junk = os.urandom(333).replace(b"\xfd", b"\x00").replace(b"\xfe", b"\x00")
-    p.write_bytes(data[:50 * rec] + junk + data[50 * rec:])
+    p.write_bytes(data[: 50 * rec] + junk + data[50 * rec :])
     idx = TlogIndex.scan(p)
     assert len(idx) == 100 and len(idx.skipped) == 1 and idx.skipped[0][1] == 333
 
@@ -92,7 +96,7 @@ def test_seek_is_by_time_across_a_recording_gap(tmp_path):
     p = write_tlog(tmp_path / "gap.tlog", imu_frames(200), dt=0.01, gap_after=99, gap=100.0)
     idx = TlogIndex.scan(p)
     assert idx.duration == pytest.approx(101.99, abs=1e-3)
-    i = idx.seek(50.0)                   # inside the gap: the first record after it
+    i = idx.seek(50.0)  # inside the gap: the first record after it
     assert i == 100
     assert idx.seek(101.005) == 101 and idx.seek(0.495) == 50
     assert np.all(np.diff(idx.offset) > 0)

@@ -13,6 +13,7 @@ Built on a :class:`groundstation.control.station.ControlStation`:
 A gamepad is not wired: viser's GUI offers no Gamepad API hook, and the
 sliders give the same references.
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -36,25 +37,34 @@ class ControlPanel:
             self.status_md = gui.add_markdown(self._status())
             self.arm = gui.add_button("ARM", color="red")
             self.disarm = gui.add_button("DISARM")
-            self.controller = gui.add_dropdown("controller", options=station.controllers,
-                                               initial_value=station.controller_name)
-            self.feedback = gui.add_dropdown("feedback", options=station.feedbacks,
-                                             initial_value=station.feedback_name)
+            self.controller = gui.add_dropdown(
+                "controller", options=station.controllers, initial_value=station.controller_name
+            )
+            self.feedback = gui.add_dropdown("feedback", options=station.feedbacks, initial_value=station.feedback_name)
             self.sliders = {}
             for name in REFERENCE_RANGES:
                 lo, hi, step = REFERENCE_RANGES[name]
-                s = gui.add_slider(name, min=lo, max=hi, step=step, initial_value=0.0 if lo < 0 < hi else lo + step,
-                                   visible=False)
+                s = gui.add_slider(
+                    name, min=lo, max=hi, step=step, initial_value=0.0 if lo < 0 < hi else lo + step, visible=False
+                )
                 s.on_update(self._reference_changed(name))
                 self.sliders[name] = s
             refs = tuple(station.commander.reference)
             self.plot_choice = gui.add_dropdown("plot", options=refs, initial_value=refs[0])
             self.plot = gui.add_uplot(
                 data=(np.zeros(2, np.float32),) * 4,
-                series=({"label": "t [s]"}, {"label": "reference", "stroke": "green"},
-                        {"label": "state", "stroke": "blue"}, {"label": "command", "stroke": "red"}),
-                scales={"x": {"time": False}}, legend={"show": True}, aspect=2.0)
+                series=(
+                    {"label": "t [s]"},
+                    {"label": "reference", "stroke": "green"},
+                    {"label": "state", "stroke": "blue"},
+                    {"label": "command", "stroke": "red"},
+                ),
+                scales={"x": {"time": False}},
+                legend={"show": True},
+                aspect=2.0,
+            )
         self._show_references()
+
         # async callbacks: viser runs them on the event loop (plain ones go to a thread
         # pool), so the commander is only ever touched from the loop it runs on
         @self.arm.on_click
@@ -108,6 +118,7 @@ class ControlPanel:
             cmd = self.station.commander
             if name in cmd.reference:
                 cmd.set_reference(**{name: float(self.sliders[name].value)})
+
         return cb
 
     def _show_references(self) -> None:
@@ -124,7 +135,10 @@ class ControlPanel:
     def _status(self) -> str:
         c = self.station.commander
         head = "**ARMED**" if c.armed else "**disarmed**"
-        text = f"{head} · {c.controller.name} on {c.feedback.name} · {self.station.uplink.sent} commands sent\n\n{c.status}"
+        text = (
+            f"{head} · {c.controller.name} on {c.feedback.name} · "
+            f"{self.station.uplink.sent} commands sent\n\n{c.status}"
+        )
         return text + (f"\n\n{self.message}" if self.message else "")
 
     def update(self) -> None:

@@ -20,6 +20,7 @@ Panels: link status, the state table with +-sigma, time plots (estimate with
 95 % chi-square band; a bias or parameter state, chosen in a dropdown, +-2
 sigma), replay controls, and the diagnosis panel.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -60,8 +61,12 @@ def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, 
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
 
 
 def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
@@ -80,12 +85,20 @@ def free_port(host: str, port: int) -> int:
 
 
 class Dashboard:
-    def __init__(self, *, host: str = "127.0.0.1", port: int = 8080, scene_hz: float = 30.0,
-                 plot_hz: float = 10.0, window_s: float = 20.0, title: str = "groundstation") -> None:
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 8080,
+        scene_hz: float = 30.0,
+        plot_hz: float = 10.0,
+        window_s: float = 20.0,
+        title: str = "groundstation",
+    ) -> None:
         self.port = free_port(host, port)
         self.host = host
         self.server = viser.ViserServer(host=host, port=self.port, label=title, verbose=False)
-        self.port = self.server.get_port()           # the one bound (``port=0``: the OS's choice)
+        self.port = self.server.get_port()  # the one bound (``port=0``: the OS's choice)
         self.scene_hz, self.plot_hz, self.window_s = scene_hz, plot_hz, window_s
         self.url = f"http://{host}:{self.port}"
         self.scene_updates = 0
@@ -94,16 +107,16 @@ class Dashboard:
         self._att = (0.0, 0.0, 0.0)
         self._truth: Measurement | None = None
         self._pos_ne = np.zeros(2)
-        self._P_ne: np.ndarray | None = None        # horizontal covariance, once estimated
+        self._P_ne: np.ndarray | None = None  # horizontal covariance, once estimated
         self._range = math.nan
         self._trail: deque = deque(maxlen=300)
         self._trail_changed = False
         self._ellipsoid_shape = None
         self._ray_shown = math.inf
-        self._series: deque = deque()       # (t, z, sigma_z)
-        self._meas: deque = deque()         # (t, range)
-        self._innov: deque = deque()        # (t, nu, 2 sqrt S, nis)
-        self._params: deque = deque()       # (t, x[2:], sigma[2:])
+        self._series: deque = deque()  # (t, z, sigma_z)
+        self._meas: deque = deque()  # (t, range)
+        self._innov: deque = deque()  # (t, nu, 2 sqrt S, nis)
+        self._params: deque = deque()  # (t, x[2:], sigma[2:])
         self._dirty = False
         self.status_text = "waiting for data"
         #: the estimator's counters (its skipped readings are listed under the state), if one is attached
@@ -129,14 +142,23 @@ class Dashboard:
         sc.add_grid("/ground", width=20.0, height=20.0, cell_size=0.5, section_size=2.0)
         self.vehicle = sc.add_frame("/vehicle", axes_length=0.3, axes_radius=0.012)
         sc.add_box("/vehicle/body", color=(40, 110, 220), dimensions=(0.35, 0.35, 0.08))
-        self.ghost = sc.add_box("/truth", color=(60, 200, 90), dimensions=(0.35, 0.35, 0.08), opacity=0.35,
-                                visible=False)
+        self.ghost = sc.add_box(
+            "/truth", color=(60, 200, 90), dimensions=(0.35, 0.35, 0.08), opacity=0.35, visible=False
+        )
         # an uncertainty is not a solid: no shadow on the ground (it read as a grey disc)
-        self.ellipsoid = sc.add_icosphere("/covariance", radius=1.0, color=(240, 160, 40), opacity=0.25,
-                                          scale=(0.05, 0.05, 0.05), cast_shadow=False, receive_shadow=False)
+        self.ellipsoid = sc.add_icosphere(
+            "/covariance",
+            radius=1.0,
+            color=(240, 160, 40),
+            opacity=0.25,
+            scale=(0.05, 0.05, 0.05),
+            cast_shadow=False,
+            receive_shadow=False,
+        )
         self.trail = sc.add_line_segments("/trail", points=np.zeros((1, 2, 3)), colors=(90, 90, 90), thickness=0.01)
-        self.ray = sc.add_line_segments("/vehicle/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50),
-                                        thickness=0.015, visible=False)
+        self.ray = sc.add_line_segments(
+            "/vehicle/range_ray", points=np.zeros((1, 2, 3)), colors=(230, 50, 50), thickness=0.015, visible=False
+        )
         with gui.add_folder("Link"):
             self.link_md = gui.add_markdown("waiting for data")
         with gui.add_folder("State"):
@@ -145,28 +167,56 @@ class Dashboard:
             t0 = np.zeros(2)
             self.plot_z = gui.add_uplot(
                 data=(t0, t0, t0, t0, t0),
-                series=({"label": "t [s]"}, {"label": "z", "stroke": "#1f6fd1", "width": 2},
-                        {"label": "-2σ", "stroke": "#9bb9e8"}, {"label": "+2σ", "stroke": "#9bb9e8"},
-                        {"label": "range", "stroke": "#d23a3a", "width": 1}),
-                scales={"x": {"time": False, "auto": True}}, title="height: estimate ±2σ vs range", aspect=1.6)
+                series=(
+                    {"label": "t [s]"},
+                    {"label": "z", "stroke": "#1f6fd1", "width": 2},
+                    {"label": "-2σ", "stroke": "#9bb9e8"},
+                    {"label": "+2σ", "stroke": "#9bb9e8"},
+                    {"label": "range", "stroke": "#d23a3a", "width": 1},
+                ),
+                scales={"x": {"time": False, "auto": True}},
+                title="height: estimate ±2σ vs range",
+                aspect=1.6,
+            )
             self.plot_nu = gui.add_uplot(
                 data=(t0, t0, t0, t0),
-                series=({"label": "t [s]"}, {"label": "ν", "stroke": "#444", "width": 1},
-                        {"label": "-2√S", "stroke": "#e39b3b"}, {"label": "+2√S", "stroke": "#e39b3b"}),
-                scales={"x": {"time": False, "auto": True}}, title="innovation (last sensor) ±2√S", aspect=1.6)
+                series=(
+                    {"label": "t [s]"},
+                    {"label": "ν", "stroke": "#444", "width": 1},
+                    {"label": "-2√S", "stroke": "#e39b3b"},
+                    {"label": "+2√S", "stroke": "#e39b3b"},
+                ),
+                scales={"x": {"time": False, "auto": True}},
+                title="innovation (last sensor) ±2√S",
+                aspect=1.6,
+            )
             self.plot_nis = gui.add_uplot(
                 data=(t0, t0, t0, t0),
-                series=({"label": "t [s]"}, {"label": "NIS", "stroke": "#7a3fc0", "width": 1},
-                        {"label": "χ² 2.5 %", "stroke": "#aaa"}, {"label": "χ² 97.5 %", "stroke": "#aaa"}),
-                scales={"x": {"time": False, "auto": True}}, title="NIS and its 95 % band", aspect=1.6)
+                series=(
+                    {"label": "t [s]"},
+                    {"label": "NIS", "stroke": "#7a3fc0", "width": 1},
+                    {"label": "χ² 2.5 %", "stroke": "#aaa"},
+                    {"label": "χ² 97.5 %", "stroke": "#aaa"},
+                ),
+                scales={"x": {"time": False, "auto": True}},
+                title="NIS and its 95 % band",
+                aspect=1.6,
+            )
             # bias and parameter states (all but the kinematic first two), one at a time:
             # their scales differ by orders of magnitude (alpha ~ 20, biases ~ 0.01)
             self.param_choice = gui.add_dropdown("parameter", options=("(none yet)",))
             self.plot_param = gui.add_uplot(
                 data=(t0, t0, t0, t0),
-                series=({"label": "t [s]"}, {"label": "estimate", "stroke": "#2a8a4a", "width": 2},
-                        {"label": "-2σ", "stroke": "#9fd4b0"}, {"label": "+2σ", "stroke": "#9fd4b0"}),
-                scales={"x": {"time": False, "auto": True}}, title="bias / parameter state ±2σ", aspect=1.6)
+                series=(
+                    {"label": "t [s]"},
+                    {"label": "estimate", "stroke": "#2a8a4a", "width": 2},
+                    {"label": "-2σ", "stroke": "#9fd4b0"},
+                    {"label": "+2σ", "stroke": "#9fd4b0"},
+                ),
+                scales={"x": {"time": False, "auto": True}},
+                title="bias / parameter state ±2σ",
+                aspect=1.6,
+            )
         self.replay_folder = gui.add_folder("Replay")
         with self.replay_folder:
             self.play = gui.add_button("pause")
@@ -210,9 +260,9 @@ class Dashboard:
         try:
             if self._pool is None:
                 self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-            j = await asyncio.get_running_loop().run_in_executor(self._pool, diagnose_window, ms,
-                                                                 str(self.diagnosis_model.value), self.declared,
-                                                                 self.vehicle)
+            j = await asyncio.get_running_loop().run_in_executor(
+                self._pool, diagnose_window, ms, str(self.diagnosis_model.value), self.declared, self.vehicle
+            )
             self.diagnosis_md.content = markdown(j, seconds)
             self.last_diagnosis = j
             return j
@@ -228,7 +278,7 @@ class Dashboard:
             self._att = (float(m.value[0]), float(m.value[1]), float(m.value[2]))
         elif k is Kind.RANGE:
             self._range = float(m.value[0])
-            if self._meas and m.t < self._meas[-1][0] - 1.0:      # time went back (seek, loop): start over
+            if self._meas and m.t < self._meas[-1][0] - 1.0:  # time went back (seek, loop): start over
                 self._meas.clear()
             self._meas.append((m.t, self._range))
         elif k is Kind.TRUTH_POSE:
@@ -236,7 +286,7 @@ class Dashboard:
         self._dirty = True
 
     def feed_snapshot(self, snap) -> None:
-        if snap.estimator == "horizontal":          # place and covariance in the horizontal plane
+        if snap.estimator == "horizontal":  # place and covariance in the horizontal plane
             self._pos_ne = np.array(snap.x[:2], dtype=float)
             self._P_ne = np.array(snap.P[:2, :2], dtype=float)
             self._dirty = True
@@ -254,7 +304,7 @@ class Dashboard:
         if len(snap.states) > 2:
             self._params.append((snap.t, snap.x[2:].copy(), snap.sigma[2:]))
         rec = snap.innovation
-        if rec is not None and rec.sensor != LANDED:     # the ground's pseudo-sensor (models.ground)
+        if rec is not None and rec.sensor != LANDED:  # the ground's pseudo-sensor (models.ground)
             self._innov.append((rec.t, float(rec.nu[0]), 2.0 * math.sqrt(float(rec.S[0, 0])), rec.nis, len(rec.nu)))
         self._dirty = True
 
@@ -290,6 +340,7 @@ class Dashboard:
         async def _(_e) -> None:
             if abs(self.position.value - replay.position) > 0.5:
                 replay.seek(float(self.position.value))
+
         self._replay = replay
 
     # -- pushing to browsers --------------------------------------------------------------------
@@ -298,7 +349,7 @@ class Dashboard:
         z = 0.0
         if s is not None and "z" in s.states:
             z = float(s.x[s.states.index("z")])
-        pos = np.array([self._pos_ne[0], self._pos_ne[1], -z])        # NED
+        pos = np.array([self._pos_ne[0], self._pos_ne[1], -z])  # NED
         return pos, euler_to_quat(*self._att)
 
     def update_scene(self) -> None:
@@ -317,10 +368,10 @@ class Dashboard:
         s = self._snap
         if s is not None:
             sig_z = float(s.sigma[s.states.index("z")]) if "z" in s.states else 0.05
-            cov = np.diag([0.05**2, 0.05**2, sig_z**2])           # horizontal: until it is estimated
+            cov = np.diag([0.05**2, 0.05**2, sig_z**2])  # horizontal: until it is estimated
             if self._P_ne is not None:
                 cov[:2, :2] = self._P_ne
-            cov = cov * np.outer(_FLIP, _FLIP)                      # NED -> view axes
+            cov = cov * np.outer(_FLIP, _FLIP)  # NED -> view axes
             w, V = np.linalg.eigh(cov)
             if np.linalg.det(V) < 0:
                 V[:, 0] = -V[:, 0]
@@ -351,8 +402,9 @@ class Dashboard:
             rows = "\n".join(f"| {n} | {v:+.4f} | ±{sg:.4f} |" for n, v, sg in zip(s.states, s.x, s.sigma))
             rejected = self.estimator_counters.rejected if self.estimator_counters is not None else {}
             skipped = f"\n\nskipped: {counted(rejected)}" if rejected else ""
-            self.state_md.content = (f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}"
-                                     + skipped)
+            self.state_md.content = (
+                f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}" + skipped
+            )
         t_now = self._series[-1][0] if self._series else 0.0
         for buf in (self._series, self._meas, self._innov, self._params):
             while buf and buf[0][0] < t_now - self.window_s:
@@ -393,9 +445,11 @@ class Dashboard:
 
     async def run(self) -> None:
         """Push scene and panels at their rates until cancelled."""
+
         def scene():
             if self._dirty:
                 self.update_scene()
+
         await asyncio.gather(_every(1.0 / self.scene_hz, scene), _every(1.0 / self.plot_hz, self.update_panels))
 
     def stop(self) -> None:
@@ -430,7 +484,3 @@ def _f32(*arrays) -> tuple[np.ndarray, ...]:
     k = max(1, -(-n // PLOT_POINTS))
     idx = np.arange(n - 1, -1, -k)[::-1]
     return tuple(np.ascontiguousarray(np.asarray(a)[idx], dtype=np.float32) for a in arrays)
-
-
-
-

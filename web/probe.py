@@ -12,10 +12,11 @@ sliders the way a tab does (:meth:`ViserProbe.set_gui`: the GuiUpdateMessage
 a browser sends, msgpack-encoded, after the camera report that makes viser
 count the tab as connected, :meth:`ViserProbe.announce_camera`).
 """
+
 from __future__ import annotations
 
 import time
-from typing import AsyncIterator
+from collections.abc import AsyncIterator
 
 import msgspec
 import viser
@@ -34,7 +35,7 @@ class ViserProbe:
         self.bytes_received = 0
         self._announced = False
 
-    async def __aenter__(self) -> "ViserProbe":
+    async def __aenter__(self) -> ViserProbe:
         self._ws = await websockets.connect(self.url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
         return self
 
@@ -43,24 +44,35 @@ class ViserProbe:
 
     def decode(self, raw: bytes) -> list[dict]:
         size, compressed = int.from_bytes(raw[0:8], "little"), int.from_bytes(raw[8:16], "little")
-        inner = self._dz.decompress(raw[16:16 + compressed], max_output_size=size)
+        inner = self._dz.decompress(raw[16 : 16 + compressed], max_output_size=size)
         return list(msgspec.msgpack.decode(inner)["messages"])
 
     async def announce_camera(self) -> None:
         """The first camera report a browser sends; viser counts a tab as connected
         (and runs its GUI callbacks) only after it."""
-        await self._ws.send(msgspec.msgpack.encode({
-            "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [3.0, 3.0, 3.0],
-            "fov": 1.0, "near": 0.01, "far": 1000.0, "image_height": 720, "image_width": 1280,
-            "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0]}))
+        await self._ws.send(
+            msgspec.msgpack.encode(
+                {
+                    "type": "ViewerCameraMessage",
+                    "wxyz": [1.0, 0.0, 0.0, 0.0],
+                    "position": [3.0, 3.0, 3.0],
+                    "fov": 1.0,
+                    "near": 0.01,
+                    "far": 1000.0,
+                    "image_height": 720,
+                    "image_width": 1280,
+                    "look_at": [0.0, 0.0, 0.0],
+                    "up_direction": [0.0, 0.0, 1.0],
+                }
+            )
+        )
 
     async def set_gui(self, handle_id: str, **updates) -> None:
         """What a tab sends when a control changes (a button press is ``value=True``)."""
         if not self._announced:
             await self.announce_camera()
             self._announced = True
-        await self._ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": handle_id,
-                                                    "updates": updates}))
+        await self._ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": handle_id, "updates": updates}))
 
     async def frames(self) -> AsyncIterator[tuple[float, list[dict]]]:
         """(receive time on ``time.monotonic``, messages) per websocket frame, until closed."""

@@ -25,6 +25,7 @@ garbage, truncated last record); frames that fail the CRC are dropped and
 counted per type. A DataFlash binary log with a bad record header is resynced
 on the next header, and each skipped stretch is kept with its offset.
 """
+
 from __future__ import annotations
 
 import re
@@ -37,8 +38,20 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.tlog import TlogIndex
 
-_STRUCT_TO_NUMPY = {"b": "i1", "B": "u1", "h": "<i2", "H": "<u2", "i": "<i4", "I": "<u4", "q": "<i8",
-                    "Q": "<u8", "f": "<f4", "d": "<f8", "e": "<f2", "c": "S1"}
+_STRUCT_TO_NUMPY = {
+    "b": "i1",
+    "B": "u1",
+    "h": "<i2",
+    "H": "<u2",
+    "i": "<i4",
+    "I": "<u4",
+    "q": "<i8",
+    "Q": "<u8",
+    "f": "<f4",
+    "d": "<f8",
+    "e": "<f2",
+    "c": "S1",
+}
 
 
 @dataclass
@@ -46,8 +59,8 @@ class MessageArrays:
     """All messages of one type: ``fields`` (structured array) and per-record metadata."""
 
     name: str
-    fields: np.ndarray            # structured, one row per message, field names as in the definition
-    t: np.ndarray                 # tlog: receive time [s, UNIX]; DataFlash: TimeUS/TimeMS [s] or NaN
+    fields: np.ndarray  # structured, one row per message, field names as in the definition
+    t: np.ndarray  # tlog: receive time [s, UNIX]; DataFlash: TimeUS/TimeMS [s] or NaN
     sysid: np.ndarray | None = None
     compid: np.ndarray | None = None
 
@@ -67,7 +80,7 @@ class BulkLog:
     path: Path
     messages: dict[str, MessageArrays]
     crc_errors: dict[str, int] = field(default_factory=dict)
-    unknown: int = 0                                           # frames of ids outside the dialect
+    unknown: int = 0  # frames of ids outside the dialect
     undecodable: dict[str, int] = field(default_factory=dict)  # DataFlash types whose FMT we cannot decode
     skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
     truncated_at: int | None = None
@@ -87,8 +100,10 @@ class BulkLog:
         if self.crc_errors:
             parts.append(f"{sum(self.crc_errors.values())} bad CRC")
         if self.skipped:
-            parts.append(f"{sum(n for _, n in self.skipped)} bytes skipped at offset {self.skipped[0][0]}"
-                         + (f" and {len(self.skipped) - 1} more places" if len(self.skipped) > 1 else ""))
+            parts.append(
+                f"{sum(n for _, n in self.skipped)} bytes skipped at offset {self.skipped[0][0]}"
+                + (f" and {len(self.skipped) - 1} more places" if len(self.skipped) > 1 else "")
+            )
         if self.truncated_at is not None:
             parts.append(f"truncated at offset {self.truncated_at}")
         if self.undecodable:
@@ -120,8 +135,8 @@ def crc_mcrf4xx_rows(rows: np.ndarray, extra: int | None = None) -> np.ndarray:
     ``tmp = b ^ (crc & 0xff); tmp ^= tmp << 4 (8 bit); crc = crc>>8 ^ tmp<<8 ^ tmp<<3 ^ tmp>>4``.
     """
     n = rows.shape[0]
-    cols = np.empty((rows.shape[1] + (extra is not None), n), dtype=np.uint16)   # byte columns, contiguous
-    cols[:rows.shape[1]] = rows.T
+    cols = np.empty((rows.shape[1] + (extra is not None), n), dtype=np.uint16)  # byte columns, contiguous
+    cols[: rows.shape[1]] = rows.T
     if extra is not None:
         cols[-1] = extra
     crc = np.full(n, 0xFFFF, dtype=np.uint16)
@@ -151,14 +166,17 @@ def load_tlog(path: str | Path) -> BulkLog:
     """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`)."""
     ix = TlogIndex.scan(path)
     u8 = np.frombuffer(ix.data, dtype=np.uint8)
-    fo = ix.offset + 8                                   # frame offsets
+    fo = ix.offset + 8  # frame offsets
     magic = u8[fo]
     plen = u8[fo + 1].astype(np.int64)
     v2 = magic == 0xFD
-    msgid = np.where(v2, u8[np.minimum(fo + 7, len(u8) - 1)].astype(np.int64)
-                     | (u8[np.minimum(fo + 8, len(u8) - 1)].astype(np.int64) << 8)
-                     | (u8[np.minimum(fo + 9, len(u8) - 1)].astype(np.int64) << 16),
-                     u8[fo + 5].astype(np.int64))
+    msgid = np.where(
+        v2,
+        u8[np.minimum(fo + 7, len(u8) - 1)].astype(np.int64)
+        | (u8[np.minimum(fo + 8, len(u8) - 1)].astype(np.int64) << 8)
+        | (u8[np.minimum(fo + 9, len(u8) - 1)].astype(np.int64) << 16),
+        u8[fo + 5].astype(np.int64),
+    )
     hlen = np.where(v2, 10, 6)
     sysid = np.where(v2, u8[np.minimum(fo + 5, len(u8) - 1)], u8[fo + 3])
     compid = np.where(v2, u8[np.minimum(fo + 6, len(u8) - 1)], u8[fo + 4])
@@ -177,8 +195,8 @@ def load_tlog(path: str | Path) -> BulkLog:
             log.unknown += len(grp)
             continue
         starts = fo[grp]
-        rows = _gather(u8, starts + 1, h - 1 + L + 2)      # header after magic, payload, CRC
-        crc = crc_mcrf4xx_rows(rows[:, :h - 1 + L], cls.crc_extra)
+        rows = _gather(u8, starts + 1, h - 1 + L + 2)  # header after magic, payload, CRC
+        crc = crc_mcrf4xx_rows(rows[:, : h - 1 + L], cls.crc_extra)
         got = rows[:, h - 1 + L].astype(np.uint16) | (rows[:, h + L].astype(np.uint16) << 8)
         ok = crc == got
         if not ok.all():
@@ -186,17 +204,17 @@ def load_tlog(path: str | Path) -> BulkLog:
         dt = _mav_dtype(cls)
         if not ok.any():
             continue
-        if L > dt.itemsize:                        # longer than the definition: not this message
+        if L > dt.itemsize:  # longer than the definition: not this message
             log.crc_errors[cls.msgname] = log.crc_errors.get(cls.msgname, 0) + int(ok.sum())
             continue
-        payload = np.zeros((int(ok.sum()), dt.itemsize), dtype=np.uint8)   # zero-padded (MAVLink 2 trim)
-        payload[:, :L] = rows[ok, h - 1:h - 1 + L]
+        payload = np.zeros((int(ok.sum()), dt.itemsize), dtype=np.uint8)  # zero-padded (MAVLink 2 trim)
+        payload[:, :L] = rows[ok, h - 1 : h - 1 + L]
         per_type.setdefault(mid, []).append((grp[ok], payload))
     for mid, parts in per_type.items():
         cls = mavlink.mavlink_map[mid]
         idx = np.concatenate([g for g, _ in parts])
         pay = np.concatenate([p for _, p in parts])
-        srt = np.argsort(idx, kind="stable")                 # back to file order
+        srt = np.argsort(idx, kind="stable")  # back to file order
         idx, pay = idx[srt], pay[srt]
         fields = np.frombuffer(np.ascontiguousarray(pay).tobytes(), dtype=_mav_dtype(cls))
         log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid[idx], compid[idx])
@@ -216,20 +234,25 @@ class BulkError(ValueError):
 class DataFlashWalk:
     """Where every record of a binary DataFlash log starts, and where the damage is."""
 
-    length: dict[int, int]                         # record length per type id (header included)
-    fmts: dict[int, tuple[str, str, list[str]]]    # type id -> (name, format, columns)
-    offsets: dict[int, list[int]]                  # type id -> record offsets
-    skipped: list[tuple[int, int]]                 # (offset, bytes) of bad headers resynced over
-    truncated_at: int | None                       # offset of an incomplete last record
+    length: dict[int, int]  # record length per type id (header included)
+    fmts: dict[int, tuple[str, str, list[str]]]  # type id -> (name, format, columns)
+    offsets: dict[int, list[int]]  # type id -> record offsets
+    skipped: list[tuple[int, int]]  # (offset, bytes) of bad headers resynced over
+    truncated_at: int | None  # offset of an incomplete last record
 
     def damage(self, path) -> str:
         """One line naming file and offsets, or ''."""
         parts = []
         if self.skipped:
             off, nb = self.skipped[0]
-            parts.append(f"{nb} bytes with bad record headers skipped at offset {off}"
-                         + (f" (and {len(self.skipped) - 1} more places, "
-                            f"{sum(b for _, b in self.skipped)} bytes in all)" if len(self.skipped) > 1 else ""))
+            parts.append(
+                f"{nb} bytes with bad record headers skipped at offset {off}"
+                + (
+                    f" (and {len(self.skipped) - 1} more places, {sum(b for _, b in self.skipped)} bytes in all)"
+                    if len(self.skipped) > 1
+                    else ""
+                )
+            )
         if self.truncated_at is not None:
             parts.append(f"last record truncated at offset {self.truncated_at}")
         return f"{path}: " + "; ".join(parts) if parts else ""
@@ -262,9 +285,9 @@ def walk_dataflash(data: bytes) -> DataFlashWalk:
             break
         if typ == _FMT_TYPE:
             t2, l2 = data[pos + 3], data[pos + 4]
-            name = data[pos + 5:pos + 9].rstrip(b"\0").decode("ascii", "replace")
-            fmt = data[pos + 9:pos + 25].rstrip(b"\0").decode("ascii", "replace")
-            cols = data[pos + 25:pos + 89].rstrip(b"\0").decode("ascii", "replace").split(",")
+            name = data[pos + 5 : pos + 9].rstrip(b"\0").decode("ascii", "replace")
+            fmt = data[pos + 9 : pos + 25].rstrip(b"\0").decode("ascii", "replace")
+            cols = data[pos + 25 : pos + 89].rstrip(b"\0").decode("ascii", "replace").split(",")
             if t2 != _FMT_TYPE:
                 length[t2] = l2
                 fmts[t2] = (name, fmt, cols)
@@ -303,7 +326,7 @@ def load_dataflash_bin(path: str | Path) -> BulkLog:
         try:
             fields = _df_fields(u8, np.array(offs, dtype=np.int64), length[typ], fmt, cols)
         except (KeyError, ValueError):
-            log.undecodable[name] = len(offs)    # an FMT we cannot decode: counted, not guessed
+            log.undecodable[name] = len(offs)  # an FMT we cannot decode: counted, not guessed
             continue
         if "TimeUS" in cols:
             t = fields["TimeUS"].astype(np.float64) * 1e-6

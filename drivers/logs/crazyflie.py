@@ -29,6 +29,7 @@ reading there with a one-line error naming the file and offset in
 ``CrazyflieLog.damage``; everything before it is kept. A CRC mismatch is
 reported the same way (the records may still be usable).
 """
+
 from __future__ import annotations
 
 import struct
@@ -54,7 +55,7 @@ class CrazyflieLogError(ValueError):
 class CrazyflieLog:
     path: Path
     events: dict[int, tuple[str, list[str], struct.Struct]]
-    data: dict[str, tuple[np.ndarray, np.ndarray]]      # event name -> (t [s], values [n x k])
+    data: dict[str, tuple[np.ndarray, np.ndarray]]  # event name -> (t [s], values [n x k])
     crc_ok: bool
     damage: str | None = None
     skipped: Counter = field(default_factory=Counter)
@@ -91,20 +92,20 @@ def read_crazyflie(path: str | Path) -> CrazyflieLog:
     events: dict[int, tuple[str, list[str], struct.Struct]] = {}
     try:
         for _ in range(n_types):
-            eid, = struct.unpack_from("<H", raw, pos)
+            (eid,) = struct.unpack_from("<H", raw, pos)
             pos += 2
             end = raw.index(b"\0", pos)
             name = raw[pos:end].decode("ascii")
             pos = end + 1
-            n, = struct.unpack_from("<H", raw, pos)
+            (n,) = struct.unpack_from("<H", raw, pos)
             pos += 2
             names, codes = [], ""
             for _ in range(n):
                 end = raw.index(b"\0", pos)
                 var = raw[pos:end].decode("ascii")
                 pos = end + 1
-                names.append(var[:var.index("(")])
-                codes += var[var.index("(") + 1:var.index(")")]
+                names.append(var[: var.index("(")])
+                codes += var[var.index("(") + 1 : var.index(")")]
             events[eid] = (name, names, struct.Struct("<HQ" + codes))
     except (struct.error, ValueError, UnicodeDecodeError):
         raise CrazyflieLogError(f"{p}: event definitions damaged near offset {pos}") from None
@@ -113,7 +114,7 @@ def read_crazyflie(path: str | Path) -> CrazyflieLog:
     damage = None
     unpack_id = struct.Struct("<H").unpack_from
     while pos < end_data:
-        eid, = unpack_id(raw, pos)
+        (eid,) = unpack_id(raw, pos)
         ev = events.get(eid)
         if ev is None:
             damage = f"{p}: unknown event id {eid} at offset {pos}; {pos} bytes read"

@@ -32,6 +32,7 @@ holds 304 readings of exactly 0.20 m and 260 of exactly 7.65 m, most of them on 
 a replay had shown the vehicle 7.65 m up before it took off. They are skipped and counted
 (``range_out_of_bounds``).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -50,7 +51,7 @@ from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import walk_dataflash
 
-CONTROL_RATE = 10.0     # CTUN's rate in logs without a clock [Hz]
+CONTROL_RATE = 10.0  # CTUN's rate in logs without a clock [Hz]
 
 #: ArduCopter 3.0-3.1's SONAR_TYPE: (min, max) [cm] of its MaxBotix driver
 #: (libraries/AP_RangeFinder/AP_RangeFinder_MaxsonarXL.h: XL-EZ0, LV-EZ0, XL-EZL0; HRLV-EZ4)
@@ -78,8 +79,8 @@ class DataFlashLog:
     counts: Counter = field(default_factory=Counter)
     skipped: Counter = field(default_factory=Counter)
     clock: str = "TimeUS/TimeMS"
-    damage: str = ""            # one line naming the file and the offsets of damage, or ''
-    range_limits: tuple[float, float] | None = None     # [m], from the log's parameters, if it has them
+    damage: str = ""  # one line naming the file and the offsets of damage, or ''
+    range_limits: tuple[float, float] | None = None  # [m], from the log's parameters, if it has them
 
     @property
     def duration(self) -> float:
@@ -114,7 +115,7 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
     data = p.read_bytes()
     binary = data[:2] == b"\xa3\x95"
     damage = walk_dataflash(data).damage(p) if binary else ""
-    del data                       # DFReader maps the file itself
+    del data  # DFReader maps the file itself
     msgs = []
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
@@ -122,7 +123,7 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
     with _quiet():
         try:
             r = DFReader.DFReader_binary(str(p)) if binary else DFReader.DFReader_text(str(p))
-        except Exception as e:      # DFReader raises assorted errors on foreign data
+        except Exception as e:  # DFReader raises assorted errors on foreign data
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
             raise DataFlashError(f"{p}: not a readable DataFlash log: {first}") from None
         while True:
@@ -140,8 +141,11 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
     has_baro = types["BARO"] > 0
     params = {m.Name: m.Value for m in msgs if not isinstance(m, tuple) and m.get_type() == "PARM"}
     log = DataFlashLog(p, [], types, damage=damage, range_limits=rangefinder_limits(params))
-    timed = any(hasattr(m, "TimeUS") or hasattr(m, "TimeMS") for m in msgs
-                if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT"))
+    timed = any(
+        hasattr(m, "TimeUS") or hasattr(m, "TimeMS")
+        for m in msgs
+        if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT")
+    )
     if not timed:
         log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
     n_ctun = 0
@@ -156,7 +160,7 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         if timed:
             if hasattr(m, "TimeUS"):
                 t = m.TimeUS * 1e-6
-            elif hasattr(m, "TimeMS") and typ != "GPS":      # GPS TimeMS is GPS time of week
+            elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
                 t = m.TimeMS * 1e-3
             else:
                 t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
@@ -201,12 +205,12 @@ def _convert(typ, m, t, s, has_baro, range_limits, out, skipped) -> None:
         if not son or son <= 0:
             skipped["range_invalid"] += 1
         elif range_limits is not None and not range_limits[0] < son < range_limits[1]:
-            skipped["range_out_of_bounds"] += 1        # the sensor's clamp (see the module's docstring)
+            skipped["range_out_of_bounds"] += 1  # the sensor's clamp (see the module's docstring)
         else:
             add(Kind.RANGE, [son])
     elif typ == "CURR":
         v, i = m.Volt, m.Curr
-        if v > 100:                      # old logs: volts x 100, amps x 100
+        if v > 100:  # old logs: volts x 100, amps x 100
             v, i = v / 100.0, i / 100.0
         if v > 0:
             add(Kind.BATTERY_VOLTAGE, [v])

@@ -1,4 +1,5 @@
 """MAVLink vehicles: live links (UDP, TCP, serial) and the message-to-measurement decoder."""
+
 from .decode import MavlinkDecoder
 from .link import LinkEvent, LinkState, MavlinkLink
 from .receiver import LinkCounters, MavlinkReceiver

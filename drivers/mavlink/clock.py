@@ -23,6 +23,7 @@ and the thrust filter ended 37 m up. With the bound none is late, and every baro
 and range reading is used. A recording made on an idle machine (0.22 s behind
 after 60 s) lost 577 as late, 31 now.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,15 +42,15 @@ class VehicleClock:
         self.jump_s = jump_s
         self.drift = drift
         self.resets = 0
-        self.assumed = False   # True while running on receive time (no time field seen)
-        self._newest = math.nan      # the newest timed message's vehicle time, and when it came
+        self.assumed = False  # True while running on receive time (no time field seen)
+        self._newest = math.nan  # the newest timed message's vehicle time, and when it came
         self._newest_rx = math.nan
 
     def observe(self, t_vehicle: float, t_rx: float) -> None:
         """Take a timestamped message into the offset estimate."""
         new = t_vehicle - t_rx
         off = self.offset
-        if self.assumed:   # a real time field at last: replace the assumption
+        if self.assumed:  # a real time field at last: replace the assumption
             self.assumed = False
             self.resets += 1
             off = math.nan

@@ -20,11 +20,12 @@ Invalid values the protocol marks as such (UINT16_MAX voltages, -1 currents,
 unused RC/servo channels, no GPS fix, out-of-range distances) are skipped and
 counted in :attr:`MavlinkDecoder.skipped`, never passed on as numbers.
 """
+
 from __future__ import annotations
 
 import math
 from collections import Counter
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -65,21 +66,31 @@ VECTORS: dict[str, list[tuple[Kind, tuple[str, ...], str]]] = {
 
 #: Units of the fields the special handlers below read (checked by the tests).
 SPECIAL_UNITS: dict[str, dict[str, str]] = {
-    "HIGHRES_IMU": {"xacc": "m/s/s", "xgyro": "rad/s", "xmag": "gauss", "abs_pressure": "hPa",
-                    "diff_pressure": "hPa", "temperature": "degC"},
+    "HIGHRES_IMU": {
+        "xacc": "m/s/s",
+        "xgyro": "rad/s",
+        "xmag": "gauss",
+        "abs_pressure": "hPa",
+        "diff_pressure": "hPa",
+        "temperature": "degC",
+    },
     "SCALED_PRESSURE": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
     "SCALED_PRESSURE2": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
     "SCALED_PRESSURE3": {"press_abs": "hPa", "press_diff": "hPa", "temperature": "cdegC"},
-    "DISTANCE_SENSOR": {"current_distance": "cm", "min_distance": "cm", "max_distance": "cm",
-                        "covariance": "cm^2"},
+    "DISTANCE_SENSOR": {"current_distance": "cm", "min_distance": "cm", "max_distance": "cm", "covariance": "cm^2"},
     "GPS_RAW_INT": {"lat": "degE7", "lon": "degE7", "alt": "mm", "h_acc": "mm", "v_acc": "mm"},
-    "GLOBAL_POSITION_INT": {"lat": "degE7", "lon": "degE7", "alt": "mm", "relative_alt": "mm",
-                            "vx": "cm/s", "vy": "cm/s", "vz": "cm/s"},
-    "VFR_HUD": {"airspeed": "m/s", "groundspeed": "m/s", "heading": "deg", "throttle": "%",
-                "alt": "m", "climb": "m/s"},
+    "GLOBAL_POSITION_INT": {
+        "lat": "degE7",
+        "lon": "degE7",
+        "alt": "mm",
+        "relative_alt": "mm",
+        "vx": "cm/s",
+        "vy": "cm/s",
+        "vz": "cm/s",
+    },
+    "VFR_HUD": {"airspeed": "m/s", "groundspeed": "m/s", "heading": "deg", "throttle": "%", "alt": "m", "climb": "m/s"},
     "SYS_STATUS": {"voltage_battery": "mV", "current_battery": "cA", "battery_remaining": "%"},
-    "BATTERY_STATUS": {"voltages": "mV", "voltages_ext": "mV", "current_battery": "cA",
-                       "battery_remaining": "%"},
+    "BATTERY_STATUS": {"voltages": "mV", "voltages_ext": "mV", "current_battery": "cA", "battery_remaining": "%"},
     "SERVO_OUTPUT_RAW": {f"servo{i}_raw": "us" for i in range(1, 17)},
     "RC_CHANNELS": {f"chan{i}_raw": "us" for i in range(1, 19)},
     "ATT_POS_MOCAP": {"x": "m", "y": "m", "z": "m"},
@@ -214,14 +225,14 @@ class MavlinkDecoder:
                 k += len(fs)
             has_id = name == "RAW_IMU"
 
-            def vectors(m, t, t_rx, source, instance, out, fields=fields, scales=scales,
-                        slices=slices, has_id=has_id):
+            def vectors(m, t, t_rx, source, instance, out, fields=fields, scales=scales, slices=slices, has_id=has_id):
                 if has_id:
                     instance = m.id or 0
                 v = _array([getattr(m, f) for f in fields], dtype=float)
                 v *= scales
                 for kind, sl in slices:
                     out.append(_new(_M, (t, kind, v[sl], source, t_rx, None, instance, 1)))
+
             return vectors
         return getattr(self, "_" + name.lower(), None)
 
@@ -230,9 +241,22 @@ class MavlinkDecoder:
         upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
         instance = m.id
         # One array for the whole message; the measurements hold views of it.
-        v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro,
-                    m.xmag * _GAUSS, m.ymag * _GAUSS, m.zmag * _GAUSS,
-                    m.abs_pressure * _HPA, m.diff_pressure * _HPA, m.temperature + _DEGC_O))
+        v = _array(
+            (
+                m.xacc,
+                m.yacc,
+                m.zacc,
+                m.xgyro,
+                m.ygyro,
+                m.zgyro,
+                m.xmag * _GAUSS,
+                m.ymag * _GAUSS,
+                m.zmag * _GAUSS,
+                m.abs_pressure * _HPA,
+                m.diff_pressure * _HPA,
+                m.temperature + _DEGC_O,
+            )
+        )
         if upd & _HR_ACC:
             out.append(_new(_M, (t, Kind.ACCEL, v[0:3], source, t_rx, None, instance, 1)))
         if upd & _HR_GYRO:
@@ -249,8 +273,15 @@ class MavlinkDecoder:
     def _scaled_pressure(self, m, t, t_rx, source, instance, out):
         out.append(_new(_M, (t, Kind.BARO_PRESSURE, _array([m.press_abs * _HPA]), source, t_rx, None, instance, 1)))
         if m.press_diff:
-            out.append(_new(_M, (t, Kind.DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance, 1)))
-        out.append(_new(_M, (t, Kind.TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance, 1)))
+            out.append(
+                _new(_M, (t, Kind.DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance, 1))
+            )
+        out.append(
+            _new(
+                _M,
+                (t, Kind.TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance, 1),
+            )
+        )
 
     _scaled_pressure2 = _scaled_pressure
     _scaled_pressure3 = _scaled_pressure
@@ -280,18 +311,47 @@ class MavlinkDecoder:
         out.append(_new(_M, (t, Kind.GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance, 1)))
 
     def _global_position_int(self, m, t, t_rx, source, instance, out):
-        out.append(_new(_M, (t, Kind.GLOBAL_POSITION,
-                               _array([m.lat * _DEGE7, m.lon * _DEGE7, m.alt * _MM, m.relative_alt * _MM]),
-                               source, t_rx, None, instance, 1)))
-        out.append(_new(_M, (t, Kind.VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM,
-                               source, t_rx, None, instance, 1)))
+        out.append(
+            _new(
+                _M,
+                (
+                    t,
+                    Kind.GLOBAL_POSITION,
+                    _array([m.lat * _DEGE7, m.lon * _DEGE7, m.alt * _MM, m.relative_alt * _MM]),
+                    source,
+                    t_rx,
+                    None,
+                    instance,
+                    1,
+                ),
+            )
+        )
+        out.append(
+            _new(
+                _M,
+                (t, Kind.VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM, source, t_rx, None, instance, 1),
+            )
+        )
 
     def _vfr_hud(self, m, t, t_rx, source, instance, out):
         out.append(_new(_M, (t, Kind.THROTTLE, _array([m.throttle * _PCT]), source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, Kind.ALTITUDE, _array([float(m.alt)]), source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, Kind.CLIMB_RATE, _array([float(m.climb)]), source, t_rx, None, instance, 1)))
-        out.append(_new(_M, (t, Kind.AIRSPEED, _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
-                               source, t_rx, None, instance, 1)))
+        out.append(
+            _new(
+                _M,
+                (
+                    t,
+                    Kind.AIRSPEED,
+                    _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
+                    source,
+                    t_rx,
+                    None,
+                    instance,
+                    1,
+                ),
+            )
+        )
 
     def _sys_status(self, m, t, t_rx, source, instance, out):
         self._battery(m.voltage_battery, m.current_battery, m.battery_remaining, t, t_rx, source, 0, out)
@@ -330,34 +390,80 @@ class MavlinkDecoder:
     def _manual_control(self, m, t, t_rx, source, instance, out):
         # Normalised as MAVLink defines them: x, y, r in [-1000, 1000]; z in [0, 1000]
         # for ArduPilot and PX4 (some GCSs send [-1000, 1000]); passed on as sent / 1000.
-        out.append(_new(_M, (t, Kind.MANUAL_CONTROL, _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
-                               source, t_rx, None, m.target, 1)))
+        out.append(
+            _new(
+                _M,
+                (
+                    t,
+                    Kind.MANUAL_CONTROL,
+                    _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
+                    source,
+                    t_rx,
+                    None,
+                    m.target,
+                    1,
+                ),
+            )
+        )
 
     def _heartbeat(self, m, t, t_rx, source, instance, out):
         if m.type == mavlink.MAV_TYPE_GCS:
             return  # a ground station's (ours, recorded in a tlog): no vehicle status
         armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
-        out.append(_new(_M, (t, Kind.VEHICLE_STATUS,
-                               _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),
-                               source, t_rx, None, instance, 1)))
+        out.append(
+            _new(
+                _M,
+                (
+                    t,
+                    Kind.VEHICLE_STATUS,
+                    _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),
+                    source,
+                    t_rx,
+                    None,
+                    instance,
+                    1,
+                ),
+            )
+        )
 
     def _attitude_quaternion(self, m, t, t_rx, source, instance, out):
-        out.append(_new(_M, (t, Kind.ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]),
-                               source, t_rx, None, instance, 1)))
+        out.append(
+            _new(_M, (t, Kind.ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]), source, t_rx, None, instance, 1))
+        )
 
     def _att_pos_mocap(self, m, t, t_rx, source, instance, out):
         q = list(m.q)
         out.append(_new(_M, (t, Kind.TRUTH_POSE, _array([m.x, m.y, m.z, *q]), source, t_rx, None, instance, 1)))
 
     def _ekf_status_report(self, m, t, t_rx, source, instance, out):
-        out.append(_new(_M, (t, Kind.EKF_STATUS,
-                               _array([m.flags, m.velocity_variance, m.pos_horiz_variance, m.pos_vert_variance,
-                                       m.compass_variance, m.terrain_alt_variance], dtype=float),
-                               source, t_rx, None, instance, 1)))
+        out.append(
+            _new(
+                _M,
+                (
+                    t,
+                    Kind.EKF_STATUS,
+                    _array(
+                        [
+                            m.flags,
+                            m.velocity_variance,
+                            m.pos_horiz_variance,
+                            m.pos_vert_variance,
+                            m.compass_variance,
+                            m.terrain_alt_variance,
+                        ],
+                        dtype=float,
+                    ),
+                    source,
+                    t_rx,
+                    None,
+                    instance,
+                    1,
+                ),
+            )
+        )
 
 
 #: Every message type this decoder converts (the issue's list and a few more).
 DECODED_TYPES = sorted(
-    set(VECTORS) | set(SPECIAL_UNITS)
-    | {"HEARTBEAT", "ATTITUDE_QUATERNION", "MANUAL_CONTROL", "EKF_STATUS_REPORT"}
+    set(VECTORS) | set(SPECIAL_UNITS) | {"HEARTBEAT", "ATTITUDE_QUATERNION", "MANUAL_CONTROL", "EKF_STATUS_REPORT"}
 )

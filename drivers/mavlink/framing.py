@@ -21,11 +21,12 @@ and counted; a stretch of bytes before a start marker is one ``bad_data``.
 Message definitions, unpackers and CRC_EXTRA all come from pymavlink; only the
 frame walk is ours.
 """
+
 from __future__ import annotations
 
 import struct
 from collections import namedtuple
-from typing import Callable
+from collections.abc import Callable
 
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -34,15 +35,30 @@ _crc = crc16.mcrf4xx
 
 #: Sensor messages that take the fast path (the high-rate ones).
 FAST_TYPES = (
-    "HIGHRES_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3", "RAW_IMU",
-    "SCALED_PRESSURE", "SCALED_PRESSURE2", "SCALED_PRESSURE3",
-    "ATTITUDE", "ATTITUDE_QUATERNION", "LOCAL_POSITION_NED", "GLOBAL_POSITION_INT",
-    "GPS_RAW_INT", "VFR_HUD", "SERVO_OUTPUT_RAW", "RC_CHANNELS", "SYS_STATUS",
-    "DISTANCE_SENSOR", "ATT_POS_MOCAP", "MANUAL_CONTROL",
+    "HIGHRES_IMU",
+    "SCALED_IMU",
+    "SCALED_IMU2",
+    "SCALED_IMU3",
+    "RAW_IMU",
+    "SCALED_PRESSURE",
+    "SCALED_PRESSURE2",
+    "SCALED_PRESSURE3",
+    "ATTITUDE",
+    "ATTITUDE_QUATERNION",
+    "LOCAL_POSITION_NED",
+    "GLOBAL_POSITION_INT",
+    "GPS_RAW_INT",
+    "VFR_HUD",
+    "SERVO_OUTPUT_RAW",
+    "RC_CHANNELS",
+    "SYS_STATUS",
+    "DISTANCE_SENSOR",
+    "ATT_POS_MOCAP",
+    "MANUAL_CONTROL",
 )
 
-_V1_HDR = struct.Struct("<BBBBBB")       # magic len seq sys comp msgid
-_V2_HDR = struct.Struct("<BBBBBBBHB")    # magic len incompat compat seq sys comp msgid(lo16) msgid(hi8)
+_V1_HDR = struct.Struct("<BBBBBB")  # magic len seq sys comp msgid
+_V2_HDR = struct.Struct("<BBBBBBBHB")  # magic len incompat compat seq sys comp msgid(lo16) msgid(hi8)
 
 
 class FastSpec:
@@ -60,13 +76,13 @@ class FastSpec:
         self.group = tuple(cls.lengths) if any(n > 1 for n in cls.lengths) else None
 
     def make(self, payload: bytes):
-        if len(payload) < self.size:          # MAVLink 2 trims trailing zeros
+        if len(payload) < self.size:  # MAVLink 2 trims trailing zeros
             payload = payload + bytes(self.size - len(payload))
-        vals = self.unpack(payload[:self.size])
+        vals = self.unpack(payload[: self.size])
         if self.group is not None:
             out, k = [], 0
             for n in self.group:
-                out.append(vals[k] if n == 1 else vals[k:k + n])
+                out.append(vals[k] if n == 1 else vals[k : k + n])
                 k += n
             vals = out
         return self.tuple_type._make(vals)
@@ -80,14 +96,15 @@ class Framer:
     ``on_crc_error()`` / ``on_garbage()``: damage.
     """
 
-    def __init__(self, on_fast: Callable, on_object: Callable,
-                 on_crc_error: Callable[[], None], on_garbage: Callable[[], None]) -> None:
+    def __init__(
+        self, on_fast: Callable, on_object: Callable, on_crc_error: Callable[[], None], on_garbage: Callable[[], None]
+    ) -> None:
         self._buf = b""
         self.on_fast = on_fast
         self.on_object = on_object
         self.on_crc_error = on_crc_error
         self.on_garbage = on_garbage
-        self._mav = mavlink.MAVLink(None)      # pymavlink's full decoder for the rest
+        self._mav = mavlink.MAVLink(None)  # pymavlink's full decoder for the rest
         self._crc_extra: dict[int, bytes] = {}
         self._fast: dict[int, FastSpec] = {}
         for msgid, cls in mavlink.mavlink_map.items():
@@ -122,7 +139,7 @@ class Framer:
             plen = buf[pos + 1]
             if c == 0xFD:
                 incompat = buf[pos + 2]
-                if incompat & ~0x01:              # an incompatibility we do not know
+                if incompat & ~0x01:  # an incompatibility we do not know
                     self.on_garbage()
                     pos += 1
                     continue
@@ -139,25 +156,25 @@ class Framer:
                 msgid = buf[pos + 7] | buf[pos + 8] << 8 | buf[pos + 9] << 16
             else:
                 seq, sysid, compid, msgid = buf[pos + 2], buf[pos + 3], buf[pos + 4], buf[pos + 5]
-            frame = buf[pos:pos + flen]
+            frame = buf[pos : pos + flen]
             extra = crc_extra.get(msgid)
             if extra is None:
                 self.on_object(mavlink.MAVLink_unknown(msgid, frame), sysid, compid, seq, frame)
                 pos += flen
                 continue
-            crc = _crc(extra, _crc(buf[pos + 1:end_crc]))
+            crc = _crc(extra, _crc(buf[pos + 1 : end_crc]))
             if crc != (buf[end_crc] | buf[end_crc + 1] << 8):
                 self.on_crc_error()
                 pos += flen
                 continue
             spec = fast.get(msgid)
             if spec is not None:
-                self.on_fast(spec, spec.make(buf[pos + hlen:end_crc]), sysid, compid, seq, frame)
+                self.on_fast(spec, spec.make(buf[pos + hlen : end_crc]), sysid, compid, seq, frame)
             else:
                 try:
                     m = self._mav.decode(bytearray(frame))
                 except mavlink.MAVError:
-                    self.on_crc_error()    # payload that does not unpack: as damaged
+                    self.on_crc_error()  # payload that does not unpack: as damaged
                 else:
                     self.on_object(m, sysid, compid, seq, frame)
             pos += flen

@@ -16,13 +16,14 @@ The link
 * keeps :class:`~drivers.mavlink.receiver.LinkCounters`;
 * records every valid frame, in and out, to a MAVProxy-compatible ``.tlog``.
 """
+
 from __future__ import annotations
 
 import asyncio
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -38,12 +39,22 @@ from .receiver import LinkCounters, MavlinkReceiver
 #: Streams requested from a vehicle: message name -> rate [Hz].
 #: What the estimators need most comes first (IMU, baro, range), then the rest.
 DEFAULT_STREAMS: dict[str, float] = {
-    "HIGHRES_IMU": 250.0, "SCALED_IMU": 50.0, "RAW_IMU": 50.0,
-    "SCALED_PRESSURE": 50.0, "DISTANCE_SENSOR": 25.0,
-    "ATTITUDE": 50.0, "ATTITUDE_QUATERNION": 50.0,
-    "GPS_RAW_INT": 5.0, "GLOBAL_POSITION_INT": 10.0, "LOCAL_POSITION_NED": 10.0,
-    "VFR_HUD": 10.0, "SERVO_OUTPUT_RAW": 50.0, "RC_CHANNELS": 10.0,
-    "SYS_STATUS": 5.0, "BATTERY_STATUS": 5.0, "EKF_STATUS_REPORT": 2.0,
+    "HIGHRES_IMU": 250.0,
+    "SCALED_IMU": 50.0,
+    "RAW_IMU": 50.0,
+    "SCALED_PRESSURE": 50.0,
+    "DISTANCE_SENSOR": 25.0,
+    "ATTITUDE": 50.0,
+    "ATTITUDE_QUATERNION": 50.0,
+    "GPS_RAW_INT": 5.0,
+    "GLOBAL_POSITION_INT": 10.0,
+    "LOCAL_POSITION_NED": 10.0,
+    "VFR_HUD": 10.0,
+    "SERVO_OUTPUT_RAW": 50.0,
+    "RC_CHANNELS": 10.0,
+    "SYS_STATUS": 5.0,
+    "BATTERY_STATUS": 5.0,
+    "EKF_STATUS_REPORT": 2.0,
 }
 
 #: REQUEST_DATA_STREAM groups used when SET_MESSAGE_INTERVAL is refused.
@@ -61,10 +72,20 @@ _GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
 
 
 class MavlinkLink:
-    def __init__(self, url: str | Endpoint, *, name: str = "mav", lost_after: float = 3.0,
-                 heartbeat_hz: float = 1.0, streams: dict[str, float] | None = DEFAULT_STREAMS,
-                 record: str | Path | None = None, system_id: int = 255, component_id: int = 190,
-                 buffer: int = 100_000, ack_timeout: float = 1.0) -> None:
+    def __init__(
+        self,
+        url: str | Endpoint,
+        *,
+        name: str = "mav",
+        lost_after: float = 3.0,
+        heartbeat_hz: float = 1.0,
+        streams: dict[str, float] | None = DEFAULT_STREAMS,
+        record: str | Path | None = None,
+        system_id: int = 255,
+        component_id: int = 190,
+        buffer: int = 100_000,
+        ack_timeout: float = 1.0,
+    ) -> None:
         self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
         self.name = name
         self.lost_after = lost_after
@@ -86,9 +107,9 @@ class MavlinkLink:
         self.transport: Transport | None = None
         self._last_valid = 0.0
         self._tasks: list[asyncio.Task] = []
-        self._vehicles: dict[int, int] = {}           # sysid -> autopilot compid
+        self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
         self._acks: dict[tuple[int, int], asyncio.Future] = {}
-        self.stream_method: dict[int, str] = {}        # sysid -> how streams were requested
+        self.stream_method: dict[int, str] = {}  # sysid -> how streams were requested
 
     # -- public API -----------------------------------------------------------
     @property
@@ -139,7 +160,7 @@ class MavlinkLink:
         self._measurements.close()
         self._events.close()
 
-    async def __aenter__(self) -> "MavlinkLink":
+    async def __aenter__(self) -> MavlinkLink:
         await self.open()
         return self
 
@@ -194,8 +215,7 @@ class MavlinkLink:
         if hdr.srcSystem not in self._vehicles:
             self._vehicles[hdr.srcSystem] = hdr.srcComponent
             if self.streams:
-                asyncio.get_running_loop().create_task(
-                    self._request_streams(hdr.srcSystem, hdr.srcComponent))
+                asyncio.get_running_loop().create_task(self._request_streams(hdr.srcSystem, hdr.srcComponent))
 
     def _peer_is_v1(self) -> bool:
         peers = self.receiver.peer_mavlink1
@@ -225,7 +245,8 @@ class MavlinkLink:
 
     async def _heartbeat_task(self) -> None:
         hb = mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3)
+            mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_ACTIVE, 3
+        )
         while True:
             if self.transport is not None and self.transport.has_peer:
                 self.send(hb)
@@ -246,11 +267,10 @@ class MavlinkLink:
             msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
             fut = loop.create_future()
             self._acks[(sysid, cmd)] = fut
-            self.send(mavlink.MAVLink_command_long_message(
-                sysid, compid, cmd, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0))
+            self.send(mavlink.MAVLink_command_long_message(sysid, compid, cmd, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0))
             try:
                 result = await asyncio.wait_for(fut, self.ack_timeout)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 break  # no answer at all: the vehicle does not take the command
             # A refusal for one message only means the vehicle lacks that sensor.
             accepted += result == mavlink.MAV_RESULT_ACCEPTED

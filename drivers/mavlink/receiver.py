@@ -6,11 +6,12 @@ CRC checking are done by :mod:`drivers.mavlink.framing` on pymavlink's message
 definitions; this module adds the per-link counters, the recording tap and the
 raw-message hook.
 """
+
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -30,12 +31,12 @@ class LinkCounters:
     messages: int = 0
     by_type: Counter = field(default_factory=Counter)
     crc_errors: int = 0
-    bad_data: int = 0          # stretches of garbage before a start marker, bad headers
-    unknown: int = 0           # message ids not in the dialect (CRC unverifiable)
-    seq_lost: int = 0          # frames missing by sequence number
+    bad_data: int = 0  # stretches of garbage before a start marker, bad headers
+    unknown: int = 0  # message ids not in the dialect (CRC unverifiable)
+    seq_lost: int = 0  # frames missing by sequence number
     mavlink1: int = 0
     mavlink2: int = 0
-    dropped: int = 0           # measurements dropped because a consumer fell behind
+    dropped: int = 0  # measurements dropped because a consumer fell behind
     #: (sysid, compid) -> [frames received, frames lost by sequence number]
     per_source: dict = field(default_factory=dict)
 
@@ -52,10 +53,17 @@ class LinkCounters:
 
     def as_dict(self) -> dict:
         return {
-            "bytes": self.bytes, "messages": self.messages, "crc_errors": self.crc_errors,
-            "bad_data": self.bad_data, "unknown": self.unknown, "seq_lost": self.seq_lost,
-            "loss_percent": round(self.loss_percent, 3), "mavlink1": self.mavlink1,
-            "mavlink2": self.mavlink2, "dropped": self.dropped, "by_type": dict(self.by_type),
+            "bytes": self.bytes,
+            "messages": self.messages,
+            "crc_errors": self.crc_errors,
+            "bad_data": self.bad_data,
+            "unknown": self.unknown,
+            "seq_lost": self.seq_lost,
+            "loss_percent": round(self.loss_percent, 3),
+            "mavlink1": self.mavlink1,
+            "mavlink2": self.mavlink2,
+            "dropped": self.dropped,
+            "by_type": dict(self.by_type),
         }
 
 
@@ -69,9 +77,13 @@ class MavlinkReceiver:
     yields measurements instead), unknown ids included.
     """
 
-    def __init__(self, link_name: str = "mav", *,
-                 on_frame: Callable[[bytes, float], None] | None = None,
-                 on_message: Callable[[object, float], None] | None = None) -> None:
+    def __init__(
+        self,
+        link_name: str = "mav",
+        *,
+        on_frame: Callable[[bytes, float], None] | None = None,
+        on_message: Callable[[object, float], None] | None = None,
+    ) -> None:
         self.decoder = MavlinkDecoder(link_name)
         self.counters = LinkCounters()
         self.on_frame = on_frame

@@ -4,6 +4,7 @@ The unit strings are exactly those of the XML definitions, which pymavlink
 exposes as ``fieldunits_by_name``; the test suite checks every field the
 decoder reads against them, so a unit is never assumed silently.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,10 +18,10 @@ UNIT_TO_SI: dict[str, tuple[float, float]] = {
     "mG": (G0 / 1000.0, 0.0),
     "rad/s": (1.0, 0.0),
     "mrad/s": (1e-3, 0.0),
-    "gauss": (1e-4, 0.0),        # 1 G = 1e-4 T
+    "gauss": (1e-4, 0.0),  # 1 G = 1e-4 T
     "mgauss": (1e-7, 0.0),
     "hPa": (100.0, 0.0),
-    "degC": (1.0, 273.15),       # temperatures in kelvin
+    "degC": (1.0, 273.15),  # temperatures in kelvin
     "cdegC": (0.01, 273.15),
     "m": (1.0, 0.0),
     "cm": (0.01, 0.0),
@@ -31,10 +32,10 @@ UNIT_TO_SI: dict[str, tuple[float, float]] = {
     "rad": (1.0, 0.0),
     "deg": (math.pi / 180.0, 0.0),
     "cdeg": (math.pi / 18000.0, 0.0),
-    "degE7": (1e-7, 0.0),        # latitude/longitude stay in degrees (WGS84)
+    "degE7": (1e-7, 0.0),  # latitude/longitude stay in degrees (WGS84)
     "mV": (1e-3, 0.0),
     "cA": (1e-2, 0.0),
-    "%": (1e-2, 0.0),            # fractions 0..1
+    "%": (1e-2, 0.0),  # fractions 0..1
     "us": (1e-6, 0.0),
     "ms": (1e-3, 0.0),
 }

@@ -11,6 +11,7 @@ Every failure the user can cause (bad connection string, missing device,
 unreadable or foreign file) ends in one line on stderr and exit status 2,
 never a traceback.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -79,16 +80,27 @@ def _add_web_options(p: argparse.ArgumentParser) -> None:
 def _add_output_options(p: argparse.ArgumentParser) -> None:
     _add_web_options(p)
     p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
-    p.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
-                                     "noise, thrust curve and sensor limits for this airframe; default: what the "
-                                     "log implies (a Crazyflie log: crazyflie)")
+    p.add_argument(
+        "--vehicle",
+        help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
+        "noise, thrust curve and sensor limits for this airframe; default: what the "
+        "log implies (a Crazyflie log: crazyflie)",
+    )
     p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
-    p.add_argument("--declared", type=Path,
-                   help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any")
-    p.add_argument("--export", metavar="OUT.csv", type=Path,
-                   help="write the estimates: t, states, sigma_<state> (one row per estimate)")
-    p.add_argument("--export-measurements", metavar="M.csv", type=Path,
-                   help="write the decoded measurements (long format)")
+    p.add_argument(
+        "--declared",
+        type=Path,
+        help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any",
+    )
+    p.add_argument(
+        "--export",
+        metavar="OUT.csv",
+        type=Path,
+        help="write the estimates: t, states, sigma_<state> (one row per estimate)",
+    )
+    p.add_argument(
+        "--export-measurements", metavar="M.csv", type=Path, help="write the decoded measurements (long format)"
+    )
     p.add_argument("--quiet", action="store_true", help="no status lines")
 
 
@@ -97,13 +109,18 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     c = sub.add_parser("connect", help="connect to a vehicle (UDP, TCP or serial) and record the session")
-    c.add_argument("url", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyUSB0,57600")
+    c.add_argument(
+        "url", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyUSB0,57600"
+    )
     c.add_argument("--record", type=Path, help="tlog path (default sessions/<date-time>.tlog)")
     c.add_argument("--no-record", action="store_true", help="do not record the session")
     c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
     c.add_argument("--duration", type=float, help="stop after this many seconds")
-    c.add_argument("--control", choices=("quad", "coax"),
-                   help="offer altitude hold for this vehicle in the dashboard's Control panel (armed only there)")
+    c.add_argument(
+        "--control",
+        choices=("quad", "coax"),
+        help="offer altitude hold for this vehicle in the dashboard's Control panel (armed only there)",
+    )
     _add_output_options(c)
 
     r = sub.add_parser("replay", help="play a recorded .tlog through the live path")
@@ -155,13 +172,22 @@ def _run(args) -> int:
         if args.command == "demo":
             return asyncio.run(run_demo(args))
         if args.vehicle:
-            vehicle_config(args.vehicle, args.model)    # an unknown one is a one-line error before anything starts
+            vehicle_config(args.vehicle, args.model)  # an unknown one is a one-line error before anything starts
         runner = {"connect": run_connect, "replay": run_replay}[args.command]
         return asyncio.run(runner(args))
     except BrokenPipeError:
         raise
-    except (UsageError, TlogError, TransportError, ConnectionStringError, ScenarioError, CrazyflieLogError,
-            DataFlashError, OSError, ValueError) as e:
+    except (
+        UsageError,
+        TlogError,
+        TransportError,
+        ConnectionStringError,
+        ScenarioError,
+        CrazyflieLogError,
+        DataFlashError,
+        OSError,
+        ValueError,
+    ) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -174,10 +200,14 @@ def cmd_info(args) -> int:
     rp = Replay(args.file, speed=math.inf)
     n = sum(1 for _ in rp.iter_measurements())
     c = rp.receiver.counters
-    print(f"{args.file}: {len(idx)} records, {idx.duration:.1f} s, "
-          f"MAVLink1 {c.mavlink1} / MAVLink2 {c.mavlink2} frames, {n} measurements")
-    print(f"  CRC errors {c.crc_errors}, garbage {c.bad_data}, unknown ids {c.unknown}, "
-          f"sequence loss {c.loss_percent:.2f}%")
+    print(
+        f"{args.file}: {len(idx)} records, {idx.duration:.1f} s, "
+        f"MAVLink1 {c.mavlink1} / MAVLink2 {c.mavlink2} frames, {n} measurements"
+    )
+    print(
+        f"  CRC errors {c.crc_errors}, garbage {c.bad_data}, unknown ids {c.unknown}, "
+        f"sequence loss {c.loss_percent:.2f}%"
+    )
     for sysid in sorted({k[0] for k in c.per_source}):
         print(f"  system {sysid}: loss {c.loss_percent_of(sysid):.2f}%")
     damage = rp.skipped_summary()
@@ -194,11 +224,15 @@ def cmd_noise(args) -> int:
     rp = Replay(args.file, speed=math.inf)
     result = stationary_noise(rp.iter_measurements(), est, args.start, args.end)
     if not result:
-        raise UsageError(f"{args.file}: no measurements of the {args.model} model between "
-                         f"{args.start:g} s and {args.end:g} s")
+        raise UsageError(
+            f"{args.file}: no measurements of the {args.model} model between {args.start:g} s and {args.end:g} s"
+        )
     for name, r in result.items():
         R = np.array(r["R"])
-        print(f"{name} ({r['n']} samples, {args.start:g}-{args.end:g} s): R =" + (f"  [{r['note']}]" if "note" in r else ""))
+        print(
+            f"{name} ({r['n']} samples, {args.start:g}-{args.end:g} s): R ="
+            + (f"  [{r['note']}]" if "note" in r else "")
+        )
         print("  " + np.array2string(R, precision=3, separator=", ", prefix="  "))
     if args.out:
         args.out.write_text(json.dumps(result, indent=2))
@@ -216,15 +250,15 @@ class Outputs:
 
     def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
         declared = declared_effects(declared_path)
-        self.estimator = build_estimator(args.model, declared, load_noise(args.noise),
-                                         vehicle=vehicle)
+        self.estimator = build_estimator(args.model, declared, load_noise(args.noise), vehicle=vehicle)
         estimators = [self.estimator]
         if dashboard is not None:
             # the 3D view needs a horizontal place and its covariance; none of the
             # documents' models has one (see models/horizontal.py)
             estimators.append(horizontal_estimator())
-            dashboard.attach_session(model=args.model, declared=declared, counters=self.estimator.counters,
-                                     vehicle=vehicle)
+            dashboard.attach_session(
+                model=args.model, declared=declared, counters=self.estimator.counters, vehicle=vehicle
+            )
         self.loop = EstimationLoop(estimators)
         self.status = StatusLine()
         self.dashboard = dashboard
@@ -280,8 +314,10 @@ def _start_dashboard(args):
 def link_markdown(state: str, counters, rates: dict[str, float]) -> str:
     top = sorted(rates.items(), key=lambda kv: -kv[1])[:8]
     lines = "\n".join(f"| {k} | {v:.1f} |" for k, v in top)
-    return (f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
-            f"garbage {counters.bad_data}\n\n| message | Hz |\n|---|---|\n{lines}")
+    return (
+        f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
+        f"garbage {counters.bad_data}\n\n| message | Hz |\n|---|---|\n{lines}"
+    )
 
 
 class RateMeter:
@@ -315,8 +351,12 @@ async def run_connect(args) -> int:
     events = link.events()
     await link.open()
     where = link.transport.local_address if link.transport else None
-    print(f"link open: {endpoint}" + (f" (bound to {where[0]}:{where[1]})" if where else "")
-          + (f"; recording to {record}" if record else ""), flush=True)
+    print(
+        f"link open: {endpoint}"
+        + (f" (bound to {where[0]}:{where[1]})" if where else "")
+        + (f"; recording to {record}" if record else ""),
+        flush=True,
+    )
     stop = asyncio.Event()
     _install_stop(stop)
     dash = _start_dashboard(args)
@@ -332,8 +372,11 @@ async def run_connect(args) -> int:
             if not args.quiet:
                 status.print(link.state.value, link.counters)
 
-    tasks = [asyncio.create_task(_consume(sub, out)),
-             asyncio.create_task(print_link_events(events)), asyncio.create_task(print_status())]
+    tasks = [
+        asyncio.create_task(_consume(sub, out)),
+        asyncio.create_task(print_link_events(events)),
+        asyncio.create_task(print_status()),
+    ]
     station = None
     if getattr(args, "control", None):
         station = ControlStation(args.control, link)
@@ -346,7 +389,7 @@ async def run_connect(args) -> int:
         if args.duration:
             try:
                 await asyncio.wait_for(stop.wait(), args.duration)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
         else:
             await stop.wait()
@@ -361,9 +404,12 @@ async def run_connect(args) -> int:
             dash.stop()
         written = out.close()
     c = link.counters
-    print(f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
-          + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else "")
-          + (f"; {written}" if written else ""), flush=True)
+    print(
+        f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
+        + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else "")
+        + (f"; {written}" if written else ""),
+        flush=True,
+    )
     return 0 if link.state is LinkState.CLOSED else 1
 
 
@@ -384,8 +430,7 @@ async def run_replay(args) -> int:
     dash = _start_dashboard(args)
     out = Outputs(args, args.declared or declared_beside(args.file), dash, args.vehicle or vehicle)
     status = out.status
-    print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}",
-          flush=True)
+    print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}", flush=True)
     if rp.speed == math.inf and not args.loop and dash is None:
         # Batch: the same receive path, without an event loop round trip per record.
         for m in rp.iter_measurements():
@@ -403,12 +448,17 @@ async def run_replay(args) -> int:
             while True:
                 await asyncio.sleep(1.0)
                 if dash is not None:
-                    dash.set_link_status(link_markdown(f"replay {rp.status.state.value} · t {rp.position:.1f}"
-                                                       f" / {rp.duration:.1f} s", rp.receiver.counters,
-                                                       rates(rp.receiver.counters.by_type)))
+                    dash.set_link_status(
+                        link_markdown(
+                            f"replay {rp.status.state.value} · t {rp.position:.1f} / {rp.duration:.1f} s",
+                            rp.receiver.counters,
+                            rates(rp.receiver.counters.by_type),
+                        )
+                    )
                 if not args.quiet:
-                    status.print(rp.status.state.value, rp.receiver.counters,
-                                 f"t {rp.position:.1f}/{rp.duration:.1f} s")
+                    status.print(
+                        rp.status.state.value, rp.receiver.counters, f"t {rp.position:.1f}/{rp.duration:.1f} s"
+                    )
 
         printer = asyncio.create_task(print_status())
         web = None
@@ -422,6 +472,7 @@ async def run_replay(args) -> int:
                 reply = replay_command(sys.stdin.readline(), rp, stop)
                 if reply:
                     print(reply, flush=True)
+
             asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
         stopper = asyncio.create_task(stop.wait())
         await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
@@ -437,8 +488,12 @@ async def run_replay(args) -> int:
             dash.stop()
     written = out.close()
     damage = rp.skipped_summary()
-    print(f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
-          + (f"; {damage}" if damage else "") + (f"; {written}" if written else ""), flush=True)
+    print(
+        f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
+        + (f"; {damage}" if damage else "")
+        + (f"; {written}" if written else ""),
+        flush=True,
+    )
     return 0
 
 

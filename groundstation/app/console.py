@@ -1,4 +1,5 @@
 """A one-line-per-second terminal status for headless sessions (``--no-web``)."""
+
 from __future__ import annotations
 
 import math
@@ -38,9 +39,13 @@ class StatusLine:
         t0, msgs0, meas0 = self._last
         dt = max(now - t0, 1e-9)
         self._last = (now, counters.messages, self.count)
-        parts = [f"[{state}]", f"{(counters.messages - msgs0) / dt:.0f} msg/s",
-                 f"{(self.count - meas0) / dt:.0f} meas/s",
-                 f"loss {counters.loss_percent:.1f}%", f"crc {counters.crc_errors}"]
+        parts = [
+            f"[{state}]",
+            f"{(counters.messages - msgs0) / dt:.0f} msg/s",
+            f"{(self.count - meas0) / dt:.0f} meas/s",
+            f"loss {counters.loss_percent:.1f}%",
+            f"crc {counters.crc_errors}",
+        ]
         parts += [fmt.format(self.latest[k]) for k, fmt in _SHOWN if k in self.latest]
         if extra:
             parts.append(extra)

@@ -1,4 +1,5 @@
 """``groundstation diagnose LOG [--model NAME] [--out DIR]``: the closed loop from the command line."""
+
 from __future__ import annotations
 
 import sys
@@ -14,17 +15,30 @@ from groundstation.estimation.registry import declared_beside, declared_effects
 def add_parser(sub) -> None:
     d = sub.add_parser("diagnose", help="find the effects the model lacks, add them, report before/after")
     d.add_argument("file", type=Path)
-    d.add_argument("--model", default="altitude", choices=("altitude", "quad_thrust", "attitude"),
-                   help="altitude (accelerometer as input; default), quad_thrust (throttle as input: thrust-side "
-                        "effects) or attitude (raw IMU of a multirotor: gyro bias, IMU mounting)")
+    d.add_argument(
+        "--model",
+        default="altitude",
+        choices=("altitude", "quad_thrust", "attitude"),
+        help="altitude (accelerometer as input; default), quad_thrust (throttle as input: thrust-side "
+        "effects) or attitude (raw IMU of a multirotor: gyro bias, IMU mounting)",
+    )
     d.add_argument("--out", type=Path, help="report directory (default: LOG.diagnosis/)")
     d.add_argument("--declared", type=Path, help="effects the model is told of (default: LOG.declared.json)")
-    d.add_argument("--vehicle", help="vehicle parameter file for the noise (its known effects are NOT applied: "
-                                     "finding them is the point)")
-    d.add_argument("--truth", type=Path, help="truth CSV (t, h) for the error before/after (default: LOG.csv "
-                                              "when it is a simulator sidecar; motion capture in the log is used)")
-    d.add_argument("--no-truth-veto", action="store_true",
-                   help="keep an effect even when its fix makes the error against truth worse (default: rejected)")
+    d.add_argument(
+        "--vehicle",
+        help="vehicle parameter file for the noise (its known effects are NOT applied: finding them is the point)",
+    )
+    d.add_argument(
+        "--truth",
+        type=Path,
+        help="truth CSV (t, h) for the error before/after (default: LOG.csv "
+        "when it is a simulator sidecar; motion capture in the log is used)",
+    )
+    d.add_argument(
+        "--no-truth-veto",
+        action="store_true",
+        help="keep an effect even when its fix makes the error against truth worse (default: rejected)",
+    )
 
 
 class Progress:
@@ -39,8 +53,9 @@ class Progress:
         if self.tty:
             k = min(self.n, self.total)
             bar = "#" * (20 * k // self.total) + "." * (20 - 20 * k // self.total)
-            print(f"\r[{bar}] {time.monotonic() - self.t0:5.1f} s  {what[:50]:<50}", end="", file=sys.stderr,
-                  flush=True)
+            print(
+                f"\r[{bar}] {time.monotonic() - self.t0:5.1f} s  {what[:50]:<50}", end="", file=sys.stderr, flush=True
+            )
         elif what.startswith(("added", "rejected")):
             print(f"  {what}", file=sys.stderr, flush=True)
 
@@ -55,9 +70,16 @@ def cmd_diagnose(args) -> int:
     out = args.out or args.file.with_name(args.file.name + ".diagnosis")
     print(f"diagnosing {args.file}: {desc}", flush=True)
     bar = Progress()
-    d = diagnose(ms, source=str(args.file), model_name=args.model, declared=declared,
-                 vehicle=args.vehicle or vehicle, truth=truth_from(ms, args.file, args.truth), progress=bar,
-                 veto_with_truth=not args.no_truth_veto)
+    d = diagnose(
+        ms,
+        source=str(args.file),
+        model_name=args.model,
+        declared=declared,
+        vehicle=args.vehicle or vehicle,
+        truth=truth_from(ms, args.file, args.truth),
+        progress=bar,
+        veto_with_truth=not args.no_truth_veto,
+    )
     bar.done()
     j = report.write(d, out)
     print(j["conclusion"])

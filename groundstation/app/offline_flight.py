@@ -12,13 +12,14 @@ fast tests run here; the tests over real ptys and UDP sockets run live.
 ``latency``: seconds between a command being computed and the vehicle
 applying it (a serial link and a USB frame: a few ms).
 """
+
 from __future__ import annotations
 
 import collections
 import inspect
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -37,8 +38,8 @@ from sim_bridge.scenario import Scenario
 
 @dataclass
 class Flight:
-    t: np.ndarray                                     # tick times [s]
-    truth: dict[str, np.ndarray]                      # the simulator's state at each tick
+    t: np.ndarray  # tick times [s]
+    truth: dict[str, np.ndarray]  # the simulator's state at each tick
     records: list[ControlRecord] = field(default_factory=list)
     armed: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     history: list = field(default_factory=list)
@@ -69,9 +70,18 @@ class _Wire:
             self.deliver(self.queue.popleft()[1])
 
 
-def fly(scenario: Scenario, controller: Controller, feedback: Feedback, *, seconds: float,
-        rate: float = 100.0, arm_at: float = 0.5, reference: Callable[..., dict] | None = None,
-        latency: float = 0.004, stale_after: float = 0.25) -> Flight:
+def fly(
+    scenario: Scenario,
+    controller: Controller,
+    feedback: Feedback,
+    *,
+    seconds: float,
+    rate: float = 100.0,
+    arm_at: float = 0.5,
+    reference: Callable[..., dict] | None = None,
+    latency: float = 0.004,
+    stale_after: float = 0.25,
+) -> Flight:
     """Fly ``seconds`` of simulated time; control is armed at ``arm_at``.
 
     ``reference(t)`` or ``reference(t, truth)``: the reference at time t; the

@@ -1,4 +1,5 @@
 """Clean stops on SIGINT/SIGTERM for the command line's asyncio runs."""
+
 from __future__ import annotations
 
 import asyncio

@@ -1,4 +1,5 @@
 """``groundstation sim`` and ``groundstation demo``: the simulated vehicle from the command line."""
+
 from __future__ import annotations
 
 import asyncio
@@ -29,22 +30,45 @@ def add_sim_parser(sub) -> None:
     s = sub.add_parser("sim", help="run a simulated vehicle (real time on UDP/serial, or --fast into a tlog)")
     s.add_argument("--vehicle", choices=VEHICLES, default="quad")
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--flight", choices=FLIGHTS, default="standard",
-                   help="the built-in flight: standard; thrust_test (a low hover in ground effect and "
-                        "throttle steps instead of the altitude sine); or high (a climb to 5-8 m, above the "
-                        "range sensor's 4 m, where the barometer alone carries the height)")
+    s.add_argument(
+        "--flight",
+        choices=FLIGHTS,
+        default="standard",
+        help="the built-in flight: standard; thrust_test (a low hover in ground effect and "
+        "throttle steps instead of the altitude sine); or high (a climb to 5-8 m, above the "
+        "range sensor's 4 m, where the barometer alone carries the height)",
+    )
     s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
-    s.add_argument("--effect", action="append", default=[], metavar="NAME:k=v,...",
-                   help="a declared effect (the ground station may be told); repeatable")
-    s.add_argument("--undeclared", action="append", default=[], metavar="NAME:k=v,...",
-                   help="an effect that acts but is told to nobody; repeatable")
-    s.add_argument("--duration", type=float, help="seconds of simulated time (default: run until stopped; 60 with --fast)")
-    s.add_argument("--udp", default="127.0.0.1:14550", metavar="HOST:PORT",
-                   help="send MAVLink to the ground station here (default 127.0.0.1:14550); 'none' for no UDP")
+    s.add_argument(
+        "--effect",
+        action="append",
+        default=[],
+        metavar="NAME:k=v,...",
+        help="a declared effect (the ground station may be told); repeatable",
+    )
+    s.add_argument(
+        "--undeclared",
+        action="append",
+        default=[],
+        metavar="NAME:k=v,...",
+        help="an effect that acts but is told to nobody; repeatable",
+    )
+    s.add_argument(
+        "--duration", type=float, help="seconds of simulated time (default: run until stopped; 60 with --fast)"
+    )
+    s.add_argument(
+        "--udp",
+        default="127.0.0.1:14550",
+        metavar="HOST:PORT",
+        help="send MAVLink to the ground station here (default 127.0.0.1:14550); 'none' for no UDP",
+    )
     s.add_argument("--serial", action="store_true", help="also speak MAVLink on a pseudo-terminal (path printed)")
     s.add_argument("--serial-link", type=Path, help="keep a stable symlink to the pty here (like /dev/serial/by-id)")
-    s.add_argument("--board", action="store_true",
-                   help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)")
+    s.add_argument(
+        "--board",
+        action="store_true",
+        help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)",
+    )
     s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
     s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
     s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
@@ -57,21 +81,28 @@ def add_sim_parser(sub) -> None:
     d.add_argument("--duration", type=float, default=60.0)
     d.add_argument("--vehicle", choices=VEHICLES, default="quad")
     d.add_argument("--seed", type=int, default=1)
-    d.add_argument("--record", type=Path,
-                   help="tlog path (default out/demo-<date-time>.tlog: a fresh file per run, as connect does; "
-                        "an existing file is appended to)")
+    d.add_argument(
+        "--record",
+        type=Path,
+        help="tlog path (default out/demo-<date-time>.tlog: a fresh file per run, as connect does; "
+        "an existing file is appended to)",
+    )
     d.add_argument("--no-web", action="store_true", help="no dashboard")
     d.add_argument("--host", default="127.0.0.1")
     d.add_argument("--port", type=int, default=8080)
-    d.add_argument("--control", action="store_true",
-                   help="fly it from the ground station: the dashboard's Control panel arms the vehicle's controllers "
-                        "(the 3-DOF rig's motor board on a pseudo-terminal)")
+    d.add_argument(
+        "--control",
+        action="store_true",
+        help="fly it from the ground station: the dashboard's Control panel arms the vehicle's controllers "
+        "(the 3-DOF rig's motor board on a pseudo-terminal)",
+    )
 
 
 def scenario_from(args) -> Scenario:
     duration = args.duration if args.duration else 60.0
-    return Scenario.from_args(args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario,
-                              args.flight)
+    return Scenario.from_args(
+        args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario, args.flight
+    )
 
 
 def cmd_sim(args) -> int:
@@ -83,9 +114,12 @@ def cmd_sim(args) -> int:
         if args.log is None:
             raise ValueError("--fast needs --log OUT.tlog")
         r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration)
-        print(f"sim: {scenario.vehicle} seed {scenario.seed}: {r.seconds:g} s simulated in {r.wall:.2f} s "
-              f"({r.speedup:.0f}x real time), {r.frames} frames -> {r.log}"
-              + (f"; truth -> {r.truth}" if r.truth else "") + f"; declared -> {declared_path(r.log)}")
+        print(
+            f"sim: {scenario.vehicle} seed {scenario.seed}: {r.seconds:g} s simulated in {r.wall:.2f} s "
+            f"({r.speedup:.0f}x real time), {r.frames} frames -> {r.log}"
+            + (f"; truth -> {r.truth}" if r.truth else "")
+            + f"; declared -> {declared_path(r.log)}"
+        )
         return 0
     return asyncio.run(_run_realtime(args, scenario))
 
@@ -102,8 +136,14 @@ def _udp(text: str):
 async def _run_realtime(args, scenario: Scenario) -> int:
     pty = PtyPort(args.serial_link) if (args.serial or args.serial_link) else None
     board = PtyPort() if args.board else None
-    bridge = SimBridge(scenario, udp_to=_udp(args.udp), pty=pty, board=board, speed=args.speed,
-                       faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0))
+    bridge = SimBridge(
+        scenario,
+        udp_to=_udp(args.udp),
+        pty=pty,
+        board=board,
+        speed=args.speed,
+        faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
+    )
     truth_file = None
     if args.truth:
         truth_file = open(args.truth, "w", newline="")
@@ -115,6 +155,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
                 writer = csv.DictWriter(truth_file, fieldnames=list(row))
                 writer.writeheader()
             writer.writerow(row)
+
         bridge.truth_sink = sink
         args.truth.with_suffix(".truth.json").write_text(json.dumps(scenario.truth_json(), indent=2))
     await bridge.open()
@@ -134,8 +175,11 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         bridge.close()
         if truth_file is not None:
             truth_file.close()
-    print(f"sim: stopped at t = {bridge.sim.t:.1f} s; {bridge.frames_sent} frames sent, "
-          f"{bridge.frames_dropped} dropped by fault injection", flush=True)
+    print(
+        f"sim: stopped at t = {bridge.sim.t:.1f} s; {bridge.frames_sent} frames sent, "
+        f"{bridge.frames_dropped} dropped by fault injection",
+        flush=True,
+    )
     return 0
 
 
@@ -151,9 +195,7 @@ def _fresh_path(p: Path) -> Path:
 async def run_demo(args) -> int:
     """Bridge and ground station in one process, over real loopback UDP."""
 
-
-
-    if args.record is None:     # one run per file: a tlog appended to run after run reads as one flight with gaps
+    if args.record is None:  # one run per file: a tlog appended to run after run reads as one flight with gaps
         args.record = _fresh_path(Path("out") / f"demo-{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog")
     link = MavlinkLink("udpin:127.0.0.1:0", record=args.record)
     sub, events = link.measurements(), link.events()
@@ -167,7 +209,7 @@ async def run_demo(args) -> int:
     estimators = [build_estimator(model, declared)]
     if dash is not None:
         dash.attach_session(model=model, declared=declared, counters=estimators[0].counters)
-    if dash is not None and args.vehicle != "heli3dof":      # the rig is bolted to the table
+    if dash is not None and args.vehicle != "heli3dof":  # the rig is bolted to the table
         estimators.append(horizontal_estimator())
     loop = EstimationLoop(estimators)
     snaps = loop.snapshots.subscribe(lossy=True, maxlen=1000)
@@ -194,10 +236,13 @@ async def run_demo(args) -> int:
         control_tasks.append(asyncio.create_task(station.run()))
         if dash is not None:
             dash.add_control(station)
-        print(f"demo: control ready ({', '.join(station.controllers)}); arm it from the dashboard's Control panel",
-              flush=True)
-    print(f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}",
-          flush=True)
+        print(
+            f"demo: control ready ({', '.join(station.controllers)}); arm it from the dashboard's Control panel",
+            flush=True,
+        )
+    print(
+        f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}", flush=True
+    )
     status = StatusLine()
 
     async def consume():
@@ -212,11 +257,15 @@ async def run_demo(args) -> int:
         while True:
             await asyncio.sleep(1.0)
             z = loop.latest.get(model)
-            extra = f"sim t {bridge.sim.t:.0f} s" + (f"  est {z.states[0]} {z.x[0]:+.3f} ±{z.sigma[0]:.3f}" if z else "")
+            extra = f"sim t {bridge.sim.t:.0f} s" + (
+                f"  est {z.states[0]} {z.x[0]:+.3f} ±{z.sigma[0]:.3f}" if z else ""
+            )
             status.print(link.state.value, link.counters, extra)
             if dash is not None:
-                dash.set_link_status(f"**{link.state.value}** · {link.counters.messages} messages · "
-                                     f"loss {link.counters.loss_percent:.2f} % · simulated {args.vehicle}, t {bridge.sim.t:.0f} s")
+                dash.set_link_status(
+                    f"**{link.state.value}** · {link.counters.messages} messages · "
+                    f"loss {link.counters.loss_percent:.2f} % · simulated {args.vehicle}, t {bridge.sim.t:.0f} s"
+                )
 
     tasks = [asyncio.create_task(c) for c in (consume(), print_link_events(events), show_status())]
     if dash is not None:
@@ -238,8 +287,9 @@ async def run_demo(args) -> int:
         if dash is not None:
             dash.stop()
     c = link.counters
-    print(f"demo: {c.messages} messages, loss {c.loss_percent:.2f}%, streams via "
-          f"{link.stream_method.get(1, 'none')}; recorded {args.record}", flush=True)
+    print(
+        f"demo: {c.messages} messages, loss {c.loss_percent:.2f}%, streams via "
+        f"{link.stream_method.get(1, 'none')}; recorded {args.record}",
+        flush=True,
+    )
     return 0
-
-

@@ -17,13 +17,14 @@ Rules, in the order :meth:`Commander.tick` applies them:
 Each tick publishes a :class:`ControlRecord` (reference, state, command) on
 :attr:`Commander.records` for the dashboard's plots and the session export.
 """
+
 from __future__ import annotations
 
 import asyncio
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -44,8 +45,8 @@ class ArmRefused(Exception):
 
 @dataclass(frozen=True)
 class ControlRecord:
-    t: float                       # vehicle time the command is for [s]
-    wall: float                    # clock() when it was sent
+    t: float  # vehicle time the command is for [s]
+    wall: float  # clock() when it was sent
     reference: dict[str, float]
     state: dict[str, float]
     command: np.ndarray
@@ -54,9 +55,18 @@ class ControlRecord:
 
 
 class Commander:
-    def __init__(self, controller: Controller, feedback: Feedback, uplink: Uplink, *, rate: float = 100.0,
-                 stale_after: float = 0.25, link=None, clock: Callable[[], float] = time.monotonic,
-                 on_command: Callable[[Measurement], None] | None = None) -> None:
+    def __init__(
+        self,
+        controller: Controller,
+        feedback: Feedback,
+        uplink: Uplink,
+        *,
+        rate: float = 100.0,
+        stale_after: float = 0.25,
+        link=None,
+        clock: Callable[[], float] = time.monotonic,
+        on_command: Callable[[Measurement], None] | None = None,
+    ) -> None:
         self.controller, self.feedback, self.uplink = controller, feedback, uplink
         self.rate, self.stale_after = rate, stale_after
         self.link = link
@@ -66,7 +76,7 @@ class Commander:
         self.reference = dict(controller.references)
         self.armed = False
         self.status = "disarmed"
-        self.history: list[tuple[float, str]] = []     # (clock, what happened)
+        self.history: list[tuple[float, str]] = []  # (clock, what happened)
         self.records: Broadcast[ControlRecord] = Broadcast(10_000)
         #: arm and disarm notes as they happen (the dashboard's status line, tests)
         self.notes: Broadcast[str] = Broadcast(1000)
@@ -102,8 +112,9 @@ class Commander:
             return f"link is {self.link.state.value}, not alive"
         age = self._age()
         if age is None or age > self.stale_after:
-            return (f"no fresh {self.feedback.name} feedback"
-                    + ("" if age is None else f" (last measurement {age:.2f} s ago)"))
+            return f"no fresh {self.feedback.name} feedback" + (
+                "" if age is None else f" (last measurement {age:.2f} s ago)"
+            )
         x = self.feedback.state()
         if x is None or any(k not in x for k in self.controller.needs):
             return f"{self.feedback.name} feedback has no state for {self.controller.name} yet"
@@ -170,11 +181,11 @@ class Commander:
                 self.tick()
                 due += period
                 now = loop.time()
-                if due < now:                          # fell behind: skip, do not burst
+                if due < now:  # fell behind: skip, do not burst
                     due = now + period - (now - due) % period
                 try:
                     await asyncio.wait_for(self._stop.wait(), due - now)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     continue
         finally:
             if events is not None:

@@ -25,12 +25,13 @@ documents' kinematics), then the thrust model inverted for the collective:
 eq. 2), or for the coaxial helicopter ``(1 + k_w) k_F i / m = g + a``
 (coaxial document, eq. 5.21 and 5.29 at equal inputs).
 """
+
 from __future__ import annotations
 
 import abc
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
@@ -43,8 +44,8 @@ V_MAX = 12.0
 
 @dataclass(frozen=True)
 class Output:
-    command: np.ndarray       # what is sent: (V_f, V_b) [V], or (collective,) 0..1
-    u: np.ndarray             # the controller's own input, after saturation
+    command: np.ndarray  # what is sent: (V_f, V_b) [V], or (collective,) 0..1
+    u: np.ndarray  # the controller's own input, after saturation
     saturated: bool
 
 
@@ -73,7 +74,10 @@ class Controller(abc.ABC):
 
 # -- 3-DOF helicopter -------------------------------------------------------------------------
 
-def motor_voltages(u_s: float, V_d: float, V_s0: float = V_S0, V_max: float = V_MAX) -> tuple[np.ndarray, np.ndarray, bool]:
+
+def motor_voltages(
+    u_s: float, V_d: float, V_s0: float = V_S0, V_max: float = V_MAX
+) -> tuple[np.ndarray, np.ndarray, bool]:
     """(V_f, V_b), the applied (V_s - V_s0, V_d), and whether anything was clipped."""
     V_s = V_s0 + u_s
     V_s_c = min(2 * V_max, max(0.0, V_s))
@@ -106,8 +110,16 @@ class PitchPD(_Heli3dof):
     needs = ("p", "p_dot", "e", "e_dot")
     references = {"p_c": 0.0, "e_c": 0.0}
 
-    def __init__(self, K_pp: float, K_pd: float, *, K_ep: float | None = None, K_ed: float | None = None,
-                 K_f: float = design.K_F, **kw) -> None:
+    def __init__(
+        self,
+        K_pp: float,
+        K_pd: float,
+        *,
+        K_ep: float | None = None,
+        K_ed: float | None = None,
+        K_f: float = design.K_F,
+        **kw,
+    ) -> None:
         super().__init__(**kw)
         self.K_pp, self.K_pd = K_pp, K_pd
         _, K2 = design.k1_k2(K_f)
@@ -116,18 +128,18 @@ class PitchPD(_Heli3dof):
         self.K_ed = K_ed if K_ed is not None else 4.0 / K2
 
     @classmethod
-    def place(cls, omega0: float, zeta: float, *, K_f: float = design.K_F, **kw) -> "PitchPD":
+    def place(cls, omega0: float, zeta: float, *, K_f: float = design.K_F, **kw) -> PitchPD:
         """Gains for omega_0 and zeta on the plant with motor constant K_f (eq. 25-26)."""
         K1, _ = design.k1_k2(K_f)
         return cls(*design.pd_gains(K1, omega0, zeta), K_f=K_f, **kw)
 
     @classmethod
-    def from_poles(cls, l1: complex, l2: complex, *, K_f: float = design.K_F, **kw) -> "PitchPD":
+    def from_poles(cls, l1: complex, l2: complex, *, K_f: float = design.K_F, **kw) -> PitchPD:
         K1, _ = design.k1_k2(K_f)
         return cls(*design.pd_from_poles(K1, l1, l2), K_f=K_f, **kw)
 
     def update(self, x, r, dt):
-        V_d = self.K_pp * (r["p_c"] - x["p"]) - self.K_pd * x["p_dot"]          # sec. 2.1
+        V_d = self.K_pp * (r["p_c"] - x["p"]) - self.K_pd * x["p_dot"]  # sec. 2.1
         u_s = self.K_ep * (r["e_c"] - x["e"]) - self.K_ed * x["e_dot"]
         return self._out(u_s, V_d)
 
@@ -142,8 +154,9 @@ class LQRFeedForward(_Heli3dof):
     needs = ("p", "p_dot", "e_dot")
     references = {"p_c": 0.0, "e_dot_c": 0.0}
 
-    def __init__(self, Q: np.ndarray = design.LAB_Q_FF, R: np.ndarray = design.LAB_R_FF, *,
-                 K_f: float = design.K_F, **kw) -> None:
+    def __init__(
+        self, Q: np.ndarray = design.LAB_Q_FF, R: np.ndarray = design.LAB_R_FF, *, K_f: float = design.K_F, **kw
+    ) -> None:
         super().__init__(**kw)
         A, B, C = design.pitch_model(K_f)
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
@@ -156,8 +169,13 @@ class LQRFeedForward(_Heli3dof):
         return self._out(u[0], u[1])
 
     def describe(self):
-        return {"name": self.name, "Q": np.diag(self.Q).tolist(), "R": np.diag(self.R).tolist(),
-                "K": self.K.round(4).tolist(), "F": self.F.round(4).tolist()}
+        return {
+            "name": self.name,
+            "Q": np.diag(self.Q).tolist(),
+            "R": np.diag(self.R).tolist(),
+            "K": self.K.round(4).tolist(),
+            "F": self.F.round(4).tolist(),
+        }
 
 
 class LQRIntegral(_Heli3dof):
@@ -171,8 +189,16 @@ class LQRIntegral(_Heli3dof):
     needs = ("p", "p_dot", "e_dot")
     references = {"p_c": 0.0, "e_dot_c": 0.0}
 
-    def __init__(self, Q: np.ndarray = design.LAB_Q_I, R: np.ndarray = design.LAB_R_I, *,
-                 K_f: float = design.K_F, integral_limit: float = 5.0, anti_windup: bool = True, **kw) -> None:
+    def __init__(
+        self,
+        Q: np.ndarray = design.LAB_Q_I,
+        R: np.ndarray = design.LAB_R_I,
+        *,
+        K_f: float = design.K_F,
+        integral_limit: float = 5.0,
+        anti_windup: bool = True,
+        **kw,
+    ) -> None:
         super().__init__(**kw)
         self.anti_windup = anti_windup
         A, B, _ = design.integral_model(K_f)
@@ -181,7 +207,7 @@ class LQRIntegral(_Heli3dof):
         self.K = design.lqr(A, B, self.Q, self.R)
         self.F = design.reference_feedforward(A3, B3, C3, self.K[:, :3])
         self.integral_limit = integral_limit
-        self.z = np.zeros(2)           # gamma, zeta
+        self.z = np.zeros(2)  # gamma, zeta
 
     def reset(self):
         self.z = np.zeros(2)
@@ -189,25 +215,31 @@ class LQRIntegral(_Heli3dof):
     def update(self, x, r, dt):
         xs = np.array([x["p"], x["p_dot"], x["e_dot"]])
         ref = np.array([r["p_c"], r["e_dot_c"]])
-        err = np.array([xs[0] - ref[0], xs[2] - ref[1]])                         # eq. 39
+        err = np.array([xs[0] - ref[0], xs[2] - ref[1]])  # eq. 39
         u = self.F @ ref - self.K @ np.concatenate([xs, self.z])
         out = self._out(u[0], u[1])
         # conditional integration: stop while saturated, unless the error unwinds it
         dz = err * dt
         if out.saturated and self.anti_windup:
-            excess = u - out.u                         # how far past the limits, per input
-            push = -(self.K[:, 3:] @ dz)               # what integrating would add to u
+            excess = u - out.u  # how far past the limits, per input
+            push = -(self.K[:, 3:] @ dz)  # what integrating would add to u
             if np.any(excess * push > 0):
                 dz = np.zeros(2)
         self.z = np.clip(self.z + dz, -self.integral_limit, self.integral_limit)
         return out
 
     def describe(self):
-        return {"name": self.name, "Q": np.diag(self.Q).tolist(), "R": np.diag(self.R).tolist(),
-                "K": self.K.round(4).tolist(), "F": self.F.round(4).tolist()}
+        return {
+            "name": self.name,
+            "Q": np.diag(self.Q).tolist(),
+            "R": np.diag(self.R).tolist(),
+            "K": self.K.round(4).tolist(),
+            "F": self.F.round(4).tolist(),
+        }
 
 
 # -- altitude hold ----------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class ThrustMap:
@@ -247,8 +279,15 @@ class AltitudeHold(Controller):
     references = {"z_c": 1.0}
     command_names = ("collective",)
 
-    def __init__(self, thrust: ThrustMap = QUAD_THRUST, *, Q=HOLD_Q, R=HOLD_R,
-                 a_limit: float = 0.5 * G, integral_limit: float = 3.0) -> None:
+    def __init__(
+        self,
+        thrust: ThrustMap = QUAD_THRUST,
+        *,
+        Q=HOLD_Q,
+        R=HOLD_R,
+        a_limit: float = 0.5 * G,
+        integral_limit: float = 3.0,
+    ) -> None:
         A = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
         B = np.array([[0.0], [1.0], [0.0]])
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)

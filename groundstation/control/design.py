@@ -31,6 +31,7 @@ Corrections, made knowingly:
   state part of K, so that the integrators hold only what the model gets
   wrong (disturbances), not the whole reference.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -20,6 +20,7 @@ state by name (``state()``), or ``None`` until it has one. The lab document
 :class:`EstimatorFeedback` gives any estimator's state (the altitude filters
 for the altitude hold), plus the attitude the thrust model needs.
 """
+
 from __future__ import annotations
 
 import math
@@ -70,8 +71,14 @@ class EncoderFeedback(Feedback):
             self._rates += k * ((ang - a0) / dt - self._rates)
         self._prev = (m.t, ang)
         p, e, lam = ang
-        self._x = {"p": p, "e": e, "lambda": lam, "p_dot": self._rates[0], "e_dot": self._rates[1],
-                   "lambda_dot": self._rates[2]}
+        self._x = {
+            "p": p,
+            "e": e,
+            "lambda": lam,
+            "p_dot": self._rates[0],
+            "e_dot": self._rates[1],
+            "lambda_dot": self._rates[2],
+        }
 
     def state(self):
         return self._x
@@ -90,12 +97,12 @@ class ImuFeedback(Feedback):
     def feed(self, m):
         if m.kind is Kind.ACCEL:
             fx, fy, fz = (float(v) for v in m.value[:3])
-            self._pe = (math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz)))       # eq. 51, 52
+            self._pe = (math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz)))  # eq. 51, 52
         elif m.kind is Kind.GYRO and self._pe is not None:
             p, e = self._pe
             pd, ed, ld = euler_rates(p, e, m.value[:3])
             if self._t is not None and m.t > self._t:
-                self._lam += ld * (m.t - self._t)        # travel has no absolute IMU reading
+                self._lam += ld * (m.t - self._t)  # travel has no absolute IMU reading
             self._t = m.t
             self._x = {"p": p, "e": e, "lambda": self._lam, "p_dot": pd, "e_dot": ed, "lambda_dot": ld}
 
@@ -138,8 +145,8 @@ class PredictorFeedback(Feedback):
         self._M[:n, :n], self._M[:n, n:] = self.A, self.B
         self.x = np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0]) if x0 is None else np.asarray(x0, float)
         self.u = np.zeros(k)
-        self.t: float | None = None          # time of self.x
-        self._t_now: float | None = None     # newest time a measurement gave
+        self.t: float | None = None  # time of self.x
+        self._t_now: float | None = None  # newest time a measurement gave
 
     def _propagate(self, t: float) -> None:
         if self.t is None:
@@ -195,5 +202,9 @@ class EstimatorFeedback(Feedback):
         return x
 
 
-FEEDBACK_3DOF = {"encoders": EncoderFeedback, "kalman": KalmanFeedback, "imu": ImuFeedback,
-                 "predictor": PredictorFeedback}
+FEEDBACK_3DOF = {
+    "encoders": EncoderFeedback,
+    "kalman": KalmanFeedback,
+    "imu": ImuFeedback,
+    "predictor": PredictorFeedback,
+}

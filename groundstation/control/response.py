@@ -2,10 +2,11 @@
 
 :func:`step_fit` fits the normalised step response of eq. 24,
 ``omega_0^2 / (s^2 + 2 zeta omega_0 s + omega_0^2)`` with a small dead time,
-to a measured step (scipy's ``least_squares`` on the closed-form response). :func:`classify` names a response as the lab's Table 2
-does (unstable, undamped, underdamped, critically damped, overdamped) from
-its envelope and overshoot.
+to a measured step (scipy's ``least_squares`` on the closed-form response).
+:func:`classify` names a response as the lab's Table 2 does (unstable, undamped, underdamped,
+critically damped, overdamped) from its envelope and overshoot.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,8 +32,13 @@ def step_fit(t: np.ndarray, y: np.ndarray, t_step: float, y0: float, y1: float) 
         w, z, d = q
         return np.where(tt > d, second_order_step(np.maximum(tt - d, 0.0), w, z), 0.0)
 
-    sol = least_squares(lambda q: model(q) - yy, [3.0, 0.8, 0.01], bounds=([0.05, 0.01, 0.0], [60.0, 5.0, 0.3]),
-                        diff_step=1e-3, x_scale=[1.0, 0.1, 0.01])
+    sol = least_squares(
+        lambda q: model(q) - yy,
+        [3.0, 0.8, 0.01],
+        bounds=([0.05, 0.01, 0.0], [60.0, 5.0, 0.3]),
+        diff_step=1e-3,
+        x_scale=[1.0, 0.1, 0.01],
+    )
     return tuple(float(v) for v in sol.x)
 
 
@@ -46,13 +52,13 @@ def classify(t: np.ndarray, y: np.ndarray, t_step: float, y0: float, y1: float, 
     a flatter rise (zeta above 1.15).
     """
     m = t >= t_step
-    tt, e = t[m] - t_step, (y[m] - y1) / (y1 - y0)      # normalised error, -1 at the start
+    tt, e = t[m] - t_step, (y[m] - y1) / (y1 - y0)  # normalised error, -1 at the start
     if not np.all(np.isfinite(y[m])) or np.max(np.abs(y[m])) > limit:
         return "unstable"
     # oscillation envelope: peaks of |e| after the first crossing of zero
     cross = np.nonzero(np.diff(np.sign(e)) != 0)[0]
     if len(cross) >= 3:
-        peaks = [np.max(np.abs(e[a:b + 1])) for a, b in zip(cross[:-1], cross[1:])]
+        peaks = [np.max(np.abs(e[a : b + 1])) for a, b in zip(cross[:-1], cross[1:])]
         if len(peaks) >= 3 and peaks[-1] > 1.2 * peaks[0] and peaks[-1] > 0.05:
             return "unstable"
         if len(peaks) >= 3 and peaks[-1] > 0.8 * peaks[0] and peaks[0] > 0.05:

@@ -15,10 +15,11 @@ Vehicles and their commands:
   SET_ATTITUDE_TARGET;
 * ``coax``: altitude hold on the altitude filter; MANUAL_CONTROL (collective).
 """
+
 from __future__ import annotations
 
 import asyncio
-from typing import Callable
+from collections.abc import Callable
 
 from groundstation.core.measurement import Measurement
 from groundstation.estimation.routing import altitude_estimator, quad_thrust_estimator
@@ -43,13 +44,19 @@ CONTROLLERS: dict[str, dict[str, Callable[[], Controller]]] = {
 }
 FEEDBACK: dict[str, dict[str, Callable[[], Feedback]]] = {
     "heli3dof": dict(FEEDBACK_3DOF),
-    "quad": {"altitude": lambda: EstimatorFeedback(altitude_estimator()),
-             "quad_thrust": lambda: EstimatorFeedback(quad_thrust_estimator())},
+    "quad": {
+        "altitude": lambda: EstimatorFeedback(altitude_estimator()),
+        "quad_thrust": lambda: EstimatorFeedback(quad_thrust_estimator()),
+    },
     "coax": {"altitude": lambda: EstimatorFeedback(altitude_estimator())},
 }
 #: where each reference's slider goes (min, max, step)
-REFERENCE_RANGES = {"p_c": (-0.5, 0.5, 0.01), "e_c": (-0.4, 0.6, 0.01), "e_dot_c": (-0.3, 0.3, 0.01),
-                    "z_c": (0.3, 5.0, 0.05)}
+REFERENCE_RANGES = {
+    "p_c": (-0.5, 0.5, 0.01),
+    "e_c": (-0.4, 0.6, 0.01),
+    "e_dot_c": (-0.3, 0.3, 0.01),
+    "z_c": (0.3, 5.0, 0.05),
+}
 
 
 def default_uplink(vehicle: str, link) -> Uplink:
@@ -61,9 +68,17 @@ def default_uplink(vehicle: str, link) -> Uplink:
 
 
 class ControlStation:
-    def __init__(self, vehicle: str, link, *, uplink: Uplink | None = None, rate: float = 100.0,
-                 controller: str | None = None, feedback: str | None = None,
-                 on_command: Callable[[Measurement], None] | None = None) -> None:
+    def __init__(
+        self,
+        vehicle: str,
+        link,
+        *,
+        uplink: Uplink | None = None,
+        rate: float = 100.0,
+        controller: str | None = None,
+        feedback: str | None = None,
+        on_command: Callable[[Measurement], None] | None = None,
+    ) -> None:
         if vehicle not in CONTROLLERS:
             raise ValueError(f"no controllers for vehicle {vehicle!r}; use one of {', '.join(CONTROLLERS)}")
         self.vehicle, self.link, self.rate = vehicle, link, rate

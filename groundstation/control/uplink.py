@@ -10,6 +10,7 @@
 Pymavlink packs the MAVLink messages; the board frame is packed from
 :mod:`drivers.board_protocol`'s own table.
 """
+
 from __future__ import annotations
 
 import abc
@@ -49,8 +50,7 @@ class BoardMotors(Uplink):
         self.seq = 0
 
     def _send(self, command, t):
-        payload = bp.PAYLOADS[bp.MOTORS][1].pack(int(round(t * 1e6)) & 0xFFFFFFFF, float(command[0]),
-                                                 float(command[1]))
+        payload = bp.PAYLOADS[bp.MOTORS][1].pack(int(round(t * 1e6)) & 0xFFFFFFFF, float(command[0]), float(command[1]))
         self.board.send(bp.frame(bp.MOTORS, self.seq, payload))
         self.seq = (self.seq + 1) & 0xFF
 
@@ -78,6 +78,16 @@ class AttitudeTarget(Uplink):
 
     def _send(self, command, t):
         thrust = min(1.0, max(0.0, float(command[0])))
-        self.link.send(mavlink.MAVLink_set_attitude_target_message(
-            int(t * 1000) & 0xFFFFFFFF, self.target, self.component, self.TYPE_MASK,
-            [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, thrust))
+        self.link.send(
+            mavlink.MAVLink_set_attitude_target_message(
+                int(t * 1000) & 0xFFFFFFFF,
+                self.target,
+                self.component,
+                self.TYPE_MASK,
+                [1.0, 0.0, 0.0, 0.0],
+                0.0,
+                0.0,
+                0.0,
+                thrust,
+            )
+        )

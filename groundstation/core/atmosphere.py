@@ -5,16 +5,17 @@ to turn pressure back into altitude, so both sides use one documented law.
 
     p(h) = p0 (1 - L h / T0) ^ (g M / (R L))
 """
+
 from __future__ import annotations
 
 import numpy as np
 
-P0 = 101_325.0      # sea-level pressure [Pa]
-T0 = 288.15         # sea-level temperature [K]
-L = 0.0065          # temperature lapse rate [K/m]
-G = 9.80665         # standard gravity [m/s^2]
-M = 0.0289644       # molar mass of dry air [kg/mol]
-R = 8.3144598       # universal gas constant [J/(mol K)]
+P0 = 101_325.0  # sea-level pressure [Pa]
+T0 = 288.15  # sea-level temperature [K]
+L = 0.0065  # temperature lapse rate [K/m]
+G = 9.80665  # standard gravity [m/s^2]
+M = 0.0289644  # molar mass of dry air [kg/mol]
+R = 8.3144598  # universal gas constant [J/(mol K)]
 _EXP = G * M / (R * L)  # 5.25588
 
 

@@ -5,11 +5,13 @@ subscriber that falls behind loses its *oldest* items (counted in
 ``dropped``), never the producer's time or another subscriber's items. This is
 how the estimation loop feeds the dashboard, the recorder and exporters.
 """
+
 from __future__ import annotations
 
 import asyncio
 from collections import deque
-from typing import AsyncIterator, Generic, Iterable, TypeVar
+from collections.abc import AsyncIterator, Iterable
+from typing import Generic, TypeVar
 
 T = TypeVar("T")
 
@@ -25,7 +27,7 @@ class Subscription(Generic[T]):
     wait, so there they lose items too, counted in ``dropped``.
     """
 
-    def __init__(self, owner: "Broadcast[T]", maxlen: int, lossy: bool) -> None:
+    def __init__(self, owner: Broadcast[T], maxlen: int, lossy: bool) -> None:
         self._owner = owner
         self._buf: deque = deque(maxlen=maxlen)
         self._event = asyncio.Event()

@@ -1,7 +1,8 @@
 """Counted skips, as one phrase for status lines, panels and reports."""
+
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 
 def counted(counts: Mapping[str, int]) -> str:

@@ -4,6 +4,7 @@ Tait-Bryan angles eta = (psi, theta, phi) (yaw, pitch, roll); the body frame B
 is FRD and the inertial frame I is NED, so ``A_IB`` (doc eq. 3.10) maps body
 to NED: ``v_I = A_IB @ v_B``. Quaternions are (w, x, y, z) of the same rotation.
 """
+
 from __future__ import annotations
 
 import math
@@ -16,11 +17,13 @@ def a_ib(phi: float, theta: float, psi: float) -> np.ndarray:
     cf, sf = math.cos(phi), math.sin(phi)
     ct, st = math.cos(theta), math.sin(theta)
     cp, sp = math.cos(psi), math.sin(psi)
-    return np.array([
-        [cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st],
-        [ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf],
-        [-st, ct * sf, cf * ct],
-    ])
+    return np.array(
+        [
+            [cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st],
+            [ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf],
+            [-st, ct * sf, cf * ct],
+        ]
+    )
 
 
 def euler_from_matrix(r: np.ndarray) -> tuple[float, float, float]:
@@ -68,15 +71,21 @@ def quaternion_from_euler(roll: float, pitch: float, yaw: float) -> tuple[float,
     cr, sr = math.cos(roll / 2), math.sin(roll / 2)
     cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
     cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (cr * cp * cy + sr * sp * sy, sr * cp * cy - cr * sp * sy,
-            cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
 
 
 def euler_from_quaternion(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
     """(roll, pitch, yaw) of the rotation (w, x, y, z); pitch held to [-90, 90] deg."""
-    return (math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
-            math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))),
-            math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+    return (
+        math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)),
+        math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x)))),
+        math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)),
+    )
 
 
 def accel_attitude(f) -> tuple[float, float]:
@@ -88,5 +97,4 @@ def accel_attitude(f) -> tuple[float, float]:
 def euler_rates(roll: float, pitch: float, w) -> tuple[float, float]:
     """(roll_dot, pitch_dot) from the body rates ``w = (p, q, r)`` (doc eq. 3.14's first two rows)."""
     p, q, r = w
-    return (p + (q * math.sin(roll) + r * math.cos(roll)) * math.tan(pitch),
-            q * math.cos(roll) - r * math.sin(roll))
+    return (p + (q * math.sin(roll) + r * math.cos(roll)) * math.tan(pitch), q * math.cos(roll) - r * math.sin(roll))

@@ -20,6 +20,7 @@ Conventions
 * ``instance``: which of several like sensors (IMU 0/1/2, baro 0/1/2,
   distance sensor id, battery id).
 """
+
 from __future__ import annotations
 
 import enum
@@ -31,36 +32,36 @@ import numpy as np
 class Kind(enum.Enum):
     """What a measurement measures. The vector layout is in :data:`KIND_COMPONENTS`."""
 
-    ACCEL = "accel"                      # specific force, body FRD [m/s^2]
-    GYRO = "gyro"                        # angular rate, body FRD [rad/s]
-    MAG = "mag"                          # magnetic flux density, body FRD [T]
-    BARO_PRESSURE = "baro_pressure"      # static pressure [Pa]
-    BARO_ALTITUDE = "baro_altitude"      # pressure altitude, positive up [m]
-    DIFF_PRESSURE = "diff_pressure"      # differential (airspeed) pressure [Pa]
-    TEMPERATURE = "temperature"          # sensor temperature [K]
-    RANGE = "range"                      # distance along the sensor axis [m]
-    ATTITUDE = "attitude"                # roll, pitch, yaw of FRD w.r.t. NED [rad]
+    ACCEL = "accel"  # specific force, body FRD [m/s^2]
+    GYRO = "gyro"  # angular rate, body FRD [rad/s]
+    MAG = "mag"  # magnetic flux density, body FRD [T]
+    BARO_PRESSURE = "baro_pressure"  # static pressure [Pa]
+    BARO_ALTITUDE = "baro_altitude"  # pressure altitude, positive up [m]
+    DIFF_PRESSURE = "diff_pressure"  # differential (airspeed) pressure [Pa]
+    TEMPERATURE = "temperature"  # sensor temperature [K]
+    RANGE = "range"  # distance along the sensor axis [m]
+    ATTITUDE = "attitude"  # roll, pitch, yaw of FRD w.r.t. NED [rad]
     ATTITUDE_QUATERNION = "attitude_quaternion"  # w, x, y, z (FRD w.r.t. NED)
-    ANGULAR_RATE = "angular_rate"        # estimated body rates FRD [rad/s]
-    GPS = "gps"                          # lat [deg], lon [deg], alt AMSL up [m]
+    ANGULAR_RATE = "angular_rate"  # estimated body rates FRD [rad/s]
+    GPS = "gps"  # lat [deg], lon [deg], alt AMSL up [m]
     GLOBAL_POSITION = "global_position"  # lat [deg], lon [deg], alt AMSL [m], height above home [m]
-    POSITION_NED = "position_ned"        # local position NED [m]
-    VELOCITY_NED = "velocity_ned"        # velocity NED [m/s]
-    ALTITUDE = "altitude"                # autopilot altitude estimate, positive up [m]
-    CLIMB_RATE = "climb_rate"            # vertical speed, positive up [m/s]
-    AIRSPEED = "airspeed"                # airspeed, groundspeed [m/s], heading [rad]
-    THROTTLE = "throttle"                # collective throttle [0..1]
-    ACTUATOR = "actuator"                # actuator outputs, PWM normalised (us-1000)/1000
-    RC_INPUT = "rc_input"                # RC channels, PWM normalised (us-1000)/1000
-    MANUAL_CONTROL = "manual_control"    # x, y, r in [-1, 1]; z (thrust) in [0, 1] as sent
+    POSITION_NED = "position_ned"  # local position NED [m]
+    VELOCITY_NED = "velocity_ned"  # velocity NED [m/s]
+    ALTITUDE = "altitude"  # autopilot altitude estimate, positive up [m]
+    CLIMB_RATE = "climb_rate"  # vertical speed, positive up [m/s]
+    AIRSPEED = "airspeed"  # airspeed, groundspeed [m/s], heading [rad]
+    THROTTLE = "throttle"  # collective throttle [0..1]
+    ACTUATOR = "actuator"  # actuator outputs, PWM normalised (us-1000)/1000
+    RC_INPUT = "rc_input"  # RC channels, PWM normalised (us-1000)/1000
+    MANUAL_CONTROL = "manual_control"  # x, y, r in [-1, 1]; z (thrust) in [0, 1] as sent
     BATTERY_VOLTAGE = "battery_voltage"  # pack voltage [V]
     BATTERY_CURRENT = "battery_current"  # pack current, positive discharging [A]
     BATTERY_REMAINING = "battery_remaining"  # state of charge [0..1]
-    VEHICLE_STATUS = "vehicle_status"    # armed, custom_mode, system_status, mav_type, autopilot
-    EKF_STATUS = "ekf_status"            # flags, velocity/pos-h/pos-v/compass/terrain variance ratios
-    ENCODERS = "encoders"                # joint angles [rad] (3-DOF helicopter: p, e, lambda)
-    MOTOR_VOLTAGE = "motor_voltage"      # motor voltages [V] (3-DOF helicopter: V_f, V_b)
-    TRUTH_POSE = "truth_pose"            # motion capture / simulator truth: x, y, z NED [m], qw, qx, qy, qz
+    VEHICLE_STATUS = "vehicle_status"  # armed, custom_mode, system_status, mav_type, autopilot
+    EKF_STATUS = "ekf_status"  # flags, velocity/pos-h/pos-v/compass/terrain variance ratios
+    ENCODERS = "encoders"  # joint angles [rad] (3-DOF helicopter: p, e, lambda)
+    MOTOR_VOLTAGE = "motor_voltage"  # motor voltages [V] (3-DOF helicopter: V_f, V_b)
+    TRUTH_POSE = "truth_pose"  # motion capture / simulator truth: x, y, z NED [m], qw, qx, qy, qz
 
     @property
     def is_truth(self) -> bool:

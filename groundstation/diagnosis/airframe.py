@@ -39,6 +39,7 @@ simulator's true throttle instead, a clean flight reads 22.24: the simulated acc
 model above is scipy's (``least_squares``); nothing in numpy, scipy or filterpy fits this equation, hence
 written here.
 """
+
 from __future__ import annotations
 
 import math
@@ -98,14 +99,29 @@ class ThrustCurve:
 
     def prior(self) -> dict:
         """The thrust model's constants from it (:func:`~.thrust.thrust_model`'s parameters)."""
-        return {"alpha0": self.alpha, "beta0": self.beta, "drag": self.drag, "sigma_alpha0": 0.2 * self.alpha,
-                "sigma_beta0": max(0.05, self.sigma["beta"]), "G_acc": CURVE_G_ACC}
+        return {
+            "alpha0": self.alpha,
+            "beta0": self.beta,
+            "drag": self.drag,
+            "sigma_alpha0": 0.2 * self.alpha,
+            "sigma_beta0": max(0.05, self.sigma["beta"]),
+            "G_acc": CURVE_G_ACC,
+        }
 
     def as_dict(self) -> dict:
-        return {"source": "accelerometer", "alpha": round(self.alpha, 3), "beta": round(self.beta, 3),
-                "drag": round(self.drag, 3), "n": round(self.n, 3), "tc": round(self.tc, 4),
-                "sigma": {k: round(v, 4) for k, v in self.sigma.items()}, "G_acc": CURVE_G_ACC, "points": self.points,
-                "seconds": round(self.seconds, 1), "bias_z": round(self.bias_z, 4)}
+        return {
+            "source": "accelerometer",
+            "alpha": round(self.alpha, 3),
+            "beta": round(self.beta, 3),
+            "drag": round(self.drag, 3),
+            "n": round(self.n, 3),
+            "tc": round(self.tc, 4),
+            "sigma": {k: round(v, 4) for k, v in self.sigma.items()},
+            "G_acc": CURVE_G_ACC,
+            "points": self.points,
+            "seconds": round(self.seconds, 1),
+            "bias_z": round(self.bias_z, 4),
+        }
 
 
 def _window_mean(t: np.ndarray, x: np.ndarray, grid: np.ndarray, w: float) -> np.ndarray:
@@ -132,22 +148,36 @@ def _height_and_speed(t: np.ndarray, h: np.ndarray, grid: np.ndarray, w: float) 
     return hh, vv
 
 
-def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_spin: float, t_lift: float,
-                 t_end: float, *,
-                 voltage=None, voltage_ref: float | None = None,
-                 range_limits: tuple[float, float] = (0.05, math.inf)) -> ThrustCurve | None:
+def thrust_curve(
+    ms: list[Measurement],
+    throttle: list[tuple[float, float]],
+    t_spin: float,
+    t_lift: float,
+    t_end: float,
+    *,
+    voltage=None,
+    voltage_ref: float | None = None,
+    range_limits: tuple[float, float] = (0.05, math.inf),
+) -> ThrustCurve | None:
     """The curve (module docstring) from ``t_lift + EDGE`` to ``t_end - EDGE``, the accelerometer's bias
     from before the spin-up at ``t_spin`` (the vehicle leaves the ground before its range sensor reads
     above its floor, so taken up to the lift-off it read the climb: -0.03 m/s^2), or None when the log
     cannot give it: no accelerometer, attitude or range sensor, too little flight above ``H_MIN``, or a
     throttle too steady to tell alpha from beta. ``voltage(t, tau)``: the pack's voltage (with
     ``voltage_ref``), or None to fit without the voltage term."""
-    acc = np.array([(m.t, m.value[2]) for m in ms if m.kind is Kind.ACCEL and len(m.value) >= 3
-                    and math.isfinite(m.value[2])])
-    att = np.array([(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE
-                    and np.isfinite(m.value[:2]).all()])
-    rng = np.array([(m.t, m.value[0]) for m in ms if m.kind is Kind.RANGE and len(m.value)
-                    and range_limits[0] <= m.value[0] <= range_limits[1]])
+    acc = np.array(
+        [(m.t, m.value[2]) for m in ms if m.kind is Kind.ACCEL and len(m.value) >= 3 and math.isfinite(m.value[2])]
+    )
+    att = np.array(
+        [(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE and np.isfinite(m.value[:2]).all()]
+    )
+    rng = np.array(
+        [
+            (m.t, m.value[0])
+            for m in ms
+            if m.kind is Kind.RANGE and len(m.value) and range_limits[0] <= m.value[0] <= range_limits[1]
+        ]
+    )
     if len(acc) < 100 or len(att) < 10 or len(rng) < 50:
         return None
     th = np.array([(t, v) for t, v in throttle if math.isfinite(t) and math.isfinite(v)])
@@ -156,7 +186,7 @@ def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_s
     for a in (acc, att, rng, th):
         a[:] = a[np.argsort(a[:, 0], kind="stable")]
 
-    def c_of(t):            # cos(roll) cos(pitch) at times t
+    def c_of(t):  # cos(roll) cos(pitch) at times t
         return np.cos(np.interp(t, att[:, 0], att[:, 1])) * np.cos(np.interp(t, att[:, 0], att[:, 2]))
 
     # without 50 samples before the spin-up (a log that starts in the air) the bias is taken as 0: it
@@ -166,7 +196,7 @@ def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_s
     grid = np.arange(t_lift + EDGE, t_end - EDGE, STEP)
     if len(grid) < MIN_POINTS:
         return None
-    fine = np.arange(grid[0] - WINDOW, grid[-1] + WINDOW, 0.005)       # the held throttle, sampled finely
+    fine = np.arange(grid[0] - WINDOW, grid[-1] + WINDOW, 0.005)  # the held throttle, sampled finely
     tau_fine = _held(th[:, 0], th[:, 1], fine)
     tau = _window_mean(fine, tau_fine, grid, WINDOW)
     y = _window_mean(acc[:, 0], -(acc[:, 1] - bias), grid, WINDOW)
@@ -189,7 +219,7 @@ def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_s
     def residual(p):
         alpha, beta, mu, n, tc = p
         u = ((y + mu * vc) * np.exp(-n * lr) - beta) / alpha
-        du = np.gradient(np.where(finite, u, 0.0), grid)       # the zeros reach no kept point
+        du = np.gradient(np.where(finite, u, 0.0), grid)  # the zeros reach no kept point
         return (tau - (u + tc * du))[keep]
 
     tau_h = float(np.median(tau[keep]))
@@ -213,6 +243,6 @@ def thrust_curve(ms: list[Measurement], throttle: list[tuple[float, float]], t_s
     if not sd[0] <= MAX_REL_SIGMA * alpha:
         return None
     sigma = dict(zip(("alpha", "beta", "drag", "n", "tc"), (float(s) for s in sd)))
-    return ThrustCurve(alpha, beta, mu, n if free_n else 0.0, tc, sigma, int(keep.sum()),
-                       float(keep.sum()) * STEP, bias)
-
+    return ThrustCurve(
+        alpha, beta, mu, n if free_n else 0.0, tc, sigma, int(keep.sum()), float(keep.sum()) * STEP, bias
+    )

@@ -18,6 +18,7 @@ Each is added by rebuilding the model with the option on (a nonlinear model is
 not augmented column by column). Run with ``--model attitude`` on a multirotor log
 with a raw IMU (HIGHRES_IMU / RAW_IMU / SCALED_IMU, DataFlash IMU).
 """
+
 from __future__ import annotations
 
 import math
@@ -32,6 +33,7 @@ from .catalogue import Candidate
 def _rebuilt(**option):
     def augment(model: LinearModel) -> LinearModel:
         return attitude_drag_model(**{**model.options, **option})
+
     return augment
 
 
@@ -42,8 +44,13 @@ def _gyro_bias(run) -> dict:
 
 def _mounting(run) -> dict:
     (r, sr), (p, sp) = run.final("m_roll"), run.final("m_pitch")
-    return {"roll": math.degrees(r), "pitch": math.degrees(p), "sigma_roll": math.degrees(sr),
-            "sigma_pitch": math.degrees(sp), "unit": "deg"}
+    return {
+        "roll": math.degrees(r),
+        "pitch": math.degrees(p),
+        "sigma_roll": math.degrees(sr),
+        "sigma_pitch": math.degrees(sp),
+        "unit": "deg",
+    }
 
 
 def attitude_catalogue(kinds: set) -> list[Candidate]:
@@ -58,12 +65,24 @@ _HEIGHT = "acts on the height sensors, which this model does not use: run the al
 #: effects this model cannot show, and why (reported, not guessed)
 UNOBSERVABLE_ATTITUDE = {
     "accel_bias": "a horizontal accelerometer bias is exactly a tilt with a velocity offset (b = g delta): "
-                  "a simulated 0.2 m/s^2 raised the likelihood by 1 over 5000 updates when modelled; a vertical "
-                  "one is the altitude model's state b_acc",
+    "a simulated 0.2 m/s^2 raised the likelihood by 1 over 5000 updates when modelled; a vertical "
+    "one is the altitude model's state b_acc",
     "accel_scale": "the drag model reads the horizontal specific force, whose scale is the drag coefficient's: "
-                   "run the altitude model",
-    **{name: _HEIGHT for name in ("baro_bias_drift", "baro_thermal", "baro_thrust", "baro_ground_effect",
-                                  "range_tilt", "range_offset", "sensor_delay")},
-    **{name: "thrust-side: run the quad_thrust model" for name in ("thrust_voltage", "thrust_ground_effect",
-                                                                    "actuator_lag")},
+    "run the altitude model",
+    **{
+        name: _HEIGHT
+        for name in (
+            "baro_bias_drift",
+            "baro_thermal",
+            "baro_thrust",
+            "baro_ground_effect",
+            "range_tilt",
+            "range_offset",
+            "sensor_delay",
+        )
+    },
+    **{
+        name: "thrust-side: run the quad_thrust model"
+        for name in ("thrust_voltage", "thrust_ground_effect", "actuator_lag")
+    },
 }

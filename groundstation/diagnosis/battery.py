@@ -29,6 +29,7 @@ the open-circuit voltage ``V_k + k tau_k^2`` each reading implies is smoothed
 (:class:`OpenCircuitVoltage`: level and drift, as the pack discharges) and the voltage
 between readings is ``V_oc(t) - k tau(t)^2``.
 """
+
 from __future__ import annotations
 
 import math
@@ -39,13 +40,14 @@ from filterpy.kalman import KalmanFilter
 
 from groundstation.core.measurement import Kind, Measurement
 
-PAIR_GAP = 1.0       # s: consecutive readings further apart than this are not paired
+PAIR_GAP = 1.0  # s: consecutive readings further apart than this are not paired
 MIN_PAIRS = 20
-MIN_SIGNIFICANCE = 4.0   # k is used only this many standard errors above 0
+MIN_SIGNIFICANCE = 4.0  # k is used only this many standard errors above 0
 
 
-def _readings(ms: list[Measurement], throttle: list[tuple[float, float]]
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def _readings(
+    ms: list[Measurement], throttle: list[tuple[float, float]]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The battery's readings (t, V) and the throttle^2 in effect at each, or None without enough of either."""
     volts = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.BATTERY_VOLTAGE and len(m.value)]
     volts = [(t, v) for t, v in volts if math.isfinite(v) and v > 0]
@@ -142,8 +144,9 @@ class OpenCircuitVoltage:
         self.level, self.drift = x[:, 0], x[:, 1]
 
     @classmethod
-    def from_log(cls, ms: list[Measurement], throttle: list[tuple[float, float]], k: float,
-                 sigma: float) -> OpenCircuitVoltage | None:
+    def from_log(
+        cls, ms: list[Measurement], throttle: list[tuple[float, float]], k: float, sigma: float
+    ) -> OpenCircuitVoltage | None:
         """From the log's readings, each with the throttle in effect at it; None without enough of them."""
         readings = _readings(ms, throttle)
         if readings is None or not sigma:

@@ -17,11 +17,12 @@ height itself (:data:`UNOBSERVABLE`). They are reported as such, not guessed.
 Sign conventions follow the simulator's effects (``sim_bridge/effects.py``),
 so a parameter found here compares directly with the one injected there.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 
@@ -34,12 +35,12 @@ from .run import in_time_order
 @dataclass
 class Candidate:
     name: str
-    k: int                                            # parameters it adds (BIC penalty)
-    needs: set = field(default_factory=set)           # kinds the log must have
-    sensor: str | None = None                         # the measurement it acts on
+    k: int  # parameters it adds (BIC penalty)
+    needs: set = field(default_factory=set)  # kinds the log must have
+    sensor: str | None = None  # the measurement it acts on
     augment: Callable[[LinearModel], LinearModel] | None = None
-    params: Callable[..., dict] | None = None         # (run) -> {name: value}
-    delays: tuple[float, ...] = ()                    # sensor_delay: the grid
+    params: Callable[..., dict] | None = None  # (run) -> {name: value}
+    delays: tuple[float, ...] = ()  # sensor_delay: the grid
     #: (measurements, grid value) -> measurements; default: the sensor's readings shifted by the delay
     reshape: Callable | None = None
     #: (its run, scored from) -> the updates it can act on, for the materiality per update (trace.MATERIAL);
@@ -55,8 +56,9 @@ class Candidate:
     limit: Callable | None = None
 
 
-def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float,
-                    Q: float = 0.0) -> LinearModel:
+def _with_regressor(
+    model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float, Q: float = 0.0
+) -> LinearModel:
     """One more state c, acting on ``sensor`` as ``y = h(x) + c * regressor(ctx)``."""
     n = model.n
     meas = {}
@@ -68,6 +70,7 @@ def _with_regressor(model: LinearModel, sensor: str, state: str, regressor: Call
                 r = pad_row(old(ctx), 1)
                 r[0, n] = regressor(ctx)
                 return r
+
             meas[key] = replace(mm, row=row)
     return model.augmented(states=[state], Qc_extra=[Q], x0_extra=[0.0], P0_extra=[P0], measurements=meas)
 
@@ -76,6 +79,7 @@ def _state_param(name: str, state: str, scale: float = 1.0):
     def read(run) -> dict:
         v, s = run.final(state)
         return {name: v * scale, f"sigma_{name}": s * abs(scale)}
+
     return read
 
 
@@ -115,10 +119,17 @@ def baro_bias_drift(model: LinearModel) -> LinearModel:
                 r = pad_row(old(ctx), 2)
                 r[0, n] = 1.0
                 return r
+
             meas[key] = replace(mm, row=row)
     A_extra = np.array([[0.0, 1.0], [0.0, 0.0]])
-    return model.augmented(states=["b_baro", "baro_rate"], A_extra=lambda u: A_extra, Qc_extra=[0.0, 0.0],
-                           x0_extra=[0.0, 0.0], P0_extra=[1e-4, 0.2**2], measurements=meas)
+    return model.augmented(
+        states=["b_baro", "baro_rate"],
+        A_extra=lambda u: A_extra,
+        Qc_extra=[0.0, 0.0],
+        x0_extra=[0.0, 0.0],
+        P0_extra=[1e-4, 0.2**2],
+        measurements=meas,
+    )
 
 
 def range_tilt(model: LinearModel) -> LinearModel:
@@ -131,6 +142,7 @@ def range_tilt(model: LinearModel) -> LinearModel:
         r = np.array(old(ctx), dtype=float)
         r[0, 0] = slant(ctx)
         return r
+
     meas["range"] = replace(mm, row=row)
     return replace(model, measurements=meas)
 
@@ -148,8 +160,10 @@ def accel_scale(model: LinearModel) -> LinearModel:
         c = np.zeros((model.n, 1))
         c[iv, 0] = -(float(u[0]) + G) if u is not None else -G
         return c
-    return model.augmented(states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
-                           P0_extra=[0.05**2])
+
+    return model.augmented(
+        states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0], P0_extra=[0.05**2]
+    )
 
 
 def _scale_param(run) -> dict:
@@ -193,17 +207,37 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
             Candidate("sensor_delay", 1, set(), "baro", None, None, delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3)),
         ]
         if Kind.TEMPERATURE in kinds:
-            cands.append(Candidate("baro_thermal", 1, {Kind.TEMPERATURE}, "baro",
-                                   lambda m: _with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
-                                   _state_param("k", "k_thermal")))
+            cands.append(
+                Candidate(
+                    "baro_thermal",
+                    1,
+                    {Kind.TEMPERATURE},
+                    "baro",
+                    lambda m: _with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
+                    _state_param("k", "k_thermal"),
+                )
+            )
         if has_throttle:
-            cands.append(Candidate("baro_thrust", 1, set(), "baro",
-                                   lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.get("throttle_lp"),
-                                                             10.0**2),
-                                   _state_param("k", "k_thrust")))
-        cands.append(Candidate("baro_ground_effect", 1, set(), "baro",
-                               lambda m: _with_regressor(m, "baro", "A_ground", _ground, 3.0**2),
-                               _state_param("A", "A_ground")))
+            cands.append(
+                Candidate(
+                    "baro_thrust",
+                    1,
+                    set(),
+                    "baro",
+                    lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.get("throttle_lp"), 10.0**2),
+                    _state_param("k", "k_thrust"),
+                )
+            )
+        cands.append(
+            Candidate(
+                "baro_ground_effect",
+                1,
+                set(),
+                "baro",
+                lambda m: _with_regressor(m, "baro", "A_ground", _ground, 3.0**2),
+                _state_param("A", "A_ground"),
+            )
+        )
     return [c for c in cands if c.needs <= kinds]
 
 
@@ -211,15 +245,15 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
 UNOBSERVABLE = {
     "altitude": {
         "range_offset": "a constant offset on the range sensor, the only precise absolute height, cannot be told "
-                        "from the height itself (the baro is calibrated against the estimate); it shows only "
-                        "against an external reference (motion capture), where it is measured",
+        "from the height itself (the baro is calibrated against the estimate); it shows only "
+        "against an external reference (motion capture), where it is measured",
         "thrust_voltage": "thrust-side: with the accelerometer as input this model never predicts thrust; "
-                          "run the quad_thrust model",
+        "run the quad_thrust model",
         "thrust_ground_effect": "thrust-side: run the quad_thrust model",
         "actuator_lag": "thrust-side: run the quad_thrust model",
         "gyro_bias": "acts on the attitude, which this model takes as given: run the attitude model",
         "imu_misalignment": "acts on the attitude and on gravity's projection (a small tilt of the vertical "
-                            "looks like an accelerometer bias here): run the attitude model",
+        "looks like an accelerometer bias here): run the attitude model",
     },
 }
 
@@ -233,11 +267,21 @@ def shift(ms: list[Measurement], kinds: set, d: float) -> list[Measurement]:
 
 #: each catalogue parameter's unit, as the simulator's effects give it (sim_bridge/effects.py), for the
 #: reports; a parameter not here is a pure number (a scale, an exponent)
-UNITS = {("accel_bias", "z"): "m/s^2", ("gyro_bias", "x"): "rad/s", ("gyro_bias", "y"): "rad/s",
-         ("imu_misalignment", "roll"): "deg", ("imu_misalignment", "pitch"): "deg",
-         ("baro_bias_drift", "rate"): "m/s", ("baro_thermal", "k"): "m/K",
-         ("baro_thrust", "k"): "m per unit throttle", ("baro_ground_effect", "A"): "m", ("range_offset", "o"): "m",
-         ("sensor_delay", "seconds"): "s", ("actuator_lag", "tc"): "s", ("thrust_ground_effect", "R"): "m"}
+UNITS = {
+    ("accel_bias", "z"): "m/s^2",
+    ("gyro_bias", "x"): "rad/s",
+    ("gyro_bias", "y"): "rad/s",
+    ("imu_misalignment", "roll"): "deg",
+    ("imu_misalignment", "pitch"): "deg",
+    ("baro_bias_drift", "rate"): "m/s",
+    ("baro_thermal", "k"): "m/K",
+    ("baro_thrust", "k"): "m per unit throttle",
+    ("baro_ground_effect", "A"): "m",
+    ("range_offset", "o"): "m",
+    ("sensor_delay", "seconds"): "s",
+    ("actuator_lag", "tc"): "s",
+    ("thrust_ground_effect", "R"): "m",
+}
 
 
 def unit_of(name: str, param: str) -> str:

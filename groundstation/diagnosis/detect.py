@@ -23,6 +23,7 @@ sec. 5.4), so each test below asks one way in which they are not:
   reads 2.8 m low over 53.8-55.7 s as the motors spin up on the ground, the
   data README's dip).
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -40,7 +41,7 @@ class Finding:
     passed: bool
     statistic: float
     threshold: str
-    where: str = ""            # time or signal the failure points at
+    where: str = ""  # time or signal the failure points at
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -52,8 +53,6 @@ EXCURSION_S = 2.0
 EXCURSIONS_SHOWN = 3
 
 
-
-
 def ar1_sum_variance(m: np.ndarray, r: float) -> np.ndarray:
     """Var(e_1 + ... + e_m) for a unit-variance AR(1) sequence with lag-1 correlation r:
     m (1 + r) / (1 - r) - 2 r (1 - r^m) / (1 - r)^2. Shorter than the correlation time, a sum
@@ -63,8 +62,15 @@ def ar1_sum_variance(m: np.ndarray, r: float) -> np.ndarray:
     return m * (1 + r) / (1 - r) - 2 * r * (1 - r**m) / (1 - r) ** 2
 
 
-def detect(sensor: str, t: np.ndarray, e: np.ndarray, nis: np.ndarray, dim: int,
-           signals: dict[str, np.ndarray], nu: np.ndarray | None = None) -> list[Finding]:
+def detect(
+    sensor: str,
+    t: np.ndarray,
+    e: np.ndarray,
+    nis: np.ndarray,
+    dim: int,
+    signals: dict[str, np.ndarray],
+    nu: np.ndarray | None = None,
+) -> list[Finding]:
     """All tests on one sensor's normalised innovations ``e`` (first component) and NIS; ``nu``,
     the innovations in the sensor's units, sizes the excursion."""
     out: list[Finding] = []
@@ -90,8 +96,9 @@ def detect(sensor: str, t: np.ndarray, e: np.ndarray, nis: np.ndarray, dim: int,
         if ok.sum() < 30 or np.std(s[ok]) < 1e-9:
             continue
         r = float(np.corrcoef(e[ok], s[ok])[0, 1])
-        out.append(Finding(sensor, f"cross-correlation with {name}", bool(abs(r) < bound), r, f"|r| < {bound:.3f}",
-                           name))
+        out.append(
+            Finding(sensor, f"cross-correlation with {name}", bool(abs(r) < bound), r, f"|r| < {bound:.3f}", name)
+        )
     # mean spacing: a median is 0 when most updates share a stamp with another (a demo recording did)
     dt = float(t[-1] - t[0]) / (n - 1) if n > 1 else 0.0
     if n >= 64 and dt > 0:
@@ -101,8 +108,7 @@ def detect(sensor: str, t: np.ndarray, e: np.ndarray, nis: np.ndarray, dim: int,
         ratio = float(P[k] / np.median(P))
         # a white sequence's periodogram bins are ~ exponential: max/median < ln(n)/ln 2 + margin
         thr = 3.0 * np.log(len(P)) / np.log(2)
-        out.append(Finding(sensor, "spectral peak", ratio < thr, ratio, f"max/median < {thr:.0f}",
-                           f"{f[k]:.2f} Hz"))
+        out.append(Finding(sensor, "spectral peak", ratio < thr, ratio, f"max/median < {thr:.0f}", f"{f[k]:.2f} Hz"))
     c = np.cumsum(e)
     k = int(np.argmax(np.abs(c)))
     # var(S_n) = n^2 / n_eff for AR(1)-like e; max_k |S_k| of a Brownian path over [0, 1]
@@ -115,8 +121,15 @@ def detect(sensor: str, t: np.ndarray, e: np.ndarray, nis: np.ndarray, dim: int,
     return out
 
 
-def excursion(sensor: str, t: np.ndarray, e: np.ndarray, r: float = 0.0, nu: np.ndarray | None = None,
-              throttle: np.ndarray | None = None, window: float = EXCURSION_S) -> Finding | None:
+def excursion(
+    sensor: str,
+    t: np.ndarray,
+    e: np.ndarray,
+    r: float = 0.0,
+    nu: np.ndarray | None = None,
+    throttle: np.ndarray | None = None,
+    window: float = EXCURSION_S,
+) -> Finding | None:
     """The scan statistic: over every ``window`` s of updates, z = sum(e) / sd(sum), the sum's
     spread that of an AR(1) sequence with the innovations' lag-1 correlation ``r``
     (:func:`ar1_sum_variance`: the colour counted at the window's length; the long-run factor
@@ -130,7 +143,7 @@ def excursion(sensor: str, t: np.ndarray, e: np.ndarray, r: float = 0.0, nu: np.
     if span < 2 * window:
         return None
     c = np.concatenate([[0.0], np.cumsum(e)])
-    j = np.minimum(np.searchsorted(t, t + window, side="left"), len(t))   # window k: updates k .. j[k] - 1
+    j = np.minimum(np.searchsorted(t, t + window, side="left"), len(t))  # window k: updates k .. j[k] - 1
     n_w = j - np.arange(len(t))
     full = (t + window <= t[-1]) & (n_w >= 3)
     if not full.any():
@@ -148,7 +161,7 @@ def excursion(sensor: str, t: np.ndarray, e: np.ndarray, r: float = 0.0, nu: np.
         last = int(j[k]) - 1
         where = f"t = {t[k]:.1f}-{t[last]:.1f} s"
         if nu is not None:
-            where += f", mean {float(np.mean(nu[k:last + 1])):+.2f}"
+            where += f", mean {float(np.mean(nu[k : last + 1])):+.2f}"
         if throttle is not None and np.isfinite(throttle[[k, last]]).all():
             where += f", throttle {float(throttle[k]):.2f} -> {float(throttle[last]):.2f}"
         places.append((float(t[k]), where))

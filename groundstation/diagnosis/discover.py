@@ -20,6 +20,7 @@ low; the catalogue's candidates are scored through the filter itself
 OMP is written out (30 lines) rather than pulled from scikit-learn, which the
 project does not otherwise need.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,7 +33,7 @@ from groundstation.estimation.whiteness import ljung_box_q
 
 from .run import Run
 
-LAGS = 20        # the Ljung-Box test's, as sensor_findings runs it (evaluate.ljung_box)
+LAGS = 20  # the Ljung-Box test's, as sensor_findings runs it (evaluate.ljung_box)
 
 #: a discovery must explain this much of the innovation variance: with thousands of
 #: updates a 1 % correlate is "significant" and still not worth a person's time...
@@ -48,10 +49,10 @@ WHITENS = 0.5
 @dataclass
 class Discovery:
     sensor: str
-    expression: str          # the regressor, e.g. "lowpass(throttle, 0.5 s)"
-    coefficient: float       # in the sensor's units per signal unit
-    r2: float                # fraction of the innovation variance it explains
-    terms: list[tuple[str, float]]   # all picked (expression, coefficient)
+    expression: str  # the regressor, e.g. "lowpass(throttle, 0.5 s)"
+    coefficient: float  # in the sensor's units per signal unit
+    r2: float  # fraction of the innovation variance it explains
+    terms: list[tuple[str, float]]  # all picked (expression, coefficient)
     #: the Ljung-Box p of the normalised innovations, and of them with the fit taken out
     ljung_box_p: tuple[float, float] = (math.nan, math.nan)
 
@@ -124,7 +125,7 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
         c, *_ = np.linalg.lstsq(X[:, trial], yc, rcond=None)
         r = yc - X[:, trial] @ c
         new_bic = n * math.log(np.mean(r**2) + 1e-300) + len(trial) * math.log(n)
-        if new_bic > bic - 10.0:           # strong evidence only (Kass & Raftery: Delta BIC > 10)
+        if new_bic > bic - 10.0:  # strong evidence only (Kass & Raftery: Delta BIC > 10)
             break
         picked, coef, resid, bic = trial, c, r, new_bic
     if not picked:
@@ -136,5 +137,4 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
     colour = bool(chi2.sf(q0, LAGS) < 0.05 and q1 <= WHITENS * q0)
     if r2 < MIN_R2 and not colour:
         return None
-    return Discovery(sensor, terms[0][0], terms[0][1], r2, terms,
-                     (float(chi2.sf(q0, LAGS)), float(chi2.sf(q1, LAGS))))
+    return Discovery(sensor, terms[0][0], terms[0][1], r2, terms, (float(chi2.sf(q0, LAGS)), float(chi2.sf(q1, LAGS))))

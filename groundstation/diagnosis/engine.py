@@ -9,13 +9,14 @@ candidate improves the criterion by strong evidence (Delta BIC < -10).
 With truth (motion capture), a winner whose fix makes the error against it
 worse is rejected and reported as such, and the next candidate is tried.
 """
+
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -70,7 +71,7 @@ class Truth:
     t: np.ndarray
     h: np.ndarray
     source: str
-    cos_tilt: np.ndarray | None = None      # cos(roll) cos(pitch) of the truth's attitude, when it has one
+    cos_tilt: np.ndarray | None = None  # cos(roll) cos(pitch) of the truth's attitude, when it has one
     roll: np.ndarray | None = None
     pitch: np.ndarray | None = None
 
@@ -88,8 +89,12 @@ class Truth:
             k = (run.t >= max(t0, self.t[0])) & (run.t <= min(t1, self.t[-1]))
             if not k.any():
                 return math.nan
-            e = np.concatenate([run.x[k, 0] - np.interp(run.t[k], self.t, self.roll),
-                                run.x[k, 1] - np.interp(run.t[k], self.t, self.pitch)])
+            e = np.concatenate(
+                [
+                    run.x[k, 0] - np.interp(run.t[k], self.t, self.roll),
+                    run.x[k, 1] - np.interp(run.t[k], self.t, self.pitch),
+                ]
+            )
             e = (e + math.pi) % (2 * math.pi) - math.pi
             return float(np.sqrt(np.mean(e**2)))
         return math.nan
@@ -117,13 +122,13 @@ class Diagnosis:
     findings_after: list[Finding]
     discoveries: list[Discovery]
     unobservable: dict[str, str]
-    modelled: list[Effect]                       # effects the base model already estimates
-    ranking: list[list[tuple[str, float]]] = field(default_factory=list)   # per iteration
+    modelled: list[Effect]  # effects the base model already estimates
+    ranking: list[list[tuple[str, float]]] = field(default_factory=list)  # per iteration
     truth: Truth | None = None
-    against_truth: list[Effect] = field(default_factory=list)   # measurable only against truth
-    rejected: list[Effect] = field(default_factory=list)        # fitted better, contradicted by truth
-    vehicle: str | None = None                   # the airframe's constants the model started from
-    airframe: dict | None = None                 # ... or the thrust curve read from the log's accelerometer
+    against_truth: list[Effect] = field(default_factory=list)  # measurable only against truth
+    rejected: list[Effect] = field(default_factory=list)  # fitted better, contradicted by truth
+    vehicle: str | None = None  # the airframe's constants the model started from
+    airframe: dict | None = None  # ... or the thrust curve read from the log's accelerometer
     #: per candidate left unclaimed, the size this log would claim it at about half the time (trace.smallest_claimed)
     detectable: list[dict] = field(default_factory=list)
 
@@ -142,8 +147,9 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
         c = 1.0 - 2.0 * (x * x + y * y)
         roll = np.arctan2(2 * (w * x + y * z), c)
         pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-        return Truth(np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c,
-                     roll, pitch)
+        return Truth(
+            np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c, roll, pitch
+        )
     p = truth_csv or (log.with_suffix(".csv") if log is not None else None)
     if p is not None and p.exists():
         with open(p) as f:
@@ -154,8 +160,14 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
                 roll = np.array([float(r["roll"]) for r in rows])
                 pitch = np.array([float(r["pitch"]) for r in rows])
                 c = np.cos(roll) * np.cos(pitch)
-            return Truth(np.array([float(r["t"]) for r in rows]), np.array([float(r["h"]) for r in rows]),
-                         f"simulator sidecar {p.name}", c, roll, pitch)
+            return Truth(
+                np.array([float(r["t"]) for r in rows]),
+                np.array([float(r["h"]) for r in rows]),
+                f"simulator sidecar {p.name}",
+                c,
+                roll,
+                pitch,
+            )
     return None
 
 
@@ -177,9 +189,17 @@ def _modelled(run: Run) -> list[Effect]:
         v, s = run.final("b_acc")
         if abs(v) > 3 * s and abs(v) > 0.02:
             # b_acc acts on gamma_z (up); the simulator's accel_bias z is on body z (down)
-            out.append(Effect("accel_bias", {"z": -v, "sigma_z": s},
-                              {"state": "b_acc", "z_over_sigma": round(abs(v) / s, 1),
-                               "note": "already a state of the model: estimated, not added"}))
+            out.append(
+                Effect(
+                    "accel_bias",
+                    {"z": -v, "sigma_z": s},
+                    {
+                        "state": "b_acc",
+                        "z_over_sigma": round(abs(v) / s, 1),
+                        "note": "already a state of the model: estimated, not added",
+                    },
+                )
+            )
     return out
 
 
@@ -192,11 +212,17 @@ class Setup:
     make: Callable[[LinearModel], KalmanEstimator]
     catalogue: Callable
     declared: set
-    airframe: dict | None = None      # the thrust curve read from the log (airframe.ThrustCurve.as_dict)
+    airframe: dict | None = None  # the thrust curve read from the log (airframe.ThrustCurve.as_dict)
 
 
-def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitude", declared: list[dict] = (),
-          vehicle: str | None = None) -> Setup:
+def setup(
+    ms: list[Measurement],
+    *,
+    source: str = "",
+    model_name: str = "altitude",
+    declared: list[dict] = (),
+    vehicle: str | None = None,
+) -> Setup:
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
     cannot feed it)."""
     names = {e.get("name") for e in declared}
@@ -205,15 +231,17 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         window = main_flight(ms)
         if window is not None:
             ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
-        ms = interval_means(ms)          # the throttle between its records (outputs.py)
+        ms = interval_means(ms)  # the throttle between its records (outputs.py)
     prep: Prepared = prepare(ms)
     if model_name == "altitude":
         model = _altitude_base(prep, names, vehicle)
         make: Callable[[object], KalmanEstimator] = altitude_estimator
         catalogue = altitude_catalogue
         if Kind.ACCEL not in prep.kinds:
-            raise ValueError(f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
-                             "log has none; the thrust model needs only the throttle: --model quad_thrust")
+            raise ValueError(
+                f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
+                "log has none; the thrust model needs only the throttle: --model quad_thrust"
+            )
     elif model_name == "quad_thrust":
         params = vehicle_config(vehicle, "quad_thrust")
         if "range_limits" in params:
@@ -221,26 +249,34 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
         prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)))
         curve = prior.pop("curve", None)
         if curve is not None and "alpha0" not in params:
-            prior.update(curve.prior())            # the log's thrust curve (airframe.py) over the hover's
+            prior.update(curve.prior())  # the log's thrust curve (airframe.py) over the hover's
             airframe = {**curve.as_dict(), "used": True}
         elif curve is not None:
             # the file's curve is used; the accelerometer's is read beside it, to say when it is not this log's
-            airframe = {**curve.as_dict(), "used": False, "file_alpha": params["alpha0"],
-                        "file_beta": params.get("beta0", 0.0)}
+            airframe = {
+                **curve.as_dict(),
+                "used": False,
+                "file_alpha": params["alpha0"],
+                "file_beta": params.get("beta0", 0.0),
+            }
         params = {**prior, **params}
         model = thrust_model(range_tilt="range_tilt" in names, **params)
         make = thrust_estimator
         catalogue = thrust_catalogue
         if not prep.kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
-            raise ValueError(f"{source or 'log'}: the thrust model takes the throttle as its input and this log "
-                             "has none (no THROTTLE, SERVO_OUTPUT_RAW or RCOU)")
+            raise ValueError(
+                f"{source or 'log'}: the thrust model takes the throttle as its input and this log "
+                "has none (no THROTTLE, SERVO_OUTPUT_RAW or RCOU)"
+            )
     elif model_name == "attitude":
         model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
         make = attitude_estimator
         catalogue = attitude_catalogue
         if not {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
-            raise ValueError(f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
-                             "and this log has no raw IMU")
+            raise ValueError(
+                f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
+                "and this log has no raw IMU"
+            )
         prep = with_vertical_velocity(prep, names, vehicle)
     else:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude, quad_thrust or attitude)")
@@ -249,8 +285,10 @@ def setup(ms: list[Measurement], *, source: str = "", model_name: str = "altitud
     if prep.duration < MIN_SECONDS:
         # the likelihood is scored from 5 s in (the filter settling): a shorter log scores nothing,
         # and "no effect improves the model" would be said of no data at all
-        raise ValueError(f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
-                         f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)")
+        raise ValueError(
+            f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
+            f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
+        )
     return Setup(prep, model, make, catalogue, names, airframe)
 
 
@@ -281,11 +319,11 @@ def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> P
     if not len(run.t):
         return prep
     up = run.x[:, model.index("vz")]
-    derived = [Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model")
-               for t, v in zip(run.t, up)]
+    derived = [
+        Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model") for t, v in zip(run.t, up)
+    ]
     rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
-    return replace(prep, measurements=sorted(rest + derived, key=in_time_order),
-                   kinds=prep.kinds | {Kind.CLIMB_RATE})
+    return replace(prep, measurements=sorted(rest + derived, key=in_time_order), kinds=prep.kinds | {Kind.CLIMB_RATE})
 
 
 def _joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> None:
@@ -302,9 +340,17 @@ def _joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> 
             e.params = joint
 
 
-def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "altitude",
-             declared: list[dict] = (), vehicle: str | None = None, truth: Truth | None = None,
-             progress: Callable[[str], None] | None = None, veto_with_truth: bool = True) -> Diagnosis:
+def diagnose(
+    ms: list[Measurement],
+    *,
+    source: str = "",
+    model_name: str = "altitude",
+    declared: list[dict] = (),
+    vehicle: str | None = None,
+    truth: Truth | None = None,
+    progress: Callable[[str], None] | None = None,
+    veto_with_truth: bool = True,
+) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`VETO_FACTOR`); it never ranks or sizes an effect."""
@@ -339,18 +385,26 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             cands = [c for c in cands if c is not s.candidate]
         if best is None:
             break
-        runner_up = next(iter(scored[scored.index(best) + 1:]), None)      # the next one down, not a rejected one
-        effects.append(Effect(best.name, best.params,
-                              {"delta_bic": round(best.delta_bic, 1), "sensor": best.candidate.sensor,
-                               "loglik_gain": round(best.run.loglik - base.loglik, 1),
-                               "gain_per_update": round(best.gain_per_update, 4),
-                               "support": best.support,
-                               # the evidence at the innovations' effective sample size (trace's docstring)
-                               "delta_bic_effective": round(best.delta_bic_effective, 1),
-                               "innovation_colour": {k: round(v, 2) for k, v in best.run.inflation.items()},
-                               "runner_up": _label(runner_up) if runner_up else None,
-                               "runner_up_delta_bic": round(runner_up.delta_bic, 1) if runner_up else None,
-                               **_alternative(best, runner_up)}))
+        runner_up = next(iter(scored[scored.index(best) + 1 :]), None)  # the next one down, not a rejected one
+        effects.append(
+            Effect(
+                best.name,
+                best.params,
+                {
+                    "delta_bic": round(best.delta_bic, 1),
+                    "sensor": best.candidate.sensor,
+                    "loglik_gain": round(best.run.loglik - base.loglik, 1),
+                    "gain_per_update": round(best.gain_per_update, 4),
+                    "support": best.support,
+                    # the evidence at the innovations' effective sample size (trace's docstring)
+                    "delta_bic_effective": round(best.delta_bic_effective, 1),
+                    "innovation_colour": {k: round(v, 2) for k, v in best.run.inflation.items()},
+                    "runner_up": _label(runner_up) if runner_up else None,
+                    "runner_up_delta_bic": round(runner_up.delta_bic, 1) if runner_up else None,
+                    **_alternative(best, runner_up),
+                },
+            )
+        )
         added.append(best.candidate)
         labels.append(_label(best))
         model, base, stream = best.model, best.run, best.measurements
@@ -361,18 +415,23 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
         if Diagnosis.passes(sensor_findings(base)):
             break
     _joint_params(effects, added, base)
-    for e in effects:       # an alternative the loop added after all is a second effect, not an alternative
+    for e in effects:  # an alternative the loop added after all is a second effect, not an alternative
         if e.evidence.get("alternative", {}).get("name") in labels:
             del e.evidence["alternative"]
     findings1 = sensor_findings(base)
     discoveries = []
-    for s, f_ok in ((s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors if s != LANDED):
+    for s, f_ok in (
+        (s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors if s != LANDED
+    ):
         if not f_ok:
             d = discover(base, s)
             if d is not None:
                 discoveries.append(d)
-    unobs = dict({"altitude": UNOBSERVABLE["altitude"], "quad_thrust": UNOBSERVABLE_THRUST,
-                  "attitude": UNOBSERVABLE_ATTITUDE}[model_name])
+    unobs = dict(
+        {"altitude": UNOBSERVABLE["altitude"], "quad_thrust": UNOBSERVABLE_THRUST, "attitude": UNOBSERVABLE_ATTITUDE}[
+            model_name
+        ]
+    )
     against = []
     if truth is not None and "range" in base.sensors:
         against = _range_offset_against_truth(base, truth)
@@ -385,9 +444,25 @@ def diagnose(ms: list[Measurement], *, source: str = "", model_name: str = "alti
             say("applying the range offset measured against truth")
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)
-    return Diagnosis(source, model_name, first, base, effects, findings0, findings1, discoveries, unobs,
-                     _modelled(base), ranking, truth, against, rejected, vehicle, su.airframe,
-                     _detectable(scored, added, rejected))
+    return Diagnosis(
+        source,
+        model_name,
+        first,
+        base,
+        effects,
+        findings0,
+        findings1,
+        discoveries,
+        unobs,
+        _modelled(base),
+        ranking,
+        truth,
+        against,
+        rejected,
+        vehicle,
+        su.airframe,
+        _detectable(scored, added, rejected),
+    )
 
 
 def _detectable(scored: list[Scored], added: list[Candidate], rejected: list[Effect]) -> list[dict]:
@@ -400,8 +475,13 @@ def _detectable(scored: list[Scored], added: list[Candidate], rejected: list[Eff
             continue
         size = smallest_claimed(s)
         if size:
-            out.append({"name": _label(s), "size": {k: float(f"{v:.3g}") for k, v in size.items()},
-                        "delta_bic": round(s.delta_bic, 1)})
+            out.append(
+                {
+                    "name": _label(s),
+                    "size": {k: float(f"{v:.3g}") for k, v in size.items()},
+                    "delta_bic": round(s.delta_bic, 1),
+                }
+            )
     return out
 
 
@@ -413,10 +493,19 @@ def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:
     floor = VETO_FLOOR.get(truth.quantity(base), 0.0)
     if not (math.isfinite(e0) and math.isfinite(e1)) or e1 <= VETO_FACTOR * e0 or e1 - e0 <= floor:
         return None
-    return Effect(s.name, s.params, {"delta_bic": round(s.delta_bic, 1),
-                                     "delta_bic_effective": round(s.delta_bic_effective, 1),
-                                     "sensor": s.candidate.sensor, "against": truth.source, "quantity": truth.quantity(base),
-                                     "error_before": e0, "error_with": e1})
+    return Effect(
+        s.name,
+        s.params,
+        {
+            "delta_bic": round(s.delta_bic, 1),
+            "delta_bic_effective": round(s.delta_bic_effective, 1),
+            "sensor": s.candidate.sensor,
+            "against": truth.source,
+            "quantity": truth.quantity(base),
+            "error_before": e0,
+            "error_with": e1,
+        },
+    )
 
 
 def _label(s: Scored) -> str:
@@ -428,8 +517,13 @@ def _alternative(best: Scored, runner_up: Scored | None) -> dict:
     and the log prefers ``best`` to it by less than :data:`CLOSE_CALL`; else nothing."""
     if runner_up is None or not runner_up.accepted or runner_up.delta_bic - best.delta_bic >= CLOSE_CALL:
         return {}
-    return {"alternative": {"name": _label(runner_up), "params": runner_up.params,
-                            "delta_bic": round(runner_up.delta_bic, 1)}}
+    return {
+        "alternative": {
+            "name": _label(runner_up),
+            "params": runner_up.params,
+            "delta_bic": round(runner_up.delta_bic, 1),
+        }
+    }
 
 
 def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
@@ -438,7 +532,7 @@ def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
     tr = run.sensors["range"]
     h = np.interp(tr.t, truth.t, truth.h)
     c = np.ones_like(h)
-    if truth.cos_tilt is not None:            # the truth's own attitude, not the log's estimate
+    if truth.cos_tilt is not None:  # the truth's own attitude, not the log's estimate
         c = np.maximum(np.interp(tr.t, truth.t, truth.cos_tilt), 0.2)
     else:
         roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
@@ -452,6 +546,14 @@ def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
     o, s = float(np.median(d)), float(1.2533 * np.std(d) / math.sqrt(air.sum()))
     if abs(o) < 3 * s or abs(o) < 0.005:
         return []
-    return [Effect("range_offset", {"o": round(o, 4), "sigma_o": round(s, 4)},
-                   {"against": truth.source, "n": int(air.sum()),
-                    "note": "unobservable from the log's own sensors; measured against the truth"})]
+    return [
+        Effect(
+            "range_offset",
+            {"o": round(o, 4), "sigma_o": round(s, 4)},
+            {
+                "against": truth.source,
+                "n": int(air.sum()),
+                "note": "unobservable from the log's own sensors; measured against the truth",
+            },
+        )
+    ]

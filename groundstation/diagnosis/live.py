@@ -6,6 +6,7 @@ so the estimation loop never waits on the tens of seconds a diagnosis takes. The
 worker returns report.json's content with its plain-language conclusion (the
 Diagnosis object itself holds filter closures that do not cross processes).
 """
+
 from __future__ import annotations
 
 from collections import deque
@@ -28,7 +29,7 @@ class SessionBuffer:
         self._block: dict[Kind, tuple[Measurement, float, list]] = {}
 
     def add(self, m: Measurement) -> None:
-        if self.items and m.t < self.items[-1].t - 1.0:       # time went back (seek, loop): start over
+        if self.items and m.t < self.items[-1].t - 1.0:  # time went back (seek, loop): start over
             self.items.clear()
             self._block.clear()
         if m.kind in (Kind.ACCEL, Kind.GYRO) and m.instance == 0:
@@ -50,8 +51,9 @@ class SessionBuffer:
         return [m for m in self.items if m.t >= t1 - seconds]
 
 
-def diagnose_window(ms: list[Measurement], model: str = "altitude", declared: list[dict] = (),
-                    vehicle: str | None = None) -> dict:
+def diagnose_window(
+    ms: list[Measurement], model: str = "altitude", declared: list[dict] = (), vehicle: str | None = None
+) -> dict:
     """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
     ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""
     try:
@@ -69,10 +71,19 @@ def markdown(j: dict, seconds: float) -> str:
         return f"**cannot diagnose:** {j['error']}"
     rows = "\n".join(f"| {e['name']} | {format_params(e['name'], e['params'])} |" for e in j.get("effects", []))
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
-    nis = " · ".join(f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
-                     for s in j["after"]["sensors"] if s in j["before"]["sensors"])
+    nis = " · ".join(
+        f"{s}: NIS {j['before']['sensors'][s]['nis_mean']:.2f} → {j['after']['sensors'][s]['nis_mean']:.2f}"
+        for s in j["after"]["sensors"]
+        if s in j["before"]["sensors"]
+    )
     a = j.get("airframe")
-    airframe = (f", vehicle {j['vehicle']}" if j.get("vehicle") else
-                f", thrust curve from the accelerometer (α {a['alpha']:.1f}, β {a['beta']:.2f} m/s²)"
-                if a and a.get("used") else "")
-    return f"**last {seconds:.0f} s, model {j.get('model', '')}{airframe}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"
+    airframe = (
+        f", vehicle {j['vehicle']}"
+        if j.get("vehicle")
+        else f", thrust curve from the accelerometer (α {a['alpha']:.1f}, β {a['beta']:.2f} m/s²)"
+        if a and a.get("used")
+        else ""
+    )
+    return (
+        f"**last {seconds:.0f} s, model {j.get('model', '')}{airframe}**\n\n{table}{j.get('conclusion', '')}\n\n{nis}"
+    )

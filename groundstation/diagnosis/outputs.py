@@ -28,6 +28,7 @@ records is then placed up to one period late, as the hold places it. Records mor
 The live filter keeps the hold: it cannot know the next record. numpy's and scipy's
 interpolators have no notion of a jump to keep, hence this.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,7 +43,9 @@ JUMP_FLOOR = 0.005
 MAX_GAP = 0.2
 
 
-def interval_means(ms: list[Measurement], kinds: tuple[Kind, ...] = (Kind.ACTUATOR, Kind.THROTTLE)) -> list[Measurement]:
+def interval_means(
+    ms: list[Measurement], kinds: tuple[Kind, ...] = (Kind.ACTUATOR, Kind.THROTTLE)
+) -> list[Measurement]:
     """``ms`` with each logged output record (ACTUATOR, THROTTLE) held at its interval's mean: see the
     module's docstring. Each kind and instance is its own sequence; a stand-in throttle (``derived/``)
     is a 0/1 signal and stays as it is."""
@@ -67,7 +70,7 @@ def interval_means(ms: list[Measurement], kinds: tuple[Kind, ...] = (Kind.ACTUAT
 def _interval_means(t: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(n, k) records at times t -> the same, each at the mean of the line to the next unless a jump, a
     gap or a missing value lies between them."""
-    d = np.diff(v, axis=0)                                 # (n - 1, k)
+    d = np.diff(v, axis=0)  # (n - 1, k)
     a = np.abs(d)
     a = np.where(np.isfinite(a), a, 0.0)
     before = np.vstack([np.zeros((1, a.shape[1])), a[:-1]])

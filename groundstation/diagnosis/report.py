@@ -27,12 +27,13 @@ effect acts on: trace.py), ``runner_up`` and its ΔBIC, ``alternative`` ({name, 
 that runner-up would have been claimed too and is less than very strongly worse (engine.CLOSE_CALL), and,
 when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
 model's joint estimate: engine._joint_params).
-A discovered effect is ``{"name": "discovered", "params": {"regressor",
-"coefficient", "sensor"}, "evidence": {"r2", "terms", "ljung_box_p": {"innovations", "without_the_fit"}}}``; a rejected one's evidence
+A discovered effect is ``{"name": "discovered", "params": {"regressor", "coefficient", "sensor"},
+"evidence": {"r2", "terms", "ljung_box_p": {"innovations", "without_the_fit"}}}``; a rejected one's evidence
 has ``delta_bic``, ``against`` (the truth's source), ``quantity``, ``error_before`` and
 ``error_with`` (in the quantity's SI unit).
 Figures are matplotlib (Agg) SVG, inlined so the HTML is one file.
 """
+
 from __future__ import annotations
 
 import html
@@ -59,7 +60,7 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
     log stamps them (the model takes a late sensor's readings as of when they were measured)."""
     out = {"sensors": {}}
     for s, tr in run.sensors.items():
-        if s == LANDED:              # the on-ground constraint, not a sensor
+        if s == LANDED:  # the on-ground constraint, not a sensor
             continue
         k = tr.t >= tr.t[0] + 5.0
         e = tr.nu_normalised[k]
@@ -71,7 +72,7 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
         spurious = run.estimator.filter.ctx.values.get(f"{s}_spurious")
-        if spurious:                                                  # thrust.LIFTOFF_REACH
+        if spurious:  # thrust.LIFTOFF_REACH
             out["sensors"][s]["skipped_spurious"] = len(spurious)
             late = (delays or {}).get(s, 0.0)
             out["sensors"][s]["skipped_spurious_at"] = _spans([t + late for t in spurious])
@@ -98,26 +99,45 @@ def _spans(times, gap: float = 1.0) -> list[list[float]]:
 def as_json(d: Diagnosis) -> dict:
     t0, t1 = d.before.t[0] + 5.0, d.before.t[-1]
     eff = [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.effects]
-    disc = [{"name": "discovered", "params": {"sensor": x.sensor, "regressor": x.expression,
-                                              "coefficient": x.coefficient},
-             "evidence": {"r2": x.r2, "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms],
-                          # null where the test could not run (strict JSON has no NaN)
-                          "ljung_box_p": {k: v if math.isfinite(v) else None
-                                          for k, v in zip(("innovations", "without_the_fit"), x.ljung_box_p)}}}
-            for x in d.discoveries]
+    disc = [
+        {
+            "name": "discovered",
+            "params": {"sensor": x.sensor, "regressor": x.expression, "coefficient": x.coefficient},
+            "evidence": {
+                "r2": x.r2,
+                "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms],
+                # null where the test could not run (strict JSON has no NaN)
+                "ljung_box_p": {
+                    k: v if math.isfinite(v) else None
+                    for k, v in zip(("innovations", "without_the_fit"), x.ljung_box_p)
+                },
+            },
+        }
+        for x in d.discoveries
+    ]
     return {
-        "source": d.source, "model": d.model, "vehicle": d.vehicle, "airframe": d.airframe,
+        "source": d.source,
+        "model": d.model,
+        "vehicle": d.vehicle,
+        "airframe": d.airframe,
         "effects": eff + disc,
         "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
-        "measured_against_truth": [{"name": e.name, "params": e.params, "evidence": e.evidence}
-                                   for e in d.against_truth],
+        "measured_against_truth": [
+            {"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.against_truth
+        ],
         "rejected": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.rejected],
         "unobservable": d.unobservable,
         "detectable": d.detectable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
-        "after": _summary(d.after, d.findings_after, d.truth, t0, t1,
-                          {e.params["sensor"]: e.params["seconds"] for e in d.effects if e.name == "sensor_delay"}),
+        "after": _summary(
+            d.after,
+            d.findings_after,
+            d.truth,
+            t0,
+            t1,
+            {e.params["sensor"]: e.params["seconds"] for e in d.effects if e.name == "sensor_delay"},
+        ),
         "findings_before": [f.as_dict() for f in d.findings_before],
         "findings_after": [f.as_dict() for f in d.findings_after],
     }
@@ -137,81 +157,128 @@ def conclusion(d: Diagnosis, j: dict) -> str:
     parts = []
     if d.effects:
         found = "; ".join(_named(e) for e in d.effects)
-        parts.append(f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
-                     f"Each was added with its parameters estimated from this log, and each improved the "
-                     f"likelihood of the measurements by very strong evidence (Delta BIC < -10).")
+        parts.append(
+            f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
+            f"Each was added with its parameters estimated from this log, and each improved the "
+            f"likelihood of the measurements by very strong evidence (Delta BIC < -10)."
+        )
         coloured = [(e, *_colour(e)) for e in d.effects if e.evidence.get("innovation_colour")]
         coloured = [(e, s, f) for e, s, f in coloured if f >= COLOURED]
         if coloured:
-            parts.append("That evidence assumes white innovations. Counted at their effective sample size, " +
-                         "; ".join(f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
-                                   f"each {s} innovation is worth 1/{f:.0f} of an independent "
-                                   f"sample)" for e, s, f in coloured) +
-                         ". Weigh those findings with care: the colour comes from something the model still lacks.")
+            parts.append(
+                "That evidence assumes white innovations. Counted at their effective sample size, "
+                + "; ".join(
+                    f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
+                    f"each {s} innovation is worth 1/{f:.0f} of an independent "
+                    f"sample)"
+                    for e, s, f in coloured
+                )
+                + ". Weigh those findings with care: the colour comes from something the model still lacks."
+            )
         for e in d.effects:
             alt = e.evidence.get("alternative")
             if alt:
                 p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
-                parts.append(f"This log barely tells {e.name} from {alt['name']}{f' ({p})' if p else ''}: that one "
-                             f"would have been claimed too, at Delta BIC {alt['delta_bic']:.1f} against "
-                             f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
-                             f"strong evidence. Read the finding as either; a flight that tells them apart settles it.")
+                parts.append(
+                    f"This log barely tells {e.name} from {alt['name']}{f' ({p})' if p else ''}: that one "
+                    f"would have been claimed too, at Delta BIC {alt['delta_bic']:.1f} against "
+                    f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
+                    f"strong evidence. Read the finding as either; a flight that tells them apart settles it."
+                )
     else:
-        parts.append("No effect in the catalogue improves the model by strong evidence" +
-                     (", but the innovations follow something outside it (below)." if d.discoveries else
-                      ": as far as these data can tell, the model is complete."))
+        parts.append(
+            "No effect in the catalogue improves the model by strong evidence"
+            + (
+                ", but the innovations follow something outside it (below)."
+                if d.discoveries
+                else ": as far as these data can tell, the model is complete."
+            )
+        )
         if d.detectable:
-            parts.append("The smallest sizes they would have shown about half the time: " +
-                         "; ".join(f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items())
-                                   for x in d.detectable) + ".")
+            parts.append(
+                "The smallest sizes they would have shown about half the time: "
+                + "; ".join(
+                    f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items())
+                    for x in d.detectable
+                )
+                + "."
+            )
     a = d.airframe
     if a and not a.get("used", True) and abs(a["alpha"] - a["file_alpha"]) > CURVE_MISMATCH * a["file_alpha"]:
-        parts.append(f"The vehicle file's thrust curve (alpha = {a['file_alpha']:.3g}, beta = {a['file_beta']:.3g} "
-                     f"m/s^2) is not this log's: its accelerometer reads alpha = {a['alpha']:.3g} ± "
-                     f"{a['sigma']['alpha']:.1g}, beta = {a['beta']:.3g} ± {a['sigma']['beta']:.1g}. The effects "
-                     f"above are sized against the file's; check it (other propellers, motors or battery?) or "
-                     f"diagnose without --vehicle.")
-    cross = [(e, CURVE_PARAM[e.name]) for e in d.effects
-             if d.airframe and CURVE_PARAM.get(e.name) in e.params and CURVE_PARAM[e.name] in d.airframe]
+        parts.append(
+            f"The vehicle file's thrust curve (alpha = {a['file_alpha']:.3g}, beta = {a['file_beta']:.3g} "
+            f"m/s^2) is not this log's: its accelerometer reads alpha = {a['alpha']:.3g} ± "
+            f"{a['sigma']['alpha']:.1g}, beta = {a['beta']:.3g} ± {a['sigma']['beta']:.1g}. The effects "
+            f"above are sized against the file's; check it (other propellers, motors or battery?) or "
+            f"diagnose without --vehicle."
+        )
+    cross = [
+        (e, CURVE_PARAM[e.name])
+        for e in d.effects
+        if d.airframe and CURVE_PARAM.get(e.name) in e.params and CURVE_PARAM[e.name] in d.airframe
+    ]
     if cross:
-        parts.append("Read on its own from the accelerometer, which the thrust model does not use, the thrust "
-                     "curve (airframe) gives " +
-                     "; ".join(f"{k} = {d.airframe[k]:.3g} ± {d.airframe['sigma'][k]:.1g} for {e.name}'s "
-                               f"{e.params[k]:.3g}" for e, k in cross) + ".")
+        parts.append(
+            "Read on its own from the accelerometer, which the thrust model does not use, the thrust "
+            "curve (airframe) gives "
+            + "; ".join(
+                f"{k} = {d.airframe[k]:.3g} ± {d.airframe['sigma'][k]:.1g} for {e.name}'s {e.params[k]:.3g}"
+                for e, k in cross
+            )
+            + "."
+        )
     for e in d.rejected:
         ev = e.evidence
         k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
-        parts.append(f"{_named(e)} fitted the measurements better (Delta BIC "
-                     f"{ev['delta_bic']:.0f}) but was rejected: with it, the error against the {ev['against']} went "
-                     f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
-                     f"comes from something the model lacks, not from {e.name}.")
+        parts.append(
+            f"{_named(e)} fitted the measurements better (Delta BIC "
+            f"{ev['delta_bic']:.0f}) but was rejected: with it, the error against the {ev['against']} went "
+            f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
+            f"comes from something the model lacks, not from {e.name}."
+        )
     for e in d.modelled:
-        parts.append(f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}.")
+        parts.append(
+            f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}."
+        )
     for e in d.against_truth:
-        parts.append(f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
-                     f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown.")
+        parts.append(
+            f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
+            f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown."
+        )
     for x in d.discoveries:
         p0, p1 = x.ljung_box_p
-        white = (f"; without it their Ljung-Box p goes from {p0:.2g} to {p1:.2g}" if p0 < 0.05 and p1 > p0 else "")
-        parts.append(f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
-                     f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance{white}).")
+        white = f"; without it their Ljung-Box p goes from {p0:.2g} to {p1:.2g}" if p0 < 0.05 and p1 > p0 else ""
+        parts.append(
+            f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
+            f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance{white})."
+        )
     b, a = j["before"], j["after"]
     rng = a["sensors"].get("range", {})
     if rng.get("skipped_spurious"):
         when = ", ".join(f"{t0:.1f}-{t1:.1f} s" if t1 > t0 else f"{t0:.1f} s" for t0, t1 in rng["skipped_spurious_at"])
-        parts.append(f"{rng['skipped_spurious']} range readings were skipped as spurious echoes ({when}): with the "
-                     f"vehicle on the ground they read it more than {LIFTOFF_REACH:.0f} m up, where no lift-off "
-                     f"reaches between two readings.")
+        parts.append(
+            f"{rng['skipped_spurious']} range readings were skipped as spurious echoes ({when}): with the "
+            f"vehicle on the ground they read it more than {LIFTOFF_REACH:.0f} m up, where no lift-off "
+            f"reaches between two readings."
+        )
     if "rmse_vs_truth" in b and b["rmse_of"].startswith("height"):
-        parts.append(f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
-                     f"{a['rmse_vs_truth'] * 100:.2f} cm after.")
+        parts.append(
+            f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
+            f"{a['rmse_vs_truth'] * 100:.2f} cm after."
+        )
     elif "rmse_vs_truth" in b:
-        parts.append(f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
-                     f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after.")
-    still = sorted({f.sensor for f in d.findings_after if not f.passed and f.test in ("NIS mean",
-                                                                                       "Ljung-Box whiteness")})
-    parts.append("After the changes every sensor's innovations pass the NIS and whiteness tests."
-                 if not still else f"Still failing NIS or whiteness: {', '.join(still)}.")
+        parts.append(
+            f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
+            f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after."
+        )
+    still = sorted(
+        {f.sensor for f in d.findings_after if not f.passed and f.test in ("NIS mean", "Ljung-Box whiteness")}
+    )
+    parts.append(
+        "After the changes every sensor's innovations pass the NIS and whiteness tests."
+        if not still
+        else f"Still failing NIS or whiteness: {', '.join(still)}."
+    )
     return " ".join(parts)
 
 
@@ -240,11 +307,16 @@ def _named(e) -> str:
 def format_params(name: str, p: dict) -> str:
     """``k = v unit`` for each parameter of effect ``name`` (catalogue.UNITS; a ``unit`` entry in ``p``
     overrides it), sigmas left out."""
+
     def unit(k):
         u = p.get("unit") or unit_of(name, k)
         return f" {u}" if u else ""
-    return ", ".join(f"{k} = {v:.4g}{unit(k)}" if isinstance(v, float) else f"{k} = {v}" for k, v in p.items()
-                     if not k.startswith("sigma_") and k != "unit")
+
+    return ", ".join(
+        f"{k} = {v:.4g}{unit(k)}" if isinstance(v, float) else f"{k} = {v}"
+        for k, v in p.items()
+        if not k.startswith("sigma_") and k != "unit"
+    )
 
 
 def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -282,7 +354,7 @@ def _figures(d: Diagnosis) -> str:
         fig.tight_layout()
         buf = io.StringIO()
         fig.savefig(buf, format="svg")
-        out.append(buf.getvalue()[buf.getvalue().index("<svg"):])
+        out.append(buf.getvalue()[buf.getvalue().index("<svg") :])
     return "\n".join(out)
 
 
@@ -291,16 +363,25 @@ def _evidence_html(name: str, ev: dict) -> str:
     lines = []
     if "delta_bic" in ev:
         on = f" on the {ev['sensor']}" if ev.get("sensor") else ""
-        lines.append(f"Delta BIC {ev['delta_bic']:+.1f}{on}"
-                     + (f" ({ev['delta_bic_effective']:+.1f} at the effective sample size)"
-                        if ev.get("delta_bic_effective") not in (None, ev["delta_bic"]) else ""))
+        lines.append(
+            f"Delta BIC {ev['delta_bic']:+.1f}{on}"
+            + (
+                f" ({ev['delta_bic_effective']:+.1f} at the effective sample size)"
+                if ev.get("delta_bic_effective") not in (None, ev["delta_bic"])
+                else ""
+            )
+        )
     if "loglik_gain" in ev:
-        lines.append(f"log-likelihood gain {ev['loglik_gain']:.1f}: {ev['gain_per_update']:.3g} per update over the "
-                     f"{ev['support']} updates it acts on")
+        lines.append(
+            f"log-likelihood gain {ev['loglik_gain']:.1f}: {ev['gain_per_update']:.3g} per update over the "
+            f"{ev['support']} updates it acts on"
+        )
     coloured = {k: v for k, v in ev.get("innovation_colour", {}).items() if v >= COLOURED}
     if coloured:
-        lines.append("coloured innovations: " + ", ".join(f"each {k} one worth 1/{v:.0f} of a sample"
-                                                          for k, v in coloured.items()))
+        lines.append(
+            "coloured innovations: "
+            + ", ".join(f"each {k} one worth 1/{v:.0f} of a sample" for k, v in coloured.items())
+        )
     if ev.get("runner_up"):
         lines.append(f"runner-up {ev['runner_up']} ({ev['runner_up_delta_bic']:+.1f})")
     alt = ev.get("alternative")
@@ -311,17 +392,21 @@ def _evidence_html(name: str, ev: dict) -> str:
         lines.append(f"when added: {format_params(name, ev['params_when_added'])}")
     if "error_before" in ev:
         k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
-        lines.append(f"error against the {ev['against']}: {ev['error_before'] * k:.2f} {unit} without it, "
-                     f"{ev['error_with'] * k:.2f} {unit} with it")
+        lines.append(
+            f"error against the {ev['against']}: {ev['error_before'] * k:.2f} {unit} without it, "
+            f"{ev['error_with'] * k:.2f} {unit} with it"
+        )
     elif "against" in ev:
         lines.append(f"measured against the {ev['against']} over {ev.get('n', '?')} readings")
     if "state" in ev:
         lines.append(f"the model's state {ev['state']}, {ev.get('z_over_sigma', math.nan):.1f} sigma from 0")
     if "note" in ev:
         lines.append(ev["note"])
-    if "r2" in ev:       # discovered: the sparse regression's fit to the raw innovations (discover.py)
-        lines.append(f"{ev['r2']:.0%} of the innovations' variance: " +
-                     " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev["terms"]))
+    if "r2" in ev:  # discovered: the sparse regression's fit to the raw innovations (discover.py)
+        lines.append(
+            f"{ev['r2']:.0%} of the innovations' variance: "
+            + " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev["terms"])
+        )
         lb = ev.get("ljung_box_p", {})
         if lb and None not in lb.values():
             lines.append(f"Ljung-Box p {lb['innovations']:.2g}, without the fit {lb['without_the_fit']:.2g}")
@@ -334,8 +419,10 @@ class _Html(str):
 
 def _table(rows: list[list], head: list[str]) -> str:
     th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{c if isinstance(c, _Html) else html.escape(str(c))}</td>" for c in r)
-                   + "</tr>" for r in rows)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{c if isinstance(c, _Html) else html.escape(str(c))}</td>" for c in r) + "</tr>"
+        for r in rows
+    )
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
@@ -352,40 +439,71 @@ def write(d: Diagnosis, out: Path) -> dict:
     rows = []
     for s in sorted(j["before"]["sensors"]):
         b, a = j["before"]["sensors"][s], j["after"]["sensors"].get(s, {})
-        rows.append([s, f"{b['innovation_rms']:.4g}", f"{a.get('innovation_rms', math.nan):.4g}",
-                     f"{b['nis_mean']:.2f}", f"{a.get('nis_mean', math.nan):.2f}",
-                     f"{b['ljung_box_p']:.3g}", f"{a.get('ljung_box_p', math.nan):.3g}"])
-    sensors = _table(rows, ["sensor", "innovation RMS before", "after", "NIS before", "after",
-                            "Ljung-Box p before", "after"])
-    effects = _table([[e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
-                      for e in j["effects"] + j["modelled"] + j["measured_against_truth"]] or [["(none)", "", ""]], ["effect", "parameters", "evidence"])
+        rows.append(
+            [
+                s,
+                f"{b['innovation_rms']:.4g}",
+                f"{a.get('innovation_rms', math.nan):.4g}",
+                f"{b['nis_mean']:.2f}",
+                f"{a.get('nis_mean', math.nan):.2f}",
+                f"{b['ljung_box_p']:.3g}",
+                f"{a.get('ljung_box_p', math.nan):.3g}",
+            ]
+        )
+    sensors = _table(
+        rows, ["sensor", "innovation RMS before", "after", "NIS before", "after", "Ljung-Box p before", "after"]
+    )
+    effects = _table(
+        [
+            [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+            for e in j["effects"] + j["modelled"] + j["measured_against_truth"]
+        ]
+        or [["(none)", "", ""]],
+        ["effect", "parameters", "evidence"],
+    )
     if j["rejected"]:
         effects += "<h3>Rejected: a better fit, a worse estimate against truth</h3>" + _table(
-            [[e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
-             for e in j["rejected"]], ["effect", "parameters", "evidence"])
-    ranking = "".join(f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
-                      for i, it in enumerate(j["ranking"]))
-    failed, still = (_table([[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where]
-                             for f in fs if not f.passed] or [["(none)", "", "", "", ""]],
-                            ["sensor", "test", "statistic", "threshold", "where"])
-                     for fs in (d.findings_before, d.findings_after))
-    detectable = _table([[x["name"], format_params(x["name"], x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
-                        or [["(none)", "", ""]], ["effect", "size", "Delta BIC on this log"])
+            [
+                [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+                for e in j["rejected"]
+            ],
+            ["effect", "parameters", "evidence"],
+        )
+    ranking = "".join(
+        f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
+        for i, it in enumerate(j["ranking"])
+    )
+    failed, still = (
+        _table(
+            [[f.sensor, f.test, f"{f.statistic:.3g}", f.threshold, f.where] for f in fs if not f.passed]
+            or [["(none)", "", "", "", ""]],
+            ["sensor", "test", "statistic", "threshold", "where"],
+        )
+        for fs in (d.findings_before, d.findings_after)
+    )
+    detectable = _table(
+        [[x["name"], format_params(x["name"], x["size"]), f"{x['delta_bic']:+.1f}"] for x in j["detectable"]]
+        or [["(none)", "", ""]],
+        ["effect", "size", "Delta BIC on this log"],
+    )
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
     truth = ""
     if "rmse_vs_truth" in j["before"]:
         b, a = j["before"], j["after"]
-        what, unit, scale = (("Height", "m", 1.0) if b["rmse_of"].startswith("height")
-                             else ("Roll and pitch", "deg", math.degrees(1.0)))
-        truth = (f"<p>{what} RMSE against the {html.escape(b['truth'])}: "
-                 f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
-                 f"after.</p>")
+        what, unit, scale = (
+            ("Height", "m", 1.0) if b["rmse_of"].startswith("height") else ("Roll and pitch", "deg", math.degrees(1.0))
+        )
+        truth = (
+            f"<p>{what} RMSE against the {html.escape(b['truth'])}: "
+            f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
+            f"after.</p>"
+        )
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
 <style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
 table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
 th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
 <body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}{_vehicle_line(d)}</p>
-<div class="concl"><p>{html.escape(j['conclusion'])}</p></div>{truth}
+<div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{truth}
 <h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
 <h2>Tests that failed before</h2>{failed}
@@ -400,13 +518,17 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 def _vehicle_line(d: Diagnosis) -> str:
     a = d.airframe
     if a and not a.get("used", True):
-        return (f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code> "
-                f"(alpha = {a['file_alpha']:.2f} m/s&sup2;; the log's accelerometer reads {a['alpha']:.2f} &plusmn; "
-                f"{a['sigma']['alpha']:.2f})")
+        return (
+            f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code> "
+            f"(alpha = {a['file_alpha']:.2f} m/s&sup2;; the log's accelerometer reads {a['alpha']:.2f} &plusmn; "
+            f"{a['sigma']['alpha']:.2f})"
+        )
     if not d.vehicle and a:
-        return (f" (no airframe file: the thrust curve from the log's accelerometer, alpha = {a['alpha']:.2f} "
-                f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; "
-                f"{a['sigma']['beta']:.2f} m/s&sup2;, drag {a['drag']:.2f} /s, over {a['seconds']:.0f} s of flight)")
+        return (
+            f" (no airframe file: the thrust curve from the log's accelerometer, alpha = {a['alpha']:.2f} "
+            f"&plusmn; {a['sigma']['alpha']:.2f} m/s&sup2;, beta = {a['beta']:.2f} &plusmn; "
+            f"{a['sigma']['beta']:.2f} m/s&sup2;, drag {a['drag']:.2f} /s, over {a['seconds']:.0f} s of flight)"
+        )
     if not d.vehicle:
         return " (the vehicle's constants from the log: no airframe file)"
     return f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code>"

@@ -12,11 +12,12 @@ A :class:`Run` keeps what every later step needs: per sensor the innovations
 trajectory with its covariance, and the innovation log-likelihood
 ``l = -1/2 sum(nu' S^-1 nu + log det(2 pi S))`` over the scored window.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -37,7 +38,7 @@ from groundstation.estimation.whiteness import effective_size
 class Prepared:
     """A log made ready for repeated runs."""
 
-    measurements: list[Measurement]           # sorted, truth removed, IMU input decimated
+    measurements: list[Measurement]  # sorted, truth removed, IMU input decimated
     truth: list[Measurement]
     kinds: set[Kind]
     t0: float
@@ -52,9 +53,19 @@ class Prepared:
 
 #: what sets the context measurements are read in (the tilt, the throttle): at one instant these
 #: come first, so a range reading stamped with an attitude sample is read with that attitude
-CONTEXT_KINDS = frozenset({Kind.ATTITUDE, Kind.ATTITUDE_QUATERNION, Kind.ANGULAR_RATE, Kind.THROTTLE,
-                           Kind.ACTUATOR, Kind.VEHICLE_STATUS, Kind.TEMPERATURE, Kind.BATTERY_VOLTAGE,
-                           Kind.BATTERY_CURRENT})
+CONTEXT_KINDS = frozenset(
+    {
+        Kind.ATTITUDE,
+        Kind.ATTITUDE_QUATERNION,
+        Kind.ANGULAR_RATE,
+        Kind.THROTTLE,
+        Kind.ACTUATOR,
+        Kind.VEHICLE_STATUS,
+        Kind.TEMPERATURE,
+        Kind.BATTERY_VOLTAGE,
+        Kind.BATTERY_CURRENT,
+    }
+)
 
 
 def in_time_order(m: Measurement) -> tuple[float, int]:
@@ -88,7 +99,7 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
     blocks: dict[Kind, list] = {Kind.ACCEL: [], Kind.GYRO: []}
     first: dict[Kind, Measurement] = {}
     last: dict[Kind, float] = {}
-    vib: list[tuple[float, float]] = []          # (t, spread of |f| within the block)
+    vib: list[tuple[float, float]] = []  # (t, spread of |f| within the block)
 
     def close_block(kind):
         block = blocks[kind]
@@ -139,13 +150,15 @@ def motors_from_vibration(vib: list[tuple[float, float]]) -> list[Measurement]:
     t = np.array([v[0] for v in vib])
     x = np.array([v[1] for v in vib])
     k = 20
-    med = np.array([np.median(x[max(0, i - k // 2):i + k // 2 + 1]) for i in range(len(x))])
+    med = np.array([np.median(x[max(0, i - k // 2) : i + k // 2 + 1]) for i in range(len(x))])
     lo, hi = np.percentile(med, [5, 95])
     if lo <= 0 or hi / lo < 4.0:
         return []
     on = med > math.sqrt(lo * hi)
-    return [Measurement(float(ti), Kind.THROTTLE, np.array([1.0 if o else 0.0]), "derived/vibration", float(ti))
-            for ti, o in zip(t[::5], on[::5])]
+    return [
+        Measurement(float(ti), Kind.THROTTLE, np.array([1.0 if o else 0.0]), "derived/vibration", float(ti))
+        for ti, o in zip(t[::5], on[::5])
+    ]
 
 
 def airborne_from_range(ms: list[Measurement], clearance: float = 0.05) -> list[Measurement]:
@@ -156,18 +169,20 @@ def airborne_from_range(ms: list[Measurement], clearance: float = 0.05) -> list[
     if len(rng) < 50:
         return []
     rest = float(np.median([r for _, r in rng[:10]]))
-    return [Measurement(t, Kind.THROTTLE, np.array([1.0 if r > rest + clearance else 0.0]), "derived/range", t)
-            for t, r in rng]
+    return [
+        Measurement(t, Kind.THROTTLE, np.array([1.0 if r > rest + clearance else 0.0]), "derived/range", t)
+        for t, r in rng
+    ]
 
 
 @dataclass
 class SensorTrace:
     t: np.ndarray
-    nu: np.ndarray          # (n, dim)
-    S: np.ndarray           # (n, dim, dim)
+    nu: np.ndarray  # (n, dim)
+    S: np.ndarray  # (n, dim, dim)
     nis: np.ndarray
-    z: np.ndarray           # what was measured (after extraction)
-    signals: dict[str, np.ndarray] = field(default_factory=dict)   # context at each update
+    z: np.ndarray  # what was measured (after extraction)
+    signals: dict[str, np.ndarray] = field(default_factory=dict)  # context at each update
 
     @property
     def nu_normalised(self) -> np.ndarray:
@@ -178,14 +193,14 @@ class SensorTrace:
 class Run:
     model: LinearModel
     sensors: dict[str, SensorTrace]
-    t: np.ndarray             # after each update
+    t: np.ndarray  # after each update
     x: np.ndarray
     P: np.ndarray
-    loglik: float             # over the scored window, all sensors but LANDED
-    n_scored: int             # innovations in it
+    loglik: float  # over the scored window, all sensors but LANDED
+    n_scored: int  # innovations in it
     estimator: KalmanEstimator
-    loglik_by: dict[str, float] = field(default_factory=dict)     # the same, per sensor
-    inflation: dict[str, float] = field(default_factory=dict)     # n / n_eff of each sensor's innovations
+    loglik_by: dict[str, float] = field(default_factory=dict)  # the same, per sensor
+    inflation: dict[str, float] = field(default_factory=dict)  # n / n_eff of each sensor's innovations
 
     def final(self, state: str) -> tuple[float, float]:
         i = self.model.index(state)
@@ -199,8 +214,14 @@ SETTLE_S = 5.0
 SIGNALS = ("throttle", "throttle_lp", "roll", "pitch", "temperature", "voltage", "current", "vibration")
 
 
-def run_model(model: LinearModel, prep: Prepared, make_estimator: Callable[[LinearModel], KalmanEstimator], *,
-              measurements: list[Measurement] | None = None, score_from: float = SETTLE_S) -> Run:
+def run_model(
+    model: LinearModel,
+    prep: Prepared,
+    make_estimator: Callable[[LinearModel], KalmanEstimator],
+    *,
+    measurements: list[Measurement] | None = None,
+    score_from: float = SETTLE_S,
+) -> Run:
     """The model over the prepared log; the likelihood scored from ``score_from`` s in."""
     est = make_estimator(model)
     add_signal_rules(est)
@@ -226,8 +247,9 @@ def run_model(model: LinearModel, prep: Prepared, make_estimator: Callable[[Line
     t_score = prep.t0 + score_from
     for s in log.sensors():
         a = log.arrays(s)
-        tr = SensorTrace(a["t"], a["nu"], a["S"], a["nis"], a["z"],
-                         {k: np.array(v, dtype=float) for k, v in sig.get(s, {}).items()})
+        tr = SensorTrace(
+            a["t"], a["nu"], a["S"], a["nis"], a["z"], {k: np.array(v, dtype=float) for k, v in sig.get(s, {}).items()}
+        )
         sensors[s] = tr
         k = tr.t >= t_score
         if k.any() and s != LANDED:
@@ -237,13 +259,14 @@ def run_model(model: LinearModel, prep: Prepared, make_estimator: Callable[[Line
             ll_by[s] = float(-0.5 * np.sum(tr.nis[k] + logdet + dim * math.log(2 * math.pi)))
             inflation[s] = int(k.sum()) / max(effective_size(tr.nu_normalised[k]), 1.0)
             n_sc += int(k.sum())
-    return Run(model, sensors, np.array(ts), np.array(xs), np.array(Ps), sum(ll_by.values()), n_sc, est,
-               ll_by, inflation)
+    return Run(
+        model, sensors, np.array(ts), np.array(xs), np.array(Ps), sum(ll_by.values()), n_sc, est, ll_by, inflation
+    )
 
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------
-VIBRATION_TC = 0.3     # s: low-pass of the accelerometer's high-frequency energy (motors running)
-THROTTLE_TC = 0.5      # s: rotor-wash time constant of the baro's thrust regressor
+VIBRATION_TC = 0.3  # s: low-pass of the accelerometer's high-frequency energy (motors running)
+THROTTLE_TC = 0.5  # s: rotor-wash time constant of the baro's thrust regressor
 
 
 def add_signal_rules(est: KalmanEstimator) -> None:
@@ -257,6 +280,7 @@ def add_signal_rules(est: KalmanEstimator) -> None:
             if prev is not None:
                 prev(m, ctx)
             fn(m, ctx)
+
         est.context[kind] = rule
 
     def lowpass(ctx: Context, key: str, value: float, t: float, tc: float) -> None:

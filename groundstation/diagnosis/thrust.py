@@ -43,6 +43,7 @@ Candidates (names as in the issue's catalogue):
 * ``sensor_delay`` of the range, profiled over 0-0.5 s: a late range reading, which the
   baro does not share (a lagged thrust reaches both).
 """
+
 from __future__ import annotations
 
 import math
@@ -79,7 +80,7 @@ from .run import SETTLE_S
 
 G = 9.80665
 _LEVEL = np.array([0.0, 0.0, 1.0])
-GE_MIN_H = 0.1           # m: below this the first-order ground-effect term is not used
+GE_MIN_H = 0.1  # m: below this the first-order ground-effect term is not used
 #: s after the model leaves the ground during which the ground-effect term is not used. The model's
 #: lift-off is late: held on the ground until its thrust without ground effect lifts it or the range
 #: reads it 5 cm up, while a vehicle in ground effect rises earlier (at h <= R its thrust is 1/16 up).
@@ -111,8 +112,14 @@ TOF_HELD = 0.002
 DIAGNOSIS_G_ACC = 0.006
 
 
-def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltage_sag: float | None = None,
-                 voltage_oc: OpenCircuitVoltage | None = None, **params) -> LinearModel:
+def thrust_model(
+    *,
+    drag: float = DRAG,
+    voltage_ref: float | None = None,
+    voltage_sag: float | None = None,
+    voltage_oc: OpenCircuitVoltage | None = None,
+    **params,
+) -> LinearModel:
     """The quadcopter document's filter with constant coefficients, airframe drag (see the
     module's docstring) and the input widened for the
     couplings."""
@@ -130,17 +137,18 @@ def thrust_model(*, drag: float = DRAG, voltage_ref: float | None = None, voltag
         if landed(ctx):
             return None
         z = extract(mm, ctx)
-        on_the_ground = ctx.values.get("z", 0.0) <= CONTACT_H        # the estimate's height (_update sets it)
+        on_the_ground = ctx.values.get("z", 0.0) <= CONTACT_H  # the estimate's height (_update sets it)
         if z is not None and on_the_ground and z[0] > LIFTOFF_REACH:
             # a tuple, replaced: a checkpoint's shallow copy of the context must not share it
             ctx.values["range_spurious"] = ctx.values.get("range_spurious", ()) + (mm.t,)
             return None
         # a reading at all (on the ground the sensor reads below its floor, and none is used)
         return note_range(z, mm.t, ctx)
+
     meas["range"] = replace(rng, extract=range_airborne)
 
     B = np.hstack([m.B, np.zeros((m.n, 6))])
-    B[m.index("vz"), -1] = 1.0          # a_V: thrust_voltage's term (0 in the base model)
+    B[m.index("vz"), -1] = 1.0  # a_V: thrust_voltage's term (0 in the base model)
     m = replace(m, B=B, inputs=list(m.inputs) + ["V", "h", "a_T", "V_ref", "n_hat", "a_V"], measurements=meas)
     m = ground_contact(on_ground(m, height=False))
     options = {"voltage_ref": voltage_ref, "voltage_sag": voltage_sag, "voltage_oc": voltage_oc}
@@ -160,8 +168,9 @@ def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
     """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
     them (one source, as :func:`groundstation.estimator.collective` takes it)."""
     n = _motor_outputs_of(ms)
-    outputs = [(m.t, float(np.nanmean(m.value[:n]))) for m in ms
-               if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()]
+    outputs = [
+        (m.t, float(np.nanmean(m.value[:n]))) for m in ms if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()
+    ]
     return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
 
 
@@ -187,8 +196,12 @@ def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = SETTLE_
     return best[0] - before, best[1]
 
 
-def lift_off(ms: list[Measurement], t_spin: float, limits: tuple[float, float] = (RANGE_FLOOR, math.inf),
-             hold: float = LIFTOFF_HOLD) -> float:
+def lift_off(
+    ms: list[Measurement],
+    t_spin: float,
+    limits: tuple[float, float] = (RANGE_FLOOR, math.inf),
+    hold: float = LIFTOFF_HOLD,
+) -> float:
     """When the vehicle left the ground: the first range reading within its ``limits`` (the
     vehicle file's ``range_limits``: a sonar's no-echo maximum is above them) from which the range
     keeps reading within them for ``hold`` s, after the spin-up at ``t_spin``; ``t_spin`` itself
@@ -204,7 +217,7 @@ def lift_off(ms: list[Measurement], t_spin: float, limits: tuple[float, float] =
         if m.kind is not Kind.RANGE or m.t < t_spin or not len(m.value):
             continue
         up = limits[0] <= float(m.value[0]) <= limits[1]
-        if not up or m.t - last > 1.0:          # a second without a reading breaks the hold
+        if not up or m.t - last > 1.0:  # a second without a reading breaks the hold
             start = None
         if up:
             start = m.t if start is None else start
@@ -236,8 +249,11 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     tau_h = float(np.median([v for t, v in flying if t0 <= t <= t0 + 10.0]))
     alpha0 = G / tau_h
     prior = {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
-    volts = [float(m.value[0]) for m in prep.measurements
-             if m.kind is Kind.BATTERY_VOLTAGE and t0 <= m.t <= t0 + 10.0 and len(m.value)]
+    volts = [
+        float(m.value[0])
+        for m in prep.measurements
+        if m.kind is Kind.BATTERY_VOLTAGE and t0 <= m.t <= t0 + 10.0 and len(m.value)
+    ]
     volts = [v for v in volts if math.isfinite(v) and v > 0]
     if volts:
         # thrust_voltage's V_ref: the voltage alpha0 was read at. Taken at the first sample with the
@@ -246,17 +262,25 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
         prior["voltage_ref"] = float(np.median(volts))
     sag = load_line(prep.measurements, th)
     if sag is not None:
-        prior["voltage_sag"] = sag[0]      # the voltage between the battery's readings (battery.py)
+        prior["voltage_sag"] = sag[0]  # the voltage between the battery's readings (battery.py)
     k = sag[0] if sag is not None else 0.0
     sigma = reading_sigma(prep.measurements, th, k)
     oc = OpenCircuitVoltage.from_log(prep.measurements, th, k, sigma) if sigma else None
     if oc is not None:
-        prior["voltage_oc"] = oc           # the readings' open-circuit voltage, smoothed (battery.py)
+        prior["voltage_oc"] = oc  # the readings' open-circuit voltage, smoothed (battery.py)
     if curve:
         # the voltage the thrust model's input will see (battery.loaded_voltage), at each throttle
         volt = (lambda t, tau: loaded_voltage(oc.at(t), tau, prior, t)) if oc is not None else None
-        fit = thrust_curve(prep.measurements, th, flying[0][0], t0, flying[-1][0], voltage=volt,
-                           voltage_ref=prior.get("voltage_ref"), range_limits=range_limits)
+        fit = thrust_curve(
+            prep.measurements,
+            th,
+            flying[0][0],
+            t0,
+            flying[-1][0],
+            voltage=volt,
+            voltage_ref=prior.get("voltage_ref"),
+            range_limits=range_limits,
+        )
         if fit is not None:
             prior["curve"] = fit
     return prior
@@ -265,10 +289,10 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
 def _input(m: Measurement, ctx: Context) -> np.ndarray:
     tau = ctx.get("throttle")
     v = ctx.values
-    volt = v.get("voltage", 0.0)            # 0 until a reading: u must stay finite (B u)
+    volt = v.get("voltage", 0.0)  # 0 until a reading: u must stay finite (B u)
     if not math.isfinite(volt):
         volt = 0.0
-    volt = loaded_voltage(volt, tau, v, m.t)     # between the battery's readings
+    volt = loaded_voltage(volt, tau, v, m.t)  # between the battery's readings
     x = v.get("_x")
     h = float(x[0]) if x is not None else 0.0
     c = v.get("down_row", _LEVEL)[2]
@@ -279,7 +303,7 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
     v_ref = v.get("voltage_ref", 0.0)
     n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
     r_n = (volt / v_ref) ** n_hat if n_hat and volt > 0.0 and v_ref > 0.0 else 1.0
-    lifts = a_t * c * r_n > G   # or a range reading above the ground (thrust_model's range_airborne)
+    lifts = a_t * c * r_n > G  # or a range reading above the ground (thrust_model's range_airborne)
     # on the ground (models.contact): reached at CONTACT_H with the thrust not lifting the vehicle, left
     # when it does or a range reading sees the vehicle up
     contact = in_contact(v, m.t, h, lifts, known=x is not None)
@@ -292,20 +316,20 @@ def _input(m: Measurement, ctx: Context) -> np.ndarray:
         v.pop("left_ground_at", None)
         return np.array([0.0, 0.0, 0.0, volt, h, 0.0, v.get("voltage_ref", 0.0), 0.0, 0.0])
     if "voltage_ref" not in v and volt > 0:
-        v["voltage_ref"] = volt          # without a prior's: when the rotors first carry the vehicle
+        v["voltage_ref"] = volt  # without a prior's: when the rotors first carry the vehicle
     off = v.setdefault("left_ground_at", m.t)
     if m.t - off < GE_SETTLE:
-        h = 0.0                          # thrust_ground_effect's term not used yet (GE_SETTLE)
+        h = 0.0  # thrust_ground_effect's term not used yet (GE_SETTLE)
     elif h >= GE_MIN_H and "_i_R2_rotor" in v and x is not None:
         q = max(float(x[v["_i_R2_rotor"]]), 0.0)
-        h = max(h, math.sqrt(q))     # (R/4h)^2 holds for h >= R
+        h = max(h, math.sqrt(q))  # (R/4h)^2 holds for h >= R
         # 1 / (1 - s) - 1, s = R^2 / 16 h^2, linearised about R^2's estimate (thrust_ground_effect): the
         # coupling's slope through an effective height, the rest through a_V
         s = min(q / (16.0 * h * h), GE_S_MAX)
         h *= 1.0 - s
         a_v -= a_t * c * s * s / (1.0 - s) ** 2
     if v_ref <= 0.0:
-        v_ref = v.get("voltage_ref", 0.0)    # set just above: r = 1, so n_hat's terms are 0 this step
+        v_ref = v.get("voltage_ref", 0.0)  # set just above: r = 1, so n_hat's terms are 0 this step
     return np.array([tau * c, c, G, volt, h, a_t, v_ref, n_hat, a_v])
 
 
@@ -326,7 +350,7 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
         return 0.0, 0.0
     n = min(max(float(x[i_n]), N_HAT_RANGE[0]), N_HAT_RANGE[1])
     r = volt / v_ref
-    rn = r ** n
+    rn = r**n
     return n, a_tc * (rn - 1.0 - n * rn * math.log(r))
 
 
@@ -340,11 +364,19 @@ def _battery_voltage(m: Measurement, ctx: Context) -> None:
 
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
-    est = KalmanEstimator(model, inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
-                          context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion,
-                                   Kind.ANGULAR_RATE: read_angular_rate, Kind.ACTUATOR: read_throttle,
-                                   Kind.THROTTLE: read_throttle, Kind.VEHICLE_STATUS: read_vehicle_status,
-                                   Kind.BATTERY_VOLTAGE: _battery_voltage})
+    est = KalmanEstimator(
+        model,
+        inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
+        context={
+            Kind.ATTITUDE: read_attitude,
+            Kind.ATTITUDE_QUATERNION: read_quaternion,
+            Kind.ANGULAR_RATE: read_angular_rate,
+            Kind.ACTUATOR: read_throttle,
+            Kind.THROTTLE: read_throttle,
+            Kind.VEHICLE_STATUS: read_vehicle_status,
+            Kind.BATTERY_VOLTAGE: _battery_voltage,
+        },
+    )
     for key in ("voltage_ref", "voltage_sag", "voltage_oc"):
         if model.options.get(key):
             est.filter.ctx.values[key] = model.options[key]
@@ -372,8 +404,8 @@ def thrust_voltage(model: LinearModel) -> LinearModel:
         r = u[3] / u[6]
         c[iv, 0] = u[5] * u[1] * r ** u[7] * math.log(r)
         return c
-    return model.augmented(states=["n_voltage"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
-                           P0_extra=[3.0**2])
+
+    return model.augmented(states=["n_voltage"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0], P0_extra=[3.0**2])
 
 
 def thrust_ground_effect(model: LinearModel) -> LinearModel:
@@ -396,8 +428,8 @@ def thrust_ground_effect(model: LinearModel) -> LinearModel:
             return c
         c[iv, 0] = u[5] * u[1] / (16.0 * u[4] ** 2)
         return c
-    return model.augmented(states=["R2_rotor"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0],
-                           P0_extra=[0.1**2])
+
+    return model.augmented(states=["R2_rotor"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0], P0_extra=[0.1**2])
 
 
 def _near_the_ground(run, t_from: float) -> int:
@@ -487,12 +519,35 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
     cands = []
     if has_throttle:
         if Kind.BATTERY_VOLTAGE in kinds:
-            cands.append(Candidate("thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage,
-                                   _state_param("n", "n_voltage")))
-        cands.append(Candidate("thrust_ground_effect", 1, set(), None, thrust_ground_effect, _rotor_radius,
-                               support=_near_the_ground, limit=_rotor_radius_limit))
-        cands.append(Candidate("actuator_lag", 1, set(), "throttle", None, None,
-                               delays=(0.0, 0.03, 0.06, 0.12, 0.24, 0.4), reshape=lag_throttle))
+            cands.append(
+                Candidate(
+                    "thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage, _state_param("n", "n_voltage")
+                )
+            )
+        cands.append(
+            Candidate(
+                "thrust_ground_effect",
+                1,
+                set(),
+                None,
+                thrust_ground_effect,
+                _rotor_radius,
+                support=_near_the_ground,
+                limit=_rotor_radius_limit,
+            )
+        )
+        cands.append(
+            Candidate(
+                "actuator_lag",
+                1,
+                set(),
+                "throttle",
+                None,
+                None,
+                delays=(0.0, 0.03, 0.06, 0.12, 0.24, 0.4),
+                reshape=lag_throttle,
+            )
+        )
     # the barometer's own effects act on the same measurement in this model, and so does the ToF's slant
     # under tilt (a simulated thrust test flight, nothing declared: the slant went unnamed, 3.8 cm height
     # error)

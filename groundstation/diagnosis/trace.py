@@ -30,11 +30,12 @@ discovery step names the low-passed throttle, 60 % of the baro residual's
 variance), and discounting by it would hide real effects with spurious ones.
 A large f says: weigh this effect's Delta BIC with care.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -43,7 +44,7 @@ from groundstation.estimation.models.base import LinearModel
 from .catalogue import SENSOR_KINDS, Candidate, shift
 from .run import SETTLE_S, Prepared, Run, run_model
 
-STRONG = -10.0       # Delta BIC: very strong evidence (Kass & Raftery 1995)
+STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
 #: mean-NIS change of about 4 %; for an effect on the input, of the sensor that gains most),
 #: counted over the updates it can act on (a candidate's ``support``, or its signature's:
@@ -63,11 +64,11 @@ class Scored:
     run: Run
     delta_bic: float
     params: dict
-    measurements: list = field(default_factory=list)   # the (shifted) stream, for delays
+    measurements: list = field(default_factory=list)  # the (shifted) stream, for delays
 
     gain_per_update: float = 0.0
-    support: int = 0          # the updates its gain is spread over
-    n: int = 1                # the innovations its Delta BIC counts
+    support: int = 0  # the updates its gain is spread over
+    n: int = 1  # the innovations its Delta BIC counts
     delta_bic_effective: float = math.nan
 
     @property
@@ -82,8 +83,10 @@ class Scored:
 def delta_bic_effective(aug: Run, base: Run, k: int, n: int) -> float:
     """Delta BIC with each sensor's log-likelihood gain discounted by the colour of the
     augmented run's innovations (module docstring); reported beside the white-noise one."""
-    gain = sum((aug.loglik_by.get(s, 0.0) - base.loglik_by.get(s, 0.0)) / max(aug.inflation.get(s, 1.0), 1.0)
-               for s in set(aug.loglik_by) | set(base.loglik_by))
+    gain = sum(
+        (aug.loglik_by.get(s, 0.0) - base.loglik_by.get(s, 0.0)) / max(aug.inflation.get(s, 1.0), 1.0)
+        for s in set(aug.loglik_by) | set(base.loglik_by)
+    )
     return -2.0 * gain + k * math.log(n)
 
 
@@ -123,8 +126,11 @@ def smallest_claimed(s: Scored) -> dict[str, float]:
     z = math.sqrt(2.0 * need)
     if s.candidate.limit:
         return s.candidate.limit(s.run, z)
-    return {k[len("sigma_"):]: float(v) * z for k, v in s.params.items()
-            if k.startswith("sigma_") and isinstance(v, float) and math.isfinite(v)}
+    return {
+        k[len("sigma_") :]: float(v) * z
+        for k, v in s.params.items()
+        if k.startswith("sigma_") and isinstance(v, float) and math.isfinite(v)
+    }
 
 
 #: parabolic steps the profile over a delay takes after its grid
@@ -147,7 +153,7 @@ def profile_steps(at: Callable[[float], float], tried: dict) -> None:
         i = max(range(len(ds)), key=lambda j: tried[ds[j]][0].loglik)
         if i == len(ds) - 1:
             return
-        x0, x1, x2 = ds[max(i - 1, 0):max(i - 1, 0) + 3]
+        x0, x1, x2 = ds[max(i - 1, 0) : max(i - 1, 0) + 3]
         y0, y1, y2 = (tried[x][0].loglik for x in (x0, x1, x2))
         den = (x1 - x0) * (y1 - y2) - (x1 - x2) * (y1 - y0)
         v = x1 - 0.5 * ((x1 - x0) ** 2 * (y1 - y2) - (x1 - x2) ** 2 * (y1 - y0)) / den if den != 0 else math.nan
@@ -155,7 +161,7 @@ def profile_steps(at: Callable[[float], float], tried: dict) -> None:
         if not lo < v < hi:
             if i > 0 or closer:
                 return
-            v, closer = x0 + 0.25 * (x1 - x0), True          # the edge: look closer to it, once
+            v, closer = x0 + 0.25 * (x1 - x0), True  # the edge: look closer to it, once
         if round(float(v), 4) in tried:
             return
         at(v)
@@ -183,10 +189,16 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
         if d >= max(cand.delays) - 1e-9:
             # the likelihood still rises at the end of the range: no delay has been
             # located, something else is being fitted; not a finding
-            return Scored(cand, model, r, math.inf, {"sensor": cand.sensor, "seconds": d,
-                                                     "note": "at the edge of the search range"}, shifted)
+            return Scored(
+                cand,
+                model,
+                r,
+                math.inf,
+                {"sensor": cand.sensor, "seconds": d, "note": "at the edge of the search range"},
+                shifted,
+            )
         p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
-        if math.isfinite(sd):             # a flat profile has none (and JSON no infinity)
+        if math.isfinite(sd):  # a flat profile has none (and JSON no infinity)
             p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
         return scored(cand, model, r, base, n, p, shifted)
     aug = cand.augment(model)
@@ -203,8 +215,7 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
 SIGNATURE_SIZE = 0.01
 
 
-def signature_support(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms,
-                      sensor: str) -> int:
+def signature_support(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms, sensor: str) -> int:
     """The updates of ``sensor`` an effect on the input acts on: the participation ratio
 
         n_sig = (sum_k w_k)^2 / sum_k w_k^2,   w_k = (nu_k(delta) - nu_k)^2 / S_k
@@ -229,8 +240,15 @@ def signature_support(cand: Candidate, model: LinearModel, base: Run, prep: Prep
     return int(round(float(np.sum(w)) ** 2 / sq)) if sq > 0 else len(w)
 
 
-def rank(cands: list[Candidate], model: LinearModel, base: Run, prep: Prepared, make, ms,
-         progress: Callable[[str], None] | None = None) -> list[Scored]:
+def rank(
+    cands: list[Candidate],
+    model: LinearModel,
+    base: Run,
+    prep: Prepared,
+    make,
+    ms,
+    progress: Callable[[str], None] | None = None,
+) -> list[Scored]:
     out = []
     for c in cands:
         if progress:

@@ -68,6 +68,7 @@ quadcopter's is 0.35). The prediction is first order at the gyro rate (500 Hz
 and more) with the Jacobian below; the update is filterpy's
 ``ExtendedKalmanFilter.update`` (the measurement is linear).
 """
+
 from __future__ import annotations
 
 import math
@@ -87,9 +88,9 @@ class ComplementaryFilter:
 
     def __init__(self, w_c: float = 1.0) -> None:
         self.w_c = w_c
-        self.x: np.ndarray | None = None          # roll, pitch
+        self.x: np.ndarray | None = None  # roll, pitch
         self.t = math.nan
-        self._s = None                            # latest accelerometer attitude
+        self._s = None  # latest accelerometer attitude
 
     def handle(self, m: Measurement) -> None:
         if m.instance != 0:
@@ -113,8 +114,9 @@ class AttitudeEKF:
 
     name = "attitude_ekf"
 
-    def __init__(self, *, gyro_noise: float = 0.005, bias_walk: float = 1e-4, accel_sigma: float = 0.03,
-                 P0_bias: float = 0.05) -> None:
+    def __init__(
+        self, *, gyro_noise: float = 0.005, bias_walk: float = 1e-4, accel_sigma: float = 0.03, P0_bias: float = 0.05
+    ) -> None:
         self.ekf = ExtendedKalmanFilter(dim_x=4, dim_z=2)
         self.ekf.P = np.diag([0.1, 0.1, P0_bias**2, P0_bias**2])
         self.q_rate, self.q_bias, self.accel_sigma = gyro_noise**2, bias_walk**2, accel_sigma
@@ -164,11 +166,10 @@ class AttitudeEKF:
 
     def _update(self, f) -> None:
         dyn = abs(math.sqrt(f[0] ** 2 + f[1] ** 2 + f[2] ** 2) - G)
-        sigma = self.accel_sigma + 0.5 * dyn        # trust gravity less while accelerating
+        sigma = self.accel_sigma + 0.5 * dyn  # trust gravity less while accelerating
         H = np.zeros((2, 4))
         H[0, 0] = H[1, 1] = 1.0
-        self.ekf.update(np.array(accel_attitude(f)), HJacobian=lambda x: H, Hx=lambda x: x[:2],
-                        R=np.eye(2) * sigma**2)
+        self.ekf.update(np.array(accel_attitude(f)), HJacobian=lambda x: H, Hx=lambda x: x[:2], R=np.eye(2) * sigma**2)
 
 
 class DragAttitudeEKF:
@@ -177,9 +178,18 @@ class DragAttitudeEKF:
     name = "drag_ekf"
     states = ("roll", "pitch", "b_p", "b_q", "u", "v")
 
-    def __init__(self, *, mu: float = 0.35, gyro_noise: float = 2.2e-4, bias_walk: float = 3e-6,
-                 accel_sigma: float = 0.09, G_v: float = 2e-4, P0_angle: float = 0.05, P0_bias: float = 0.05,
-                 P0_v: float = 0.2) -> None:
+    def __init__(
+        self,
+        *,
+        mu: float = 0.35,
+        gyro_noise: float = 2.2e-4,
+        bias_walk: float = 3e-6,
+        accel_sigma: float = 0.09,
+        G_v: float = 2e-4,
+        P0_angle: float = 0.05,
+        P0_bias: float = 0.05,
+        P0_v: float = 0.2,
+    ) -> None:
         """Noise as densities: ``gyro_noise`` [rad/s/sqrt(Hz)] (0.005 rad/s per sample at 500 Hz),
         ``bias_walk`` [rad/s/sqrt(s)], ``G_v`` [(m/s^2)^2/Hz] for what the velocity model
         leaves out (the ``q w`` terms, gusts); ``accel_sigma`` [m/s^2] per sample. The
@@ -188,12 +198,12 @@ class DragAttitudeEKF:
         self.ekf = ExtendedKalmanFilter(dim_x=6, dim_z=2)
         self.ekf.P = np.diag([P0_angle**2] * 2 + [P0_bias**2] * 2 + [P0_v**2] * 2)
         self.ekf.R = np.eye(2) * accel_sigma**2
-        self.q = np.array([gyro_noise**2] * 2 + [bias_walk**2] * 2 + [G_v] * 2)   # densities
+        self.q = np.array([gyro_noise**2] * 2 + [bias_walk**2] * 2 + [G_v] * 2)  # densities
         self.H = np.zeros((2, 6))
         self.H[0, 4] = self.H[1, 5] = -mu
         self.t = math.nan
         self.started = False
-        self.nis: list[float] = []             # per accelerometer update
+        self.nis: list[float] = []  # per accelerometer update
 
     @property
     def x(self) -> np.ndarray:
@@ -227,8 +237,9 @@ class DragAttitudeEKF:
         p, q, r = w[0] - bp, w[1] - bq, w[2]
         sf, cf, st, ct = math.sin(phi), math.cos(phi), math.sin(theta), math.cos(theta)
         tt, sec2 = st / ct, 1.0 / ct**2
-        xd = np.array([*euler_rates(phi, theta, (p, q, r)), 0.0, 0.0,
-                       -G * st + r * v - mu * u, G * sf * ct - r * u - mu * v])
+        xd = np.array(
+            [*euler_rates(phi, theta, (p, q, r)), 0.0, 0.0, -G * st + r * v - mu * u, G * sf * ct - r * u - mu * v]
+        )
         J = np.zeros((6, 6))
         J[0, 0], J[0, 1], J[0, 2], J[0, 3] = (q * cf - r * sf) * tt, (q * sf + r * cf) * sec2, -1.0, -sf * tt
         J[1, 0], J[1, 3] = -q * sf - r * cf, -cf

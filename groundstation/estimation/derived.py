@@ -32,9 +32,10 @@ flight on the three Crazyflie logs: roll 0.55-0.77 deg RMS, pitch 0.33-0.79 deg;
 on traj4 1/(cos roll cos pitch) is 2.3e-3 RMS off the true, whose own departure
 from 1 is 16.9e-3 RMS.
 """
+
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 

@@ -4,11 +4,12 @@ which are measurement updates), and the handling of time: prediction through
 dropouts, re-initialisation on clock jumps. The rules of each model are in
 :mod:`groundstation.estimation.routing`.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -48,8 +49,16 @@ class KalmanEstimator:
     gaps are predicted through (the covariance grows, as it should).
     """
 
-    def __init__(self, model: LinearModel, *, inputs: dict[Kind, InputRule], context: dict[Kind, ContextRule],
-                 name: str | None = None, jump_back: float = 0.5, max_gap: float = 5.0) -> None:
+    def __init__(
+        self,
+        model: LinearModel,
+        *,
+        inputs: dict[Kind, InputRule],
+        context: dict[Kind, ContextRule],
+        name: str | None = None,
+        jump_back: float = 0.5,
+        max_gap: float = 5.0,
+    ) -> None:
         self.name = name or model.name
         self.model = model
         self.filter = ModelFilter(model)
@@ -134,9 +143,9 @@ class KalmanEstimator:
                 continue
             f.ctx.values["z"] = float(f.x[0])
             z = mm.extract(m, f.ctx)
-            why = f.ctx.values.pop("skip_why", None)        # an extract's own reason (models.range_gate)
+            why = f.ctx.values.pop("skip_why", None)  # an extract's own reason (models.range_gate)
             if z is None:
-                self.counters.skip(f"{mm.name}_{why or 'not_used'}")     # calibrating, out of range
+                self.counters.skip(f"{mm.name}_{why or 'not_used'}")  # calibrating, out of range
                 continue
             if not np.all(np.isfinite(z)):
                 self.counters.skip(f"{mm.name}_invalid")

@@ -6,6 +6,7 @@ RMSE against truth, the innovations' mean NIS, and a whiteness p-value
 (Ljung-Box on the normalised innovations): a small p says the innovations are
 correlated, i.e. the model misses something the diagnosis should find.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,12 +42,15 @@ class Evaluation:
     rows: list[SensorRow]
     estimate_rmse: float
     estimates: int
-    skipped: dict[str, int] = field(default_factory=dict)      # the estimator's counted skips
+    skipped: dict[str, int] = field(default_factory=dict)  # the estimator's counted skips
 
     def table(self) -> str:
-        out = [self.description, f"model: {self.model}, {self.estimates} estimates"
-               + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else ""),
-               f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}"]
+        out = [
+            self.description,
+            f"model: {self.model}, {self.estimates} estimates"
+            + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else ""),
+            f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}",
+        ]
         for r in self.rows:
             raw = f"{r.raw_rmse:.4f}" if r.raw_rmse == r.raw_rmse else "-"
             if r.nis == r.nis:
@@ -58,8 +62,9 @@ class Evaluation:
         return "\n".join(out)
 
 
-def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
-             t_window: tuple[float, float] | None = None) -> Evaluation:
+def evaluate(
+    path: Path, model: str = "altitude", *, vehicle: str | None = None, t_window: tuple[float, float] | None = None
+) -> Evaluation:
     ms, desc, implied = load_measurements(path)
     est = build_estimator(model, vehicle=vehicle or implied)
     offset = range_offset(vehicle_effects(vehicle or implied))
@@ -89,7 +94,7 @@ def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
 
     rows = []
     for sensor in est.filter.log.sensors():
-        if sensor == LANDED:            # the ground's pseudo-sensor (models.ground), not a sensor
+        if sensor == LANDED:  # the ground's pseudo-sensor (models.ground), not a sensor
             continue
         a = est.filter.log.arrays(sensor)
         nu = a["nu"][:, 0] / np.sqrt(a["S"][:, 0, 0])
@@ -97,7 +102,7 @@ def evaluate(path: Path, model: str = "altitude", *, vehicle: str | None = None,
         raw_rmse = float("nan")
         if len(r) and len(tt):
             t, v = r[:, 0], r[:, 1]
-            if sensor == "baro":      # an absolute sensor's zero: its first second against truth
+            if sensor == "baro":  # an absolute sensor's zero: its first second against truth
                 first = t < t[0] + 1.0
                 v = v - np.mean(v[first] - np.interp(t[first], tt, zz))
             raw_rmse = rmse_vs_truth(t, v)

@@ -20,12 +20,13 @@ none. Long format keeps the columns fixed whatever sensors a file has; pivot
 it (pandas ``pivot_table``) for a wide view. Estimates are exported in the
 estimator's own format (``t``, states, ``sigma_<state>``) by the estimation loop.
 """
+
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 from groundstation.core.measurement import KIND_COMPONENTS, Measurement
 
@@ -50,8 +51,9 @@ class MeasurementCsvWriter:
         var = m.variance
         for j, v in enumerate(m.value):
             name = names[j] if names and j < len(names) else str(j)
-            self._w.writerow((_fmt(m.t), m.kind.value, m.instance, name, _fmt(v),
-                              _fmt(var[j]) if var is not None else "", m.source))
+            self._w.writerow(
+                (_fmt(m.t), m.kind.value, m.instance, name, _fmt(v), _fmt(var[j]) if var is not None else "", m.source)
+            )
             self.rows += 1
 
     def write_all(self, ms: Iterable[Measurement]) -> None:

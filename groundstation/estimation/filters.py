@@ -7,6 +7,7 @@ covariance S, NIS = nu^T S^-1 nu, the gain K and the inputs used
 (:class:`InnovationLog`): the closed-loop diagnosis reads this log.
 Attributes keep filterpy's (and the textbook's) symbols: ``x, P, F, Q, H, R``.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -54,10 +55,15 @@ class InnovationLog:
         rs = [r for r in self.records if r.sensor == sensor]
         if not rs:
             return {"t": np.empty(0), "nu": np.empty((0, 1)), "S": np.empty((0, 1, 1)), "nis": np.empty(0)}
-        return {"t": np.array([r.t for r in rs]), "nu": np.array([r.nu for r in rs]),
-                "S": np.array([r.S for r in rs]), "nis": np.array([r.nis for r in rs]),
-                "K": np.array([r.K for r in rs]), "u": np.array([r.u for r in rs]),
-                "z": np.array([r.z for r in rs])}
+        return {
+            "t": np.array([r.t for r in rs]),
+            "nu": np.array([r.nu for r in rs]),
+            "S": np.array([r.S for r in rs]),
+            "nis": np.array([r.nis for r in rs]),
+            "K": np.array([r.K for r in rs]),
+            "u": np.array([r.u for r in rs]),
+            "z": np.array([r.z for r in rs]),
+        }
 
 
 class ModelFilter:
@@ -83,7 +89,7 @@ class ModelFilter:
         self.kf = kf
         self.t = t0
         self.u = np.zeros(len(m.inputs))
-        self._pending_k = 0      # step length (1e-7 s units) of the covariance steps not yet applied
+        self._pending_k = 0  # step length (1e-7 s units) of the covariance steps not yet applied
         self._pending_n = 0
 
     # filterpy's symbols, as properties
@@ -172,8 +178,15 @@ class ModelFilter:
     def checkpoint(self) -> tuple:
         """Everything needed to come back to this instant (see :meth:`restore`)."""
         self._apply_pending()
-        return (self.t, self.kf.x.copy(), self.kf.P.copy(), self.u.copy(), dict(self.ctx.values),
-                len(self.log.records), self.updates)
+        return (
+            self.t,
+            self.kf.x.copy(),
+            self.kf.P.copy(),
+            self.u.copy(),
+            dict(self.ctx.values),
+            len(self.log.records),
+            self.updates,
+        )
 
     def restore(self, cp: tuple) -> None:
         """Back to a checkpoint: state, covariance, inputs, context; later log entries dropped."""
@@ -229,8 +242,9 @@ class ModelFilter:
         nu = np.atleast_1d(kf.y).astype(float).copy()
         S = np.atleast_2d(kf.S).astype(float).copy()
         nis = float(nu @ np.linalg.solve(S, nu))
-        rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(),
-                               np.atleast_1d(z).astype(float))
+        rec = InnovationRecord(
+            self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), np.atleast_1d(z).astype(float)
+        )
         self.log.append(rec)
         self.updates += 1
         return rec

@@ -1,6 +1,7 @@
 """Any supported log in, measurements out: a tlog through the live receive path, an ArduPilot
 DataFlash log or a Crazyflie uSD log through their readers (the Crazyflie's tilt derived from
 its gyro, :mod:`.derived`). Recognised by content, not by extension."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -27,13 +28,22 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
     if is_crazyflie_log(path):
         log = read_crazyflie(path)
         ms = list(with_attitude(cf_measurements(log)))
-        desc = f"Crazyflie uSD log, {log.duration:.1f} s, {len(ms)} measurements" + (f"; {log.damage}" if log.damage else "")
+        desc = f"Crazyflie uSD log, {log.duration:.1f} s, {len(ms)} measurements" + (
+            f"; {log.damage}" if log.damage else ""
+        )
         return ms, desc + _reader_skipped(log.skipped), "crazyflie"
     if is_dataflash(path):
         log = read_dataflash(path)
-        return log.measurements, (f"ArduPilot DataFlash log, {log.duration:.1f} s, {len(log.measurements)} "
-                                  f"measurements (clock: {log.clock})" + (f"; {log.damage}" if log.damage else "")
-                                  + _reader_skipped(log.skipped)), None
+        return (
+            log.measurements,
+            (
+                f"ArduPilot DataFlash log, {log.duration:.1f} s, {len(log.measurements)} "
+                f"measurements (clock: {log.clock})"
+                + (f"; {log.damage}" if log.damage else "")
+                + _reader_skipped(log.skipped)
+            ),
+            None,
+        )
     rp = Replay(path)
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()

@@ -16,6 +16,7 @@
   exporter, recorder) take what they need at their own pace and fall behind
   independently. Processing never waits for them.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -42,7 +43,7 @@ class Snapshot:
     x: np.ndarray
     P: np.ndarray
     innovation: InnovationRecord | None
-    wall: float                   # when it was published (time.monotonic)
+    wall: float  # when it was published (time.monotonic)
 
     @property
     def sigma(self) -> np.ndarray:
@@ -59,7 +60,7 @@ class ClockAligner:
     """Maps each source's clock onto the reference (first) source's clock."""
 
     def __init__(self) -> None:
-        self.offsets: dict[str, float] = {}     # source clock key -> max(t - t_rx)
+        self.offsets: dict[str, float] = {}  # source clock key -> max(t - t_rx)
         self.reference: str | None = None
 
     @staticmethod
@@ -84,8 +85,8 @@ class ClockAligner:
 @dataclass
 class LoopCounters:
     processed: int = 0
-    late: int = 0            # later than the reorder window: dropped
-    rollbacks: int = 0       # late within the window: re-run in order
+    late: int = 0  # later than the reorder window: dropped
+    rollbacks: int = 0  # late within the window: re-run in order
     truth: int = 0
     by_estimator: dict = field(default_factory=dict)
 
@@ -95,8 +96,9 @@ CHECKPOINT_EVERY = 0.01
 
 
 class EstimationLoop:
-    def __init__(self, estimators: list[KalmanEstimator], *, reorder_s: float = 0.05,
-                 align_clocks: bool = True) -> None:
+    def __init__(
+        self, estimators: list[KalmanEstimator], *, reorder_s: float = 0.05, align_clocks: bool = True
+    ) -> None:
         self.estimators = estimators
         self.reorder_s = reorder_s
         self.clocks = ClockAligner() if align_clocks else None
@@ -161,7 +163,7 @@ class EstimationLoop:
         horizon = m.t - self.reorder_s - CHECKPOINT_EVERY
         while len(self._checkpoints) > 1 and self._checkpoints[1][0] < horizon:
             self._checkpoints.popleft()
-        oldest = self._checkpoints[0][1]              # one is taken before every record
+        oldest = self._checkpoints[0][1]  # one is taken before every record
         while self._history and self._history[0][1] <= oldest:
             self._history.popleft()
 
@@ -180,7 +182,7 @@ class EstimationLoop:
         if i < 0:
             if not self._checkpoints or self._checkpoints[0][1] != 0:
                 return False
-            i = 0          # before the stream's first measurement: its state holds for any earlier time
+            i = 0  # before the stream's first measurement: its state holds for any earlier time
         t_cp, seq_cp, states = self._checkpoints[i]
         for est, cp in zip(self.estimators, states):
             est.restore(cp)
@@ -215,16 +217,20 @@ class EstimationLoop:
     # -- asyncio -----------------------------------------------------------------------------
     def attach_link(self, link) -> None:
         """Estimate inside the link's receive path (lowest latency; never blocks)."""
+
         def sink(ms):
             for m in ms:
                 self.push(m)
+
         link.sinks.append(sink)
 
     def attach(self, subscription) -> None:
         """Consume an ``async for`` stream of measurements (a link's, a replay's)."""
+
         async def pump():
             async for m in subscription:
                 self.push(m)
+
         self._tasks.append(asyncio.get_running_loop().create_task(pump()))
 
     async def wait(self) -> None:

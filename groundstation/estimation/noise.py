@@ -5,11 +5,12 @@ Each measurement is taken exactly as its estimator's measurement model
 extracts it (e.g. the accelerometer's pitch and elevation), so the matrices
 drop straight into ``--noise``.
 """
+
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 

@@ -5,6 +5,7 @@ effects the ground station has been told of; each known one changes the model
 (``range_tilt`` gives the altitude filter its slant-range measurement).
 Undeclared effects are, by definition, not here: finding them is the diagnosis's job.
 """
+
 from __future__ import annotations
 
 import inspect
@@ -54,8 +55,10 @@ def vehicle_config(vehicle: str | None, model: str) -> dict:
     known = _model_options(model)
     unknown = sorted(set(params) - known) if known else []
     if unknown:
-        raise ValueError(f"vehicle configuration {vehicle!r}: {model} takes no {', '.join(map(repr, unknown))}; "
-                         f"it takes {', '.join(sorted(known))}")
+        raise ValueError(
+            f"vehicle configuration {vehicle!r}: {model} takes no {', '.join(map(repr, unknown))}; "
+            f"it takes {', '.join(sorted(known))}"
+        )
     return params
 
 
@@ -75,8 +78,14 @@ def range_offset(effects: list[dict]) -> float:
     return sum(float(e.get("params", {}).get("o", 0.0)) for e in effects if e.get("name") == "range_offset")
 
 
-def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = None,
-                    vehicle: str | None = None, *, vehicle_geometry: bool = True) -> KalmanEstimator:
+def build_estimator(
+    name: str,
+    declared: list[dict] = (),
+    noise: dict | None = None,
+    vehicle: str | None = None,
+    *,
+    vehicle_geometry: bool = True,
+) -> KalmanEstimator:
     """``noise``: measurement covariances by sensor (``groundstation noise``'s output);
     ``vehicle``: a per-vehicle parameter file (noise densities, sensor noise and,
     unless ``vehicle_geometry=False``, its known effects such as a range sensor's
@@ -87,8 +96,13 @@ def build_estimator(name: str, declared: list[dict] = (), noise: dict | None = N
     if name == "altitude":
         # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one),
         # and a range reading there is no height until the vehicle climbs (models.range_gate)
-        return altitude_estimator(range_gate(on_ground(altitude_model(range_tilt="range_tilt" in names,
-                                                                      range_offset=range_offset(declared), **params))))
+        return altitude_estimator(
+            range_gate(
+                on_ground(
+                    altitude_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
+                )
+            )
+        )
     if name == "heli3dof":
         return heli3dof_estimator(heli3dof_model(R=noise))
     if name == "quad_thrust":

@@ -21,6 +21,7 @@ calibrated against the range sensor, ``altitude = a * pressure + b``. The
 pressure regressor is centred on the first reading: raw pressures near 1e5 Pa
 make phi phi^T ill-conditioned, and centring changes b, not the fit.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -50,7 +51,7 @@ class RecursiveLeastSquares:
         e = float(y - phi @ self.theta)
         self.theta = self.theta + K * e
         P = (self.P - np.outer(K, Pphi)) / self.lam
-        self.P = 0.5 * (P + P.T)        # rounding makes it drift from symmetric, then unstable
+        self.P = 0.5 * (P + P.T)  # rounding makes it drift from symmetric, then unstable
         self.k += 1
         return e
 

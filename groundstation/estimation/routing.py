@@ -4,6 +4,7 @@ context (tilt, throttle, vehicle type), and the builders of the estimators thems
 Every rule is ``rule(m, ctx)``: an *input rule* returns the model's input vector u (or None:
 not this record), a *context rule* updates the filter's :class:`~.models.base.Context`.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,7 +33,14 @@ def set_tilt(ctx: Context, roll: float, pitch: float, yaw: float = 0.0) -> None:
     v["roll"], v["pitch"], v["yaw"] = roll, pitch, yaw
     # the rows of A_IB (coaxial doc. eq. 3.10): body -> world, kept with the
     # attitude (50 Hz) rather than recomputed per IMU sample (1 kHz)
-    sf, cf, st, ct, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch), math.sin(yaw), math.cos(yaw)
+    sf, cf, st, ct, sp, cp = (
+        math.sin(roll),
+        math.cos(roll),
+        math.sin(pitch),
+        math.cos(pitch),
+        math.sin(yaw),
+        math.cos(yaw),
+    )
     v["north_row"] = (cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st)
     v["east_row"] = (ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf)
     v["down_row"] = (-st, ct * sf, cf * ct)
@@ -82,8 +90,14 @@ def throttle_at_reading(ctx: Context, t: float) -> float | None:
 #: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
 #: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which.
 #: Named from pymavlink: the numbers were once typed by hand, and a coax (3) got four.
-MOTOR_OUTPUTS = {mavlink.MAV_TYPE_QUADROTOR: 4, mavlink.MAV_TYPE_COAXIAL: 2, mavlink.MAV_TYPE_HELICOPTER: 1,
-                 mavlink.MAV_TYPE_HEXAROTOR: 6, mavlink.MAV_TYPE_OCTOROTOR: 8, mavlink.MAV_TYPE_TRICOPTER: 3}
+MOTOR_OUTPUTS = {
+    mavlink.MAV_TYPE_QUADROTOR: 4,
+    mavlink.MAV_TYPE_COAXIAL: 2,
+    mavlink.MAV_TYPE_HELICOPTER: 1,
+    mavlink.MAV_TYPE_HEXAROTOR: 6,
+    mavlink.MAV_TYPE_OCTOROTOR: 8,
+    mavlink.MAV_TYPE_TRICOPTER: 3,
+}
 
 
 def motor_outputs(ctx: Context) -> int:
@@ -105,8 +119,8 @@ def collective(m: Measurement, ctx: Context) -> float | None:
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100 (up to
     0.1 m/s^2 of thrust at alpha = 22), and an actuator lag was fitted over both streams."""
     if m.kind is Kind.ACTUATOR:
-        v = m.value[:motor_outputs(ctx)]
-        v = v[np.isfinite(v)]          # the motors' outputs, then the unused among them (not servos' in their place)
+        v = m.value[: motor_outputs(ctx)]
+        v = v[np.isfinite(v)]  # the motors' outputs, then the unused among them (not servos' in their place)
         if not len(v):
             return None
         ctx.values["throttle_from_outputs"] = True
@@ -131,10 +145,18 @@ LEVEL = (0.0, 0.0, 1.0)
 
 
 def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
-    return KalmanEstimator(model or altitude_model(), inputs={Kind.ACCEL: vertical_acceleration},
-                           context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion,
-                                    Kind.ANGULAR_RATE: read_angular_rate, Kind.THROTTLE: read_throttle,
-                                    Kind.ACTUATOR: read_throttle, Kind.VEHICLE_STATUS: read_vehicle_status})
+    return KalmanEstimator(
+        model or altitude_model(),
+        inputs={Kind.ACCEL: vertical_acceleration},
+        context={
+            Kind.ATTITUDE: read_attitude,
+            Kind.ATTITUDE_QUATERNION: read_quaternion,
+            Kind.ANGULAR_RATE: read_angular_rate,
+            Kind.THROTTLE: read_throttle,
+            Kind.ACTUATOR: read_throttle,
+            Kind.VEHICLE_STATUS: read_vehicle_status,
+        },
+    )
 
 
 # -- the multirotor attitude (gyro input, accelerometer updates: models.attitude_drag) ----------
@@ -155,15 +177,22 @@ def gyro_rates(m: Measurement, ctx: Context) -> np.ndarray | None:
 def read_vertical_velocity(m: Measurement, ctx: Context) -> None:
     """v_d from VELOCITY_NED (down) or CLIMB_RATE (up)."""
     vd = float(m.value[2]) if m.kind is Kind.VELOCITY_NED else -float(m.value[0])
-    if math.isfinite(vd):                 # a GNSS board's VELOCITY_NED has no vertical component
+    if math.isfinite(vd):  # a GNSS board's VELOCITY_NED has no vertical component
         ctx.values["v_d"], ctx.values["v_d_t"] = vd, m.t
 
 
 def attitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
-    return KalmanEstimator(model or attitude_drag_model(), inputs={Kind.GYRO: gyro_rates},
-                           context={Kind.THROTTLE: read_throttle, Kind.ACTUATOR: read_throttle,
-                                    Kind.VEHICLE_STATUS: read_vehicle_status, Kind.VELOCITY_NED: read_vertical_velocity,
-                                    Kind.CLIMB_RATE: read_vertical_velocity})
+    return KalmanEstimator(
+        model or attitude_drag_model(),
+        inputs={Kind.GYRO: gyro_rates},
+        context={
+            Kind.THROTTLE: read_throttle,
+            Kind.ACTUATOR: read_throttle,
+            Kind.VEHICLE_STATUS: read_vehicle_status,
+            Kind.VELOCITY_NED: read_vertical_velocity,
+            Kind.CLIMB_RATE: read_vertical_velocity,
+        },
+    )
 
 
 # -- horizontal position (IMU input, GPS updates) -------------------------------------------------
@@ -177,8 +206,11 @@ def horizontal_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
 
 
 def horizontal_estimator(model: LinearModel | None = None) -> KalmanEstimator:
-    return KalmanEstimator(model or horizontal_model(), inputs={Kind.ACCEL: horizontal_acceleration},
-                           context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion})
+    return KalmanEstimator(
+        model or horizontal_model(),
+        inputs={Kind.ACCEL: horizontal_acceleration},
+        context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion},
+    )
 
 
 # -- the quadcopter thrust-model estimator's routing (quadcopter document) ---------------------
@@ -206,22 +238,29 @@ def thrust_input_on_ground(m: Measurement, ctx: Context) -> np.ndarray | None:
 def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     model = model or quad_thrust_model()
     inp = thrust_input_on_ground if model.options.get("ground_contact") else thrust_input
-    return KalmanEstimator(model,
-                           inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp},
-                           context={Kind.ATTITUDE: read_attitude, Kind.ATTITUDE_QUATERNION: read_quaternion,
-                                    Kind.ANGULAR_RATE: read_angular_rate, Kind.ACTUATOR: read_throttle,
-                                    Kind.THROTTLE: read_throttle, Kind.VEHICLE_STATUS: read_vehicle_status})
+    return KalmanEstimator(
+        model,
+        inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp},
+        context={
+            Kind.ATTITUDE: read_attitude,
+            Kind.ATTITUDE_QUATERNION: read_quaternion,
+            Kind.ANGULAR_RATE: read_angular_rate,
+            Kind.ACTUATOR: read_throttle,
+            Kind.THROTTLE: read_throttle,
+            Kind.VEHICLE_STATUS: read_vehicle_status,
+        },
+    )
 
 
 # -- the 3-DOF helicopter's routing (lab document) ---------------------------------------------
-V_MAX_3DOF = 12.0    # the simulated rig's motor voltage range (its outputs are V / V_max)
+V_MAX_3DOF = 12.0  # the simulated rig's motor voltage range (its outputs are V / V_max)
 
 
 def motor_voltages(m: Measurement, ctx: Context) -> np.ndarray | None:
     """u = (V_f + V_b - V_s0, V_b - V_f) from the motor outputs."""
     if m.kind is Kind.MOTOR_VOLTAGE:
         vf, vb = float(m.value[0]), float(m.value[1])
-    else:                                         # ACTUATOR: normalised outputs
+    else:  # ACTUATOR: normalised outputs
         vf, vb = float(m.value[0]) * V_MAX_3DOF, float(m.value[1]) * V_MAX_3DOF
     return np.array([vf + vb - V_S0, vb - vf])
 
@@ -233,7 +272,12 @@ def estimate_for_accel(m: Measurement, ctx: Context) -> None:
     if x is not None:
         v = ctx.values
         v["p_hat"], v["p_dot_hat"], v["e_hat"], v["e_dot_hat"], v["lambda_dot_hat"] = (
-            float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[5]))
+            float(x[0]),
+            float(x[1]),
+            float(x[2]),
+            float(x[3]),
+            float(x[5]),
+        )
         v["u_s"] = float(u[0]) if u is not None and len(u) else 0.0
 
 
@@ -245,8 +289,10 @@ def estimate_for_gyro(m: Measurement, ctx: Context) -> None:
 
 
 def heli3dof_estimator(model: LinearModel | None = None) -> KalmanEstimator:
-    est = KalmanEstimator(model or heli3dof_model(), inputs={Kind.ACTUATOR: motor_voltages,
-                                                             Kind.MOTOR_VOLTAGE: motor_voltages},
-                          context={Kind.GYRO: estimate_for_gyro, Kind.ACCEL: estimate_for_accel})
+    est = KalmanEstimator(
+        model or heli3dof_model(),
+        inputs={Kind.ACTUATOR: motor_voltages, Kind.MOTOR_VOLTAGE: motor_voltages},
+        context={Kind.GYRO: estimate_for_gyro, Kind.ACCEL: estimate_for_accel},
+    )
     est.filter.ctx.values["_x"] = est.filter.kf.x
     return est

@@ -4,6 +4,7 @@ For a correct model the normalised innovations are white, zero-mean and of unit 
 (Mehra 1970; Bar-Shalom, Li and Kirubarajan 2001, sec. 5.4): Ljung-Box asks the first, and the
 lag-1 autocorrelation says how many independent samples a correlated sequence is worth.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """What every simulated vehicle offers the simulator (sensors, truth, profile)."""
+
 from __future__ import annotations
 
 import abc
@@ -13,10 +14,10 @@ G = 9.80665
 class Kinematics:
     """The truth the sensors read, in MAVLink frames (NED world, FRD body)."""
 
-    pos: np.ndarray = field(default_factory=lambda: np.zeros(3))      # NED [m], z down
-    vel: np.ndarray = field(default_factory=lambda: np.zeros(3))      # NED [m/s]
-    R: np.ndarray = field(default_factory=lambda: np.eye(3))          # A_IB (body -> NED)
-    omega: np.ndarray = field(default_factory=lambda: np.zeros(3))    # body rates FRD [rad/s]
+    pos: np.ndarray = field(default_factory=lambda: np.zeros(3))  # NED [m], z down
+    vel: np.ndarray = field(default_factory=lambda: np.zeros(3))  # NED [m/s]
+    R: np.ndarray = field(default_factory=lambda: np.eye(3))  # A_IB (body -> NED)
+    omega: np.ndarray = field(default_factory=lambda: np.zeros(3))  # body rates FRD [rad/s]
     specific_force: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, -G]))  # body FRD [m/s^2]
 
     @property

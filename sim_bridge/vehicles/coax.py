@@ -31,6 +31,7 @@ Deliberate departures from the document, each for a stated reason:
   (1 + k_w) k_F 0.6 = 4.86 N = m g for m = 0.495 kg), ``I = diag(4.0, 4.0,
   2.5) g m^2`` and ``l_L = 0.08 m``, ``l_U = 0.16 m`` above the CoG.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,15 +47,15 @@ from .quad import CONTACT_TC, REST_GAP
 
 @dataclass
 class CoaxParams:
-    k_F: float = 4.4           # thrust gain [N] (5.21)
-    k_T: float = 0.135         # drag-torque gain [N m] (5.31)
-    T: float = 0.17            # rotor time constant [s] (5.20, 5.30)
-    k_w: float = 0.84          # lower-rotor thrust factor in the upper rotor's wake (5.29)
-    mass: float = 0.5          # [kg] (not in the document; see module docstring)
+    k_F: float = 4.4  # thrust gain [N] (5.21)
+    k_T: float = 0.135  # drag-torque gain [N m] (5.31)
+    T: float = 0.17  # rotor time constant [s] (5.20, 5.30)
+    k_w: float = 0.84  # lower-rotor thrust factor in the upper rotor's wake (5.29)
+    mass: float = 0.5  # [kg] (not in the document; see module docstring)
     inertia: tuple[float, float, float] = (4.0e-3, 4.0e-3, 2.5e-3)  # [kg m^2]
-    l_L: float = 0.08          # lower rotor above the CoG [m]
-    l_U: float = 0.16          # upper rotor above the CoG [m]
-    max_flap: float = 0.25     # flapping-angle limit [rad]
+    l_L: float = 0.08  # lower rotor above the CoG [m]
+    l_U: float = 0.16  # upper rotor above the CoG [m]
+    max_flap: float = 0.25  # flapping-angle limit [rad]
 
     @property
     def hover_input(self) -> float:
@@ -64,10 +65,10 @@ class CoaxParams:
 
 @dataclass
 class CoaxCommand:
-    i_L: float = 0.0           # lower speed-controller input 0..1
-    i_U: float = 0.0           # upper speed-controller input 0..1
-    a: float = 0.0             # longitudinal flapping angle [rad]
-    b: float = 0.0             # lateral flapping angle [rad]
+    i_L: float = 0.0  # lower speed-controller input 0..1
+    i_U: float = 0.0  # upper speed-controller input 0..1
+    a: float = 0.0  # longitudinal flapping angle [rad]
+    b: float = 0.0  # lateral flapping angle [rad]
 
 
 def G_ab(a: float, b: float) -> np.ndarray:
@@ -87,7 +88,7 @@ class Coax(Vehicle):
         self.I = np.diag(self.p.inertia)
         self.I_inv = np.linalg.inv(self.I)
         self.on_ground = True
-        self.thrust_factor = 1.0      # set by thrust effects each step
+        self.thrust_factor = 1.0  # set by thrust effects each step
 
     @property
     def throttle(self) -> float:
@@ -106,8 +107,9 @@ class Coax(Vehicle):
     def clipped(self, cmd: CoaxCommand) -> CoaxCommand:
         """The command within the actuators' range (what the outputs can show)."""
         m = self.p.max_flap
-        return CoaxCommand(min(1.0, max(0.0, cmd.i_L)), min(1.0, max(0.0, cmd.i_U)),
-                           max(-m, min(m, cmd.a)), max(-m, min(m, cmd.b)))
+        return CoaxCommand(
+            min(1.0, max(0.0, cmd.i_L)), min(1.0, max(0.0, cmd.i_U)), max(-m, min(m, cmd.a)), max(-m, min(m, cmd.b))
+        )
 
     def step(self, dt: float, cmd: CoaxCommand) -> None:
         p, k = self.p, self.kin
@@ -144,7 +146,7 @@ class Coax(Vehicle):
         k.vel = k.vel + acc * dt
         k.pos = k.pos + k.vel * dt
         if not self.on_ground and k.pos[2] >= -REST_GAP and 0.0 <= k.vel[2] <= 0.02 and acc[2] >= -G:
-            acc = acc - k.vel / dt         # at rest on the ground: the IMU reads the last of the velocity go
+            acc = acc - k.vel / dt  # at rest on the ground: the IMU reads the last of the velocity go
             k.pos[2] = 0.0
             k.vel[:] = 0.0
             self.on_ground = True
@@ -156,8 +158,24 @@ class Coax(Vehicle):
         k = self.kin
         roll, pitch, yaw = euler_from_matrix(k.R)
         return {
-            "n": k.pos[0], "e": k.pos[1], "d": k.pos[2], "vn": k.vel[0], "ve": k.vel[1], "vd": k.vel[2],
-            "roll": roll, "pitch": pitch, "yaw": yaw, "p": k.omega[0], "q": k.omega[1], "r": k.omega[2],
-            "F_L": self.F_L, "F_U": self.F_U, "T_L": self.T_L, "T_U": self.T_U,
-            "i_L": self.cmd.i_L, "i_U": self.cmd.i_U, "a": self.cmd.a, "b": self.cmd.b,
+            "n": k.pos[0],
+            "e": k.pos[1],
+            "d": k.pos[2],
+            "vn": k.vel[0],
+            "ve": k.vel[1],
+            "vd": k.vel[2],
+            "roll": roll,
+            "pitch": pitch,
+            "yaw": yaw,
+            "p": k.omega[0],
+            "q": k.omega[1],
+            "r": k.omega[2],
+            "F_L": self.F_L,
+            "F_U": self.F_U,
+            "T_L": self.T_L,
+            "T_U": self.T_U,
+            "i_L": self.cmd.i_L,
+            "i_U": self.cmd.i_U,
+            "a": self.cmd.a,
+            "b": self.cmd.b,
         }

@@ -31,6 +31,7 @@ its frame follows travel (yaw), elevation (pitch) and the helicopter's pitch p
 lambda_dot) and its accelerometer the specific force of the point ``l_h`` out on
 the arm (centripetal terms included).
 """
+
 from __future__ import annotations
 
 import math
@@ -54,11 +55,11 @@ class Heli3dofParams:
     J_l: float = 1.08
     m_p: float = 0.72
     m_c: float = 1.92
-    K_f: float = 0.1248        # [N/V], see the module docstring
-    V_max: float = 12.0        # motor voltage limit [V]
-    e_min: float = -0.5        # elevation end stop (resting on the table) [rad]
-    e_max: float = 1.0         # elevation end stop above (the rig's frame) [rad]
-    p_max: float = 1.2         # pitch end stops [rad]
+    K_f: float = 0.1248  # [N/V], see the module docstring
+    V_max: float = 12.0  # motor voltage limit [V]
+    e_min: float = -0.5  # elevation end stop (resting on the table) [rad]
+    e_max: float = 1.0  # elevation end stop above (the rig's frame) [rad]
+    p_max: float = 1.2  # pitch end stops [rad]
 
     @property
     def V_s0(self) -> float:
@@ -68,8 +69,8 @@ class Heli3dofParams:
 
 @dataclass
 class Heli3dofCommand:
-    V_f: float = 0.0           # front motor voltage [V]
-    V_b: float = 0.0           # back motor voltage [V]
+    V_f: float = 0.0  # front motor voltage [V]
+    V_b: float = 0.0  # back motor voltage [V]
 
 
 class Heli3dof(Vehicle):
@@ -77,7 +78,7 @@ class Heli3dof(Vehicle):
 
     def __init__(self, params: Heli3dofParams | None = None, e0: float | None = None) -> None:
         self.p = params or Heli3dofParams()
-        self.x = np.zeros(6)       # p, p_dot, e, e_dot, lambda, lambda_dot
+        self.x = np.zeros(6)  # p, p_dot, e, e_dot, lambda, lambda_dot
         self.x[2] = self.p.e_min if e0 is None else e0
         self.cmd = Heli3dofCommand()
         self.kin = Kinematics()
@@ -92,8 +93,11 @@ class Heli3dof(Vehicle):
         p, pd, e, ed, lam, lamd = x
         F_f, F_b = P.K_f * cmd.V_f, P.K_f * cmd.V_b
         pdd = P.l_p * (F_b - F_f) / P.J_p
-        edd = (P.l_h * math.cos(p) * (F_f + F_b) - P.l_h * math.cos(e) * 2 * P.m_p * P.g
-               + P.l_c * math.cos(e) * P.m_c * P.g) / P.J_e
+        edd = (
+            P.l_h * math.cos(p) * (F_f + F_b)
+            - P.l_h * math.cos(e) * 2 * P.m_p * P.g
+            + P.l_c * math.cos(e) * P.m_c * P.g
+        ) / P.J_e
         ldd = P.l_h * math.cos(e) * (F_f + F_b) * math.sin(p) / P.J_l
         return np.array([pd, pdd, ed, edd, lamd, ldd])
 
@@ -134,15 +138,25 @@ class Heli3dof(Vehicle):
         k.omega = np.array([pd - se * lamd, ce * sp * lamd + cp * ed, cp * ce * lamd - sp * ed])
         # point l_h out on the arm: r = l_h (ce cl, ce sl, -se) in NED; its acceleration
         cl, sl, l = math.cos(lam), math.sin(lam), P.l_h
-        acc = l * np.array([
-            -ce * cl * (ed**2 + lamd**2) - se * cl * edd + 2 * se * sl * ed * lamd - ce * sl * ldd,
-            -ce * sl * (ed**2 + lamd**2) - se * sl * edd - 2 * se * cl * ed * lamd + ce * cl * ldd,
-            se * ed**2 - ce * edd,
-        ])
+        acc = l * np.array(
+            [
+                -ce * cl * (ed**2 + lamd**2) - se * cl * edd + 2 * se * sl * ed * lamd - ce * sl * ldd,
+                -ce * sl * (ed**2 + lamd**2) - se * sl * edd - 2 * se * cl * ed * lamd + ce * cl * ldd,
+                se * ed**2 - ce * edd,
+            ]
+        )
         k.pos = l * np.array([ce * cl, ce * sl, -se])
         k.specific_force = R.T @ (acc - np.array([0.0, 0.0, P.g]))
 
     def truth(self) -> dict[str, float]:
         p, pd, e, ed, lam, lamd = self.x
-        return {"p": p, "p_dot": pd, "e": e, "e_dot": ed, "lambda": lam, "lambda_dot": lamd,
-                "V_f": self.cmd.V_f, "V_b": self.cmd.V_b}
+        return {
+            "p": p,
+            "p_dot": pd,
+            "e": e,
+            "e_dot": ed,
+            "lambda": lam,
+            "lambda_dot": lamd,
+            "V_f": self.cmd.V_f,
+            "V_b": self.cmd.V_b,
+        }

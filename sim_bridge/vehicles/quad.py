@@ -26,6 +26,7 @@ the ESCs compensate voltage, so thrust does not depend on V; the
 
 Effects that act on the thrust (:mod:`sim_bridge.effects`) set ``thrust_factor``.
 """
+
 from __future__ import annotations
 
 import math
@@ -46,18 +47,18 @@ REST_GAP = 0.001
 
 @dataclass
 class QuadParams:
-    alpha: float = 22.0        # thrust gain [m/s^2 per unit throttle]
-    beta: float = -1.2         # thrust offset [m/s^2]  -> hover at tau = 0.5004
-    drag: float = 0.35         # linear drag [1/s]
-    tau_att: float = 0.12      # attitude response time constant [s]
+    alpha: float = 22.0  # thrust gain [m/s^2 per unit throttle]
+    beta: float = -1.2  # thrust offset [m/s^2]  -> hover at tau = 0.5004
+    drag: float = 0.35  # linear drag [1/s]
+    tau_att: float = 0.12  # attitude response time constant [s]
     n_cells: int = 3
-    v_full: float = 4.2        # cell voltage at full charge [V]
-    v_empty: float = 3.45      # cell voltage when empty [V]
+    v_full: float = 4.2  # cell voltage at full charge [V]
+    v_empty: float = 3.45  # cell voltage when empty [V]
     capacity_ah: float = 2.2
-    r_int: float = 0.12        # pack internal resistance [ohm]
-    i_idle: float = 0.5        # current with motors stopped [A]
-    i_max: float = 40.0        # current at full throttle [A]
-    soc0: float = 1.0          # initial state of charge
+    r_int: float = 0.12  # pack internal resistance [ohm]
+    i_idle: float = 0.5  # current with motors stopped [A]
+    i_max: float = 40.0  # current at full throttle [A]
+    soc0: float = 1.0  # initial state of charge
 
     @property
     def hover_throttle(self) -> float:
@@ -66,10 +67,10 @@ class QuadParams:
 
 @dataclass
 class QuadCommand:
-    throttle: float = 0.0      # 0..1
-    roll: float = 0.0          # roll setpoint [rad]
-    pitch: float = 0.0         # pitch setpoint [rad]
-    yaw_rate: float = 0.0      # [rad/s]
+    throttle: float = 0.0  # 0..1
+    roll: float = 0.0  # roll setpoint [rad]
+    pitch: float = 0.0  # pitch setpoint [rad]
+    yaw_rate: float = 0.0  # [rad/s]
 
 
 class Quad(Vehicle):
@@ -80,19 +81,19 @@ class Quad(Vehicle):
 
     def __init__(self, params: QuadParams | None = None) -> None:
         self.p = params or QuadParams()
-        self.n = self.e = self.d = 0.0          # NED position [m]
-        self.vn = self.ve = self.vd = 0.0       # NED velocity [m/s]
-        self.an = self.ae = self.ad = 0.0       # NED acceleration [m/s^2]
+        self.n = self.e = self.d = 0.0  # NED position [m]
+        self.vn = self.ve = self.vd = 0.0  # NED velocity [m/s]
+        self.an = self.ae = self.ad = 0.0  # NED acceleration [m/s^2]
         self.phi = self.theta = self.psi = 0.0
-        self.w = (0.0, 0.0, 0.0)                # body rates
-        self.tau = 0.0                 # throttle applied to the motors
+        self.w = (0.0, 0.0, 0.0)  # body rates
+        self.tau = 0.0  # throttle applied to the motors
         self.tau_cmd = 0.0
-        self.a_thrust = 0.0            # thrust acceleration [m/s^2]
+        self.a_thrust = 0.0  # thrust acceleration [m/s^2]
         self.soc = self.p.soc0
         self.current = self.p.i_idle
         self.voltage = self.open_circuit_voltage()
         self.on_ground = True
-        self.thrust_factor = 1.0       # set by thrust effects each step
+        self.thrust_factor = 1.0  # set by thrust effects each step
         self._kin: Kinematics | None = None
 
     def open_circuit_voltage(self) -> float:
@@ -109,8 +110,13 @@ class Quad(Vehicle):
         if k is None:
             R = a_ib(self.phi, self.theta, self.psi)
             acc = np.array([self.an, self.ae, self.ad - G])
-            k = self._kin = Kinematics(np.array([self.n, self.e, self.d]), np.array([self.vn, self.ve, self.vd]),
-                                       R, np.array(self.w), R.T @ acc)
+            k = self._kin = Kinematics(
+                np.array([self.n, self.e, self.d]),
+                np.array([self.vn, self.ve, self.vd]),
+                R,
+                np.array(self.w),
+                R.T @ acc,
+            )
         return k
 
     def imu_truth(self):
@@ -166,7 +172,7 @@ class Quad(Vehicle):
         ae = -a_t * (cf * sp * st - cp * sf) - p.drag * self.ve
         ad = -a_t * cf * ct + G - p.drag * self.vd
         if self.on_ground:
-            if ad < 0:              # lift-off once thrust exceeds weight
+            if ad < 0:  # lift-off once thrust exceeds weight
                 self.on_ground = False
             else:
                 an = ae = ad = 0.0
@@ -200,10 +206,22 @@ class Quad(Vehicle):
 
     def truth(self) -> dict[str, float]:
         return {
-            "n": self.n, "e": self.e, "d": self.d, "vn": self.vn, "ve": self.ve, "vd": self.vd,
-            "roll": self.phi, "pitch": self.theta, "yaw": self.psi,
-            "p": self.w[0], "q": self.w[1], "r": self.w[2],
-            "throttle": self.tau, "a_thrust": self.a_thrust,
+            "n": self.n,
+            "e": self.e,
+            "d": self.d,
+            "vn": self.vn,
+            "ve": self.ve,
+            "vd": self.vd,
+            "roll": self.phi,
+            "pitch": self.theta,
+            "yaw": self.psi,
+            "p": self.w[0],
+            "q": self.w[1],
+            "r": self.w[2],
+            "throttle": self.tau,
+            "a_thrust": self.a_thrust,
             "alpha_eff": (self.a_thrust - self.p.beta) / self.tau if self.tau > 0.05 else self.p.alpha,
-            "voltage": self.voltage, "current": self.current, "soc": self.soc,
+            "voltage": self.voltage,
+            "current": self.current,
+            "soc": self.soc,
         }

@@ -1,4 +1,5 @@
 """Models from the design documents, declared once each (see :mod:`.base`)."""
+
 from .altitude import altitude_model
 from .base import Context, LinearModel, MeasurementModel, discretize, observability_rank
 

@@ -44,6 +44,7 @@ Corrections to the document, made knowingly:
   tilt and stay unmodelled: the attitude model's docstring). A is the document's at
   level, and the discretisation (eq. 9.14-9.24) holds for each held input.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -68,9 +69,18 @@ def transition(u) -> np.ndarray:
     return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -c], [0.0, 0.0, 0.0]])
 
 
-def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range: float = 0.0105,
-                   sigma_baro: float = 0.338, sigma_gps: float = 2.0, P0_bias: float = 0.04,
-                   range_tilt: bool = False, range_offset: float = 0.0, use_gps: bool = False) -> LinearModel:
+def altitude_model(
+    *,
+    G_acc: float = 3.0e-5,
+    G_bias: float = 1.0e-8,
+    sigma_range: float = 0.0105,
+    sigma_baro: float = 0.338,
+    sigma_gps: float = 2.0,
+    P0_bias: float = 0.04,
+    range_tilt: bool = False,
+    range_offset: float = 0.0,
+    use_gps: bool = False,
+) -> LinearModel:
     """The document's 3-state filter with our default noise densities.
 
     ``G_acc`` [(m/s^2)^2 / Hz]: accelerometer white noise (0.08 m/s^2 at
@@ -91,10 +101,20 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
         return np.array([[slant(ctx), 0.0, 0.0]])
 
     meas = {
-        "range": MeasurementModel("range", Kind.RANGE, lambda m, ctx: np.array([m.value[0] - range_offset]),
-                                  range_row if range_tilt else (lambda ctx: H), np.array([[sigma_range**2]])),
-        "gps": MeasurementModel("gps", Kind.GPS, relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
-                                lambda ctx: H, np.array([[sigma_gps**2]])),
+        "range": MeasurementModel(
+            "range",
+            Kind.RANGE,
+            lambda m, ctx: np.array([m.value[0] - range_offset]),
+            range_row if range_tilt else (lambda ctx: H),
+            np.array([[sigma_range**2]]),
+        ),
+        "gps": MeasurementModel(
+            "gps",
+            Kind.GPS,
+            relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
+            lambda ctx: H,
+            np.array([[sigma_gps**2]]),
+        ),
         **barometer(lambda ctx: H, np.array([[sigma_baro**2]])),
     }
     if not use_gps:
@@ -104,7 +124,14 @@ def altitude_model(*, G_acc: float = 3.0e-5, G_bias: float = 1.0e-8, sigma_range
         # puts them back (the document's GPS update, eq. 9.8's sibling).
         del meas["gps"]
     return LinearModel(
-        name="altitude", states=["z", "vz", "b_acc"], inputs=["gamma_z", "cos_tilt"],
-        A=transition, B=B, Qc=np.diag([0.0, G_acc, G_bias]),
-        x0=np.zeros(3), P0=np.diag([0.05**2, 0.05**2, P0_bias]), measurements=meas,
-        doc=__doc__)
+        name="altitude",
+        states=["z", "vz", "b_acc"],
+        inputs=["gamma_z", "cos_tilt"],
+        A=transition,
+        B=B,
+        Qc=np.diag([0.0, G_acc, G_bias]),
+        x0=np.zeros(3),
+        P0=np.diag([0.05**2, 0.05**2, P0_bias]),
+        measurements=meas,
+        doc=__doc__,
+    )

@@ -61,6 +61,7 @@ It runs as an extended Kalman filter in :class:`~groundstation.filters.ModelFilt
 (the measurement is linear; the dynamics relinearised each step). The rates
 are small-angle in the mounting only; the attitude itself is kept nonlinear.
 """
+
 from __future__ import annotations
 
 import math
@@ -89,10 +90,20 @@ def _with_w(u, cf: float, ct: float) -> bool:
     return len(u) > 3 and math.isfinite(u[3]) and cf * ct >= MIN_TILT_COS
 
 
-def attitude_drag_model(*, mu: float = 0.35, gyro_noise: float = 2.2e-4, G_v: float = 2e-4,
-                        sigma_accel: float = 0.08, bias_walk: float = 3e-6, P0_angle: float = 0.05,
-                        P0_bias: float = 0.05, P0_mount: float = 0.1, P0_v: float = 0.2,
-                        gyro_bias: bool = False, misalignment: bool = False) -> LinearModel:
+def attitude_drag_model(
+    *,
+    mu: float = 0.35,
+    gyro_noise: float = 2.2e-4,
+    G_v: float = 2e-4,
+    sigma_accel: float = 0.08,
+    bias_walk: float = 3e-6,
+    P0_angle: float = 0.05,
+    P0_bias: float = 0.05,
+    P0_mount: float = 0.1,
+    P0_v: float = 0.2,
+    gyro_bias: bool = False,
+    misalignment: bool = False,
+) -> LinearModel:
     """The drag attitude model. Noise as densities: ``gyro_noise`` [rad/s/sqrt(Hz)], ``G_v``
     [(m/s^2)^2/Hz] for what the velocity model leaves out (the ``q w`` terms, gusts),
     ``bias_walk`` [rad/s/sqrt(s)]; ``sigma_accel`` [m/s^2] per accelerometer sample: an update
@@ -155,8 +166,9 @@ def attitude_drag_model(*, mu: float = 0.35, gyro_noise: float = 2.2e-4, G_v: fl
             vd = float(u[3])
             w = body_w(vd, sf, cf, st, ct, vu, vv)
             # dw / d(phi, theta, u, v)
-            dW = np.array([(vd * sf / ct + st / ct * vu * sf - vv) / cf**2,
-                           (vd * st + vu) / (cf * ct**2), tt / cf, -sf / cf])
+            dW = np.array(
+                [(vd * sf / ct + st / ct * vu * sf - vv) / cf**2, (vd * st + vu) / (cf * ct**2), tt / cf, -sf / cf]
+            )
             J[2, :4] -= q * dW
             J[3, :4] += p * dW
         # through the rates: d x_dot / d(p, q, r) times d(p, q, r) / dx
@@ -180,11 +192,36 @@ def attitude_drag_model(*, mu: float = 0.35, gyro_noise: float = 2.2e-4, G_v: fl
 
     q = [gyro_noise**2] * 2 + [G_v] * 2 + [bias_walk**2] * 2 * gyro_bias + [0.0] * 2 * misalignment
     p0 = [P0_angle**2] * 2 + [P0_v**2] * 2 + [P0_bias**2] * 2 * gyro_bias + [P0_mount**2] * 2 * misalignment
-    meas = {"accel": MeasurementModel("accel", Kind.ACCEL, accel_xy, accel_row, np.eye(2) * sigma_accel**2,
-                                      instance=0, per_sample=True)}
-    options = dict(mu=mu, gyro_noise=gyro_noise, G_v=G_v, sigma_accel=sigma_accel, bias_walk=bias_walk,
-                   P0_angle=P0_angle, P0_bias=P0_bias, P0_mount=P0_mount, P0_v=P0_v, 
-                   gyro_bias=gyro_bias, misalignment=misalignment)
-    return LinearModel(name="attitude", states=states, inputs=["p", "q", "r", "v_d"], A=lambda u: np.zeros((n, n)),
-                       B=np.zeros((n, 4)), Qc=np.diag(q), x0=np.zeros(n), P0=np.diag(p0), measurements=meas,
-                       doc=__doc__, f=f, jacobian=jacobian, options=options)
+    meas = {
+        "accel": MeasurementModel(
+            "accel", Kind.ACCEL, accel_xy, accel_row, np.eye(2) * sigma_accel**2, instance=0, per_sample=True
+        )
+    }
+    options = dict(
+        mu=mu,
+        gyro_noise=gyro_noise,
+        G_v=G_v,
+        sigma_accel=sigma_accel,
+        bias_walk=bias_walk,
+        P0_angle=P0_angle,
+        P0_bias=P0_bias,
+        P0_mount=P0_mount,
+        P0_v=P0_v,
+        gyro_bias=gyro_bias,
+        misalignment=misalignment,
+    )
+    return LinearModel(
+        name="attitude",
+        states=states,
+        inputs=["p", "q", "r", "v_d"],
+        A=lambda u: np.zeros((n, n)),
+        B=np.zeros((n, 4)),
+        Qc=np.diag(q),
+        x0=np.zeros(n),
+        P0=np.diag(p0),
+        measurements=meas,
+        doc=__doc__,
+        f=f,
+        jacobian=jacobian,
+        options=options,
+    )

@@ -16,11 +16,12 @@ and never as hand-discretised matrices, and it can be **augmented**
 measurement, or changed measurement functions without touching the filter:
 the diagnosis adds effects exactly this way.
 """
+
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable
 
 import numpy as np
 from scipy.linalg import expm
@@ -56,7 +57,7 @@ class MeasurementModel:
     row: Callable[[Context], np.ndarray]
     R: np.ndarray
     offset: Callable[[Context], np.ndarray] | None = None
-    instance: int | None = None          # None: any instance
+    instance: int | None = None  # None: any instance
     #: state indices the update may correct; None: all. A constraint that describes an impulse the
     #: model lacks (the ground stopping a touchdown) corrects only the states it acts on, and the
     #: others keep what the data told them: a Schmidt ("consider") update
@@ -87,9 +88,9 @@ class LinearModel:
     name: str
     states: list[str]
     inputs: list[str]
-    A: Callable[[np.ndarray], np.ndarray]      # A(u)
+    A: Callable[[np.ndarray], np.ndarray]  # A(u)
     B: np.ndarray
-    Qc: np.ndarray                              # continuous process-noise density
+    Qc: np.ndarray  # continuous process-noise density
     x0: np.ndarray
     P0: np.ndarray
     measurements: dict[str, MeasurementModel]
@@ -110,9 +111,18 @@ class LinearModel:
     def index(self, state: str) -> int:
         return self.states.index(state)
 
-    def augmented(self, *, states: list[str] = (), A_extra: Callable | None = None, Qc_extra=(),
-                  x0_extra=(), P0_extra=(), coupling: Callable | None = None,
-                  measurements: dict[str, MeasurementModel] | None = None, name: str | None = None) -> "LinearModel":
+    def augmented(
+        self,
+        *,
+        states: list[str] = (),
+        A_extra: Callable | None = None,
+        Qc_extra=(),
+        x0_extra=(),
+        P0_extra=(),
+        coupling: Callable | None = None,
+        measurements: dict[str, MeasurementModel] | None = None,
+        name: str | None = None,
+    ) -> LinearModel:
         """A new model with extra states appended (random walks by default).
 
         ``coupling(u) -> (n_old x k)`` lets the new states drive the old ones
@@ -148,9 +158,20 @@ class LinearModel:
             old_row = mm.row
             meas[key] = replace(mm, row=lambda ctx, r=old_row: pad_row(r(ctx), k))
         meas.update(measurements or {})
-        return LinearModel(name or self.name, self.states + list(states), list(self.inputs), A, B, Qc,
-                           np.concatenate([self.x0, np.asarray(x0_extra, dtype=float)]), P0, meas,
-                           self.doc, list(self.notes), options=dict(self.options))
+        return LinearModel(
+            name or self.name,
+            self.states + list(states),
+            list(self.inputs),
+            A,
+            B,
+            Qc,
+            np.concatenate([self.x0, np.asarray(x0_extra, dtype=float)]),
+            P0,
+            meas,
+            self.doc,
+            list(self.notes),
+            options=dict(self.options),
+        )
 
 
 #: longest the held attitude is carried forward by its rates (a dropout holds it instead)
@@ -197,6 +218,7 @@ def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_c
                 return None
             ref = ctx.values[key] = ctx.values[acc_key] / ctx.values[n_key]
         return np.array([v - ref])
+
     return extract
 
 
@@ -215,8 +237,11 @@ def barometer(row: Callable[[Context], np.ndarray], R: np.ndarray) -> dict[str, 
 
     def baro_altitude(m, ctx):
         return None if ctx.values.get("baro_has_pressure") else from_altitude(m, ctx)
-    return {"baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R),
-            "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R)}
+
+    return {
+        "baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R),
+        "baro_alt": MeasurementModel("baro", Kind.BARO_ALTITUDE, baro_altitude, row, R),
+    }
 
 
 def unit_row(n: int, i: int) -> np.ndarray:

@@ -18,6 +18,7 @@ at 0.8 m/s was "explained" through the correlations. Used by the live thrust fil
 (:func:`groundstation.estimator.thrust_input_on_ground`, through :func:`contact_range`) and its diagnosis
 (:func:`groundstation.diagnosis.thrust._input`).
 """
+
 from __future__ import annotations
 
 import math
@@ -36,8 +37,8 @@ RANGE_FLOOR = 0.1
 #: m: at or below this estimated height, with the thrust not lifting the vehicle, it is on the
 #: ground; below RANGE_FLOOR no sensor can say otherwise
 CONTACT_H = 0.1
-CONTACT_MARGIN = 0.05    # m: a range reading this far above CONTACT_H says the vehicle has left the ground
-CONTACT_SIGMA = 0.02     # m: the height on the ground (landing gear, uneven ground)
+CONTACT_MARGIN = 0.05  # m: a range reading this far above CONTACT_H says the vehicle has left the ground
+CONTACT_SIGMA = 0.02  # m: the height on the ground (landing gear, uneven ground)
 #: s: a range reading above CONTACT_H keeps the model off the ground this long, whatever its
 #: estimate. Without it a touchdown's estimate, reaching CONTACT_H a little early, was reset to the
 #: ground while the range still read the vehicle 5-10 cm up (simulated R = 0.15 m flight: 2.7 mm RMS
@@ -71,8 +72,12 @@ def in_contact(v: dict, t: float, h: float, lifts: bool, *, known: bool = True) 
     was = v.get("in_contact")
     if not was and (seen_up or h > CONTACT_H + CONTACT_MARGIN):
         v["been_up"] = True
-    v["in_contact"] = (known and not lifts and not seen_up
-                       and (bool(was) or (h <= CONTACT_H and (was is None or bool(v.get("been_up"))))))
+    v["in_contact"] = (
+        known
+        and not lifts
+        and not seen_up
+        and (bool(was) or (h <= CONTACT_H and (was is None or bool(v.get("been_up")))))
+    )
     if v["in_contact"]:
         v["been_up"] = False
     return v["in_contact"]
@@ -96,16 +101,30 @@ def ground_contact(model: LinearModel) -> LinearModel:
     for key, mm in model.measurements.items():
         if mm.name != LANDED:
             continue
-        if key.startswith("on_ground_"):        # z = 0 with the range quiet; in contact, contact_ says it
-            meas[key] = replace(mm, extract=lambda m, ctx, idle=mm.extract: (
-                None if ctx.values.get("in_contact") else idle(m, ctx)), corrects=(iz,), reset=True)
+        if key.startswith("on_ground_"):  # z = 0 with the range quiet; in contact, contact_ says it
+            meas[key] = replace(
+                mm,
+                extract=lambda m, ctx, idle=mm.extract: None if ctx.values.get("in_contact") else idle(m, ctx),
+                corrects=(iz,),
+                reset=True,
+            )
         else:
-            meas[key] = replace(mm, extract=lambda m, ctx, idle=mm.extract: (
-                np.array([0.0]) if ctx.values.get("in_contact") else idle(m, ctx)), corrects=(iv,), reset=True)
+            meas[key] = replace(
+                mm,
+                extract=lambda m, ctx, idle=mm.extract: (
+                    np.array([0.0]) if ctx.values.get("in_contact") else idle(m, ctx)
+                ),
+                corrects=(iv,),
+                reset=True,
+            )
             meas[f"contact_{mm.kind.value}"] = replace(
-                mm, extract=lambda m, ctx: np.array([0.0]) if ctx.values.get("in_contact") else None,
-                row=lambda ctx, n=model.n: unit_row(n, iz), R=np.array([[CONTACT_SIGMA**2]]), corrects=(iz,),
-                reset=True)
+                mm,
+                extract=lambda m, ctx: np.array([0.0]) if ctx.values.get("in_contact") else None,
+                row=lambda ctx, n=model.n: unit_row(n, iz),
+                R=np.array([[CONTACT_SIGMA**2]]),
+                corrects=(iz,),
+                reset=True,
+            )
     return replace(model, measurements=meas)
 
 

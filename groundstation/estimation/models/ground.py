@@ -24,6 +24,7 @@ accelerometer and held there on the baro alone (the demo's live estimate stood a
 innovations say how well the model keeps to an assumption, not to a measurement,
 and they are not scored, tested or plotted as a sensor's.
 """
+
 from __future__ import annotations
 
 import math
@@ -100,12 +101,25 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
         return np.array([0.0]) if quiet and landed(ctx) else None
 
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
-        meas[f"landed_{kind.value}"] = MeasurementModel(LANDED, kind, still, lambda ctx, n=model.n: unit_row(n, iv),
-                                                        np.array([[SIGMA_STILL**2]]), untimed=True, **only)
+        meas[f"landed_{kind.value}"] = MeasurementModel(
+            LANDED,
+            kind,
+            still,
+            lambda ctx, n=model.n: unit_row(n, iv),
+            np.array([[SIGMA_STILL**2]]),
+            untimed=True,
+            **only,
+        )
         if height and "range" in meas:
             meas[f"on_ground_{kind.value}"] = MeasurementModel(
-                LANDED, kind, on_the_ground, lambda ctx, n=model.n: unit_row(n, iz), np.array([[SIGMA_ON_GROUND**2]]),
-                untimed=True, **only)
+                LANDED,
+                kind,
+                on_the_ground,
+                lambda ctx, n=model.n: unit_row(n, iz),
+                np.array([[SIGMA_ON_GROUND**2]]),
+                untimed=True,
+                **only,
+            )
     if height and "range" in meas:
         rng = meas["range"]
 
@@ -114,5 +128,6 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
             if z is not None:
                 ctx.values["range_read_at"] = m.t
             return z
+
         meas["range"] = replace(rng, extract=range_read)
     return replace(model, measurements=meas)

@@ -39,6 +39,7 @@ velocity the system is controllable; if we measured position it would be
 observable but not controllable" confuses the two: controllability does not
 depend on what is measured.
 """
+
 from __future__ import annotations
 
 import math
@@ -92,16 +93,17 @@ def euler_rates(p: float, e: float, w) -> np.ndarray:
 def arm_acceleration_body(p: float, e: float, e_dot: float, l_dot: float, e_dd: float, l_dd: float) -> np.ndarray:
     """The IMU point's acceleration (l_h out on the arm) in the IMU's FRD frame [m/s^2]."""
     se, ce, sp, cp = math.sin(e), math.cos(e), math.sin(p), math.cos(p)
-    a = L_H * np.array([-ce * (e_dot**2 + l_dot**2) - se * e_dd,
-                        -2 * se * e_dot * l_dot + ce * l_dd,
-                        se * e_dot**2 - ce * e_dd])
+    a = L_H * np.array(
+        [-ce * (e_dot**2 + l_dot**2) - se * e_dd, -2 * se * e_dot * l_dot + ce * l_dd, se * e_dot**2 - ce * e_dd]
+    )
     # R_IB(roll p, pitch e, yaw 0) = Ry(e) Rx(p); its transpose takes NED to body
-    ay = np.array([ce * a[0] - se * a[2], a[1], se * a[0] + ce * a[2]])          # Ry(e)^T a
-    return np.array([ay[0], cp * ay[1] + sp * ay[2], -sp * ay[1] + cp * ay[2]])   # Rx(p)^T
+    ay = np.array([ce * a[0] - se * a[2], a[1], se * a[0] + ce * a[2]])  # Ry(e)^T a
+    return np.array([ay[0], cp * ay[1] + sp * ay[2], -sp * ay[1] + cp * ay[2]])  # Rx(p)^T
 
 
-def heli3dof_model(*, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K_F,
-                   arm_acceleration: bool = True) -> LinearModel:
+def heli3dof_model(
+    *, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K_F, arm_acceleration: bool = True
+) -> LinearModel:
     A, B = matrices(K_f)
     K1, K2, K3 = gains(K_f)
     R = {**R_DEFAULT, **(R or {})}
@@ -113,8 +115,14 @@ def heli3dof_model(*, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K
         f = np.asarray(m.value, dtype=float)
         if arm_acceleration:
             p_hat = ctx.get("p_hat")
-            f = f - arm_acceleration_body(p_hat, ctx.get("e_hat"), ctx.get("e_dot_hat"), ctx.get("lambda_dot_hat"),
-                                          K2 * ctx.get("u_s"), K3 * p_hat)
+            f = f - arm_acceleration_body(
+                p_hat,
+                ctx.get("e_hat"),
+                ctx.get("e_dot_hat"),
+                ctx.get("lambda_dot_hat"),
+                K2 * ctx.get("u_s"),
+                K3 * p_hat,
+            )
         fx, fy, fz = f
         return np.array([math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))])
 
@@ -124,19 +132,30 @@ def heli3dof_model(*, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K
     meas = {
         "gyro": MeasurementModel("gyro", Kind.GYRO, gyro, lambda ctx: C_GYRO, np.asarray(R["gyro"])),
         "accel": MeasurementModel("accel", Kind.ACCEL, accel, lambda ctx: C_ACCEL, np.asarray(R["accel"])),
-        "encoders": MeasurementModel("encoders", Kind.ENCODERS, encoders, lambda ctx: C_ENC,
-                                     np.asarray(R["encoders"])),
-        "encoders_mav": MeasurementModel("encoders", Kind.ATTITUDE, encoders, lambda ctx: C_ENC,
-                                         np.asarray(R["encoders"])),
+        "encoders": MeasurementModel("encoders", Kind.ENCODERS, encoders, lambda ctx: C_ENC, np.asarray(R["encoders"])),
+        "encoders_mav": MeasurementModel(
+            "encoders", Kind.ATTITUDE, encoders, lambda ctx: C_ENC, np.asarray(R["encoders"])
+        ),
     }
-    return LinearModel(name="heli3dof", states=list(STATES), inputs=["Vs_tilde", "V_d"], A=lambda u: A, B=B,
-                       Qc=np.diag([0.0, G_acc, 0.0, G_acc, 0.0, G_acc]),
-                       x0=np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0]), P0=np.diag([0.05, 0.05, 0.1, 0.05, 0.05, 0.05]),
-                       measurements=meas, doc=__doc__)
+    return LinearModel(
+        name="heli3dof",
+        states=list(STATES),
+        inputs=["Vs_tilde", "V_d"],
+        A=lambda u: A,
+        B=B,
+        Qc=np.diag([0.0, G_acc, 0.0, G_acc, 0.0, G_acc]),
+        x0=np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0]),
+        P0=np.diag([0.05, 0.05, 0.1, 0.05, 0.05, 0.05]),
+        measurements=meas,
+        doc=__doc__,
+    )
 
 
 def observability_report() -> dict[str, int]:
     A, _ = matrices()
-    return {"gyro": observability_rank(A, C_GYRO),
-            "gyro+accel": observability_rank(A, np.vstack([C_GYRO, C_ACCEL])),
-            "encoders": observability_rank(A, C_ENC), "states": 6}
+    return {
+        "gyro": observability_rank(A, C_GYRO),
+        "gyro+accel": observability_rank(A, np.vstack([C_GYRO, C_ACCEL])),
+        "encoders": observability_rank(A, C_ENC),
+        "states": 6,
+    }

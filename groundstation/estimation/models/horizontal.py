@@ -25,6 +25,7 @@ correlation (-sigma_gps^2) rather than pretending the origin is exact.
 Attitude errors enter through the input (g delta_theta of false acceleration):
 ``G_acc`` covers them.
 """
+
 from __future__ import annotations
 
 import math
@@ -35,7 +36,7 @@ from groundstation.core.measurement import Kind
 
 from .base import LinearModel, MeasurementModel
 
-M_PER_DEG = 111_320.0        # metres per degree of latitude (and of longitude at the equator)
+M_PER_DEG = 111_320.0  # metres per degree of latitude (and of longitude at the equator)
 
 
 def local_ne(lat: float, lon: float, origin: tuple[float, float]) -> np.ndarray:
@@ -45,8 +46,9 @@ def local_ne(lat: float, lon: float, origin: tuple[float, float]) -> np.ndarray:
     return np.array([(lat - lat0) * M_PER_DEG, (lon - lon0) * M_PER_DEG * math.cos(math.radians(lat0))])
 
 
-def horizontal_model(*, G_acc: float = 0.05, sigma_gps: float = 1.0, tau_gps: float = 20.0,
-                     sigma_white: float = 0.3) -> LinearModel:
+def horizontal_model(
+    *, G_acc: float = 0.05, sigma_gps: float = 1.0, tau_gps: float = 20.0, sigma_white: float = 0.3
+) -> LinearModel:
     """Defaults: the simulated receiver (1 m Gauss-Markov over 20 s, 0.3 m white), a
     typical single-frequency GPS; ``G_acc`` [(m/s^2)^2/Hz] for attitude and IMU errors."""
     A = np.zeros((6, 6))
@@ -57,7 +59,7 @@ def horizontal_model(*, G_acc: float = 0.05, sigma_gps: float = 1.0, tau_gps: fl
     q_b = 2.0 * sigma_gps**2 / tau_gps
     H = np.array([[1.0, 0, 0, 0, 1.0, 0], [0, 1.0, 0, 0, 0, 1.0]])
     P0 = np.diag([sigma_gps**2 + 0.01, sigma_gps**2 + 0.01, 0.1**2, 0.1**2, sigma_gps**2, sigma_gps**2])
-    P0[0, 4] = P0[4, 0] = P0[1, 5] = P0[5, 1] = -sigma_gps**2
+    P0[0, 4] = P0[4, 0] = P0[1, 5] = P0[5, 1] = -(sigma_gps**2)
 
     def gps(m, ctx):
         lat, lon = float(m.value[0]), float(m.value[1])
@@ -66,6 +68,15 @@ def horizontal_model(*, G_acc: float = 0.05, sigma_gps: float = 1.0, tau_gps: fl
         return local_ne(lat, lon, (ctx.values["gps_origin_lat"], ctx.values["gps_origin_lon"]))
 
     meas = {"gps": MeasurementModel("gps", Kind.GPS, gps, lambda ctx: H, np.eye(2) * sigma_white**2)}
-    return LinearModel(name="horizontal", states=["n", "e", "vn", "ve", "b_n", "b_e"], inputs=["a_n", "a_e"],
-                       A=lambda u: A, B=B, Qc=np.diag([0.0, 0.0, G_acc, G_acc, q_b, q_b]),
-                       x0=np.zeros(6), P0=P0, measurements=meas, doc=__doc__)
+    return LinearModel(
+        name="horizontal",
+        states=["n", "e", "vn", "ve", "b_n", "b_e"],
+        inputs=["a_n", "a_e"],
+        A=lambda u: A,
+        B=B,
+        Qc=np.diag([0.0, 0.0, G_acc, G_acc, q_b, q_b]),
+        x0=np.zeros(6),
+        P0=P0,
+        measurements=meas,
+        doc=__doc__,
+    )

@@ -41,6 +41,7 @@ Observability (:func:`observability_report`): at a constant throttle only
 throttle varies; a bias on the only absolute sensor cannot be told from the
 height without another absolute sensor (GPS).
 """
+
 from __future__ import annotations
 
 import math
@@ -72,17 +73,31 @@ def _A(u, drag: float) -> np.ndarray:
     A[0, 1] = 1.0
     A[1, 2] = tau_c
     A[1, 3] = c
-    if u is not None and c != 0.0:     # airborne (the inputs are zero on the ground)
+    if u is not None and c != 0.0:  # airborne (the inputs are zero on the ground)
         A[1, 1] = -drag
     return A
 
 
-def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, drag: float = DRAG, G_acc: float = 0.002,
-                      G_alpha: float = 1e-3, G_beta: float = 1e-3, G_bar: float = 1e-4, G_tof: float = 1e-8,
-                      sigma_range: float = 0.0105, sigma_baro: float = 0.338, sigma_gps: float = 2.0,
-                      range_tilt: bool = True, use_gps: bool = False, sigma_alpha0: float = 4.0,
-                      sigma_beta0: float = 2.0, sigma_tof0: float = 0.002,
-                      range_limits: tuple[float, float] = (0.0, math.inf)) -> LinearModel:
+def quad_thrust_model(
+    *,
+    alpha0: float = 20.0,
+    beta0: float = 0.0,
+    drag: float = DRAG,
+    G_acc: float = 0.002,
+    G_alpha: float = 1e-3,
+    G_beta: float = 1e-3,
+    G_bar: float = 1e-4,
+    G_tof: float = 1e-8,
+    sigma_range: float = 0.0105,
+    sigma_baro: float = 0.338,
+    sigma_gps: float = 2.0,
+    range_tilt: bool = True,
+    use_gps: bool = False,
+    sigma_alpha0: float = 4.0,
+    sigma_beta0: float = 2.0,
+    sigma_tof0: float = 0.002,
+    range_limits: tuple[float, float] = (0.0, math.inf),
+) -> LinearModel:
     """``alpha0``/``beta0``: a priori thrust coefficients (document sec. 1: estimated offline).
     ``drag`` [1/s]: the airframe's vertical drag, ``v_dot -= drag v`` (added to the document's
     eq. 1-2, see the module's docstring).
@@ -119,10 +134,11 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, drag: float =
         d = float(m.value[0])
         if lo < d < hi:
             return np.array([d])
-        ctx.values["skip_why"] = "out_of_bounds"       # counted as range_out_of_bounds
+        ctx.values["skip_why"] = "out_of_bounds"  # counted as range_out_of_bounds
         return None
+
     B = np.zeros((6, 3))
-    B[1, 2] = -1.0                     # gravity, as a known input g
+    B[1, 2] = -1.0  # gravity, as a known input g
 
     def row(i, extra=None):
         r = np.zeros((1, 6))
@@ -138,20 +154,29 @@ def quad_thrust_model(*, alpha0: float = 20.0, beta0: float = 0.0, drag: float =
         return r
 
     meas = {
-        "range": MeasurementModel("range", Kind.RANGE, range_value, tof_row,
-                                  np.array([[sigma_range**2]])),
+        "range": MeasurementModel("range", Kind.RANGE, range_value, tof_row, np.array([[sigma_range**2]])),
         **barometer(lambda ctx: row(0, 4), np.array([[sigma_baro**2]])),
     }
     if use_gps:
-        meas["gps"] = MeasurementModel("gps", Kind.GPS,
-                                       relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
-                                       lambda ctx: row(0), np.array([[sigma_gps**2]]))
+        meas["gps"] = MeasurementModel(
+            "gps",
+            Kind.GPS,
+            relative_to_estimate(lambda m: float(m.value[2]), "gps_ref", 10),
+            lambda ctx: row(0),
+            np.array([[sigma_gps**2]]),
+        )
     return LinearModel(
-        name="quad_thrust", states=list(STATES), inputs=["tau_c", "c", "g"], A=lambda u: _A(u, drag), B=B,
+        name="quad_thrust",
+        states=list(STATES),
+        inputs=["tau_c", "c", "g"],
+        A=lambda u: _A(u, drag),
+        B=B,
         Qc=np.diag([0.0, G_acc, G_alpha, G_beta, G_bar, G_tof]),
         x0=np.array([0.0, 0.0, alpha0, beta0, 0.0, 0.0]),
         P0=np.diag([0.02**2, 0.05**2, sigma_alpha0**2, sigma_beta0**2, 0.3**2, sigma_tof0**2]),
-        measurements=meas, doc=__doc__)
+        measurements=meas,
+        doc=__doc__,
+    )
 
 
 def observability_report(model: LinearModel | None = None, throttles=(0.5, 0.6)) -> dict[str, int]:

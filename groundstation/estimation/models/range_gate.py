@@ -41,6 +41,7 @@ A range sensor whose minimum is above :data:`LIFTOFF_REACH` (none of the small r
 and time-of-flight sensors here) needs its floor given (``floor``, from a vehicle file's
 ``range_limits``); without it, its gate opens only :data:`CLOSED_HOLD` s into each flight.
 """
+
 from __future__ import annotations
 
 import math
@@ -87,7 +88,7 @@ def range_gate(model: LinearModel, *, floor: float = 0.0) -> LinearModel:
         v = ctx.values
         d = float(m.value[0])
         if "throttle" not in v:
-            return extract(m, ctx)          # no motors' state on the link: nothing to gate on
+            return extract(m, ctx)  # no motors' state on the link: nothing to gate on
         state = v.get("range_gate", UNSURE)
         if v["throttle"] < TAU_STOPPED:
             state, v["range_track"] = CLOSED, None
