@@ -252,12 +252,12 @@ def test_ground_station_heartbeats_are_not_vehicle_status():
     ],
 )
 def test_the_throttle_averages_only_the_outputs_that_drive_rotors(mav_type, throttle):
-    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle, read_vehicle_status
 
-    ctx = Context({})
+    ctx = Context()
     out, _ = decode(mavlink.MAVLink_heartbeat_message(mav_type, 3, mavlink.MAV_MODE_FLAG_SAFETY_ARMED, 0, 4, 3))
     read_vehicle_status(out[(Kind.VEHICLE_STATUS, 0)], ctx)
     out, _ = decode(mavlink.MAVLink_servo_output_raw_message(1000, 0, 1600, 1600, 1500, 1600, 0, 0, 0, 0))
     read_throttle(out[(Kind.ACTUATOR, 0)], ctx)
-    assert ctx.values["throttle"] == pytest.approx(throttle)
+    assert ctx.throttle == pytest.approx(throttle)

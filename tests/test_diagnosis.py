@@ -638,13 +638,13 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     from groundstation.diagnosis.engine import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import lag_throttle
-    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.context import Context
     from groundstation.estimation.models.ground import H_LANDED, TAU_GROUND, landed
 
-    assert landed(Context({"throttle": 0.1, "_x": np.array([0.05, 0.0])}))
-    assert not landed(Context({"throttle": 0.1, "_x": np.array([3.0, -2.0])}))
-    assert not landed(Context({"throttle": 0.5, "_x": np.array([0.0, 0.0])}))
-    assert landed(Context({"throttle": 0.0, "_x": np.array([5.0, 0.0])}))  # motors stopped: landed
+    assert landed(Context(throttle=0.1, x=np.array([0.05, 0.0])))
+    assert not landed(Context(throttle=0.1, x=np.array([3.0, -2.0])))
+    assert not landed(Context(throttle=0.5, x=np.array([0.0, 0.0])))
+    assert landed(Context(throttle=0.0, x=np.array([5.0, 0.0])))  # motors stopped: landed
     log = tmp_path / "dip.tlog"
     run_fast(
         Scenario.from_args("quad", 1002, 60.0, ["range_tilt"], [], flight="thrust_test"), log, log.with_suffix(".csv")
@@ -786,7 +786,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     def highest():
         run = run_model(su.model, su.prep, su.make)
         k = (run.t > spin) & (run.t < spin + 0.8)
-        return float(run.x[k, 0].max()), len(run.estimator.filter.ctx.values.get("range_spurious", ()))
+        return float(run.x[k, 0].max()), len(run.estimator.filter.ctx.range_spurious)
 
     z, skipped = highest()
     assert z < 0.15 and skipped == 6, (z, skipped)  # the model floats within 0.1 m at spin-up

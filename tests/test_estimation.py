@@ -62,12 +62,12 @@ def test_the_accelerometers_bias_acts_along_the_body_axis():
     body's up axis: the vertical input carries cos(20 deg) of the bias, and the model takes that share
     out. Held on the vertical, as the document has it, 10 s would sink the estimate by 1.2 m."""
     from groundstation.estimation.filters import ModelFilter
-    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.context import Context
     from groundstation.estimation.routing import vertical_acceleration
 
     b, roll = 0.4, math.radians(20.0)
     c = math.cos(roll)
-    ctx = Context({"down_row": (0.0, math.sin(roll), c)})  # (A_IB)_down for roll only
+    ctx = Context(down_row=(0.0, math.sin(roll), c))  # (A_IB)_down for roll only
     f_body = np.array([0.0, 0.0, -9.80665 / c - b])  # thrust holding the height; the bias (FRD z)
     u = vertical_acceleration(_m(0.0, Kind.ACCEL, f_body), ctx)
     assert u == pytest.approx([c * b, c])
@@ -342,17 +342,17 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
     from groundstation.diagnosis.thrust import throttle_series
-    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle
 
-    ctx = Context({})
+    ctx = Context()
     thr = [Measurement(t, Kind.THROTTLE, np.array([0.50]), "sim") for t in (0.0, 0.1)]
     pwm = Measurement(0.05, Kind.ACTUATOR, np.array([0.503] * 4 + [math.nan] * 4), "sim")
     read_throttle(thr[0], ctx)
-    assert ctx.values["throttle"] == 0.50  # no outputs yet: THROTTLE is all there is
+    assert ctx.throttle == 0.50  # no outputs yet: THROTTLE is all there is
     read_throttle(pwm, ctx)
     read_throttle(thr[1], ctx)
-    assert ctx.values["throttle"] == pytest.approx(0.503)
+    assert ctx.throttle == pytest.approx(0.503)
     assert throttle_series([thr[0], pwm, thr[1]]) == [(0.05, pytest.approx(0.503))]
     assert throttle_series(thr) == [(0.0, 0.5), (0.1, 0.5)]  # a log without outputs
 
@@ -363,10 +363,10 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     voltage carried forward between readings was off by k (0.77^2 - 0.5^2) = 1.6 V after each step,
     and thrust_voltage's n = 1.5 read 1.85 (with a false actuator lag beside it)."""
     from groundstation.diagnosis.battery import load_line
-    from groundstation.estimation.models.base import Context
+    from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle, throttle_at_reading
 
-    ctx = Context({})
+    ctx = Context()
     read_throttle(Measurement(10.98, Kind.ACTUATOR, np.array([0.5] * 4), "sim"), ctx)
     read_throttle(Measurement(11.0, Kind.ACTUATOR, np.array([0.77] * 4), "sim"), ctx)
     assert throttle_at_reading(ctx, 11.0) == 0.5 and throttle_at_reading(ctx, 11.01) == 0.77

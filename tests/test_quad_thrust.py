@@ -88,9 +88,8 @@ def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_reading
     assert load_line(flat, throttle) is None
     assert load_line([m for m in ms if m.kind is not Kind.BATTERY_VOLTAGE], throttle) is None
     # between readings: the reading taken at tau = 0.4, the throttle now 0.5
-    values = {"voltage_sag": k, "voltage_tau2": 0.4**2}
-    assert loaded_voltage(11.0, 0.5, values) == pytest.approx(11.0 - k * (0.25 - 0.16))
-    assert loaded_voltage(11.0, 0.5, {}) == 11.0  # no load line: the reading held
+    assert loaded_voltage(11.0, 0.5, sag=k, tau2=0.4**2) == pytest.approx(11.0 - k * (0.25 - 0.16))
+    assert loaded_voltage(11.0, 0.5) == 11.0  # no load line: the reading held
 
 
 def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_the_discharge():
@@ -132,8 +131,7 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
     assert np.sqrt(np.mean(err**2)) < 0.005 and abs(np.mean(err)) < 0.002, (np.sqrt(np.mean(err**2)), np.mean(err))
     assert oc.at(t[-1] + 1.0) == pytest.approx(12.4 - 0.03 * (t[-1] + 1.0), abs=0.02)
     # the thrust model's voltage at throttle 0.5: the smoothed V_oc less the load line's sag
-    values = {"voltage_sag": 4.8, "voltage_tau2": 0.16, "voltage_oc": oc}
-    assert loaded_voltage(11.0, 0.5, values, t[-1]) == pytest.approx(oc.at(t[-1]) - 4.8 * 0.25)
+    assert loaded_voltage(11.0, 0.5, sag=4.8, tau2=0.16, oc=oc, t=t[-1]) == pytest.approx(oc.at(t[-1]) - 4.8 * 0.25)
 
 
 def test_thrust_voltage_is_the_exact_power_law_at_its_estimate():

@@ -161,18 +161,23 @@ class OpenCircuitVoltage:
         return float(np.interp(t, self.t, self.level))
 
 
-def loaded_voltage(volt: float, tau: float, values: dict, t: float | None = None) -> float:
-    """The voltage at throttle ``tau`` (the module's docstring); ``values``: the filter's context,
-    with the fitted ``voltage_sag`` k, and either the smoothed open-circuit voltage
-    (``voltage_oc``, an :class:`OpenCircuitVoltage`, at time ``t``) or the throttle at the latest
-    reading ``volt`` (``voltage_tau2``), which is then carried forward as read."""
-    k = values.get("voltage_sag")
-    oc = values.get("voltage_oc")
+def loaded_voltage(
+    volt: float,
+    tau: float,
+    *,
+    sag: float | None = None,
+    oc: OpenCircuitVoltage | None = None,
+    tau2: float | None = None,
+    t: float | None = None,
+) -> float:
+    """The voltage at throttle ``tau`` (the module's docstring): with the fitted load line's
+    ``sag`` k, either the smoothed open-circuit voltage ``oc`` at time ``t``, or the latest reading
+    ``volt`` taken at throttle^2 ``tau2`` and carried forward to ``tau``; the reading as it is
+    without a load line."""
     if not math.isfinite(tau) or volt <= 0.0:
         return volt
     if oc is not None and t is not None:
-        return oc.at(t) - (k or 0.0) * tau * tau
-    s0 = values.get("voltage_tau2")
-    if not k or s0 is None:
+        return oc.at(t) - (sag or 0.0) * tau * tau
+    if not sag or tau2 is None:
         return volt
-    return volt - k * (tau * tau - s0)
+    return volt - sag * (tau * tau - tau2)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
 
 from .run import in_time_order
@@ -177,18 +178,20 @@ def scale_accelerometer(ms: list[Measurement], s: float) -> list[Measurement]:
     return [m._replace(value=m.value * (1.0 + s)) if m.kind is Kind.ACCEL else m for m in ms]
 
 
-def _temperature(ctx) -> float:
-    t0 = ctx.values.get("temperature_0")
-    return ctx.get("temperature") - t0 if t0 is not None else 0.0
+def _temperature(ctx: Context) -> float:
+    t0 = ctx.temperature_0
+    return ctx.temperature - t0 if t0 is not None and ctx.temperature is not None else 0.0
 
 
-def _ground(ctx) -> float:
+def _ground(ctx: Context) -> float:
     # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate. A logged
     # throttle says when they run; the vibration (low-passed 0.3 s) only stands in for one, as it
     # lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35)
-    v = ctx.values
-    running = v["throttle"] > 0.05 if "throttle" in v else ctx.get("vibration") > 0.05
-    return math.exp(-max(0.0, ctx.get("z")) / 0.5) if running else 0.0
+    if ctx.throttle is not None:
+        running = ctx.throttle > 0.05
+    else:
+        running = ctx.vibration is not None and ctx.vibration > 0.05
+    return math.exp(-max(0.0, ctx.z) / 0.5) if running else 0.0
 
 
 def altitude_catalogue(kinds: set) -> list[Candidate]:
@@ -224,7 +227,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     1,
                     set(),
                     "baro",
-                    lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.get("throttle_lp"), 10.0**2),
+                    lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.throttle_lp or 0.0, 10.0**2),
                     _state_param("k", "k_thrust"),
                 )
             )

@@ -52,7 +52,7 @@ from groundstation.estimation.whiteness import ljung_box
 from .catalogue import unit_of
 from .engine import CLOSE_CALL, Diagnosis
 from .run import Run
-from .thrust import LIFTOFF_REACH
+from .thrust import LIFTOFF_REACH, ThrustContext
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, float] | None = None) -> dict:
@@ -71,7 +71,8 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
             "ljung_box_p": float(ljung_box(e)),
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
-        spurious = run.estimator.filter.ctx.values.get(f"{s}_spurious")
+        ctx = run.estimator.filter.ctx
+        spurious = ctx.range_spurious if isinstance(ctx, ThrustContext) and s == "range" else ()
         if spurious:  # thrust.LIFTOFF_REACH
             out["sensors"][s]["skipped_spurious"] = len(spurious)
             late = (delays or {}).get(s, 0.0)

@@ -22,8 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
-from groundstation.estimation.models.base import Context, LinearModel
+from groundstation.estimation.models.base import LinearModel
 
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
 # scored. Its innovations are smooth (n / n_eff = 199 on a simulated flight): a clean quad's
@@ -238,9 +239,10 @@ def run_model(
         xs.append(f.kf.x.copy())
         Ps.append(f.kf.P.copy())
         d = sig.setdefault(rec.sensor, {k: [] for k in SIGNALS})
-        v = f.ctx.values
+        ctx = f.ctx
         for k in SIGNALS:
-            d[k].append(v.get(k, math.nan))
+            value = getattr(ctx, k)
+            d[k].append(math.nan if value is None else value)
     log = est.filter.log
     sensors = {}
     ll_by, inflation, n_sc = {}, {}, 0
@@ -284,13 +286,14 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         est.context[kind] = rule
 
     def lowpass(ctx: Context, key: str, value: float, t: float, tc: float) -> None:
-        v = ctx.values
-        t_last = v.get(key + "_t")
+        """``ctx.<key>`` low-passed towards ``value`` with time constant ``tc``; ``ctx.<key>_t`` its time."""
+        t_last = getattr(ctx, key + "_t")
         if t_last is None:
-            v[key] = value
+            setattr(ctx, key, value)
         elif t > t_last:
-            v[key] += (value - v[key]) * (1.0 - math.exp(-(t - t_last) / tc))
-        v[key + "_t"] = t
+            old = getattr(ctx, key)
+            setattr(ctx, key, old + (value - old) * (1.0 - math.exp(-(t - t_last) / tc)))
+        setattr(ctx, key + "_t", t)
 
     def throttle(m, ctx):
         tau = collective(m, ctx)
@@ -301,14 +304,15 @@ def add_signal_rules(est: KalmanEstimator) -> None:
 
     def temperature(m, ctx):
         if m.instance == 0:
-            ctx.values["temperature"] = float(m.value[0])
-            ctx.values.setdefault("temperature_0", float(m.value[0]))
+            ctx.temperature = float(m.value[0])
+            if ctx.temperature_0 is None:
+                ctx.temperature_0 = ctx.temperature
 
     def voltage(m, ctx):
-        ctx.values["voltage"] = float(m.value[0])
+        ctx.voltage = float(m.value[0])
 
     def current(m, ctx):
-        ctx.values["current"] = float(m.value[0])
+        ctx.current = float(m.value[0])
 
     def vibration(m, ctx):
         # the accelerometer's deviation from its own low-passed value: rotors turning
@@ -316,7 +320,7 @@ def add_signal_rules(est: KalmanEstimator) -> None:
             return
         f = float(np.linalg.norm(m.value))
         lowpass(ctx, "f_lp", f, m.t, 1.0)
-        lowpass(ctx, "vibration", (f - ctx.values["f_lp"]) ** 2, m.t, VIBRATION_TC)
+        lowpass(ctx, "vibration", (f - ctx.f_lp) ** 2, m.t, VIBRATION_TC)
 
     chain(Kind.THROTTLE, throttle)
     chain(Kind.ACTUATOR, throttle)

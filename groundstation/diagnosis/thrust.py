@@ -47,13 +47,15 @@ Candidates (names as in the issue's catalogue):
 from __future__ import annotations
 
 import math
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.units import G
+from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
-from groundstation.estimation.models.base import Context, LinearModel
+from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.contact import (
     CONTACT_H,
     RANGE_FLOOR,
@@ -78,8 +80,6 @@ from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigm
 from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
 from .run import SETTLE_S
 
-G = 9.80665
-_LEVEL = np.array([0.0, 0.0, 1.0])
 GE_MIN_H = 0.1  # m: below this the first-order ground-effect term is not used
 #: s after the model leaves the ground during which the ground-effect term is not used. The model's
 #: lift-off is late: held on the ground until its thrust without ground effect lifts it or the range
@@ -137,10 +137,10 @@ def thrust_model(
         if landed(ctx):
             return None
         z = extract(mm, ctx)
-        on_the_ground = ctx.values.get("z", 0.0) <= CONTACT_H  # the estimate's height (_update sets it)
+        on_the_ground = ctx.z <= CONTACT_H  # the estimate's height (the estimator sets it)
         if z is not None and on_the_ground and z[0] > LIFTOFF_REACH:
             # a tuple, replaced: a checkpoint's shallow copy of the context must not share it
-            ctx.values["range_spurious"] = ctx.values.get("range_spurious", ()) + (mm.t,)
+            ctx.range_spurious = ctx.range_spurious + (mm.t,)
             return None
         # a reading at all (on the ground the sensor reads below its floor, and none is used)
         return note_range(z, mm.t, ctx)
@@ -158,7 +158,7 @@ def thrust_model(
 def _motor_outputs_of(ms: list[Measurement]) -> int:
     for m in ms:
         if m.kind is Kind.VEHICLE_STATUS:
-            ctx = Context({})
+            ctx = Context()
             read_vehicle_status(m, ctx)
             return motor_outputs(ctx)
     return 4
@@ -270,7 +270,9 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
         prior["voltage_oc"] = oc  # the readings' open-circuit voltage, smoothed (battery.py)
     if curve:
         # the voltage the thrust model's input will see (battery.loaded_voltage), at each throttle
-        volt = (lambda t, tau: loaded_voltage(oc.at(t), tau, prior, t)) if oc is not None else None
+        def volt(t, tau):
+            return loaded_voltage(oc.at(t), tau, sag=prior.get("voltage_sag"), oc=oc, t=t)
+
         fit = thrust_curve(
             prep.measurements,
             th,
@@ -286,50 +288,65 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     return prior
 
 
-def _input(m: Measurement, ctx: Context) -> np.ndarray:
-    tau = ctx.get("throttle")
-    v = ctx.values
-    volt = v.get("voltage", 0.0)  # 0 until a reading: u must stay finite (B u)
+@dataclass(eq=False, kw_only=True)
+class ThrustContext(Context):
+    """The thrust diagnosis model's context: the battery's load line and the states its input reads."""
+
+    voltage_ref: float | None = None  #: the voltage alpha's prior was read at [V]
+    voltage_sag: float | None = None  #: the load line's k: V = V_oc - k tau^2 (battery.py)
+    voltage_oc: OpenCircuitVoltage | None = None  #: the readings' open-circuit voltage, smoothed
+    voltage_tau2: float | None = None  #: tau^2 at the latest battery reading
+    i_n_voltage: int | None = None  #: thrust_voltage's state index, when the model has it
+    i_R2_rotor: int | None = None  #: thrust_ground_effect's state index, likewise
+    left_ground_at: float | None = None  #: when the model last left the ground
+    range_spurious: tuple[float, ...] = ()  #: the times of range echoes skipped on the ground
+
+
+def _input(m: Measurement, ctx: ThrustContext) -> np.ndarray:
+    tau = ctx.tau
+    volt = ctx.voltage if ctx.voltage is not None else 0.0  # 0 until a reading: u must stay finite (B u)
     if not math.isfinite(volt):
         volt = 0.0
-    volt = loaded_voltage(volt, tau, v, m.t)  # between the battery's readings
-    x = v.get("_x")
+    # between the battery's readings
+    volt = loaded_voltage(volt, tau, sag=ctx.voltage_sag, oc=ctx.voltage_oc, tau2=ctx.voltage_tau2, t=m.t)
+    x = ctx.x
     h = float(x[0]) if x is not None else 0.0
-    c = v.get("down_row", _LEVEL)[2]
+    c = ctx.down_row[2]
     a_t = float(x[2]) * tau + float(x[3]) if x is not None else G
     # the thrust the model flies with: with thrust_voltage, times (V / V_ref)^n at the estimate. Judged
     # without it, a throttle blip after a touchdown "lifted" a vehicle whose modelled thrust was below
     # its weight, and the model fell through the ground (1.2 m in 1.5 s, a simulated n = 1.5 flight)
-    v_ref = v.get("voltage_ref", 0.0)
-    n_hat, a_v = _voltage_terms(x, v.get("_i_n_voltage"), volt, v_ref, a_t * c)
+    v_ref = ctx.voltage_ref if ctx.voltage_ref is not None else 0.0
+    n_hat, a_v = _voltage_terms(x, ctx.i_n_voltage, volt, v_ref, a_t * c)
     r_n = (volt / v_ref) ** n_hat if n_hat and volt > 0.0 and v_ref > 0.0 else 1.0
     lifts = a_t * c * r_n > G  # or a range reading above the ground (thrust_model's range_airborne)
     # on the ground (models.contact): reached at CONTACT_H with the thrust not lifting the vehicle, left
     # when it does or a range reading sees the vehicle up
-    contact = in_contact(v, m.t, h, lifts, known=x is not None)
+    contact = in_contact(ctx, m.t, h, lifts, known=x is not None)
     if contact or landed(ctx):
         # on the ground: its reaction cancels thrust and weight (eq. 1-2 do not say so); driven
         # by them, the model would fly through the ground, and the constant thrust coefficients
         # would be fitted to that (a clean simulated quad's 0.8 m/s touchdown with the throttle
         # at 0.36: alpha, beta = 13.7, 3.0 without the ground, 22.02, -1.20 with it, beta left
         # free; the simulator's are 22, -1.2)
-        v.pop("left_ground_at", None)
-        return np.array([0.0, 0.0, 0.0, volt, h, 0.0, v.get("voltage_ref", 0.0), 0.0, 0.0])
-    if "voltage_ref" not in v and volt > 0:
-        v["voltage_ref"] = volt  # without a prior's: when the rotors first carry the vehicle
-    off = v.setdefault("left_ground_at", m.t)
-    if m.t - off < GE_SETTLE:
+        ctx.left_ground_at = None
+        return np.array([0.0, 0.0, 0.0, volt, h, 0.0, v_ref, 0.0, 0.0])
+    if ctx.voltage_ref is None and volt > 0:
+        ctx.voltage_ref = volt  # without a prior's: when the rotors first carry the vehicle
+    if ctx.left_ground_at is None:
+        ctx.left_ground_at = m.t
+    if m.t - ctx.left_ground_at < GE_SETTLE:
         h = 0.0  # thrust_ground_effect's term not used yet (GE_SETTLE)
-    elif h >= GE_MIN_H and "_i_R2_rotor" in v and x is not None:
-        q = max(float(x[v["_i_R2_rotor"]]), 0.0)
+    elif h >= GE_MIN_H and ctx.i_R2_rotor is not None and x is not None:
+        q = max(float(x[ctx.i_R2_rotor]), 0.0)
         h = max(h, math.sqrt(q))  # (R/4h)^2 holds for h >= R
         # 1 / (1 - s) - 1, s = R^2 / 16 h^2, linearised about R^2's estimate (thrust_ground_effect): the
         # coupling's slope through an effective height, the rest through a_V
         s = min(q / (16.0 * h * h), GE_S_MAX)
         h *= 1.0 - s
         a_v -= a_t * c * s * s / (1.0 - s) ** 2
-    if v_ref <= 0.0:
-        v_ref = v.get("voltage_ref", 0.0)  # set just above: r = 1, so n_hat's terms are 0 this step
+    if v_ref <= 0.0 and ctx.voltage_ref is not None:
+        v_ref = ctx.voltage_ref  # set just above: r = 1, so n_hat's terms are 0 this step
     return np.array([tau * c, c, G, volt, h, a_t, v_ref, n_hat, a_v])
 
 
@@ -354,13 +371,13 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
     return n, a_tc * (rn - 1.0 - n * rn * math.log(r))
 
 
-def _battery_voltage(m: Measurement, ctx: Context) -> None:
+def _battery_voltage(m: Measurement, ctx: ThrustContext) -> None:
     """The throttle at the battery's reading: without the log's smoothed open-circuit voltage
     (``voltage_oc``, from :func:`hover_prior`) the load line carries the reading from it to the
     throttle of each step (battery.loaded_voltage)."""
     tau = throttle_at_reading(ctx, m.t)
     if tau is not None and math.isfinite(tau):
-        ctx.values["voltage_tau2"] = tau * tau
+        ctx.voltage_tau2 = tau * tau
 
 
 def thrust_estimator(model: LinearModel) -> KalmanEstimator:
@@ -377,13 +394,14 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
             Kind.BATTERY_VOLTAGE: _battery_voltage,
         },
     )
-    for key in ("voltage_ref", "voltage_sag", "voltage_oc"):
-        if model.options.get(key):
-            est.filter.ctx.values[key] = model.options[key]
-    if "n_voltage" in model.states:
-        est.filter.ctx.values["_i_n_voltage"] = model.index("n_voltage")
-    if "R2_rotor" in model.states:
-        est.filter.ctx.values["_i_R2_rotor"] = model.index("R2_rotor")
+    opts = model.options
+    est.filter.ctx = ThrustContext(
+        voltage_ref=opts.get("voltage_ref") or None,
+        voltage_sag=opts.get("voltage_sag") or None,
+        voltage_oc=opts.get("voltage_oc") or None,
+        i_n_voltage=model.index("n_voltage") if "n_voltage" in model.states else None,
+        i_R2_rotor=model.index("R2_rotor") if "R2_rotor" in model.states else None,
+    )
     return est
 
 

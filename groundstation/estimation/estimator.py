@@ -15,8 +15,9 @@ import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 
+from .context import Context
 from .filters import InnovationRecord, ModelFilter
-from .models.base import Context, LinearModel
+from .models.base import LinearModel
 
 InputRule = Callable[[Measurement, Context], "np.ndarray | None"]
 ContextRule = Callable[[Measurement, Context], None]
@@ -100,9 +101,7 @@ class KalmanEstimator:
             return True
         if t < f.t - self.jump_back or t > f.t + self.max_gap:
             self.counters.reinitialisations += 1
-            refs = {k: v for k, v in f.ctx.values.items() if not k.endswith("_ref")}
-            f.reset(t)
-            f.ctx.values.update(refs)
+            f.reset(t)  # the context (calibrations, tilt, throttle) carries over: same vehicle, same sensors
             return True
         return t >= f.t - 1e-9
 
@@ -112,11 +111,11 @@ class KalmanEstimator:
             self.counters.skip("not_finite")
             return None
         f = self.filter
-        f.ctx.values["t"] = m.t
+        f.ctx.t = m.t
         rule = self.context.get(m.kind)
         if rule is not None:
-            f.ctx.values["_x"] = f.kf.x
-            f.ctx.values["_u"] = f.u
+            f.ctx.x = f.kf.x
+            f.ctx.u = f.u
             rule(m, f.ctx)
         inp = self.inputs.get(m.kind)
         mms = self._by_kind.get(m.kind)
@@ -141,9 +140,9 @@ class KalmanEstimator:
         for mm in mms:
             if mm.instance is not None and m.instance != mm.instance:
                 continue
-            f.ctx.values["z"] = float(f.x[0])
+            f.ctx.z = float(f.x[0])
             z = mm.extract(m, f.ctx)
-            why = f.ctx.values.pop("skip_why", None)  # an extract's own reason (models.range_gate)
+            why, f.ctx.skip_why = f.ctx.skip_why, None  # an extract's own reason (models.range_gate)
             if z is None:
                 self.counters.skip(f"{mm.name}_{why or 'not_used'}")  # calibrating, out of range
                 continue

@@ -15,13 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
-from .models.base import (
-    Context,
-    LinearModel,
-    MeasurementModel,
-    discretize,
-    discretize_series,
-)
+from .context import Context
+from .models.base import LinearModel, MeasurementModel, discretize, discretize_series
 
 #: |A| dt below which the discretisation's integrals are summed as a series (models.base.discretize_series)
 SERIES_LIMIT = 0.2
@@ -183,7 +178,7 @@ class ModelFilter:
             self.kf.x.copy(),
             self.kf.P.copy(),
             self.u.copy(),
-            dict(self.ctx.values),
+            self.ctx.copy(),
             len(self.log.records),
             self.updates,
         )
@@ -194,7 +189,7 @@ class ModelFilter:
         self.t, self.u, self.updates = t, u.copy(), updates
         self.kf.x, self.kf.P = x.copy(), P.copy()
         self._pending_n = 0
-        self.ctx.values = dict(ctx)
+        self.ctx.set_to(ctx)
         del self.log.records[n_log:]
 
     def _update_only(self, mm: MeasurementModel, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:

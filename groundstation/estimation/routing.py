@@ -16,10 +16,11 @@ from groundstation.core.frames import euler_from_quaternion
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.units import G
 
+from .context import Context
 from .estimator import KalmanEstimator
 from .models.altitude import altitude_model
 from .models.attitude_drag import attitude_drag_model
-from .models.base import Context, LinearModel
+from .models.base import LinearModel
 from .models.contact import in_contact
 from .models.ground import landed
 from .models.heli3dof import V_S0, heli3dof_model
@@ -29,8 +30,7 @@ from .models.quad_thrust import quad_thrust_model
 
 # -- the altitude estimator's routing (coaxial document, chapter 9) ---------------------------
 def set_tilt(ctx: Context, roll: float, pitch: float, yaw: float = 0.0) -> None:
-    v = ctx.values
-    v["roll"], v["pitch"], v["yaw"] = roll, pitch, yaw
+    ctx.roll, ctx.pitch, ctx.yaw = roll, pitch, yaw
     # the rows of A_IB (coaxial doc. eq. 3.10): body -> world, kept with the
     # attitude (50 Hz) rather than recomputed per IMU sample (1 kHz)
     sf, cf, st, ct, sp, cp = (
@@ -41,25 +41,25 @@ def set_tilt(ctx: Context, roll: float, pitch: float, yaw: float = 0.0) -> None:
         math.sin(yaw),
         math.cos(yaw),
     )
-    v["north_row"] = (cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st)
-    v["east_row"] = (ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf)
-    v["down_row"] = (-st, ct * sf, cf * ct)
+    ctx.north_row = (cp * ct, cp * sf * st - cf * sp, sf * sp + cf * cp * st)
+    ctx.east_row = (ct * sp, cf * cp + sf * sp * st, cf * sp * st - cp * sf)
+    ctx.down_row = (-st, ct * sf, cf * ct)
 
 
 def read_attitude(m: Measurement, ctx: Context) -> None:
     set_tilt(ctx, float(m.value[0]), float(m.value[1]), float(m.value[2]) if len(m.value) > 2 else 0.0)
-    ctx.values["attitude_t"] = m.t
+    ctx.attitude_t = m.t
 
 
 def read_angular_rate(m: Measurement, ctx: Context) -> None:
     """The attitude message's body rates: the held attitude is carried forward with them
     (models.base.tilt_now; p, q are the Euler rates to first order in the tilt)."""
-    ctx.values["roll_rate"], ctx.values["pitch_rate"] = float(m.value[0]), float(m.value[1])
+    ctx.roll_rate, ctx.pitch_rate = float(m.value[0]), float(m.value[1])
 
 
 def read_quaternion(m: Measurement, ctx: Context) -> None:
     set_tilt(ctx, *euler_from_quaternion(*m.value))
-    ctx.values["attitude_t"] = m.t
+    ctx.attitude_t = m.t
 
 
 def read_throttle(m: Measurement, ctx: Context) -> None:
@@ -72,10 +72,9 @@ def read_throttle(m: Measurement, ctx: Context) -> None:
 def set_throttle(ctx: Context, tau: float, t: float) -> None:
     """The throttle from ``t`` on; the one before stays as ``throttle_before`` for a reading at
     that same instant (:func:`throttle_at_reading`)."""
-    v = ctx.values
-    if v.get("throttle_since") != t:
-        v["throttle_before"] = v.get("throttle")
-    v["throttle"], v["throttle_since"] = tau, t
+    if ctx.throttle_since != t:
+        ctx.throttle_before = ctx.throttle
+    ctx.throttle, ctx.throttle_since = tau, t
 
 
 def throttle_at_reading(ctx: Context, t: float) -> float | None:
@@ -83,13 +82,12 @@ def throttle_at_reading(ctx: Context, t: float) -> float | None:
     that instant has not yet drawn its current: a simulated thrust test flight steps its throttle
     on the battery's 5 Hz grid, and a reading paired with the step's new throttle put up to
     1.6 V of error in the voltage carried forward (thrust_voltage's n = 1.5 read 1.85)."""
-    v = ctx.values
-    return v.get("throttle_before") if v.get("throttle_since", -math.inf) >= t else v.get("throttle")
+    since = ctx.throttle_since if ctx.throttle_since is not None else -math.inf
+    return ctx.throttle_before if since >= t else ctx.throttle
 
 
 #: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
 #: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which.
-#: Named from pymavlink: the numbers were once typed by hand, and a coax (3) got four.
 MOTOR_OUTPUTS = {
     mavlink.MAV_TYPE_QUADROTOR: 4,
     mavlink.MAV_TYPE_COAXIAL: 2,
@@ -101,13 +99,13 @@ MOTOR_OUTPUTS = {
 
 
 def motor_outputs(ctx: Context) -> int:
-    return int(ctx.values.get("motor_outputs", 4))
+    return ctx.motor_outputs
 
 
 def read_vehicle_status(m: Measurement, ctx: Context) -> None:
     """The vehicle's type (HEARTBEAT): which outputs are motors."""
     if len(m.value) > 3 and np.isfinite(m.value[3]):
-        ctx.values["motor_outputs"] = MOTOR_OUTPUTS.get(int(m.value[3]), 4)
+        ctx.motor_outputs = MOTOR_OUTPUTS.get(int(m.value[3]), 4)
 
 
 def collective(m: Measurement, ctx: Context) -> float | None:
@@ -123,9 +121,9 @@ def collective(m: Measurement, ctx: Context) -> float | None:
         v = v[np.isfinite(v)]  # the motors' outputs, then the unused among them (not servos' in their place)
         if not len(v):
             return None
-        ctx.values["throttle_from_outputs"] = True
+        ctx.throttle_from_outputs = True
         return float(np.mean(v))
-    if ctx.values.get("throttle_from_outputs") or not len(m.value) or not math.isfinite(m.value[0]):
+    if ctx.throttle_from_outputs or not len(m.value) or not math.isfinite(m.value[0]):
         return None
     return float(m.value[0])
 
@@ -137,11 +135,8 @@ def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     if m.instance != 0:
         return None
     fx, fy, fz = m.value.tolist()
-    a, b, c = ctx.values.get("down_row", LEVEL)
+    a, b, c = ctx.down_row
     return np.array([-(a * fx + b * fy + c * fz) - G, c])
-
-
-LEVEL = (0.0, 0.0, 1.0)
 
 
 def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
@@ -169,8 +164,7 @@ def gyro_rates(m: Measurement, ctx: Context) -> np.ndarray | None:
     (NED down; NaN if none within :data:`VD_MAX_AGE`: the model then leaves its terms out)."""
     if m.instance != 0:
         return None
-    v = ctx.values
-    vd = v["v_d"] if m.t - v.get("v_d_t", -math.inf) <= VD_MAX_AGE else math.nan
+    vd = ctx.v_d if m.t - ctx.v_d_t <= VD_MAX_AGE else math.nan
     return np.array([float(m.value[0]), float(m.value[1]), float(m.value[2]), vd])
 
 
@@ -178,7 +172,7 @@ def read_vertical_velocity(m: Measurement, ctx: Context) -> None:
     """v_d from VELOCITY_NED (down) or CLIMB_RATE (up)."""
     vd = float(m.value[2]) if m.kind is Kind.VELOCITY_NED else -float(m.value[0])
     if math.isfinite(vd):  # a GNSS board's VELOCITY_NED has no vertical component
-        ctx.values["v_d"], ctx.values["v_d_t"] = vd, m.t
+        ctx.v_d, ctx.v_d_t = vd, m.t
 
 
 def attitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
@@ -201,7 +195,7 @@ def horizontal_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     if m.instance != 0:
         return None
     f = m.value.tolist()
-    rn, re_ = ctx.values.get("north_row", (1.0, 0.0, 0.0)), ctx.values.get("east_row", (0.0, 1.0, 0.0))
+    rn, re_ = ctx.north_row, ctx.east_row
     return np.array([rn[0] * f[0] + rn[1] * f[1] + rn[2] * f[2], re_[0] * f[0] + re_[1] * f[1] + re_[2] * f[2]])
 
 
@@ -217,20 +211,19 @@ def horizontal_estimator(model: LinearModel | None = None) -> KalmanEstimator:
 def thrust_input(m: Measurement, ctx: Context) -> np.ndarray | None:
     """u = (tau c, c, g): throttle times tilt, tilt, gravity (see models.quad_thrust);
     all zero on the ground, where the document's model does not apply (landed: below ground idle)."""
-    tau = ctx.get("throttle")
+    tau = ctx.tau
     if landed(ctx):
         return np.zeros(3)
-    c = ctx.values.get("down_row", LEVEL)[2]
+    c = ctx.down_row[2]
     return np.array([tau * c, c, G])
 
 
 def thrust_input_on_ground(m: Measurement, ctx: Context) -> np.ndarray | None:
     """:func:`thrust_input`, zero also in contact with the ground with the rotors turning
-    (:mod:`groundstation.models.contact`, whose resets and range readings the model then has)."""
-    v = ctx.values
-    x = v.get("_x")
-    lifts = x is not None and (float(x[2]) * ctx.get("throttle") + float(x[3])) * v.get("down_row", LEVEL)[2] > G
-    if in_contact(v, m.t, float(x[0]) if x is not None else 0.0, lifts, known=x is not None):
+    (:mod:`.models.contact`, whose resets and range readings the model then has)."""
+    x = ctx.x
+    lifts = x is not None and (float(x[2]) * ctx.tau + float(x[3])) * ctx.down_row[2] > G
+    if in_contact(ctx, m.t, float(x[0]) if x is not None else 0.0, lifts, known=x is not None):
         return np.zeros(3)
     return thrust_input(m, ctx)
 
@@ -268,24 +261,23 @@ def motor_voltages(m: Measurement, ctx: Context) -> np.ndarray | None:
 def estimate_for_accel(m: Measurement, ctx: Context) -> None:
     """The arm's own acceleration (removed before the gravity direction is read) needs
     the angles, the rates and the input."""
-    x, u = ctx.values.get("_x"), ctx.values.get("_u")
+    x, u = ctx.x, ctx.u
     if x is not None:
-        v = ctx.values
-        v["p_hat"], v["p_dot_hat"], v["e_hat"], v["e_dot_hat"], v["lambda_dot_hat"] = (
+        ctx.p_hat, ctx.p_dot_hat, ctx.e_hat, ctx.e_dot_hat, ctx.lambda_dot_hat = (
             float(x[0]),
             float(x[1]),
             float(x[2]),
             float(x[3]),
             float(x[5]),
         )
-        v["u_s"] = float(u[0]) if u is not None and len(u) else 0.0
+        ctx.u_s = float(u[0]) if u is not None and len(u) else 0.0
 
 
 def estimate_for_gyro(m: Measurement, ctx: Context) -> None:
     """The gyro's Euler-rate transform needs the current pitch and elevation."""
-    x = ctx.values.get("_x")
+    x = ctx.x
     if x is not None:
-        ctx.values["p_hat"], ctx.values["e_hat"] = float(x[0]), float(x[2])
+        ctx.p_hat, ctx.e_hat = float(x[0]), float(x[2])
 
 
 def heli3dof_estimator(model: LinearModel | None = None) -> KalmanEstimator:
@@ -294,5 +286,5 @@ def heli3dof_estimator(model: LinearModel | None = None) -> KalmanEstimator:
         inputs={Kind.ACTUATOR: motor_voltages, Kind.MOTOR_VOLTAGE: motor_voltages},
         context={Kind.GYRO: estimate_for_gyro, Kind.ACCEL: estimate_for_accel},
     )
-    est.filter.ctx.values["_x"] = est.filter.kf.x
+    est.filter.ctx.x = est.filter.kf.x
     return est

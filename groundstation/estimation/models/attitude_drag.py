@@ -179,14 +179,14 @@ def attitude_drag_model(
     def accel_xy(m, ctx):
         if m.instance != 0:
             return None
-        ctx.values["f_z"] = float(m.value[2])
+        ctx.f_z = float(m.value[2])
         return np.array([float(m.value[0]), float(m.value[1])])
 
     def accel_row(ctx):
         H = np.zeros((2, n))
         H[0, 2] = H[1, 3] = -mu
         if im is not None:
-            fz = ctx.get("f_z", -G)
+            fz = ctx.f_z if ctx.f_z is not None else -G
             H[0, im + 1], H[1, im] = -fz, fz
         return H
 

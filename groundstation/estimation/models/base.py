@@ -29,16 +29,7 @@ from scipy.linalg import expm
 from groundstation.core.atmosphere import altitude_at
 from groundstation.core.measurement import Kind, Measurement
 
-
-@dataclass
-class Context:
-    """What measurement models may use besides the state: the latest inputs
-    and auxiliary signals (attitude, throttle, ...), by name."""
-
-    values: dict[str, float] = field(default_factory=dict)
-
-    def get(self, name: str, default: float = 0.0) -> float:
-        return self.values.get(name, default)
+from ..context import Context, Zero
 
 
 @dataclass
@@ -179,19 +170,18 @@ ATTITUDE_HOLD_MAX = 0.1
 
 
 def tilt_now(ctx: Context) -> tuple[float, float]:
-    """Roll and pitch at the measurement's time ``ctx["t"]``: the latest attitude message
+    """Roll and pitch at the measurement's time ``ctx.t``: the latest attitude message
     carried forward by its body rates (first order; an autopilot sends attitude at 10-50 Hz
     and a range sensor reads in between). Held as it came, a 50 Hz attitude is on average
     10 ms old. With the IMU blocks' stamping (diagnosis.run.block_mean), this made the range
     of clean simulated flights look 5.5 ms early (now 2.5 ms), and a true 30 ms range delay
     was measured as 22-28 ms."""
-    v = ctx.values
-    roll, pitch = v.get("roll", 0.0), v.get("pitch", 0.0)
-    t_att = v.get("attitude_t")
-    if t_att is not None and "roll_rate" in v and "t" in v:
-        dt = min(max(v["t"] - t_att, 0.0), ATTITUDE_HOLD_MAX)
-        roll += v["roll_rate"] * dt
-        pitch += v["pitch_rate"] * dt
+    roll, pitch = ctx.roll, ctx.pitch
+    t_att = ctx.attitude_t
+    if t_att is not None and ctx.roll_rate is not None and ctx.pitch_rate is not None and ctx.t is not None:
+        dt = min(max(ctx.t - t_att, 0.0), ATTITUDE_HOLD_MAX)
+        roll += ctx.roll_rate * dt
+        pitch += ctx.pitch_rate * dt
     return roll, pitch
 
 
@@ -205,18 +195,20 @@ def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_c
     """An extractor for an absolute altitude (baro, GPS) made relative to the
     ground station's zero: its first ``n_cal`` readings are averaged against the
     estimate of z (no update meanwhile: the extractor returns None), so the zero
-    carries 1/sqrt(n_cal) of one reading's noise instead of all of it."""
-    acc_key, n_key = key + "_sum", key + "_n"
+    carries 1/sqrt(n_cal) of one reading's noise instead of all of it. ``key`` names the
+    zero in the context's :attr:`~.Context.zeros`."""
 
     def extract(m: Measurement, ctx: Context) -> np.ndarray | None:
         v = value_of(m)
-        ref = ctx.values.get(key)
+        zero = ctx.zeros.get(key, Zero())
+        ref = zero.ref
         if ref is None:
-            ctx.values[acc_key] = ctx.get(acc_key) + v - ctx.get("z")
-            ctx.values[n_key] = ctx.get(n_key) + 1
-            if ctx.values[n_key] < n_cal:
+            total, n = zero.total + v - ctx.z, zero.n + 1
+            if n < n_cal:
+                ctx.zeros[key] = Zero(total, n)
                 return None
-            ref = ctx.values[key] = ctx.values[acc_key] / ctx.values[n_key]
+            ref = total / n
+            ctx.zeros[key] = Zero(total, n, ref)
         return np.array([v - ref])
 
     return extract
@@ -232,11 +224,11 @@ def barometer(row: Callable[[Context], np.ndarray], R: np.ndarray) -> dict[str, 
     from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)
 
     def baro_pressure(m, ctx):
-        ctx.values["baro_has_pressure"] = 1.0
+        ctx.baro_has_pressure = True
         return from_pressure(m, ctx)
 
     def baro_altitude(m, ctx):
-        return None if ctx.values.get("baro_has_pressure") else from_altitude(m, ctx)
+        return None if ctx.baro_has_pressure else from_altitude(m, ctx)
 
     return {
         "baro": MeasurementModel("baro", Kind.BARO_PRESSURE, baro_pressure, row, R),

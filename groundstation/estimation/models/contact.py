@@ -21,11 +21,11 @@ at 0.8 m/s was "explained" through the correlations. Used by the live thrust fil
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 
 import numpy as np
 
+from ..context import Context
 from .base import LinearModel, unit_row
 from .ground import LANDED
 
@@ -52,15 +52,15 @@ def note_range(z: np.ndarray | None, t: float, ctx) -> np.ndarray | None:
     """A range reading ``z`` used at ``t``: above :data:`CONTACT_H` it says the vehicle is off the
     ground (for :data:`RANGE_SAYS_AIRBORNE` s), and above the margin it ends the contact now."""
     if z is not None and z[0] > CONTACT_H:
-        ctx.values["range_off_ground_at"] = t
+        ctx.range_off_ground_at = t
         if z[0] > CONTACT_H + CONTACT_MARGIN:
-            ctx.values["in_contact"] = False
+            ctx.in_contact = False
     return z
 
 
-def in_contact(v: dict, t: float, h: float, lifts: bool, *, known: bool = True) -> bool:
-    """Whether the vehicle stands on the ground at ``t`` (module docstring), kept in the context's
-    values ``v``: ``h`` the estimated height, ``lifts`` the estimated thrust above the weight,
+def in_contact(ctx: Context, t: float, h: float, lifts: bool, *, known: bool = True) -> bool:
+    """Whether the vehicle stands on the ground at ``t`` (module docstring), kept in the context
+    ``ctx``: ``h`` the estimated height, ``lifts`` the estimated thrust above the weight,
     ``known`` False before the filter has an estimate.
 
     Entered at the start or from above: a take-off whose thrust estimate dipped below the weight
@@ -68,19 +68,16 @@ def in_contact(v: dict, t: float, h: float, lifts: bool, *, known: bool = True) 
     read it 15 cm up (a clean simulated quad: d_tof 4 mm off, 5 mm of height error through the
     flight). Without the hysteresis the state flickered at CONTACT_H, and each flicker let the model
     fall for a step."""
-    seen_up = t - v.get("range_off_ground_at", -math.inf) < RANGE_SAYS_AIRBORNE
-    was = v.get("in_contact")
+    seen_up = t - ctx.range_off_ground_at < RANGE_SAYS_AIRBORNE
+    was = ctx.in_contact
     if not was and (seen_up or h > CONTACT_H + CONTACT_MARGIN):
-        v["been_up"] = True
-    v["in_contact"] = (
-        known
-        and not lifts
-        and not seen_up
-        and (bool(was) or (h <= CONTACT_H and (was is None or bool(v.get("been_up")))))
+        ctx.been_up = True
+    ctx.in_contact = (
+        known and not lifts and not seen_up and (bool(was) or (h <= CONTACT_H and (was is None or ctx.been_up)))
     )
-    if v["in_contact"]:
-        v["been_up"] = False
-    return v["in_contact"]
+    if ctx.in_contact:
+        ctx.been_up = False
+    return ctx.in_contact
 
 
 def ground_contact(model: LinearModel) -> LinearModel:
@@ -104,22 +101,20 @@ def ground_contact(model: LinearModel) -> LinearModel:
         if key.startswith("on_ground_"):  # z = 0 with the range quiet; in contact, contact_ says it
             meas[key] = replace(
                 mm,
-                extract=lambda m, ctx, idle=mm.extract: None if ctx.values.get("in_contact") else idle(m, ctx),
+                extract=lambda m, ctx, idle=mm.extract: None if ctx.in_contact else idle(m, ctx),
                 corrects=(iz,),
                 reset=True,
             )
         else:
             meas[key] = replace(
                 mm,
-                extract=lambda m, ctx, idle=mm.extract: (
-                    np.array([0.0]) if ctx.values.get("in_contact") else idle(m, ctx)
-                ),
+                extract=lambda m, ctx, idle=mm.extract: np.array([0.0]) if ctx.in_contact else idle(m, ctx),
                 corrects=(iv,),
                 reset=True,
             )
             meas[f"contact_{mm.kind.value}"] = replace(
                 mm,
-                extract=lambda m, ctx: np.array([0.0]) if ctx.values.get("in_contact") else None,
+                extract=lambda m, ctx: np.array([0.0]) if ctx.in_contact else None,
                 row=lambda ctx, n=model.n: unit_row(n, iz),
                 R=np.array([[CONTACT_SIGMA**2]]),
                 corrects=(iz,),
@@ -139,8 +134,8 @@ def contact_range(model: LinearModel) -> LinearModel:
 
     def range_read(m, ctx, extract=rng.extract):
         z = extract(m, ctx)
-        if z is not None and ctx.values.get("in_contact") and z[0] <= CONTACT_H + CONTACT_MARGIN:
-            ctx.values["skip_why"] = "in_contact"
+        if z is not None and ctx.in_contact and z[0] <= CONTACT_H + CONTACT_MARGIN:
+            ctx.skip_why = "in_contact"
             return None
         return note_range(z, m.t, ctx)
 

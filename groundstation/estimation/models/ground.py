@@ -34,7 +34,8 @@ import numpy as np
 
 from groundstation.core.measurement import Kind
 
-from .base import Context, LinearModel, MeasurementModel, unit_row
+from ..context import Context
+from .base import LinearModel, MeasurementModel, unit_row
 
 #: below this throttle the vehicle is taken to stand on the ground (the ground,
 #: not the thrust model, carries its weight); the thrust model is for flight
@@ -54,14 +55,14 @@ TAU_STOPPED = 0.05
 
 def landed(ctx: Context) -> bool:
     """The vehicle stands on the ground: the motors stopped, or the throttle below ground idle with
-    the estimated height (the state vector's first element, ``_x``, kept in the context) within
+    the estimated height (the state vector's first element, ``x``, kept in the context) within
     :data:`H_LANDED`."""
-    tau = ctx.get("throttle")
+    tau = ctx.tau
     if tau >= TAU_GROUND:
         return False
     if tau < TAU_STOPPED:
         return True
-    x = ctx.values.get("_x")
+    x = ctx.x
     return x is None or float(x[0]) <= H_LANDED
 
 
@@ -95,9 +96,9 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
 
     def on_the_ground(m, ctx):
         # the sensor has sent (a reading used, or one models.range_gate skipped) and none used lately
-        v = ctx.values
-        sent = "range_read_at" in v or "range_on_ground_at" in v
-        quiet = sent and m.t - v.get("range_read_at", -math.inf) > RANGE_QUIET
+        sent = ctx.range_read_at is not None or ctx.range_on_ground_at is not None
+        last = ctx.range_read_at if ctx.range_read_at is not None else -math.inf
+        quiet = sent and m.t - last > RANGE_QUIET
         return np.array([0.0]) if quiet and landed(ctx) else None
 
     for kind in (Kind.THROTTLE, Kind.ACTUATOR):
@@ -126,7 +127,7 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
         def range_read(m, ctx, extract=rng.extract):
             z = extract(m, ctx)
             if z is not None:
-                ctx.values["range_read_at"] = m.t
+                ctx.range_read_at = m.t
             return z
 
         meas["range"] = replace(rng, extract=range_read)

@@ -109,18 +109,18 @@ def heli3dof_model(
     R = {**R_DEFAULT, **(R or {})}
 
     def gyro(m, ctx):
-        return euler_rates(ctx.get("p_hat"), ctx.get("e_hat"), m.value)
+        return euler_rates(ctx.p_hat, ctx.e_hat, m.value)
 
     def accel(m, ctx):
         f = np.asarray(m.value, dtype=float)
         if arm_acceleration:
-            p_hat = ctx.get("p_hat")
+            p_hat = ctx.p_hat
             f = f - arm_acceleration_body(
                 p_hat,
-                ctx.get("e_hat"),
-                ctx.get("e_dot_hat"),
-                ctx.get("lambda_dot_hat"),
-                K2 * ctx.get("u_s"),
+                ctx.e_hat,
+                ctx.e_dot_hat,
+                ctx.lambda_dot_hat,
+                K2 * ctx.u_s,
                 K3 * p_hat,
             )
         fx, fy, fz = f

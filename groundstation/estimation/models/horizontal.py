@@ -63,9 +63,9 @@ def horizontal_model(
 
     def gps(m, ctx):
         lat, lon = float(m.value[0]), float(m.value[1])
-        if "gps_origin_lat" not in ctx.values:
-            ctx.values["gps_origin_lat"], ctx.values["gps_origin_lon"] = lat, lon
-        return local_ne(lat, lon, (ctx.values["gps_origin_lat"], ctx.values["gps_origin_lon"]))
+        if ctx.gps_origin is None:
+            ctx.gps_origin = (lat, lon)
+        return local_ne(lat, lon, ctx.gps_origin)
 
     meas = {"gps": MeasurementModel("gps", Kind.GPS, gps, lambda ctx: H, np.eye(2) * sigma_white**2)}
     return LinearModel(

@@ -134,7 +134,7 @@ def quad_thrust_model(
         d = float(m.value[0])
         if lo < d < hi:
             return np.array([d])
-        ctx.values["skip_why"] = "out_of_bounds"  # counted as range_out_of_bounds
+        ctx.skip_why = "out_of_bounds"  # counted as range_out_of_bounds
         return None
 
     B = np.zeros((6, 3))
@@ -206,4 +206,4 @@ def _obsv(A, C):
 
 
 def _level():
-    return Context({"roll": 0.0, "pitch": 0.0})
+    return Context()

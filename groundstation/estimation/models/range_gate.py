@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+from ..context import Context
 from .base import LinearModel
 from .ground import TAU_STOPPED
 
@@ -85,20 +86,19 @@ def range_gate(model: LinearModel, *, floor: float = 0.0) -> LinearModel:
     reach = floor + LIFTOFF_REACH
 
     def range_off_ground(m, ctx, extract=rng.extract):
-        v = ctx.values
         d = float(m.value[0])
-        if "throttle" not in v:
+        if ctx.throttle is None:
             return extract(m, ctx)  # no motors' state on the link: nothing to gate on
-        state = v.get("range_gate", UNSURE)
-        if v["throttle"] < TAU_STOPPED:
-            state, v["range_track"] = CLOSED, None
-        elif state != OPEN and _leaves_ground(v, m.t, d, reach, sure=state == CLOSED):
+        state = ctx.range_gate
+        if ctx.throttle < TAU_STOPPED:
+            state, ctx.range_track = CLOSED, None
+        elif state != OPEN and _leaves_ground(ctx, m.t, d, reach, sure=state == CLOSED):
             state = OPEN
-        v["range_gate"] = state
+        ctx.range_gate = state
         if state == OPEN or d <= reach:
             return extract(m, ctx)
-        v["skip_why"] = ON_GROUND
-        v["range_on_ground_at"] = m.t
+        ctx.skip_why = ON_GROUND
+        ctx.range_on_ground_at = m.t
         return None
 
     meas = dict(model.measurements)
@@ -106,7 +106,7 @@ def range_gate(model: LinearModel, *, floor: float = 0.0) -> LinearModel:
     return replace(model, measurements=meas)
 
 
-def _leaves_ground(v: dict, t: float, d: float, reach: float, *, sure: bool) -> bool:
+def _leaves_ground(ctx: Context, t: float, d: float, reach: float, *, sure: bool) -> bool:
     """Extend (or start, or drop) the track with the reading ``d`` at ``t``; True when it says the
     vehicle is in the air: it has climbed :data:`CLIMB_RISE` from within ``reach`` of the ground, or
     it has held :data:`UNSURE_HOLD` s (:data:`CLOSED_HOLD` s when ``sure`` the vehicle stood on the
@@ -114,15 +114,15 @@ def _leaves_ground(v: dict, t: float, d: float, reach: float, *, sure: bool) -> 
     shallow copy of the context must not share it."""
     if not math.isfinite(d):
         return False
-    track = v.get("range_track")
+    track = ctx.range_track
     if track is not None:
         t0, d0, t_last, d_last = track
         dt = t - t_last
         if 0.0 <= dt <= TRACK_GAP and abs(d - d_last) <= CLIMB_SPEED * dt + STEP_NOISE:
             if (d0 <= reach and d - d0 >= CLIMB_RISE) or t - t0 >= (CLOSED_HOLD if sure else UNSURE_HOLD):
-                v["range_track"] = None
+                ctx.range_track = None
                 return True
-            v["range_track"] = (t0, d0, t, d)
+            ctx.range_track = (t0, d0, t, d)
             return False
-    v["range_track"] = (t, d, t, d)
+    ctx.range_track = (t, d, t, d)
     return False
