@@ -94,9 +94,10 @@ def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(
     import json
 
     from groundstation.estimation import registry as estimators
+    from groundstation.estimation import vehicles
 
     (tmp_path / "typo.json").write_text(json.dumps({"quad_thrust": {"alhpa0": 22.0, "drag": 0.35}}))
-    monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
+    monkeypatch.setattr(vehicles, "VEHICLE_CONFIGS", tmp_path)
     with pytest.raises(ValueError, match="quad_thrust takes no 'alhpa0'; it takes .*alpha0"):
         estimators.vehicle_config("typo", "quad_thrust")
     assert estimators.vehicle_config("typo", "altitude") == {}

@@ -15,7 +15,7 @@ import pytest
 from drivers.replay import Replay
 from groundstation.diagnosis.detect import detect
 from groundstation.diagnosis.engine import diagnose, truth_from
-from groundstation.estimation.registry import declared_effects
+from groundstation.estimation.vehicles import declared_effects
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -435,7 +435,7 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
     0.0001, 8 of 8 pass (p 0.063-0.87). (0.0008, until session 18, had failed 4 of 8 with the hold.)"""
     from scipy.stats import chi2
 
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.estimation.whiteness import ljung_box
 
@@ -569,7 +569,7 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     Flown through the ground, the model fitted 14.2 and 2.8. With the airframe's drag (0.35 /s, as
     ``--vehicle sim_quad``): 21.37, -0.88; with the default 0.3, since the outputs are timely
     (session 16), beta read -0.77."""
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import hover_prior, thrust_model
 
@@ -635,7 +635,7 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     the motors are stopped."""
     import csv
 
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import lag_throttle
     from groundstation.estimation.context import Context
@@ -691,7 +691,7 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
     from dataclasses import replace
 
     from groundstation.diagnosis.catalogue import Candidate
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.trace import rank
 
@@ -725,7 +725,7 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
     much of the scale's evidence and move it legitimately: 0.0228 -> 0.0213 with the bias along the
     body axis), then within 0.00004."""
     from groundstation.diagnosis.catalogue import accel_scale
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
 
     log = tmp_path / "l.tlog"
@@ -773,7 +773,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     54.6-55.5 s): no lift-off reaches that from the ground between two readings, so in contact the
     model skips and counts them. Used, they launched it (20 m/s upwards there, 10 m up in 3 s)."""
     from groundstation.diagnosis import thrust
-    from groundstation.diagnosis.engine import setup
+    from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
 
     log = tmp_path / "t.tlog"

@@ -61,8 +61,8 @@ def test_the_accelerometers_bias_acts_along_the_body_axis():
     """A vehicle holding its height at 20 deg of roll, its accelerometer biased 0.4 m/s^2 along the
     body's up axis: the vertical input carries cos(20 deg) of the bias, and the model takes that share
     out. Held on the vertical, as the document has it, 10 s would sink the estimate by 1.2 m."""
-    from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.context import Context
+    from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.routing import vertical_acceleration
 
     b, roll = 0.4, math.radians(20.0)

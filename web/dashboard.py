@@ -28,8 +28,10 @@ import concurrent.futures
 import math
 import multiprocessing
 import socket
+import sys
 import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 import viser
@@ -39,13 +41,14 @@ from groundstation.core.counts import counted
 from groundstation.core.frames import quaternion_from_matrix
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdown
+from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.models.ground import LANDED
 
 from .control_panel import ControlPanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
-#: the models the Diagnosis panel offers (groundstation.diagnosis.engine.setup's)
-DIAGNOSIS_MODELS = ("altitude", "quad_thrust", "attitude")
+#: the models the Diagnosis panel offers
+DIAGNOSIS_MODELS = tuple(DIAGNOSABLE)
 
 
 def ned_to_view(v) -> np.ndarray:
@@ -128,9 +131,10 @@ class Dashboard:
         #: effects the session declares (the diagnosis does not look for them)
         self.declared: list[dict] = []
         #: the airframe file the session's estimator was given (--vehicle): the diagnosis starts from it too
-        self.vehicle: str | None = None
+        self.airframe: str | None = None
         self._build()
-        self._tasks: list[asyncio.Task] = []
+        #: update failures by one-line description, with their counts (:meth:`run`)
+        self.update_errors: dict[str, int] = {}
 
     # -- layout -----------------------------------------------------------------------------
     def _build(self) -> None:
@@ -140,7 +144,7 @@ class Dashboard:
         self.server.initial_camera.position = (-5.0, -3.0, 3.5)
         self.server.initial_camera.look_at = (0.0, 1.2, 1.0)
         sc.add_grid("/ground", width=20.0, height=20.0, cell_size=0.5, section_size=2.0)
-        self.vehicle = sc.add_frame("/vehicle", axes_length=0.3, axes_radius=0.012)
+        self.vehicle_frame = sc.add_frame("/vehicle", axes_length=0.3, axes_radius=0.012)
         sc.add_box("/vehicle/body", color=(40, 110, 220), dimensions=(0.35, 0.35, 0.08))
         self.ghost = sc.add_box(
             "/truth", color=(60, 200, 90), dimensions=(0.35, 0.35, 0.08), opacity=0.35, visible=False
@@ -240,7 +244,7 @@ class Dashboard:
         its model (the panel's choice, where it can diagnose it) and its counters (its skips, listed
         under the state)."""
         self.declared = list(declared)
-        self.vehicle = vehicle
+        self.airframe = vehicle
         self.estimator_counters = counters
         if model in DIAGNOSIS_MODELS:
             self.diagnosis_model.value = model
@@ -261,7 +265,7 @@ class Dashboard:
             if self._pool is None:
                 self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
             j = await asyncio.get_running_loop().run_in_executor(
-                self._pool, diagnose_window, ms, str(self.diagnosis_model.value), self.declared, self.vehicle
+                self._pool, diagnose_window, ms, str(self.diagnosis_model.value), self.declared, self.airframe
             )
             self.diagnosis_md.content = markdown(j, seconds)
             self.last_diagnosis = j
@@ -355,8 +359,8 @@ class Dashboard:
     def update_scene(self) -> None:
         pos, q = self._pose()
         p_view = ned_to_view(pos)
-        self.vehicle.position = p_view
-        self.vehicle.wxyz = frd_quat_to_view(q)
+        self.vehicle_frame.position = p_view
+        self.vehicle_frame.wxyz = frd_quat_to_view(q)
         if not self._trail or np.linalg.norm(self._trail[-1] - p_view) > 0.02:
             self._trail.append(p_view)
             self._trail_changed = True
@@ -444,13 +448,24 @@ class Dashboard:
         self.plot_updates += 1
 
     async def run(self) -> None:
-        """Push scene and panels at their rates until cancelled."""
+        """Push scene and panels at their rates until cancelled. An update that raises is reported
+        (:attr:`update_errors`, one line on stderr per new error) and the schedule goes on: one bad
+        frame must not freeze the view for the rest of the session."""
 
         def scene():
             if self._dirty:
                 self.update_scene()
 
-        await asyncio.gather(_every(1.0 / self.scene_hz, scene), _every(1.0 / self.plot_hz, self.update_panels))
+        await asyncio.gather(
+            _every(1.0 / self.scene_hz, scene, self._report),
+            _every(1.0 / self.plot_hz, self.update_panels, self._report),
+        )
+
+    def _report(self, what: str, e: BaseException) -> None:
+        line = f"{what}: {type(e).__name__}: {e}"
+        self.update_errors[line] = self.update_errors.get(line, 0) + 1
+        if self.update_errors[line] == 1:
+            print(f"dashboard: {line} (the updates go on)", file=sys.stderr, flush=True)
 
     def stop(self) -> None:
         if self._pool is not None:
@@ -458,12 +473,16 @@ class Dashboard:
         self.server.stop()
 
 
-async def _every(period: float, fn) -> None:
+async def _every(period: float, fn: Callable[[], None], report: Callable[[str, BaseException], None]) -> None:
     """Call ``fn`` on a fixed schedule (not sleep-after-work, which runs slow);
-    after a stall, resume the schedule rather than burst to catch up."""
+    after a stall, resume the schedule rather than burst to catch up. An exception of ``fn`` goes
+    to ``report`` with the function's name, and the schedule goes on."""
     nxt = time.monotonic()
     while True:
-        fn()
+        try:
+            fn()
+        except Exception as e:  # noqa: BLE001 - any failure of one frame is reported, not fatal
+            report(getattr(fn, "__name__", "update"), e)
         nxt += period
         delay = nxt - time.monotonic()
         if delay < 0:

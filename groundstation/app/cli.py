@@ -40,14 +40,8 @@ from groundstation.estimation.export import EstimateCsvWriter, MeasurementCsvWri
 from groundstation.estimation.logs import load_measurements
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.noise import load_noise, stationary_noise
-from groundstation.estimation.registry import (
-    MODELS,
-    build_estimator,
-    declared_beside,
-    declared_effects,
-    vehicle_config,
-)
-from groundstation.estimation.routing import horizontal_estimator
+from groundstation.estimation.registry import CLI_MODELS, build_estimator, vehicle_config
+from groundstation.estimation.vehicles import declared_beside, declared_effects
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
@@ -79,7 +73,7 @@ def _add_web_options(p: argparse.ArgumentParser) -> None:
 
 def _add_output_options(p: argparse.ArgumentParser) -> None:
     _add_web_options(p)
-    p.add_argument("--model", default="altitude", choices=MODELS, help="the estimator to run (default altitude)")
+    p.add_argument("--model", default="altitude", choices=CLI_MODELS, help="the estimator to run (default altitude)")
     p.add_argument(
         "--vehicle",
         help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
@@ -134,13 +128,13 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("file", type=Path)
     n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
     n.add_argument("file", type=Path)
-    n.add_argument("--model", default="heli3dof", choices=MODELS)
+    n.add_argument("--model", default="heli3dof", choices=CLI_MODELS)
     n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
     n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
     n.add_argument("--out", type=Path, help="write the JSON for --noise here")
     e = sub.add_parser("evaluate", help="run the estimators on a log; errors vs truth, NIS, whiteness")
     e.add_argument("file", type=Path)
-    e.add_argument("--model", default="altitude", choices=MODELS)
+    e.add_argument("--model", default="altitude", choices=CLI_MODELS)
     e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
     add_sim_parser(sub)
     add_diagnose_parser(sub)
@@ -255,7 +249,7 @@ class Outputs:
         if dashboard is not None:
             # the 3D view needs a horizontal place and its covariance; none of the
             # documents' models has one (see models/horizontal.py)
-            estimators.append(horizontal_estimator())
+            estimators.append(build_estimator("horizontal"))
             dashboard.attach_session(
                 model=args.model, declared=declared, counters=self.estimator.counters, vehicle=vehicle
             )

@@ -8,8 +8,9 @@ from pathlib import Path
 
 from groundstation.diagnosis import report
 from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.logs import load_measurements
-from groundstation.estimation.registry import declared_beside, declared_effects
+from groundstation.estimation.vehicles import declared_beside, declared_effects
 
 
 def add_parser(sub) -> None:
@@ -18,9 +19,8 @@ def add_parser(sub) -> None:
     d.add_argument(
         "--model",
         default="altitude",
-        choices=("altitude", "quad_thrust", "attitude"),
-        help="altitude (accelerometer as input; default), quad_thrust (throttle as input: thrust-side "
-        "effects) or attitude (raw IMU of a multirotor: gyro bias, IMU mounting)",
+        choices=tuple(DIAGNOSABLE),
+        help="; ".join(f"{name}: {spec.help}" for name, spec in DIAGNOSABLE.items()) + " (default altitude)",
     )
     d.add_argument("--out", type=Path, help="report directory (default: LOG.diagnosis/)")
     d.add_argument("--declared", type=Path, help="effects the model is told of (default: LOG.declared.json)")

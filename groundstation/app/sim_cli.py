@@ -13,7 +13,6 @@ from drivers.mavlink.link import MavlinkLink
 from groundstation.control.station import ControlStation
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.registry import build_estimator
-from groundstation.estimation.routing import horizontal_estimator
 from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
@@ -210,7 +209,7 @@ async def run_demo(args) -> int:
     if dash is not None:
         dash.attach_session(model=model, declared=declared, counters=estimators[0].counters)
     if dash is not None and args.vehicle != "heli3dof":  # the rig is bolted to the table
-        estimators.append(horizontal_estimator())
+        estimators.append(build_estimator("horizontal"))
     loop = EstimationLoop(estimators)
     snaps = loop.snapshots.subscribe(lossy=True, maxlen=1000)
     loop.attach_link(link)

@@ -15,41 +15,24 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
-from groundstation.estimation.estimator import KalmanEstimator
-from groundstation.estimation.models.altitude import altitude_model
-from groundstation.estimation.models.attitude_drag import attitude_drag_model
-from groundstation.estimation.models.base import LinearModel
-from groundstation.estimation.models.ground import LANDED, on_ground
-from groundstation.estimation.registry import vehicle_config
-from groundstation.estimation.routing import altitude_estimator, attitude_estimator
+from groundstation.estimation.models.ground import LANDED
 
-from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .catalogue import Candidate
 from .detect import Finding, detect
 from .discover import Discovery, discover
-from .outputs import interval_means
-from .run import Prepared, Run, in_time_order, prepare, run_model
-from .thrust import (
-    RANGE_FLOOR,
-    UNOBSERVABLE_THRUST,
-    hover_prior,
-    main_flight,
-    thrust_catalogue,
-    thrust_estimator,
-    thrust_model,
-)
+from .models import setup
+from .run import Run, run_model
 from .trace import Scored, rank, smallest_claimed
 
 #: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,
 #: came after four: the baro's drift, thrust loss, rotor and baro ground effect)
 MAX_EFFECTS = 5
-MIN_SECONDS = 10.0
 #: with truth, an effect whose fix makes the estimate's error against it this much worse (by a factor,
 #: and by more than :data:`VETO_FLOOR`) is rejected: its better fit to the measurements comes from
 #: something the model lacks, not from this effect (on a real Crazyflie log a "mounting error" of
@@ -203,129 +186,6 @@ def _modelled(run: Run) -> list[Effect]:
     return out
 
 
-@dataclass
-class Setup:
-    """What a diagnosis runs: the measurements it uses, prepared, and the base model."""
-
-    prep: Prepared
-    model: LinearModel
-    make: Callable[[LinearModel], KalmanEstimator]
-    catalogue: Callable
-    declared: set
-    airframe: dict | None = None  # the thrust curve read from the log (airframe.ThrustCurve.as_dict)
-
-
-def setup(
-    ms: list[Measurement],
-    *,
-    source: str = "",
-    model_name: str = "altitude",
-    declared: list[dict] = (),
-    vehicle: str | None = None,
-) -> Setup:
-    """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
-    cannot feed it)."""
-    names = {e.get("name") for e in declared}
-    airframe = None
-    if model_name == "quad_thrust":
-        window = main_flight(ms)
-        if window is not None:
-            ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
-        ms = interval_means(ms)  # the throttle between its records (outputs.py)
-    prep: Prepared = prepare(ms)
-    if model_name == "altitude":
-        model = _altitude_base(prep, names, vehicle)
-        make: Callable[[object], KalmanEstimator] = altitude_estimator
-        catalogue = altitude_catalogue
-        if Kind.ACCEL not in prep.kinds:
-            raise ValueError(
-                f"{source or 'log'}: the altitude model takes the accelerometer as its input and this "
-                "log has none; the thrust model needs only the throttle: --model quad_thrust"
-            )
-    elif model_name == "quad_thrust":
-        params = vehicle_config(vehicle, "quad_thrust")
-        if "range_limits" in params:
-            params["range_limits"] = tuple(params["range_limits"])
-        prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)))
-        curve = prior.pop("curve", None)
-        if curve is not None and "alpha0" not in params:
-            prior.update(curve.prior())  # the log's thrust curve (airframe.py) over the hover's
-            airframe = {**curve.as_dict(), "used": True}
-        elif curve is not None:
-            # the file's curve is used; the accelerometer's is read beside it, to say when it is not this log's
-            airframe = {
-                **curve.as_dict(),
-                "used": False,
-                "file_alpha": params["alpha0"],
-                "file_beta": params.get("beta0", 0.0),
-            }
-        params = {**prior, **params}
-        model = thrust_model(range_tilt="range_tilt" in names, **params)
-        make = thrust_estimator
-        catalogue = thrust_catalogue
-        if not prep.kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
-            raise ValueError(
-                f"{source or 'log'}: the thrust model takes the throttle as its input and this log "
-                "has none (no THROTTLE, SERVO_OUTPUT_RAW or RCOU)"
-            )
-    elif model_name == "attitude":
-        model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
-        make = attitude_estimator
-        catalogue = attitude_catalogue
-        if not {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
-            raise ValueError(
-                f"{source or 'log'}: the attitude model runs on the raw IMU (gyro and accelerometer) "
-                "and this log has no raw IMU"
-            )
-        prep = with_vertical_velocity(prep, names, vehicle)
-    else:
-        raise ValueError(f"diagnose: model {model_name!r} is not supported (use altitude, quad_thrust or attitude)")
-    if model_name != "attitude" and not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
-        raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
-    if prep.duration < MIN_SECONDS:
-        # the likelihood is scored from 5 s in (the filter settling): a shorter log scores nothing,
-        # and "no effect improves the model" would be said of no data at all
-        raise ValueError(
-            f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
-            f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
-        )
-    return Setup(prep, model, make, catalogue, names, airframe)
-
-
-def _altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearModel:
-    """The altitude model a diagnosis starts from: the vehicle's noise, the declared slant, and what a
-    person would set right before suspecting any effect (the ground, the baro's zero)."""
-    model = altitude_model(range_tilt="range_tilt" in names, **vehicle_config(vehicle, "altitude"))
-    if prep.logged_throttle:
-        # a logged throttle only: a stand-in derived from the range or the vibration would feed
-        # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
-        # "throttle" pattern in the range innovations)
-        model = on_ground(model, consider=True)
-    if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
-        model = baro_zero(model)
-    return model
-
-
-def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> Prepared:
-    """The attitude model's v_d input (models.attitude_drag: the q w and p w terms): the altitude
-    filter run over the same prepared log, its vertical speed as CLIMB_RATE (source "altitude model").
-    The log's own vertical velocity (VELOCITY_NED, CLIMB_RATE) is used only where that filter cannot
-    run (no accelerometer or no height sensor): the simulator's VFR_HUD climb is 0 throughout, and an
-    autopilot's estimate comes from a filter whose tuning the log does not say."""
-    if Kind.ACCEL not in prep.kinds or not prep.kinds & {Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
-        return prep
-    model = _altitude_base(prep, names, vehicle)
-    run = run_model(model, prep, altitude_estimator)
-    if not len(run.t):
-        return prep
-    up = run.x[:, model.index("vz")]
-    derived = [
-        Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model") for t, v in zip(run.t, up)
-    ]
-    rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
-    return replace(prep, measurements=sorted(rest + derived, key=in_time_order), kinds=prep.kinds | {Kind.CLIMB_RATE})
-
-
 def _joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> None:
     """An effect estimated as states is reported as the final model estimates it, jointly with every
     effect added after it; its value when it was added goes to the evidence. Read when it was added,
@@ -355,7 +215,7 @@ def diagnose(
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`VETO_FACTOR`); it never ranks or sizes an effect."""
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle)
-    prep, model, make, catalogue, names = su.prep, su.model, su.make, su.catalogue, su.declared
+    prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
     say("running the model (before)")
     base = run_model(model, prep, make)
@@ -427,11 +287,7 @@ def diagnose(
             d = discover(base, s)
             if d is not None:
                 discoveries.append(d)
-    unobs = dict(
-        {"altitude": UNOBSERVABLE["altitude"], "quad_thrust": UNOBSERVABLE_THRUST, "attitude": UNOBSERVABLE_ATTITUDE}[
-            model_name
-        ]
-    )
+    unobs = dict(su.spec.unobservable)
     against = []
     if truth is not None and "range" in base.sensors:
         against = _range_offset_against_truth(base, truth)

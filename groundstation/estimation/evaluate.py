@@ -22,7 +22,8 @@ from groundstation.core.measurement import Kind
 from .logs import load_measurements
 from .loop import EstimationLoop
 from .models.ground import LANDED
-from .registry import build_estimator, range_offset, vehicle_effects
+from .registry import build_estimator
+from .vehicles import range_offset, vehicle_effects
 from .whiteness import ljung_box
 
 

@@ -26,8 +26,8 @@ are not small: on simulated quadcopter flights with climbs and tilt manoeuvres t
 were the clean flights' accelerometer NIS of 2.10-2.11 (band [1.94, 2.06] for 5000
 two-component updates), and Ljung-Box p = 0.000 on the one at 2.10; with them, 1.97-2.02 and
 p = 0.56-0.79. The diagnosis feeds ``v_d`` from its own altitude filter run over the same log
-(:func:`groundstation.diagnosis.engine.with_vertical_velocity`); any other user of
-:func:`groundstation.estimator.attitude_estimator` gets it from a logged ``VELOCITY_NED`` or
+(:func:`groundstation.diagnosis.models.with_vertical_velocity`); any other user of
+:func:`groundstation.estimation.routing.attitude_estimator` gets it from a logged ``VELOCITY_NED`` or
 ``CLIMB_RATE``.
 
 The base model takes the measured rates for the true ones. Two catalogue effects

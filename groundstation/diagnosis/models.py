@@ -1,0 +1,224 @@
+"""The models a diagnosis can start from, by the registry's names, and how each is set up.
+
+Each :class:`DiagnosisSpec` extends a model of :data:`groundstation.estimation.registry.MODELS`
+with what the closed loop needs: how the log is prepared and the base model built from it
+(:func:`setup`), the estimator the loop runs, the catalogue of candidate effects the model can
+show, and the effects it cannot show with the reason. ``diagnose --model``, the dashboard's
+Diagnosis panel and the benchmarks read :data:`DIAGNOSABLE`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.altitude import altitude_model
+from groundstation.estimation.models.attitude_drag import attitude_drag_model
+from groundstation.estimation.models.base import LinearModel
+from groundstation.estimation.models.ground import on_ground
+from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
+from groundstation.estimation.routing import altitude_estimator, attitude_estimator
+
+from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
+from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .outputs import interval_means
+from .run import Prepared, in_time_order, prepare, run_model
+from .thrust import (
+    RANGE_FLOOR,
+    UNOBSERVABLE_THRUST,
+    hover_prior,
+    main_flight,
+    thrust_catalogue,
+    thrust_estimator,
+    thrust_model,
+)
+
+#: s: a shorter log is not diagnosed (the likelihood is scored from 5 s in, once the filter settles)
+MIN_SECONDS = 10.0
+HEIGHT_SENSORS = frozenset({Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE})
+
+
+@dataclass(frozen=True)
+class Base:
+    """What a model's setup gives the loop: the prepared log, the base model, and (the thrust
+    model) the thrust curve read from the log (``airframe.ThrustCurve.as_dict``)."""
+
+    prep: Prepared
+    model: LinearModel
+    airframe: dict | None = None
+
+
+@dataclass(frozen=True)
+class DiagnosisSpec:
+    model: ModelSpec  #: the registry's entry
+    help: str  #: what the model can find, for ``diagnose --help``
+    base: Callable[[list[Measurement], set, str | None], Base]  #: (measurements, declared names, vehicle)
+    make: Callable[[LinearModel], KalmanEstimator]  #: the estimator the loop runs each candidate model in
+    catalogue: Callable[[set[Kind]], list[Candidate]]  #: the candidates, given the log's kinds
+    unobservable: dict[str, str]  #: effects it cannot show, and why
+    needs: frozenset[Kind]  #: what the log must have: all of them, or with ``needs_any`` one of them
+    needs_why: str  #: the one line said when it has not
+    needs_any: bool = False
+    needs_height: bool = True  #: a range sensor or a barometer to diagnose against
+
+
+@dataclass
+class Setup:
+    """What a diagnosis runs: the measurements it uses, prepared, the base model and its spec."""
+
+    prep: Prepared
+    model: LinearModel
+    spec: DiagnosisSpec
+    declared: set
+    airframe: dict | None = None
+
+    @property
+    def make(self) -> Callable[[LinearModel], KalmanEstimator]:
+        return self.spec.make
+
+
+def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearModel:
+    """The altitude model a diagnosis starts from: the vehicle's noise, the declared slant, and what a
+    person would set right before suspecting any effect (the ground, the baro's zero)."""
+    model = altitude_model(range_tilt="range_tilt" in names, **vehicle_config(vehicle, "altitude"))
+    if prep.logged_throttle:
+        # a logged throttle only: a stand-in derived from the range or the vibration would feed
+        # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
+        # "throttle" pattern in the range innovations)
+        model = on_ground(model, consider=True)
+    if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+        model = baro_zero(model)
+    return model
+
+
+def _altitude(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
+    prep = prepare(ms)
+    return Base(prep, altitude_base(prep, names, vehicle))
+
+
+def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
+    window = main_flight(ms)
+    if window is not None:
+        ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
+    prep = prepare(interval_means(ms))  # the throttle between its records (outputs.py)
+    params = vehicle_config(vehicle, "quad_thrust")
+    if "range_limits" in params:
+        params["range_limits"] = tuple(params["range_limits"])
+    prior = hover_prior(prep, params.get("range_limits", (RANGE_FLOOR, math.inf)))
+    curve = prior.pop("curve", None)
+    airframe = None
+    if curve is not None and "alpha0" not in params:
+        prior.update(curve.prior())  # the log's thrust curve (airframe.py) over the hover's
+        airframe = {**curve.as_dict(), "used": True}
+    elif curve is not None:
+        # the file's curve is used; the accelerometer's is read beside it, to say when it is not this log's
+        airframe = {
+            **curve.as_dict(),
+            "used": False,
+            "file_alpha": params["alpha0"],
+            "file_beta": params.get("beta0", 0.0),
+        }
+    params = {**prior, **params}
+    return Base(prep, thrust_model(range_tilt="range_tilt" in names, **params), airframe)
+
+
+def _attitude(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
+    prep = prepare(ms)
+    model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
+    if {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
+        prep = with_vertical_velocity(prep, names, vehicle)
+    return Base(prep, model)
+
+
+def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> Prepared:
+    """The attitude model's v_d input (models.attitude_drag: the q w and p w terms): the altitude
+    filter run over the same prepared log, its vertical speed as CLIMB_RATE (source "altitude model").
+    The log's own vertical velocity (VELOCITY_NED, CLIMB_RATE) is used only where that filter cannot
+    run (no accelerometer or no height sensor): the simulator's VFR_HUD climb is 0 throughout, and an
+    autopilot's estimate comes from a filter whose tuning the log does not say."""
+    if Kind.ACCEL not in prep.kinds or not prep.kinds & HEIGHT_SENSORS:
+        return prep
+    model = altitude_base(prep, names, vehicle)
+    run = run_model(model, prep, altitude_estimator)
+    if not len(run.t):
+        return prep
+    up = run.x[:, model.index("vz")]
+    derived = [
+        Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model") for t, v in zip(run.t, up)
+    ]
+    rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
+    return replace(prep, measurements=sorted(rest + derived, key=in_time_order), kinds=prep.kinds | {Kind.CLIMB_RATE})
+
+
+DIAGNOSABLE: dict[str, DiagnosisSpec] = {
+    "altitude": DiagnosisSpec(
+        MODELS["altitude"],
+        "accelerometer as input: baro, range and accelerometer effects, sensor delays",
+        _altitude,
+        altitude_estimator,
+        altitude_catalogue,
+        UNOBSERVABLE["altitude"],
+        frozenset({Kind.ACCEL}),
+        "the altitude model takes the accelerometer as its input and this log has none; the thrust "
+        "model needs only the throttle: --model quad_thrust",
+    ),
+    "quad_thrust": DiagnosisSpec(
+        MODELS["quad_thrust"],
+        "throttle as input: thrust-side effects (voltage, ground effect, actuator lag) and the baro's",
+        _quad_thrust,
+        thrust_estimator,
+        thrust_catalogue,
+        UNOBSERVABLE_THRUST,
+        frozenset({Kind.THROTTLE, Kind.ACTUATOR}),
+        "the thrust model takes the throttle as its input and this log has none (no THROTTLE, "
+        "SERVO_OUTPUT_RAW or RCOU)",
+        needs_any=True,
+    ),
+    "attitude": DiagnosisSpec(
+        MODELS["attitude"],
+        "raw IMU of a multirotor: gyro bias, IMU mounting",
+        _attitude,
+        attitude_estimator,
+        attitude_catalogue,
+        UNOBSERVABLE_ATTITUDE,
+        frozenset({Kind.GYRO, Kind.ACCEL}),
+        "the attitude model runs on the raw IMU (gyro and accelerometer) and this log has no raw IMU",
+        needs_height=False,
+    ),
+}
+
+
+def setup(
+    ms: list[Measurement],
+    *,
+    source: str = "",
+    model_name: str = "altitude",
+    declared: list[dict] = (),
+    vehicle: str | None = None,
+) -> Setup:
+    """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
+    cannot feed it)."""
+    spec = DIAGNOSABLE.get(model_name)
+    if spec is None:
+        raise ValueError(f"diagnose: model {model_name!r} is not supported (use {', '.join(DIAGNOSABLE)})")
+    names = {e.get("name") for e in declared}
+    base = spec.base(ms, names, vehicle)
+    prep = base.prep
+    has = bool(spec.needs & prep.kinds) if spec.needs_any else spec.needs <= prep.kinds
+    if not has:
+        raise ValueError(f"{source or 'log'}: {spec.needs_why}")
+    if spec.needs_height and not prep.kinds & HEIGHT_SENSORS:
+        raise ValueError(f"{source or 'log'}: no range sensor or barometer: nothing to diagnose the altitude with")
+    if prep.duration < MIN_SECONDS:
+        # the likelihood is scored from 5 s in (the filter settling): a shorter log scores nothing,
+        # and "no effect improves the model" would be said of no data at all
+        raise ValueError(
+            f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
+            f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
+        )
+    return Setup(prep, base.model, spec, names, base.airframe)
