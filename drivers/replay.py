@@ -24,6 +24,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -116,6 +117,8 @@ class Replay:
         buffer: int = 100_000,
         measurements: list[Measurement] | None = None,
     ) -> None:
+        self.index: TlogIndex | _MeasurementIndex
+        self.receiver: Any  # MavlinkReceiver for a tlog's frames, _PassThrough for a read log's records
         if measurements is None:
             self.index = TlogIndex.scan(path)  # raises TlogError with a one-line message
             self.receiver = MavlinkReceiver(name)

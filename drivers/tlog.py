@@ -21,6 +21,7 @@ import struct
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -49,7 +50,7 @@ class TlogWriter:
     def __init__(self, path: str | os.PathLike, flush_s: float = 0.5) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "ab", buffering=1 << 16)
+        self._f: BinaryIO | None = open(self.path, "ab", buffering=1 << 16)
         self.flush_s = flush_s
         self._last_flush = time.monotonic()
         self.records = 0

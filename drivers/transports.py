@@ -189,7 +189,7 @@ class TcpTransport(Transport):
         self.reconnects = endpoint.scheme == "tcp"
         self.retry_s = retry_s
         self._peers: list[_Stream] = []
-        self._server: asyncio.AbstractServer | None = None
+        self._server: asyncio.Server | None = None
         self._retry_task: asyncio.Task | None = None
         self._closing = False
 
@@ -299,6 +299,8 @@ class SerialTransport(Transport):
     def _readable(self) -> None:
         ser = self._ser
         if ser is None:
+            return
+        if self._fd is None:
             return
         try:
             data = os.read(self._fd, 65536)

@@ -29,6 +29,7 @@ import math
 import random
 import socket
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -40,10 +41,11 @@ from groundstation.core.measurement import Kind
 from .board_out import BoardEncoder
 from .fast import EPOCH
 from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
+from .profile import CoaxAutopilot
 from .pty_port import PtyPort
 from .scenario import Scenario
 from .simulator import Simulator
-from .vehicles.heli3dof import Heli3dofCommand
+from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
 from .vehicles.quad import QuadCommand
 
 #: [s] of the wall clock the simulated vehicle catches up at once; a longer stall pauses it (:meth:`SimBridge.run`)
@@ -108,7 +110,7 @@ class SimBridge:
         self._burst_until = 0.0
         self._next_burst = math.inf
         self._stop = asyncio.Event()
-        self.truth_sink = None  # callable(row) for a live truth sidecar
+        self.truth_sink: Callable[[dict], None] | None = None  # for a live truth sidecar
 
     # -- transports --------------------------------------------------------------------------
     async def open(self) -> None:
@@ -140,6 +142,8 @@ class SimBridge:
             self.board.close()
 
     def _udp_readable(self) -> None:
+        if self._sock is None:
+            return
         try:
             data, addr = self._sock.recvfrom(65536)
         except (BlockingIOError, OSError):
@@ -173,7 +177,7 @@ class SimBridge:
             asyncio.get_running_loop().call_later(seconds, self._replug)
 
     def _replug(self) -> None:
-        if not self._stop.is_set():
+        if not self._stop.is_set() and self.pty is not None:
             self.pty.plug()
 
     # -- the ground station's messages --------------------------------------------------------
@@ -227,18 +231,21 @@ class SimBridge:
             return
         x, y, z, r = m.x / 1000.0, m.y / 1000.0, m.z / 1000.0, m.r / 1000.0
         v = self.scenario.vehicle
+        cmd: QuadCommand | Heli3dofCommand
         if v == "quad":
             cmd = QuadCommand(z, y * MAX_TILT, -x * MAX_TILT, r * 2.0)
         elif v == "coax":
             # stabilised, as an autopilot flies MANUAL_CONTROL: collective, roll and pitch
             # setpoints, yaw rate; the coax's own inner loop turns them into flapping angles
             ap = self.sim.autopilot
+            assert isinstance(ap, CoaxAutopilot)
             self.commands_received += 1
             self.sim.command(lambda t, dt: ap.stabilised(z, y * MAX_TILT, -x * MAX_TILT, r * 2.0))
             return
         else:
-            P = self.sim.vehicle.p
-            vs, vd = 2 * P.V_max * z, P.V_max * y
+            rig = self.sim.vehicle
+            assert isinstance(rig, Heli3dof)
+            vs, vd = 2 * rig.p.V_max * z, rig.p.V_max * y
             cmd = Heli3dofCommand((vs - vd) / 2, (vs + vd) / 2)
         self.commands_received += 1
         self.sim.command(cmd)
@@ -262,7 +269,7 @@ class SimBridge:
             for s in samples:
                 for fr in enc.encode(s):
                     self._send(fr)
-                if self.board_encoder is not None:
+                if self.board_encoder is not None and self.board is not None:
                     for fr in self.board_encoder.encode(s):
                         self.board.write(fr)
             if self.truth_sink is not None and sim.step_count % sim.truth_every == 0:

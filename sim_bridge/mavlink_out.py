@@ -43,7 +43,7 @@ class FramePacker:
     def __init__(self, sysid: int = 1, compid: int = 1) -> None:
         self.sysid, self.compid = sysid, compid
         self.seq = 0
-        self._specs = {}
+        self._specs: dict[str, tuple] = {}
 
     def _spec(self, name: str):
         s = self._specs.get(name)
@@ -61,6 +61,7 @@ class FramePacker:
 
     def pack(self, name: str, **fields) -> bytes:
         msgid, pack, extra, order, has_arrays = self._spec(name)
+        vals: list
         if has_arrays:  # array fields are several struct values
             vals = []
             for f, n in order:

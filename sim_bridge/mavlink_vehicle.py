@@ -56,7 +56,7 @@ class MavlinkVehicle:
         self.data_stream_requests: list[tuple[int, int]] = []
         self.frames_sent = 0
         self.send_errors = 0
-        self._got: asyncio.Event | None = None
+        self._got = asyncio.Event()
         self._hb_task: asyncio.Task | None = None
 
     async def open(self) -> None:
@@ -68,10 +68,12 @@ class MavlinkVehicle:
             s.setblocking(False)
             self._sock = s
             loop.add_reader(s.fileno(), self._udp_readable)
-        else:
+        elif self.pty is not None:
             self.pty.on_data = self._incoming
             if self.pty.master is None:
                 self.pty.plug()
+        else:
+            raise ValueError("a simulated vehicle needs a UDP address or a pty")
 
     def start_heartbeat(self, hz: float = 1.0) -> None:
         """Send HEARTBEAT periodically, as every autopilot does."""
@@ -137,6 +139,8 @@ class MavlinkVehicle:
 
     # -- receiving ---------------------------------------------------------------------
     def _udp_readable(self) -> None:
+        if self._sock is None:
+            return
         try:
             data, addr = self._sock.recvfrom(65536)
         except (BlockingIOError, OSError):

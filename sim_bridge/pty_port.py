@@ -49,6 +49,8 @@ class PtyPort:
         return self.path
 
     def _readable(self) -> None:
+        if self.master is None:
+            return
         try:
             data = os.read(self.master, 65536)
         except (BlockingIOError, InterruptedError):
@@ -76,6 +78,8 @@ class PtyPort:
                 except (RuntimeError, ValueError):
                     pass
             for fd in (self.master, self._slave):
+                if fd is None:
+                    continue
                 try:
                     os.close(fd)
                 except OSError:

@@ -151,7 +151,7 @@ class SensorSuite:
             sim.temperature,
         )
 
-    def take_accel_error(self) -> tuple[float, float, int]:
+    def take_accel_error(self) -> tuple[float, float, float]:
         """The accelerometer's own error (x, y: noise and rounding) averaged over the samples since
         the last call, and their count; the truth's record of what a perfect model's innovations
         would be. Blocks of the truth's 10 ms rows are the diagnosis' 10 ms input blocks."""

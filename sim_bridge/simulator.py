@@ -15,7 +15,7 @@ one the vehicle falls back to its own autopilot (a failsafe).
 from __future__ import annotations
 
 import heapq
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -47,15 +47,17 @@ class Simulator:
         self.rng = np.random.default_rng(scenario.seed)
         self.profile = FlightProfile(scenario.seed, scenario.duration, scenario.flight)
         name = scenario.vehicle
+        self.vehicle: Quad | Coax | Heli3dof
+        self.autopilot: QuadAutopilot | CoaxAutopilot | Heli3dofAutopilot
         if name == "quad":
-            self.vehicle = Quad()
-            self.autopilot = QuadAutopilot(self.vehicle, self.profile)
+            quad = Quad()
+            self.vehicle, self.autopilot = quad, QuadAutopilot(quad, self.profile)
         elif name == "coax":
-            self.vehicle = Coax()
-            self.autopilot = CoaxAutopilot(self.vehicle, self.profile)
+            coax = Coax()
+            self.vehicle, self.autopilot = coax, CoaxAutopilot(coax, self.profile)
         else:
-            self.vehicle = Heli3dof()
-            self.autopilot = Heli3dofAutopilot(self.vehicle, self.profile)
+            rig = Heli3dof()
+            self.vehicle, self.autopilot = rig, Heli3dofAutopilot(rig, self.profile)
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
         self.dt = 1.0 / self.rate
         self.effects = scenario.effects
@@ -81,7 +83,7 @@ class Simulator:
         self.command_timeout = command_timeout
         #: the on-board controllers run at 250 Hz, as an autopilot's outer loops do
         self.autopilot_every = max(1, int(round(self.rate / 250.0)))
-        self._auto_cmd = None
+        self._auto_cmd: Any = None  # the autopilot's latest command (the vehicle's own command type)
         self._external = None
         self._external_cmd = None
         self._external_until = -1.0

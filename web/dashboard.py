@@ -126,7 +126,7 @@ class Dashboard:
         self.estimator_counters = None
         self.session = SessionBuffer()
         self._diagnosing = False
-        self._pool = None
+        self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self.last_diagnosis: dict | None = None
         #: effects the session declares (the diagnosis does not look for them)
         self.declared: list[dict] = []
@@ -247,7 +247,7 @@ class Dashboard:
         self.airframe = vehicle
         self.estimator_counters = counters
         if model in DIAGNOSIS_MODELS:
-            self.diagnosis_model.value = model
+            self.diagnosis_model.value = model  # type: ignore[misc]  # viser's setter is typed apart from its getter
 
     async def run_diagnosis(self) -> dict | None:
         """Diagnose the last ``diagnosis_window`` seconds in a worker process; show the result."""
@@ -444,7 +444,7 @@ class Dashboard:
             control.update()
         replay = getattr(self, "_replay", None)
         if replay is not None and abs(self.position.value - replay.position) > 0.5:
-            self.position.value = round(replay.position, 1)
+            self.position.value = round(replay.position, 1)  # type: ignore[misc]  # viser's setter is typed apart from its getter
         self.plot_updates += 1
 
     async def run(self) -> None:

@@ -22,6 +22,8 @@ import msgspec
 import viser
 import websockets
 import zstandard
+from websockets.asyncio.client import ClientConnection
+from websockets.typing import Subprotocol
 
 
 class ViserProbe:
@@ -29,18 +31,26 @@ class ViserProbe:
 
     def __init__(self, url: str) -> None:
         self.url = url.replace("http://", "ws://").replace("https://", "wss://")
-        self._ws = None
+        self._ws: ClientConnection | None = None
         self._dz = zstandard.ZstdDecompressor()
         self.frames_received = 0
         self.bytes_received = 0
         self._announced = False
 
     async def __aenter__(self) -> ViserProbe:
-        self._ws = await websockets.connect(self.url, subprotocols=[f"viser-v{viser.__version__}"], max_size=None)
+        self._ws = await websockets.connect(
+            self.url, subprotocols=[Subprotocol(f"viser-v{viser.__version__}")], max_size=None
+        )
         return self
 
+    @property
+    def ws(self) -> ClientConnection:
+        if self._ws is None:
+            raise RuntimeError("ViserProbe is used outside its 'async with'")
+        return self._ws
+
     async def __aexit__(self, *exc) -> None:
-        await self._ws.close()
+        await self.ws.close()
 
     def decode(self, raw: bytes) -> list[dict]:
         size, compressed = int.from_bytes(raw[0:8], "little"), int.from_bytes(raw[8:16], "little")
@@ -50,7 +60,7 @@ class ViserProbe:
     async def announce_camera(self) -> None:
         """The first camera report a browser sends; viser counts a tab as connected
         (and runs its GUI callbacks) only after it."""
-        await self._ws.send(
+        await self.ws.send(
             msgspec.msgpack.encode(
                 {
                     "type": "ViewerCameraMessage",
@@ -72,13 +82,13 @@ class ViserProbe:
         if not self._announced:
             await self.announce_camera()
             self._announced = True
-        await self._ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": handle_id, "updates": updates}))
+        await self.ws.send(msgspec.msgpack.encode({"type": "GuiUpdateMessage", "uuid": handle_id, "updates": updates}))
 
     async def frames(self) -> AsyncIterator[tuple[float, list[dict]]]:
         """(receive time on ``time.monotonic``, messages) per websocket frame, until closed."""
         while True:
             try:
-                raw = await self._ws.recv()
+                raw = await self.ws.recv(decode=False)  # viser sends binary frames
             except websockets.ConnectionClosed:
                 return
             t = time.monotonic()

@@ -72,7 +72,7 @@ class MessageArrays:
 
     @property
     def names(self) -> tuple[str, ...]:
-        return self.fields.dtype.names
+        return self.fields.dtype.names or ()
 
 
 @dataclass
@@ -116,7 +116,7 @@ def struct_dtype(fmt: str, names, scale=None) -> np.dtype:
     tokens = re.findall(r"(\d*)([a-zA-Z])", fmt.lstrip("<>=!"))
     if len(tokens) != len(names):
         raise ValueError(f"format {fmt!r} has {len(tokens)} fields, names {len(names)}")
-    out = []
+    out: list[tuple] = []
     for name, (count, ch) in zip(names, tokens):
         n = int(count) if count else 1
         if ch == "s":

@@ -116,7 +116,7 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
     binary = data[:2] == b"\xa3\x95"
     damage = walk_dataflash(data).damage(p) if binary else ""
     del data  # DFReader maps the file itself
-    msgs = []
+    msgs: list = []  # DFReader's messages, then a ("__damage__", why) where it stopped
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
     # damage, so that chatter is dropped.

@@ -27,6 +27,7 @@ from __future__ import annotations
 import struct
 from collections import namedtuple
 from collections.abc import Callable
+from typing import Any
 
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -61,6 +62,11 @@ _V1_HDR = struct.Struct("<BBBBBB")  # magic len seq sys comp msgid
 _V2_HDR = struct.Struct("<BBBBBBBHB")  # magic len incompat compat seq sys comp msgid(lo16) msgid(hi8)
 
 
+def _record_type(name: str, fields: list[str]) -> Any:
+    """The namedtuple class of one message type, built at run time from pymavlink's definition."""
+    return namedtuple(name, fields)
+
+
 class FastSpec:
     """How to turn one message type's payload into a namedtuple."""
 
@@ -69,7 +75,7 @@ class FastSpec:
     def __init__(self, cls) -> None:
         self.cls = cls
         self.name = cls.msgname
-        self.tuple_type = namedtuple(cls.msgname.lower(), cls.ordered_fieldnames)
+        self.tuple_type = _record_type(cls.msgname.lower(), cls.ordered_fieldnames)
         self.unpack = cls.unpacker.unpack
         self.size = cls.unpacker.size
         # Array fields come out of struct as several values: group them back.

@@ -88,7 +88,7 @@ class MavlinkReceiver:
         self.counters = LinkCounters()
         self.on_frame = on_frame
         self.on_message = on_message
-        self._last_seq: dict[tuple[int, int], int] = {}
+        self._last_seq: dict[tuple[int, int], int | None] = {}
         #: (sysid, compid) -> True if that peer speaks MAVLink 1 only so far
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
         self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)

@@ -319,7 +319,7 @@ class RateMeter:
 
     def __init__(self) -> None:
         self._last: dict[str, int] = {}
-        self._t = None
+        self._t: float | None = None
 
     def __call__(self, by_type) -> dict[str, float]:
         now = time.monotonic()

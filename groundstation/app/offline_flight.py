@@ -33,6 +33,7 @@ from groundstation.control.uplink import AttitudeTarget, BoardMotors, ManualCont
 from sim_bridge.board_out import BoardEncoder
 from sim_bridge.bridge import SimBridge
 from sim_bridge.fast import EPOCH
+from sim_bridge.mavlink_out import MavlinkEncoder
 from sim_bridge.scenario import Scenario
 
 
@@ -93,6 +94,9 @@ def fly(
     sim = bridge.sim
     sim.keep_truth = False
     board = scenario.vehicle == "heli3dof"
+    enc: BoardEncoder | MavlinkEncoder
+    rx: BinaryBoardReceiver | MavlinkReceiver
+    uplink: BoardMotors | AttitudeTarget | ManualControl
     if board:
         enc = BoardEncoder("heli3dof", EPOCH)
         rx = BinaryBoardReceiver("board")

@@ -213,7 +213,10 @@ async def run_demo(args) -> int:
     loop = EstimationLoop(estimators)
     snaps = loop.snapshots.subscribe(lossy=True, maxlen=1000)
     loop.attach_link(link)
-    port = link.transport.local_address[1]
+    where = link.transport.local_address if link.transport is not None else None
+    if where is None:
+        raise OSError("the demo's UDP port did not open")
+    port = where[1]
     scenario = Scenario(vehicle=args.vehicle, seed=args.seed, duration=args.duration)
     board_port = board = station = None
     if getattr(args, "control", False) and args.vehicle == "heli3dof":

@@ -151,6 +151,9 @@ class Commander:
             self.disarm(f"link lost: no measurement for {self.stale_after:g} s")
             return None
         x = self.feedback.state()
+        if x is None:
+            self.disarm(f"{self.feedback.name} feedback has no state")
+            return None
         out = self.controller.update(x, self.reference, 1.0 / self.rate)
         if not np.all(np.isfinite(out.command)):
             self.disarm("controller produced a non-finite command")
@@ -188,7 +191,7 @@ class Commander:
                 except TimeoutError:
                     continue
         finally:
-            if events is not None:
+            if events is not None and watcher is not None:
                 events.close()
                 await watcher
 

@@ -39,7 +39,8 @@ def step_fit(t: np.ndarray, y: np.ndarray, t_step: float, y0: float, y1: float) 
         diff_step=1e-3,
         x_scale=[1.0, 0.1, 0.01],
     )
-    return tuple(float(v) for v in sol.x)
+    w0, zeta, delay = (float(v) for v in sol.x)
+    return w0, zeta, delay
 
 
 def classify(t: np.ndarray, y: np.ndarray, t_step: float, y0: float, y1: float, *, limit: float = 1.0) -> str:

@@ -30,6 +30,7 @@ class Subscription(Generic[T]):
     def __init__(self, owner: Broadcast[T], maxlen: int, lossy: bool) -> None:
         self._owner = owner
         self._buf: deque = deque(maxlen=maxlen)
+        self._maxlen = maxlen
         self._event = asyncio.Event()
         self._space = asyncio.Event()
         self.lossy = lossy
@@ -49,7 +50,7 @@ class Subscription(Generic[T]):
 
     def _push_many(self, items: list) -> None:
         buf = self._buf
-        over = len(buf) + len(items) - buf.maxlen
+        over = len(buf) + len(items) - self._maxlen
         if over > 0:
             self.dropped += over
         buf.extend(items)
@@ -66,7 +67,7 @@ class Subscription(Generic[T]):
             self._event.clear()
             await self._event.wait()
         item = buf.popleft()
-        if len(buf) < buf.maxlen // 2:
+        if len(buf) < self._maxlen // 2:
             self._space.set()
         if item is _CLOSED:
             self._closed = True
@@ -115,14 +116,14 @@ class Broadcast(Generic[T]):
     def needs_wait(self) -> bool:
         """True if a lossless subscriber's buffer is more than half full."""
         for s in self._subs:
-            if not s.lossy and not s._closed and len(s._buf) > s._buf.maxlen // 2:
+            if not s.lossy and not s._closed and len(s._buf) > s._maxlen // 2:
                 return True
         return False
 
     async def wait_for_space(self) -> None:
         """Wait until every lossless subscriber's buffer is at most half full."""
         for s in list(self._subs):
-            while not s.lossy and not s._closed and len(s._buf) > s._buf.maxlen // 2:
+            while not s.lossy and not s._closed and len(s._buf) > s._maxlen // 2:
                 s._space.clear()
                 await s._space.wait()
 

@@ -152,7 +152,7 @@ def excursion(
     bound = float(norm.ppf(1.0 - 0.025 * window / span))
     order = np.argsort(-np.abs(z))
     worst = int(order[0])
-    places: list[str] = []
+    places: list[tuple[float, str]] = []
     for k in order:
         if abs(z[k]) < bound or len(places) == EXCURSIONS_SHOWN:
             break

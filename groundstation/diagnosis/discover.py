@@ -77,7 +77,7 @@ def library(run: Run, sensor: str) -> dict[str, np.ndarray]:
         if np.isfinite(v).mean() > 0.9 and np.nanstd(v) > 1e-9:
             base[k] = np.where(np.isfinite(v), v, np.nanmean(v))
     roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
-    if roll is not None and np.isfinite(roll).all():
+    if roll is not None and pitch is not None and np.isfinite(roll).all():
         base["tilt"] = 1.0 / np.maximum(np.cos(roll) * np.cos(pitch), 0.2) - 1.0
     iz = run.model.states.index("z") if "z" in run.model.states else None
     iv = run.model.states.index("vz") if "vz" in run.model.states else None

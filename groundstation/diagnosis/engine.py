@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,7 +68,7 @@ class Truth:
         states = run.model.states
         if "z" in states:
             return self.rmse(run.t, run.x[:, states.index("z")], t0, t1)
-        if "roll" in states and self.roll is not None:
+        if "roll" in states and self.roll is not None and self.pitch is not None:
             k = (run.t >= max(t0, self.t[0])) & (run.t <= min(t1, self.t[-1]))
             if not k.any():
                 return math.nan
@@ -205,7 +205,7 @@ def diagnose(
     *,
     source: str = "",
     model_name: str = "altitude",
-    declared: list[dict] = (),
+    declared: Sequence[dict] = (),
     vehicle: str | None = None,
     truth: Truth | None = None,
     progress: Callable[[str], None] | None = None,
@@ -241,7 +241,7 @@ def diagnose(
                 best = s
                 break
             rejected.append(veto)
-            say(f"rejected {s.name}: worse against {truth.source}")
+            say(f"rejected {s.name}: worse against {veto.evidence['against']}")
             cands = [c for c in cands if c is not s.candidate]
         if best is None:
             break
@@ -280,11 +280,9 @@ def diagnose(
             del e.evidence["alternative"]
     findings1 = sensor_findings(base)
     discoveries = []
-    for s, f_ok in (
-        (s, Diagnosis.passes([f for f in findings1 if f.sensor == s])) for s in base.sensors if s != LANDED
-    ):
-        if not f_ok:
-            d = discover(base, s)
+    for sensor in base.sensors:
+        if sensor != LANDED and not Diagnosis.passes([f for f in findings1 if f.sensor == sensor]):
+            d = discover(base, sensor)
             if d is not None:
                 discoveries.append(d)
     unobs = dict(su.spec.unobservable)
@@ -392,7 +390,7 @@ def _range_offset_against_truth(run: Run, truth: Truth) -> list[Effect]:
         c = np.maximum(np.interp(tr.t, truth.t, truth.cos_tilt), 0.2)
     else:
         roll, pitch = tr.signals.get("roll"), tr.signals.get("pitch")
-        if roll is not None and np.isfinite(roll).all():
+        if roll is not None and pitch is not None and np.isfinite(roll).all():
             c = np.maximum(np.cos(roll) * np.cos(pitch), 0.2)
     air = h > 0.3
     if air.sum() < 30:

@@ -10,6 +10,7 @@ Diagnosis object itself holds filter closures that do not cross processes).
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 
 from groundstation.core.measurement import Kind, Measurement
 
@@ -33,12 +34,13 @@ class SessionBuffer:
             self.items.clear()
             self._block.clear()
         if m.kind in (Kind.ACCEL, Kind.GYRO) and m.instance == 0:
-            first, t_last, values = self._block.get(m.kind, (None, 0.0, None))
-            if first is not None and not starts_block(first.t, m.t, self._imu_dt):
-                values.append(m.value)
-                self._block[m.kind] = (first, m.t, values)
-                return
-            if first is not None:
+            block = self._block.get(m.kind)
+            if block is not None:
+                first, t_last, values = block
+                if not starts_block(first.t, m.t, self._imu_dt):
+                    values.append(m.value)
+                    self._block[m.kind] = (first, m.t, values)
+                    return
                 self.items.append(block_mean(first, t_last, values))
             self._block[m.kind] = (m, m.t, [m.value])
             return
@@ -52,7 +54,7 @@ class SessionBuffer:
 
 
 def diagnose_window(
-    ms: list[Measurement], model: str = "altitude", declared: list[dict] = (), vehicle: str | None = None
+    ms: list[Measurement], model: str = "altitude", declared: Sequence[dict] = (), vehicle: str | None = None
 ) -> dict:
     """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
     ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""

@@ -10,7 +10,7 @@ Diagnosis panel and the benchmarks read :data:`DIAGNOSABLE`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -198,7 +198,7 @@ def setup(
     *,
     source: str = "",
     model_name: str = "altitude",
-    declared: list[dict] = (),
+    declared: Sequence[dict] = (),
     vehicle: str | None = None,
 ) -> Setup:
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log

@@ -41,6 +41,7 @@ import io
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -58,7 +59,7 @@ from .thrust import LIFTOFF_REACH, ThrustContext
 def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, float] | None = None) -> dict:
     """``delays``: a sensor's delay in this run's model, to give its skipped readings' times as the
     log stamps them (the model takes a late sensor's readings as of when they were measured)."""
-    out = {"sensors": {}}
+    out: dict[str, Any] = {"sensors": {}}
     for s, tr in run.sensors.items():
         if s == LANDED:  # the on-ground constraint, not a sensor
             continue
@@ -218,12 +219,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         for e in d.effects
         if d.airframe and CURVE_PARAM.get(e.name) in e.params and CURVE_PARAM[e.name] in d.airframe
     ]
-    if cross:
+    if cross and d.airframe:
+        airframe = d.airframe
         parts.append(
             "Read on its own from the accelerometer, which the thrust model does not use, the thrust "
             "curve (airframe) gives "
             + "; ".join(
-                f"{k} = {d.airframe[k]:.3g} ± {d.airframe['sigma'][k]:.1g} for {e.name}'s {e.params[k]:.3g}"
+                f"{k} = {airframe[k]:.3g} ± {airframe['sigma'][k]:.1g} for {e.name}'s {e.params[k]:.3g}"
                 for e, k in cross
             )
             + "."
@@ -520,7 +522,7 @@ def _vehicle_line(d: Diagnosis) -> str:
     a = d.airframe
     if a and not a.get("used", True):
         return (
-            f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle)}.json</code> "
+            f", the airframe's constants from <code>groundstation/vehicles/{html.escape(d.vehicle or '')}.json</code> "
             f"(alpha = {a['file_alpha']:.2f} m/s&sup2;; the log's accelerometer reads {a['alpha']:.2f} &plusmn; "
             f"{a['sigma']['alpha']:.2f})"
         )

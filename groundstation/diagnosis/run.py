@@ -253,14 +253,14 @@ def run_model(
             a["t"], a["nu"], a["S"], a["nis"], a["z"], {k: np.array(v, dtype=float) for k, v in sig.get(s, {}).items()}
         )
         sensors[s] = tr
-        k = tr.t >= t_score
-        if k.any() and s != LANDED:
-            S = tr.S[k]
+        scored = tr.t >= t_score
+        if scored.any() and s != LANDED:
+            S = tr.S[scored]
             dim = S.shape[1]
             logdet = np.log(np.linalg.det(S)) if dim > 1 else np.log(S[:, 0, 0])
-            ll_by[s] = float(-0.5 * np.sum(tr.nis[k] + logdet + dim * math.log(2 * math.pi)))
-            inflation[s] = int(k.sum()) / max(effective_size(tr.nu_normalised[k]), 1.0)
-            n_sc += int(k.sum())
+            ll_by[s] = float(-0.5 * np.sum(tr.nis[scored] + logdet + dim * math.log(2 * math.pi)))
+            inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
+            n_sc += int(scored.sum())
     return Run(
         model, sensors, np.array(ts), np.array(xs), np.array(Ps), sum(ll_by.values()), n_sc, est, ll_by, inflation
     )

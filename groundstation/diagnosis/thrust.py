@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -248,7 +249,7 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     t0 = lift_off(prep.measurements, flying[0][0], range_limits)
     tau_h = float(np.median([v for t, v in flying if t0 <= t <= t0 + 10.0]))
     alpha0 = G / tau_h
-    prior = {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
+    prior: dict[str, Any] = {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
     volts = [
         float(m.value[0])
         for m in prep.measurements
@@ -270,7 +271,7 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
         prior["voltage_oc"] = oc  # the readings' open-circuit voltage, smoothed (battery.py)
     if curve:
         # the voltage the thrust model's input will see (battery.loaded_voltage), at each throttle
-        def volt(t, tau):
+        def volt(t, tau, oc=oc):
             return loaded_voltage(oc.at(t), tau, sag=prior.get("voltage_sag"), oc=oc, t=t)
 
         fit = thrust_curve(
@@ -302,7 +303,8 @@ class ThrustContext(Context):
     range_spurious: tuple[float, ...] = ()  #: the times of range echoes skipped on the ground
 
 
-def _input(m: Measurement, ctx: ThrustContext) -> np.ndarray:
+def _input(m: Measurement, ctx: Context) -> np.ndarray:
+    assert isinstance(ctx, ThrustContext)  # thrust_estimator gives its filter one
     tau = ctx.tau
     volt = ctx.voltage if ctx.voltage is not None else 0.0  # 0 until a reading: u must stay finite (B u)
     if not math.isfinite(volt):
@@ -371,10 +373,11 @@ def _voltage_terms(x, i_n, volt: float, v_ref: float, a_tc: float) -> tuple[floa
     return n, a_tc * (rn - 1.0 - n * rn * math.log(r))
 
 
-def _battery_voltage(m: Measurement, ctx: ThrustContext) -> None:
+def _battery_voltage(m: Measurement, ctx: Context) -> None:
     """The throttle at the battery's reading: without the log's smoothed open-circuit voltage
     (``voltage_oc``, from :func:`hover_prior`) the load line carries the reading from it to the
     throttle of each step (battery.loaded_voltage)."""
+    assert isinstance(ctx, ThrustContext)
     tau = throttle_at_reading(ctx, m.t)
     if tau is not None and math.isfinite(tau):
         ctx.voltage_tau2 = tau * tau
@@ -492,20 +495,22 @@ def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
         y_bar_k = x_k + (y_k - x_k) (tc/D) (1 - e^(-D/tc)),   D = t_k+1 - t_k,
 
     so that the held input gives the velocity change the lagged thrust gives (exact for a held
-    input). tc -> 0 gives x_k back: the base model. The lag's state at t_k was, until session 16,
-    updated with x_k as if written at t_k-1, and the held value was y_k: a step written at t_k
-    read 20 ms early, a 0.05 s lag read 0.042-0.056 s as the simulator's outputs changed timing."""
+    input). tc -> 0 gives x_k back: the base model. (Updating the lag's state with x_k as if written
+    at t_k-1, and holding y_k, reads a step written at t_k 20 ms early: a 0.05 s lag read
+    0.042-0.056 s as the simulator's outputs changed timing.)"""
     if tc <= 0:
         return ms
-    out, state = [], {}
+    out: list[Measurement] = []
+    state: dict[Kind, tuple[np.ndarray, np.ndarray, float]] = {}
     nxt = _next_times(ms)
     for i, m in enumerate(ms):
         if m.kind in (Kind.THROTTLE, Kind.ACTUATOR):
             x = np.asarray(m.value, dtype=float)
-            y, x_last, t_last = state.get(m.kind, (None, None, None))
-            if y is None or len(y) != len(x):
+            last = state.get(m.kind)
+            if last is None or len(last[0]) != len(x):
                 y = x.copy()
             else:
+                y, x_last, t_last = last
                 a = 1.0 - math.exp(-max(m.t - t_last, 0.0) / tc)
                 y = np.where(np.isfinite(y) & np.isfinite(x_last), y + (x_last - y) * a, x)
                 y = np.where(np.isfinite(x), y, x)

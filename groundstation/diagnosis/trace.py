@@ -170,7 +170,7 @@ def profile_steps(at: Callable[[float], float], tried: dict) -> None:
 def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms) -> Scored | None:
     n = max(base.n_scored, 1)
     if cand.delays:
-        kinds = SENSOR_KINDS.get(cand.sensor, set())
+        kinds = SENSOR_KINDS.get(cand.sensor or "", set())
         tried: dict[float, tuple] = {}
 
         def at(d: float):
@@ -201,6 +201,8 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
         if math.isfinite(sd):  # a flat profile has none (and JSON no infinity)
             p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
         return scored(cand, model, r, base, n, p, shifted)
+    if cand.augment is None:
+        return None
     aug = cand.augment(model)
     try:
         r = run_model(aug, prep, make, measurements=ms)
@@ -227,6 +229,8 @@ def signature_support(cand: Candidate, model: LinearModel, base: Run, prep: Prep
     signature sits on about 150 of 1270 range updates: the steps and the descent. Spread over all
     1270, a scale error of 0.01 (Delta BIC -22, estimated 0.0125 +- 0.0021) gained 0.012 per update
     and was not material."""
+    if cand.perturb is None:
+        return base.n_scored
     pert = run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
     a, b = base.sensors.get(sensor), pert.sensors.get(sensor)
     if a is None or b is None:
@@ -265,12 +269,12 @@ def rank(
             # error (estimated 0.019-0.022, Delta BIC -80 to -137, all of it on the range) was
             # diluted by the baro's 2750 updates to 0.011-0.018 per update and not claimed.
             gains = {k: s.run.loglik_by.get(k, 0.0) - v for k, v in base.loglik_by.items()}
-            sensor = max(gains, key=gains.get) if gains else None
+            sensor = max(gains, key=lambda k: gains[k]) if gains else None
         tr = base.sensors.get(sensor) if sensor else None
         n = int((tr.t >= prep.t0 + SETTLE_S).sum()) if tr is not None else base.n_scored
         if s.candidate.support:
             n = min(n, max(s.candidate.support(s.run, prep.t0 + SETTLE_S), MIN_SUPPORT))
-        if s.candidate.perturb and tr is not None and math.isfinite(s.delta_bic):
+        if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
             n = min(n, max(signature_support(s.candidate, model, base, prep, make, ms, sensor), MIN_SUPPORT))
         s.support = n
         s.gain_per_update = (s.run.loglik - base.loglik) / max(n, 1)

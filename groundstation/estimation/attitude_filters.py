@@ -90,15 +90,15 @@ class ComplementaryFilter:
         self.w_c = w_c
         self.x: np.ndarray | None = None  # roll, pitch
         self.t = math.nan
-        self._s = None  # latest accelerometer attitude
+        self._s: np.ndarray | None = None  # latest accelerometer attitude
 
     def handle(self, m: Measurement) -> None:
         if m.instance != 0:
             return
         if m.kind is Kind.ACCEL:
-            self._s = np.array(accel_attitude(m.value))
+            s = self._s = np.array(accel_attitude(m.value))
             if self.x is None:
-                self.x, self.t = self._s.copy(), m.t
+                self.x, self.t = s.copy(), m.t
         elif m.kind is Kind.GYRO and self.x is not None and self._s is not None:
             T = m.t - self.t
             if T <= 0:
@@ -122,7 +122,6 @@ class AttitudeEKF:
         self.q_rate, self.q_bias, self.accel_sigma = gyro_noise**2, bias_walk**2, accel_sigma
         self.t = math.nan
         self.started = False
-        self._f = None
 
     @property
     def x(self) -> np.ndarray:
@@ -132,7 +131,6 @@ class AttitudeEKF:
         if m.instance != 0:
             return
         if m.kind is Kind.ACCEL:
-            self._f = m.value
             if not self.started:
                 self.ekf.x = np.array([*accel_attitude(m.value), 0.0, 0.0])
                 self.t, self.started = m.t, True

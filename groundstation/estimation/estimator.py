@@ -122,7 +122,7 @@ class KalmanEstimator:
         if inp is None and not mms:
             return None
         if m.kind in self._untimed:
-            return self._update(m, mms) if self.started else None
+            return self._update(m, mms or []) if self.started else None
         if not self._time(m.t):
             self.counters.skip("out_of_order")
             return None
@@ -132,7 +132,7 @@ class KalmanEstimator:
             u = inp(m, f.ctx)
             if u is not None:
                 f.u = u
-        return self._update(m, mms or ())
+        return self._update(m, mms or [])
 
     def _update(self, m: Measurement, mms: list) -> InnovationRecord | None:
         f = self.filter

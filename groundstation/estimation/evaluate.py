@@ -71,7 +71,9 @@ def evaluate(
     offset = range_offset(vehicle_effects(vehicle or implied))
     loop = EstimationLoop([est])
     snaps = loop.snapshots.subscribe()
-    truth_t, truth_z, raw = [], [], {"range": [], "baro": []}
+    truth_t: list[float] = []
+    truth_z: list[float] = []
+    raw: dict[str, list[tuple[float, float]]] = {"range": [], "baro": []}
     for m in ms:
         loop.push(m)
         if m.kind is Kind.TRUTH_POSE:

@@ -116,7 +116,7 @@ class ModelFilter:
         A = self.model.A(self.u) if self._u_dependent else None
         # keyed on A itself: a model whose A takes one input of several (the altitude model's
         # cos_tilt) reuses a discretisation while the others change
-        key = (k, A.tobytes()) if self._u_dependent else k
+        key = (k, A.tobytes()) if A is not None else k
         d = self._cache.get(key)
         if d is None:
             A = self.model.A(self.u) if A is None else A
@@ -136,13 +136,15 @@ class ModelFilter:
         with F = df/dx, and that held over dt exactly as a linear model is:
         x <- x^ + Gamma f(x^, u),  Gamma = int_0^dt e^{F s} ds;  P <- Phi P Phi^T + Q_k."""
         m, kf = self.model, self.kf
-        F = m.jacobian(kf.x, self.u)
+        f, jacobian = m.f, m.jacobian
+        assert f is not None and jacobian is not None  # a nonlinear model has both (LinearModel)
+        F = jacobian(kf.x, self.u)
         eye = np.eye(m.n)
         if np.abs(F).sum(axis=1).max() * dt < SERIES_LIMIT:
             Phi, Gam, Qk = discretize_series(F, eye, m.Qc, dt)
         else:
             Phi, Gam, Qk = discretize(F, eye, m.Qc, dt)
-        kf.x = kf.x + Gam @ m.f(kf.x, self.u)
+        kf.x = kf.x + Gam @ f(kf.x, self.u)
         kf.P = Phi @ kf.P @ Phi.T + Qk
 
     def predict_to(self, t: float) -> None:
@@ -203,7 +205,7 @@ class ModelFilter:
         PHt = kf.P @ H.T
         S = H @ PHt + R
         K = np.zeros_like(PHt)
-        idx = list(mm.corrects)
+        idx = list(mm.corrects or ())
         if mm.reset:
             # the states measured one to one (H picks them): set, with variance R, uncorrelated
             kf.x = kf.x.copy()

@@ -33,14 +33,14 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
         )
         return ms, desc + _reader_skipped(log.skipped), "crazyflie"
     if is_dataflash(path):
-        log = read_dataflash(path)
+        df = read_dataflash(path)
         return (
-            log.measurements,
+            df.measurements,
             (
-                f"ArduPilot DataFlash log, {log.duration:.1f} s, {len(log.measurements)} "
-                f"measurements (clock: {log.clock})"
-                + (f"; {log.damage}" if log.damage else "")
-                + _reader_skipped(log.skipped)
+                f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} "
+                f"measurements (clock: {df.clock})"
+                + (f"; {df.damage}" if df.damage else "")
+                + _reader_skipped(df.skipped)
             ),
             None,
         )

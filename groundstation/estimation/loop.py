@@ -192,7 +192,7 @@ class EstimationLoop:
         while len(self._checkpoints) > i + 1:
             self._checkpoints.pop()
         self._history = deque(h for h in self._history if h[1] <= seq_cp)
-        last = {}
+        last: dict[str, InnovationRecord] = {}
         for _, _, mm in redo:
             self._process_quiet(mm, last)
         for est in self.estimators:

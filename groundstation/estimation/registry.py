@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import inspect
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -186,7 +186,7 @@ def vehicle_config(vehicle: str | None, model: str) -> dict:
 
 def build_estimator(
     name: str,
-    declared: list[dict] = (),
+    declared: Sequence[dict] = (),
     noise: dict | None = None,
     vehicle: str | None = None,
     *,

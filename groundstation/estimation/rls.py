@@ -94,5 +94,6 @@ class BaroRangeCalibration:
             self._baro = (m.t, float(m.value[0]))
         elif m.kind is Kind.RANGE and self._baro is not None and abs(m.t - self._baro[0]) <= self.max_dt:
             self.pairs += 1
-            return self.rls.update([self._baro[1] - self.p_ref, 1.0], float(m.value[0]))
+            p_ref = self.p_ref if self.p_ref is not None else self._baro[1]
+            return self.rls.update([self._baro[1] - p_ref, 1.0], float(m.value[0]))
         return None

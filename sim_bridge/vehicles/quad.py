@@ -119,6 +119,10 @@ class Quad(Vehicle):
             )
         return k
 
+    @kin.setter
+    def kin(self, k: Kinematics) -> None:
+        self._kin = k
+
     def imu_truth(self):
         """R^T (a - g) with R = A_IB(phi, theta, psi) written out (eq. 3.10)."""
         sf, cf = math.sin(self.phi), math.cos(self.phi)

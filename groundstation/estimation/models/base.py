@@ -20,7 +20,7 @@ the diagnosis adds effects exactly this way.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -30,6 +30,9 @@ from groundstation.core.atmosphere import altitude_at
 from groundstation.core.measurement import Kind, Measurement
 
 from ..context import Context, Zero
+
+#: a measurement model's reader: the measured vector of a record, or None to skip it
+Extract = Callable[[Measurement, Context], "np.ndarray | None"]
 
 
 @dataclass
@@ -44,7 +47,7 @@ class MeasurementModel:
 
     name: str
     kind: Kind
-    extract: Callable[[Measurement, Context], np.ndarray | None]
+    extract: Extract
     row: Callable[[Context], np.ndarray]
     R: np.ndarray
     offset: Callable[[Context], np.ndarray] | None = None
@@ -105,7 +108,7 @@ class LinearModel:
     def augmented(
         self,
         *,
-        states: list[str] = (),
+        states: Sequence[str] = (),
         A_extra: Callable | None = None,
         Qc_extra=(),
         x0_extra=(),
@@ -146,8 +149,7 @@ class LinearModel:
         P0[n0:, n0:] = np.diag(np.asarray(P0_extra, dtype=float)) if k else 0
         meas = {}
         for key, mm in self.measurements.items():
-            old_row = mm.row
-            meas[key] = replace(mm, row=lambda ctx, r=old_row: pad_row(r(ctx), k))
+            meas[key] = replace(mm, row=padded(mm.row, k))
         meas.update(measurements or {})
         return LinearModel(
             name or self.name,
@@ -241,6 +243,16 @@ def unit_row(n: int, i: int) -> np.ndarray:
     r = np.zeros((1, n))
     r[0, i] = 1.0
     return r
+
+
+def state_row(n: int, i: int) -> Callable[[Context], np.ndarray]:
+    """H(ctx) of a measurement of state i alone, of an n-state model."""
+    return lambda ctx: unit_row(n, i)
+
+
+def padded(row: Callable[[Context], np.ndarray], k: int) -> Callable[[Context], np.ndarray]:
+    """H(ctx) of ``row`` extended with k zero columns (for augmented states)."""
+    return lambda ctx: pad_row(row(ctx), k)
 
 
 def pad_row(row: np.ndarray, k: int) -> np.ndarray:

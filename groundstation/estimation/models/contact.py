@@ -26,7 +26,7 @@ from dataclasses import replace
 import numpy as np
 
 from ..context import Context
-from .base import LinearModel, unit_row
+from .base import Extract, LinearModel, state_row
 from .ground import LANDED
 
 #: m: range readings below this are not used. A driver drops the readings under the sensor's
@@ -99,28 +99,38 @@ def ground_contact(model: LinearModel) -> LinearModel:
         if mm.name != LANDED:
             continue
         if key.startswith("on_ground_"):  # z = 0 with the range quiet; in contact, contact_ says it
-            meas[key] = replace(
-                mm,
-                extract=lambda m, ctx, idle=mm.extract: None if ctx.in_contact else idle(m, ctx),
-                corrects=(iz,),
-                reset=True,
-            )
+            meas[key] = replace(mm, extract=_not_in_contact(mm.extract), corrects=(iz,), reset=True)
         else:
-            meas[key] = replace(
-                mm,
-                extract=lambda m, ctx, idle=mm.extract: np.array([0.0]) if ctx.in_contact else idle(m, ctx),
-                corrects=(iv,),
-                reset=True,
-            )
+            meas[key] = replace(mm, extract=_zero_in_contact(mm.extract), corrects=(iv,), reset=True)
             meas[f"contact_{mm.kind.value}"] = replace(
                 mm,
-                extract=lambda m, ctx: np.array([0.0]) if ctx.in_contact else None,
-                row=lambda ctx, n=model.n: unit_row(n, iz),
+                extract=_zero_in_contact(None),
+                row=state_row(model.n, iz),
                 R=np.array([[CONTACT_SIGMA**2]]),
                 corrects=(iz,),
                 reset=True,
             )
     return replace(model, measurements=meas)
+
+
+def _not_in_contact(idle: Extract) -> Extract:
+    """``idle``'s reading, none in contact."""
+
+    def extract(m, ctx: Context):
+        return None if ctx.in_contact else idle(m, ctx)
+
+    return extract
+
+
+def _zero_in_contact(idle: Extract | None) -> Extract:
+    """0 in contact; out of it ``idle``'s reading, or none."""
+
+    def extract(m, ctx: Context):
+        if ctx.in_contact:
+            return np.array([0.0])
+        return idle(m, ctx) if idle is not None else None
+
+    return extract
 
 
 def contact_range(model: LinearModel) -> LinearModel:

@@ -35,7 +35,7 @@ import numpy as np
 from groundstation.core.measurement import Kind
 
 from ..context import Context
-from .base import LinearModel, MeasurementModel, unit_row
+from .base import LinearModel, MeasurementModel, state_row
 
 #: below this throttle the vehicle is taken to stand on the ground (the ground,
 #: not the thrust model, carries its weight); the thrust model is for flight
@@ -89,7 +89,7 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
     on the pad, vz = 0 is what teaches it the accelerometer's bias before take-off."""
     iz, iv = model.index("z"), model.index("vz")
     meas = dict(model.measurements)
-    only = dict(corrects=(iz, iv)) if consider else {}
+    corrects = (iz, iv) if consider else None
 
     def still(m, ctx):
         return np.array([0.0]) if landed(ctx) else None
@@ -106,20 +106,20 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
             LANDED,
             kind,
             still,
-            lambda ctx, n=model.n: unit_row(n, iv),
+            state_row(model.n, iv),
             np.array([[SIGMA_STILL**2]]),
             untimed=True,
-            **only,
+            corrects=corrects,
         )
         if height and "range" in meas:
             meas[f"on_ground_{kind.value}"] = MeasurementModel(
                 LANDED,
                 kind,
                 on_the_ground,
-                lambda ctx, n=model.n: unit_row(n, iz),
+                state_row(model.n, iz),
                 np.array([[SIGMA_ON_GROUND**2]]),
                 untimed=True,
-                **only,
+                corrects=corrects,
             )
     if height and "range" in meas:
         rng = meas["range"]

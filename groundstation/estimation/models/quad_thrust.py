@@ -187,10 +187,10 @@ def observability_report(model: LinearModel | None = None, throttles=(0.5, 0.6))
     out = {}
     for name, sensors in (("range+baro+gps", ("range", "baro", "gps")), ("range+baro", ("range", "baro"))):
         C = np.vstack([rows[s] for s in sensors])
-        out[f"{name}, constant throttle"] = observability_rank(m.A([throttles[0], 1.0, G]), C)
+        out[f"{name}, constant throttle"] = observability_rank(m.A(np.array([throttles[0], 1.0, G])), C)
         # two constant-throttle segments of 1 s: what the outputs of both say
         # about the initial state, [O_1; O_2 Phi_1(1 s)]
-        A1, A2 = (m.A([tau, 1.0, G]) for tau in throttles[:2])
+        A1, A2 = (m.A(np.array([tau, 1.0, G])) for tau in throttles[:2])
         O = np.vstack([_obsv(A1, C), _obsv(A2, C) @ expm(A1)])
         out[f"{name}, varying throttle"] = int(np.linalg.matrix_rank(O))
     out["states"] = m.n
