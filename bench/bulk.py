@@ -14,6 +14,7 @@ Target: ours >= 10x the baseline's messages per second on every file.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -28,7 +29,7 @@ from ingest import make_stream, write_tlog  # noqa: E402
 
 from drivers.logs.bulk import load  # noqa: E402
 
-REAL = ROOT.parent / "shared" / "data" / "real"
+REAL = Path(os.environ.get("GROUNDSTATION_DATA") or ROOT.parent / "shared" / "data") / "real"
 
 
 def recv_match_all(path: Path) -> int:

@@ -1,4 +1,4 @@
-"""The lab's control findings, reproduced on the simulated 3-DOF helicopter (issue 8).
+"""The lab's control findings, reproduced on the simulated 3-DOF helicopter.
 
     python bench/control.py [--seconds 60] [--json OUT.json]
 

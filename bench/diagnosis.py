@@ -78,7 +78,7 @@ ATTITUDE = {"gyro_bias", "imu_misalignment", "clean_attitude"}
 #: barometer effects fly the high flight (sim_bridge/profile.py): a climb to 5-8 m, above the range
 #: sensor's 4 m, where the baro alone carries the height. On the standard flight (<= 3.6 m) the range
 #: carries it throughout and a baro effect moves the height by a millimetre or less: "RMSE down"
-#: measures nothing there (session 12's sweep, README)
+#: measures nothing there
 HIGH = {"baro_thrust", "baro_bias_drift", "baro_thermal", "baro_ground_effect", "clean_high", "baro_airflow"}
 #: effects outside the diagnosis' catalogue, with the regressor the regression must name (discover.py):
 #: "rank" 1 when a discovery on the baro names it, its coefficient the parameter (bar: within 30 %, the
@@ -179,13 +179,13 @@ def sensor_noise(ms: list, tr: np.ndarray, sensor: str, R: float, delay: float =
     readings minus what the simulator's truth says they should read (the baro: height plus every
     baro effect's error; the range: the true slant range, ``delay`` s earlier for a range delay).
     Each test fails on 5 % of draws of correct noise, and where the noise fails, so do the
-    innovations: on 4 baro_thrust flights of session 13 the innovations' Ljung-Box read
-    p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.046, 0.019, 0.019, 0.002 (session 15); on two clean
+    innovations: on 4 baro_thrust flights the innovations' Ljung-Box read
+    p = 0.036, 0.018, 0.014, 0.002 and their noise's 0.046, 0.019, 0.019, 0.002; on two clean
     high flights the range's NIS read 0.90 and 1.10 and its noise 0.88 and 1.09.
     The accelerometer (horizontal, the attitude model's measurement): the simulator's record of its
     readings' noise and rounding over each 10 ms truth row, which are the diagnosis' input blocks;
     NIS over both axes at R / samples per block, Ljung-Box on x (the first component, as the
-    diagnosis reads it). NaN where the truth has no such column (tables from before session 20)."""
+    diagnosis reads it). NaN where the truth has no such column."""
     from scipy.stats import chi2
 
     from groundstation.core.atmosphere import altitude_at
@@ -325,7 +325,9 @@ def main() -> int:
                 f"{''.join(' (or ' + a + ')' for a in r['alternatives'])}",
                 flush=True,
             )
-    print("\nper effect (issue 7's bars)")
+    print(
+        "\nper effect (bars: ranked first, parameter within 15 %, height RMSE down 50 %; 80 % for geometry and timing)"
+    )
     print(
         f"{'effect':<20}{'runs':>5}{'first':>8}{'':>3}{'param ok':>10}{'RMSE down (median)':>20}"
         f"{'of its own error':>20}{'NIS ok':>8}{'LB p>0.05':>10}  failing where the noise fails too (NIS, LB)"

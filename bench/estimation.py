@@ -1,4 +1,4 @@
-"""Estimation benchmark (issue 4).
+"""Estimation benchmark: filter update rates, whole-recording throughput, live latency.
 
     python bench/estimation.py [--minutes 10] [--live-seconds 30]
 

@@ -4,7 +4,7 @@
 
 Runs ``groundstation sim --fast`` (in process) with every sensor of each
 vehicle on, writing the tlog and the truth sidecar, and prints simulated
-seconds per wall second. Target (issue 3): >= 50x real time for the quadcopter.
+seconds per wall second. Target: >= 50x real time for the quadcopter.
 The baseline of the ratio is real time itself (1.0x), so the machine's noise
 shows only in the spread over repeats, printed beside the best.
 """

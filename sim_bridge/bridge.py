@@ -285,7 +285,7 @@ class SimBridge:
         stall of the process (a loaded machine; the ground station shares it in tests and the demo)
         pauses the simulated world with it. Run on, it jumped on the last command, a latency the
         vehicle's controllers never had: a 0.2 s stall 0.5 s into the 3-DOF rig's PD step (designed
-        omega 4 rad/s, zeta 0.7) had it fitted at 5.72 rad/s and 1.06; now 4.05-4.35 and 0.67-0.74
+        omega 4 rad/s, zeta 0.7) had it fitted at 5.72 rad/s and 1.06; paused, 4.05-4.35 and 0.67-0.74
         over six stalls 0.2-0.7 s into it (4.11-4.33 and 0.70-0.74 without a stall). The world runs
         behind the wall clock after each stall, as a simulator whose real-time factor drops does."""
         start = time.monotonic()

@@ -1,19 +1,31 @@
 import asyncio
 import functools
+import os
 import socket
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-REAL = REPO.parent / "shared" / "data" / "real"
+#: the shared data (real logs, foreign flights): ../shared/data, or $GROUNDSTATION_DATA
+DATA = Path(os.environ.get("GROUNDSTATION_DATA") or REPO.parent / "shared" / "data")
+REAL = DATA / "real"
+FOREIGN = DATA / "foreign"
 
 
 def real_file(rel: str) -> Path:
-    """A file of ../shared/data/real, or a visible skip when it is not there."""
+    """A file of the shared real logs, or a visible skip when it is not there."""
     p = REAL / rel
     if not p.exists():
-        pytest.skip(f"real data not available: {p} (the shared/ folder is absent)")
+        pytest.skip(f"real data not available: {p} is absent (set GROUNDSTATION_DATA to the shared data folder)")
+    return p
+
+
+def foreign_file(rel: str) -> Path:
+    """A file of the shared foreign flights (another generator's, with truth), or a visible skip."""
+    p = FOREIGN / rel
+    if not p.exists():
+        pytest.skip(f"foreign flights not available: {p} is absent (set GROUNDSTATION_DATA to the shared data folder)")
     return p
 
 

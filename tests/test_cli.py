@@ -89,8 +89,8 @@ def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
 
 
 def test_a_vehicle_file_with_a_name_its_model_does_not_take_is_a_one_line_error(tmp_path, monkeypatch):
-    """A misspelt key in a vehicle file (alhpa0) was a TypeError traceback from the model's factory,
-    in replay and in diagnose alike; the shared reader now names it and what the model takes."""
+    """A misspelt key in a vehicle file (alhpa0) is a one-line error naming it and what the model
+    takes, in replay and in diagnose alike, not a TypeError from deep in the model's factory."""
     import json
 
     from groundstation.estimation import registry as estimators

@@ -86,7 +86,7 @@ def test_evaluate_the_altitude_filter_against_vicon(name):
 
 @pytest.mark.slow
 def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
-    """Issue 7 on measured data: the baro's jump when the rotors carry the vehicle (README: +8.7 m)
+    """The closed loop on measured data: the baro's jump when the rotors carry the vehicle (README: +8.7 m)
     and its drift in flight (0.09-0.13 m/s), the ToF's mounting offset against Vicon (-3.3 to -4.0 cm),
     and the height error against Vicon before and after. A few minutes: 50 s of 1 kHz IMU, every
     candidate a full filter run."""
@@ -146,7 +146,7 @@ def test_attitude_diagnosis_rejects_a_mounting_error_that_vicon_contradicts():
 
 @pytest.mark.slow
 def test_diagnose_finds_the_tofs_slant_under_tilt_on_0425_traj4():
-    """Issue 7 on measured data: traj4 tilts to 18 deg, and the data README's regression of the ToF's
+    """The closed loop on measured data: traj4 tilts to 18 deg, and the data README's regression of the ToF's
     error on z (1/cos - 1) has slope 0.95. The diagnosis finds the slant from the log's own gyro tilt
     (derived.with_attitude), keeps it against Vicon, and the height error falls by two thirds
     (3.05 -> 0.96 cm measured; with the accelerometer's tilt it was vetoed, 3.21 -> 7.33 cm)."""

@@ -295,8 +295,8 @@ def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
 def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp_path):
     """The thrust-model filter sees what the altitude filter cannot: the ESCs do not
     compensate the sagging battery (thrust ~ V^n), undeclared. From the log alone, on the standard
-    flight: n reads 2.02 with the thrust curve from the accelerometer (airframe.py); until session 24,
-    from the hover throttle, this test could ask only for 1 < n < 2.5."""
+    flight: n reads 2.02 with the thrust curve from the accelerometer (airframe.py); from the hover
+    throttle alone it is read between 1 and 2.5 only."""
     from sim_bridge.scenario import Scenario
 
     log = tmp_path / "tv.tlog"
@@ -432,7 +432,7 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
     test flight the range innovations are white and their NIS in its band. Once the throttle was held
     at each record's interval mean (outputs.py), 0.0002 over-corrected, the autocorrelation negative at
     lags 1-3: Ljung-Box p 0.015 and 0.046 on these two flights, 3 of 8 clean flights failing; with
-    0.0001, 8 of 8 pass (p 0.063-0.87). (0.0008, until session 18, had failed 4 of 8 with the hold.)"""
+    0.0001, 8 of 8 pass (p 0.063-0.87); 0.0008 fails 4 of 8 with the hold."""
     from scipy.stats import chi2
 
     from groundstation.diagnosis.models import setup
@@ -460,9 +460,9 @@ def test_two_thrust_effects_at_once_are_both_found_and_sized_jointly(tmp_path):
     """A voltage exponent of 1.5 and a 0.1 s actuator lag in one thrust test flight, the airframe known.
     n is found first, alone, and read 1.50 then; the report gives the final model's joint estimate
     (engine._joint_params), 1.65, and the first value in the evidence. The lag, profiled with n in the
-    model, reads 0.110 s. The slant range comes third (the flight does not declare it); until the
-    touchdown's "the thrust lifts the vehicle" counted the voltage's factor, its model fell through
-    the ground after the landing (1.2 m), and the veto by truth rejected it (height error 26 mm)."""
+    model, reads 0.110 s. The slant range comes third (the flight does not declare it). Should the
+    touchdown's "the thrust lifts the vehicle" leave the voltage's factor out, the model falls through
+    the ground after the landing (1.2 m), and the veto by truth rejects the slant (height error 26 mm)."""
     log = tmp_path / "two.tlog"
     run_fast(
         Scenario.from_args(
@@ -538,8 +538,8 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert 1.4 < found["thrust_voltage"]["n"] < 2.1
     assert 0.008 < found["baro_bias_drift"]["rate"] < 0.02
     assert found["baro_ground_effect"]["A"] < -0.5
-    # the sonar reads late (its autopilot's mode filter, the sensor's own), found fifth: 0.30 s, 0.45 s until the
-    # throttle was held at its interval means and the voltage smoothed over the log (session 22)
+    # the sonar reads late (its autopilot's mode filter, the sensor's own), found fifth: 0.30 s (0.45 s with
+    # the throttle held as logged at 10 Hz and the voltage filtered forward only)
     assert found["sensor_delay"]["sensor"] == "range" and 0.25 <= found["sensor_delay"]["seconds"] <= 0.5
     rng = j["after"]["sensors"]["range"]
     assert rng["skipped_spurious"] >= 6 and rng["nis_mean"] < 5.0, rng
@@ -567,8 +567,7 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     the throttle still at 0.36: the ground carries the vehicle (the model's inputs switch off), so
     the constant thrust coefficients are those of the flight, the simulator's alpha = 22, beta = -1.2.
     Flown through the ground, the model fitted 14.2 and 2.8. With the airframe's drag (0.35 /s, as
-    ``--vehicle sim_quad``): 21.37, -0.88; with the default 0.3, since the outputs are timely
-    (session 16), beta read -0.77."""
+    ``--vehicle sim_quad``): 21.37, -0.88; with the default 0.3, beta reads -0.77."""
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import hover_prior, thrust_model
@@ -593,11 +592,10 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
 
 
 def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan():
-    """actuator_lag's reshaping of the inputs. It once shared one state between the throttle and
-    the PWM outputs (reset at every switch) and reset on any NaN (a quad's unused outputs), so it
-    never lagged anything and no lag was ever found. Each record is the lag's mean over the time
-    it is held: until session 16 it was the lag's value with the new output taken as written at the
-    sample before, and a step written at a sample read 20 ms early."""
+    """actuator_lag's reshaping of the inputs. One state shared between the throttle and the PWM
+    outputs (reset at every switch), or reset on any NaN (a quad's unused outputs), lags nothing.
+    Each record is the lag's mean over the time it is held: taken as the lag's value with the new
+    output written at the sample before, a step written at a sample reads 20 ms early."""
     from groundstation.core.measurement import Kind, Measurement
     from groundstation.diagnosis.thrust import lag_throttle
 
@@ -631,7 +629,7 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     """The thrust test flight's descent from 3.6 m (seed 1002) cuts the throttle below ground idle
     (TAU_GROUND) for 40 ms. Taken as landed, the model's inputs switched off (no thrust, no gravity)
     and its vz was held at 0 in mid-air; a 20 ms "actuator lag", smoothing the dip away, then gained
-    50 in log-likelihood on this clean flight. Landed now also needs the estimate near the ground, unless
+    50 in log-likelihood on this clean flight. Landed needs the estimate near the ground too, unless
     the motors are stopped."""
     import csv
 

@@ -89,8 +89,8 @@ def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_pat
     """The simulator's truth records what its accelerometer readings add to the specific force
     (noise and rounding) over each 10 ms row, and the bench judges that noise as it judges the
     innovations. The rows are the diagnosis' IMU blocks: a 500 Hz log's blocks all hold 5 samples
-    (from microsecond stamps, three in four took a sixth before session 20's slack, and the grid
-    drifted), and on a clean flight the model's x innovations are that noise."""
+    (from microsecond stamps, without a microsecond's slack three in four take a sixth and the grid
+    drifts), and on a clean flight the model's x innovations are that noise."""
     from groundstation.diagnosis.run import run_model
 
     log, ms = fly(tmp_path, [], 43)

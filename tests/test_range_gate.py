@@ -108,8 +108,8 @@ def test_a_link_joined_in_flight_takes_the_range_once_it_has_held_and_without_a_
 @pytest.mark.parametrize("model", ["altitude", "quad_thrust"])
 def test_underpowered_log_stands_on_the_ground_and_flies_on_its_sonar(model):
     """ArduPilot's underpowered.log: its sonar reads 1.98 m for 28 s with the motors stopped (baro
-    0.0 m) and 2-7.6 m in spin-up. Replayed, the live filter stood 1.9 m (altitude) and 1.5-6 m
-    (thrust) up; now it stands on the ground, and flies on the sonar."""
+    0.0 m) and 2-7.6 m in spin-up. Replayed without the range gate, the live filter stands 1.9 m
+    (altitude) and 1.5-6 m (thrust) up; with it, it stands on the ground, and flies on the sonar."""
     log = read_dataflash(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
     est = build_estimator(model, vehicle="apm2_sonar")
     t, z = [], []

@@ -7,9 +7,9 @@ autopilot logs the voltage at 1-10 Hz (the simulator's SYS_STATUS: 5 Hz) and the
 throttle at 50 Hz and more; held between readings, the voltage misses each sag as
 the throttle rises. For ``thrust_voltage`` that miss was most of its residue: on a
 simulated n = 2 thrust test flight the held reading put 0.30 m/s^2 RMS of error in
-the thrust it predicts, against 0.022 m/s^2 with the true voltage (and the first-order
-expansion in ``(V - V_ref) / V_ref`` that thrust.py then used; it now linearises
-``(V / V_ref)^n`` about the estimate of n).
+the thrust it predicts, against 0.022 m/s^2 with the true voltage (and a first-order
+expansion in ``(V - V_ref) / V_ref``; thrust.py linearises ``(V / V_ref)^n`` about the
+estimate of n instead).
 
 So the thrust model carries the latest reading forward by the throttle's change
 since it, ``V(t) = V_k - k (tau(t)^2 - tau_k^2)``, with ``k`` fitted here from
@@ -113,13 +113,12 @@ class OpenCircuitVoltage:
     lagging a discharging pack), run forward over every reading and back (filterpy's RTS
     smoother), so that a reading's noise is not carried to the next.
 
-    Smoothed, not filtered: a diagnosis has the whole log. Filtered (forward only, session 18 to 21)
-    the level was 7.5 mV RMS off the simulator's on a thrust test flight (seed 1015), smoothed 4.3 mV;
-    through ``(V / V_ref)^1.5`` that is 0.010 against 0.006 m/s^2 of thrust, held for seconds. Once
-    the throttle was held at its interval's mean (outputs.py), with the airframe's G_acc tried at
-    0.00005 (0.0001 kept), the forward-only level was the largest error left: that flight's range innovations
-    after the fix failed Ljung-Box (p 0.000, positively autocorrelated out to lag 15; 0.56 with the
-    simulator's true voltage)."""
+    Smoothed, not filtered: a diagnosis has the whole log. Filtered forward only, the level is
+    7.5 mV RMS off the simulator's on a thrust test flight (seed 1015), smoothed 4.3 mV; through
+    ``(V / V_ref)^1.5`` that is 0.010 against 0.006 m/s^2 of thrust, held for seconds. With the
+    throttle held at its interval's mean (outputs.py) and a tight G_acc (0.00005), the forward-only
+    level was the largest error left: that flight's range innovations after the fix failed Ljung-Box
+    (p 0.000, positively autocorrelated out to lag 15; 0.56 with the simulator's true voltage)."""
 
     def __init__(self, t: np.ndarray, v_oc: np.ndarray, sigma: float) -> None:
         kf = KalmanFilter(dim_x=2, dim_z=1)

@@ -1,4 +1,4 @@
-"""The catalogue: each candidate effect as a change to the model (issue 7's canonical names).
+"""The catalogue: each candidate effect as a change to the model, named as the simulator's effects are.
 
 A candidate turns the model into an augmented one, the way a person would fix
 it: an extra state for an unknown constant or drift (a random constant, so the
@@ -7,7 +7,7 @@ regressor on a measurement (its coefficient a state), a changed measurement
 function (slant range), or a delay (the sensor's measurements applied at
 ``t - d``, ``d`` on a grid). Its parameters are read from the augmented run.
 
-Which effects a model can show (issue 7, step 4): with the accelerometer as
+Which effects a model can show: with the accelerometer as
 the altitude filter's *input*, thrust-side effects cannot appear in it at all
 (``thrust_voltage``, ``thrust_ground_effect``, ``actuator_lag``: the
 quadcopter thrust-model filter is where they show), and a constant offset on
@@ -293,7 +293,7 @@ def unit_of(name: str, param: str) -> str:
     return UNITS.get((name.split("(")[0], param), "")
 
 
-#: effects of geometry and timing (issue 7: their RMSE bar is 80 %, not 50 %)
+#: effects of geometry and timing: the sweep's bar for their height error is 80 % down, not 50 %
 GEOMETRIC = {"range_tilt", "sensor_delay", "imu_misalignment"}
 
 SENSOR_KINDS = {"range": {Kind.RANGE}, "baro": {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}, "gps": {Kind.GPS}}

@@ -14,7 +14,7 @@ filter absorbed: a simulated 0.1, 0.2 and 0.3 m per (m/s)^2 read 0.077, 0.174
 and 0.325 (``tests/test_diagnosis.py``).
 
 Why not regress raw innovations on raw features for the catalogue too: the
-filter absorbs part of every effect (issue 7), so such coefficients are biased
+filter absorbs part of every effect, so such coefficients are biased
 low; the catalogue's candidates are scored through the filter itself
 (:mod:`.trace`). This regression only *names* what the catalogue does not.
 OMP is written out (30 lines) rather than pulled from scikit-learn, which the

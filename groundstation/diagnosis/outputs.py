@@ -19,8 +19,8 @@ straight line to the next one, ``(tau_k + tau_k+1) / 2``: what the throttle did 
 interval, to second order, for a throttle that moves smoothly between records. A *jump* is
 not spread: a change several times its neighbours' (:data:`JUMP_FACTOR`, and above the PWM's
 1 us quantum, :data:`JUMP_FLOOR`) is taken at the record that first shows it, as the hold
-takes it. Interpolating every record (a first-order hold, tried in session 18) spread the
-thrust test flight's height steps, which fall on the records' grid, 10 ms early, and broke
+takes it. Interpolating every record (a first-order hold) spreads the
+thrust test flight's height steps, which fall on the records' grid, 10 ms early, and breaks
 ``thrust_voltage`` (range NIS 2.16 on an n = 2 flight). A real autopilot's jump between
 records is then placed up to one period late, as the hold places it. Records more than
 :data:`MAX_GAP` apart (a dropout) are held as logged.

@@ -87,8 +87,8 @@ def block_mean(first: Measurement, t_last: float, values: list) -> Measurement:
 def starts_block(t_first: float, t: float, block_dt: float) -> bool:
     """Whether an IMU sample at ``t`` starts a new block after the one opened at ``t_first``. With a
     microsecond's slack: from a log's microsecond stamps, a 500 Hz sample 10 ms after a block's
-    first can read 0.00999999 s after it, and such blocks took a sixth sample (12 ms) and moved the
-    grid (1301 of 1740 blocks on a 20 s simulated flight, session 20)."""
+    first can read 0.00999999 s after it; without the slack such blocks take a sixth sample (12 ms)
+    and move the grid (1301 of 1740 blocks on a 20 s simulated flight)."""
     return t - t_first >= block_dt - 1e-6
 
 

@@ -433,10 +433,10 @@ def thrust_ground_effect(model: LinearModel) -> LinearModel:
     """``vz_dot += a_T c (1 / (1 - s) - 1)``, ``s = (R / 4h)^2`` (Cheeseman and Bennett), the state
     R^2, linearised about its estimate as an EKF does: the coupling's column is the slope
     ``a_T c / (16 h^2 (1 - s)^2)`` (:func:`_input` passes the height as ``h (1 - s)``) and the rest,
-    ``-a_T c s^2 / (1 - s)^2``, goes in through a_V. The first order, ``a_T c s``, was 0.4 % of the
-    thrust short at h = R; with the throttle between its records, the smoothed voltage and the
-    airframe's G_acc tried at 0.00005 (0.0001 kept), that read R = 0.25 m 3-7 % high with the range's Ljung-Box p at
-    0.000-0.004 on all three flights (session 22). The formula holds for h >= R (the simulator's
+    ``-a_T c s^2 / (1 - s)^2``, goes in through a_V. The first order, ``a_T c s``, is 0.4 % of the
+    thrust short at h = R; with the throttle between its records, the smoothed voltage and a tight
+    G_acc (0.00005) it read R = 0.25 m 3-7 % high with the range's Ljung-Box p at 0.000-0.004 on all
+    three flights. The formula holds for h >= R (the simulator's
     too); below, the height it is given is R's estimate, so the term stays at its h = R value. With
     1/h^2 carried on below R, a quadcopter hovering at 0.17 m with R = 0.25 m had its ground effect
     predicted at 14 % of the thrust for 6.7 %, and R read 10 % low (0.226 m) with the range's NIS at

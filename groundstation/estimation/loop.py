@@ -153,11 +153,11 @@ class EstimationLoop:
 
     def _record(self, m: Measurement) -> None:
         """Keep ``m`` for re-runs; forget checkpoints older than the window, and the measurements
-        processed before the oldest one kept. Everything after it must stay: the history was once
-        cut by time alone while an older checkpoint survived, and a rollback to it lost what lay
-        between (a MAVLink stream's untimed SERVO_OUTPUT_RAW, stamped a fraction of a microsecond
-        before the ATTITUDE of the same instant, rolled back at every message, and the throttle
-        outputs and barometer readings so lost put alpha 2 m/s^2 off)."""
+        processed before the oldest one kept. Everything after it must stay: cut by time alone while
+        an older checkpoint survives, a rollback to it loses what lies between (a MAVLink stream's
+        untimed SERVO_OUTPUT_RAW, stamped a fraction of a microsecond before the ATTITUDE of the same
+        instant, rolls back at every message, and the throttle outputs and barometer readings so
+        lost put alpha 2 m/s^2 off)."""
         self._seq += 1
         self._history.append((m.t, self._seq, m))
         horizon = m.t - self.reorder_s - CHECKPOINT_EVERY

@@ -21,7 +21,7 @@ known, through ``v_d = -sin(theta) u + sin(phi) cos(theta) v + cos(phi) cos(thet
 
     w = (v_d + sin(theta) u - sin(phi) cos(theta) v) / (cos(phi) cos(theta))
 
-Without ``v_d`` the ``q w`` and ``p w`` terms are left out (the earlier model). They
+Without ``v_d`` the ``q w`` and ``p w`` terms are left out. They
 are not small: on simulated quadcopter flights with climbs and tilt manoeuvres they
 were the clean flights' accelerometer NIS of 2.10-2.11 (band [1.94, 2.06] for 5000
 two-component updates), and Ljung-Box p = 0.000 on the one at 2.10; with them, 1.97-2.02 and
@@ -31,7 +31,7 @@ p = 0.56-0.79. The diagnosis feeds ``v_d`` from its own altitude filter run over
 ``CLIMB_RATE``.
 
 The base model takes the measured rates for the true ones. Two catalogue effects
-change that, each a rebuild of this model with one more option (issue 7):
+change that, each a rebuild of this model with one more option:
 
 * ``gyro_bias=True``: ``w_m = w + b``, states ``b_p, b_q`` (random walks, the IMU's
   bias instability). A yaw-rate bias is left out: gravity and drag say nothing of yaw.
@@ -108,9 +108,9 @@ def attitude_drag_model(
     [(m/s^2)^2/Hz] for what the velocity model leaves out (the ``q w`` terms, gusts),
     ``bias_walk`` [rad/s/sqrt(s)]; ``sigma_accel`` [m/s^2] per accelerometer sample: an update
     is a 10 ms block mean of n samples (:func:`groundstation.diagnosis.run.prepare`), read with
-    R = sigma^2 / n. 0.08 is the simulator's white noise; until session 15 R was 0.0335^2 per
-    block, right for its 500 Hz IMU (5-6 samples) and 1.7 times too small for a live
-    recording's 250 Hz one."""
+    R = sigma^2 / n. 0.08 is the simulator's white noise. A fixed R per block (0.0335^2, right for
+    the simulator's 500 Hz IMU, 5-6 samples) is 1.7 times too small for a live recording's 250 Hz
+    one."""
     states = ["roll", "pitch", "u", "v"]
     if gyro_bias:
         states += ["b_p", "b_q"]

@@ -175,9 +175,9 @@ def tilt_now(ctx: Context) -> tuple[float, float]:
     """Roll and pitch at the measurement's time ``ctx.t``: the latest attitude message
     carried forward by its body rates (first order; an autopilot sends attitude at 10-50 Hz
     and a range sensor reads in between). Held as it came, a 50 Hz attitude is on average
-    10 ms old. With the IMU blocks' stamping (diagnosis.run.block_mean), this made the range
-    of clean simulated flights look 5.5 ms early (now 2.5 ms), and a true 30 ms range delay
-    was measured as 22-28 ms."""
+    10 ms old. Held so, and with the IMU blocks stamped at their first sample, the range of clean
+    simulated flights looked 5.5 ms early (with both as here, 2.5 ms), and a true 30 ms range
+    delay was measured as 22-28 ms."""
     roll, pitch = ctx.roll, ctx.pitch
     t_att = ctx.attitude_t
     if t_att is not None and ctx.roll_rate is not None and ctx.pitch_rate is not None and ctx.t is not None:

@@ -43,7 +43,7 @@ CONTACT_SIGMA = 0.02  # m: the height on the ground (landing gear, uneven ground
 #: estimate. Without it a touchdown's estimate, reaching CONTACT_H a little early, was reset to the
 #: ground while the range still read the vehicle 5-10 cm up (simulated R = 0.15 m flight: 2.7 mm RMS
 #: error over the landing's 5 s, 10.8 mm without); and with it counting only readings above
-#: CONTACT_H + CONTACT_MARGIN, a lagged model hovering at 0.15-0.2 m was once set on the ground in
+#: CONTACT_H + CONTACT_MARGIN, a lagged model hovering at 0.15-0.2 m was set on the ground in
 #: mid-air (an actuator lag's likelihood jumped by 300 between 0.18 and 0.2 s)
 RANGE_SAYS_AIRBORNE = 0.2
 
@@ -89,7 +89,7 @@ def ground_contact(model: LinearModel) -> LinearModel:
     ``corrects`` and ``reset``) because the ground stops the vehicle whatever the other states are.
     As full updates the touchdown's stop went into the effects' states (a rotor radius R = 0.15 m:
     R^2 0.025 -> 0.034 at touchdown, the value reported) and held the estimate 0.15 m up on the
-    ground (12 cm RMS over the last 5 s of a simulated flight, now 3 mm). As repeated Schmidt
+    ground (12 cm RMS over the last 5 s of a simulated flight; 3 mm as resets). As repeated Schmidt
     updates (the other states left alone, but the information piling up) z's variance went to
     nothing on the ground, and at the take-off the range's first readings went into the ToF offset
     instead (d_tof 1.1 cm, a 1 cm height error through the flight)."""

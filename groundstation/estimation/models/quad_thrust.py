@@ -105,12 +105,10 @@ def quad_thrust_model(
     ``G_acc`` [(m/s^2)^2/Hz]: what the thrust model misses (the drag's error, rotor dynamics,
     the throttle's 50 Hz hold), set so that NEES and NIS sit in their chi-square bands over 20
     simulated flights (``tests/test_consistency.py``: NEES 4.98 in 3.71-6.48, NIS baro 0.98,
-    range 0.94). It was 0.006 while the model had no drag, and that band was met only because
-    the loop lost measurements on its rollbacks (session 17): with the loop mended, 0.006 and
-    the drag gave NEES 3.34, the velocity's share 0.29. P0: the vehicle starts on the ground
-    (height known to 2 cm). The ToF offset is held near its prior (``sigma_tof0``, 2 mm; 2 cm
-    until session 23): no sensor reads it, since on the ground nothing ties the range to z = 0, so
-    left free it was set by the take-off alone. A simulated quad whose model, at a take-off slower
+    range 0.94); 0.006 with the drag gives NEES 3.34, the velocity's share 0.29. P0: the vehicle
+    starts on the ground (height known to 2 cm). The ToF offset is held near its prior
+    (``sigma_tof0``, 2 mm): no sensor reads it, since on the ground nothing ties the range to
+    z = 0, so left free (2 cm) it is set by the take-off alone. A simulated quad whose model, at a take-off slower
     than its thrust estimate, stood in ground contact (models.contact) while the vehicle rose to
     15 cm, put 7 cm into it at the first reading above the ground, a 7 cm height error through the
     flight; held, that reading moves z. A known offset is declared (``range_offset``).
