@@ -3,8 +3,10 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
+# every core; a hung test fails with its stack after 20 minutes instead of stalling CI
+PYTEST  := $(BIN)/python -m pytest -q -n auto --timeout 1200
 
-.PHONY: demo test setup browser bench clean
+.PHONY: demo test check lint setup browser bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -26,8 +28,20 @@ browser:
 demo: setup
 	$(BIN)/groundstation demo --duration 60
 
-test: setup browser
-	$(BIN)/python -m pytest -q
+# static checks: lint and format, types, the layer contract
+lint: setup
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/mypy
+	$(BIN)/lint-imports
+
+# the quick loop: the static checks and the fast tests
+check: lint
+	$(PYTEST) -m "not slow"
+
+# everything, as CI runs it
+test: setup browser lint
+	$(PYTEST)
 
 bench: setup
 	$(BIN)/python bench/sim_speed.py
@@ -38,4 +52,4 @@ bench: setup
 	$(BIN)/python bench/control.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) out artifacts .pytest_cache .mypy_cache .ruff_cache

@@ -130,7 +130,6 @@ class Replay:
         self.loop = loop
         self.name = name
         self._measurements: Broadcast[Measurement] = Broadcast(buffer)
-        self._status: Broadcast[ReplayStatus] = Broadcast(100)
         self._i = self.index.seek(start)
         self._playing = asyncio.Event()
         self._playing.set()
@@ -154,9 +153,6 @@ class Replay:
     def measurements(self, maxlen: int | None = None, *, lossy: bool = False) -> Subscription[Measurement]:
         return self._measurements.subscribe(maxlen, lossy=lossy)
 
-    def status_updates(self) -> Subscription[ReplayStatus]:
-        return self._status.subscribe(lossy=True)
-
     # -- controls ------------------------------------------------------------------
     def pause(self) -> None:
         self._playing.clear()
@@ -176,7 +172,6 @@ class Replay:
         self.receiver.reset()
         if self._state is ReplayState.ENDED:
             self._set_state(ReplayState.PLAYING if self._playing.is_set() else ReplayState.PAUSED)
-        self._publish_status()
 
     def close(self) -> None:
         """End every subscriber's stream (after what it has buffered)."""
@@ -185,14 +180,9 @@ class Replay:
     def set_speed(self, speed: float) -> None:
         self.speed = check_speed(speed)
         self._anchor = None
-        self._publish_status()
 
     def _set_state(self, state: ReplayState) -> None:
         self._state = state
-        self._publish_status()
-
-    def _publish_status(self) -> None:
-        self._status.publish(self.status)
 
     # -- playing -------------------------------------------------------------------
     def iter_measurements(self) -> Iterator[Measurement]:

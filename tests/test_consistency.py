@@ -46,7 +46,6 @@ def run_loop(est, tlog):
     sub = loop.snapshots.subscribe()
     for m in Replay(tlog).iter_measurements():
         loop.push(m)
-    loop.flush()
     s = sub.get_nowait()
     return np.array([x.t for x in s]), np.array([x.x for x in s]), np.array([x.P for x in s])
 

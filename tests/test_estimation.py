@@ -94,7 +94,6 @@ def run_altitude(tmp_path, seed, *, bias=0.0, seconds=60.0):
         loop.push(m)
         if m.kind is Kind.RANGE:
             ranges.append((m.t, m.value[0]))
-    loop.flush()
     return est, snaps.get_nowait(), truth, np.array(ranges)
 
 
@@ -174,7 +173,6 @@ def test_loop_orders_within_the_window_counts_late_and_reinitialises_on_a_clock_
             loop.push(_m(10 + k * 0.01 - 0.02, Kind.RANGE, [1.0]))  # 20 ms late: inside the window
     loop.push(_m(10.2, Kind.RANGE, [1.0]))  # 0.8 s late: dropped, counted
     assert loop.counters.late == 1 and loop.counters.rollbacks == 24
-    loop.flush()
     snaps = out.get_nowait()
     assert len(snaps) == 24
     # the rolled-back run equals a perfectly ordered one
@@ -191,7 +189,6 @@ def test_loop_orders_within_the_window_counts_late_and_reinitialises_on_a_clock_
     for k in range(10):
         loop.push(_m(0.01 * k, Kind.ACCEL, [0, 0, -9.80665]))
     loop.push(_m(0.1, Kind.RANGE, [2.0]))
-    loop.flush()
     assert est.counters.reinitialisations == 1 and loop.latest["altitude"].t == pytest.approx(0.1)
 
 
@@ -232,7 +229,6 @@ def test_prediction_through_a_dropout_grows_the_covariance():
     p_before = est.filter.P[0, 0]
     for k in range(200, 400):  # the range sensor goes quiet for 2 s
         loop.push(_m(k * 0.01, Kind.ACCEL, [0, 0, -9.80665]))
-    loop.flush()
     assert est.filter.P[0, 0] > 10 * p_before
 
 
@@ -245,7 +241,6 @@ def test_truth_never_reaches_an_estimator_and_clocks_are_aligned():
     # a second source whose clock runs 100 s ahead of the vehicle's
     loop.push(_m(5.0, Kind.ACCEL, [0, 0, -9.8], source="mav/1.1", t_rx=1000.0))
     loop.push(_m(105.0, Kind.RANGE, [1.0], source="board", t_rx=1000.01))
-    loop.flush()
     assert loop.latest["altitude"].t == pytest.approx(5.01, abs=1e-6)
 
 
@@ -255,7 +250,6 @@ def test_non_finite_measurements_are_counted_and_skipped(bad):
     loop = EstimationLoop([est], reorder_s=0.0)
     loop.push(_m(0.0, Kind.ACCEL, [0, 0, -9.8]))
     loop.push(_m(0.01, Kind.RANGE, [bad]))
-    loop.flush()
     assert est.counters.skipped.get("not_finite") == 1 and np.all(np.isfinite(est.filter.x))
 
 

@@ -38,7 +38,7 @@ import viser
 from scipy.stats import chi2
 
 from groundstation.core.counts import counted
-from groundstation.core.frames import quaternion_from_matrix
+from groundstation.core.frames import quaternion_from_euler, quaternion_from_matrix
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdown
 from groundstation.diagnosis.models import DIAGNOSABLE
@@ -58,22 +58,6 @@ def ned_to_view(v) -> np.ndarray:
 def frd_quat_to_view(q) -> tuple[float, float, float, float]:
     w, x, y, z = q
     return (float(w), float(x), float(-y), float(-z))
-
-
-def euler_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
-    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
-    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
-    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
-    return (
-        cr * cp * cy + sr * sp * sy,
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-    )
-
-
-def matrix_to_quat(R: np.ndarray) -> tuple[float, float, float, float]:
-    return quaternion_from_matrix(R)
 
 
 def free_port(host: str, port: int) -> int:
@@ -354,7 +338,7 @@ class Dashboard:
         if s is not None and "z" in s.states:
             z = float(s.x[s.states.index("z")])
         pos = np.array([self._pos_ne[0], self._pos_ne[1], -z])  # NED
-        return pos, euler_to_quat(*self._att)
+        return pos, quaternion_from_euler(*self._att)
 
     def update_scene(self) -> None:
         pos, q = self._pose()
@@ -380,7 +364,7 @@ class Dashboard:
             if np.linalg.det(V) < 0:
                 V[:, 0] = -V[:, 0]
             scale = 3.0 * np.sqrt(np.clip(w, 1e-12, None))
-            q = np.array(matrix_to_quat(V))
+            q = np.array(quaternion_from_matrix(V))
             # each message goes to every client: the shape only when it visibly changed
             last = self._ellipsoid_shape
             if last is None or np.max(np.abs(scale / last[0] - 1.0)) > 0.02 or abs(q @ last[1]) < 0.9995:

@@ -46,8 +46,3 @@ def scale(unit: str) -> float:
     if off:
         raise ValueError(f"unit {unit!r} has an offset; use to_si()")
     return s
-
-
-def to_si(raw: float, unit: str) -> float:
-    s, off = UNIT_TO_SI[unit]
-    return raw * s + off

@@ -282,7 +282,6 @@ class Outputs:
                 self.dashboard.feed_snapshot(snap)
 
     def close(self) -> str:
-        self.loop.flush()
         self._drain()
         parts = []
         rejected = self.estimator.counters.rejected

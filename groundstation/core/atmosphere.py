@@ -27,8 +27,3 @@ def pressure_at(h, p0: float = P0):
 def altitude_at(p, p0: float = P0):
     """Pressure altitude [m] of static pressure ``p`` [Pa]."""
     return T0 / L * (1.0 - (np.asarray(p, dtype=float) / p0) ** (1.0 / _EXP))
-
-
-def temperature_at(h):
-    """ISA temperature [K] at altitude ``h`` [m]."""
-    return T0 - L * np.asarray(h, dtype=float)

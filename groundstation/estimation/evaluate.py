@@ -84,7 +84,6 @@ def evaluate(
         elif m.kind in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
             h = float(m.value[0]) if m.kind is Kind.BARO_ALTITUDE else float(altitude_at(m.value[0]))
             raw["baro"].append((m.t, h))
-    loop.flush()
     s = snaps.get_nowait()
     tt, zz = np.array(truth_t), np.array(truth_z)
     t0, t1 = t_window or ((tt[0], tt[-1]) if len(tt) else (-np.inf, np.inf))

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import csv
 import math
-from collections.abc import Iterable
 from pathlib import Path
 
 from groundstation.core.measurement import KIND_COMPONENTS, Measurement
@@ -55,10 +54,6 @@ class MeasurementCsvWriter:
                 (_fmt(m.t), m.kind.value, m.instance, name, _fmt(v), _fmt(var[j]) if var is not None else "", m.source)
             )
             self.rows += 1
-
-    def write_all(self, ms: Iterable[Measurement]) -> None:
-        for m in ms:
-            self.write(m)
 
     def close(self) -> None:
         if not self._f.closed:

@@ -19,12 +19,11 @@
 
 from __future__ import annotations
 
-import asyncio
 import bisect
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -88,7 +87,6 @@ class LoopCounters:
     late: int = 0  # later than the reorder window: dropped
     rollbacks: int = 0  # late within the window: re-run in order
     truth: int = 0
-    by_estimator: dict = field(default_factory=dict)
 
 
 #: a checkpoint of every estimator at most this often (vehicle time) [s]
@@ -106,7 +104,6 @@ class EstimationLoop:
         self.truth: Broadcast[Measurement] = Broadcast(100_000)
         self.counters = LoopCounters()
         self._latest = -math.inf
-        self._tasks: list[asyncio.Task] = []
         self.latest: dict[str, Snapshot] = {}
         #: kinds some estimator consumes; the rest are not processed at all
         self.kinds = set().union(*(e.kinds for e in estimators)) if estimators else set()
@@ -140,9 +137,6 @@ class EstimationLoop:
             self.counters.rollbacks += 1
         else:
             self.counters.late += 1
-
-    def flush(self) -> None:
-        """Nothing is held back; kept for callers that mark the end of a stream."""
 
     def _checkpoint_if_due(self, t: float) -> None:
         """A checkpoint before a measurement at ``t``, every :data:`CHECKPOINT_EVERY`; also while a
@@ -223,25 +217,3 @@ class EstimationLoop:
                 self.push(m)
 
         link.sinks.append(sink)
-
-    def attach(self, subscription) -> None:
-        """Consume an ``async for`` stream of measurements (a link's, a replay's)."""
-
-        async def pump():
-            async for m in subscription:
-                self.push(m)
-
-        self._tasks.append(asyncio.get_running_loop().create_task(pump()))
-
-    async def wait(self) -> None:
-        """Until every attached stream has ended; then flush the reorder window."""
-        await asyncio.gather(*self._tasks)
-        self.flush()
-        self.snapshots.close()
-
-    async def stop(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-        self.flush()
-        self.snapshots.close()
