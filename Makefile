@@ -50,6 +50,7 @@ bench: setup
 	$(BIN)/python bench/dashboard.py
 	$(BIN)/python bench/estimation.py
 	$(BIN)/python bench/control.py
+	$(BIN)/python bench/real_logs.py
 
 clean:
 	rm -rf $(VENV) out artifacts .pytest_cache .mypy_cache .ruff_cache

@@ -1,4 +1,4 @@
-"""Drivers: every protocol or file format turned into :class:`groundstation.measurement.Measurement`.
+"""Drivers: every protocol or file format turned into :class:`groundstation.core.measurement.Measurement`.
 
 Units, frames and time bases are converted here, once, and nowhere else.
 """

@@ -122,10 +122,10 @@ def test_a_vehicle_file_that_is_not_the_logs_airframe_is_named_in_the_conclusion
     and that the effects are sized against the file's."""
     import json
 
-    import groundstation.estimators as estimators
+    from groundstation.estimation import vehicles
 
     (tmp_path / "other_quad.json").write_text(json.dumps({"quad_thrust": {"alpha0": 17.0, "beta0": 0.0}}))
-    monkeypatch.setattr(estimators, "VEHICLE_CONFIGS", tmp_path)
+    monkeypatch.setattr(vehicles, "VEHICLE_CONFIGS", tmp_path)
     log, ms = _flight(tmp_path, 1012)
     d = diagnose(
         ms, model_name="quad_thrust", declared=declared_effects(log.with_suffix(".declared.json")), vehicle="other_quad"

@@ -12,7 +12,7 @@ in which north/up read naturally and nothing is mirrored.
 
 Scene: the vehicle at its estimated pose (box + axes; height from the
 session's model, horizontal place from the IMU + GPS filter of
-``groundstation.models.horizontal``), the truth as a ghost
+``groundstation.estimation.models.horizontal``), the truth as a ghost
 when the session has truth, a trail, the position covariance as a 3-sigma
 ellipsoid oriented by its eigenvectors, the range sensor's ray, a ground grid.
 Panels: link status, the state table with +-sigma, time plots (estimate with

@@ -70,7 +70,7 @@ REPLAY_HELP = "replay controls: p = pause/resume, s SECONDS = seek, x SPEED = sp
 def replay_command(line: str, replay, stop) -> str:
     """Apply one typed replay command; returns what to print.
 
-    The same :class:`~groundstation.replay.Replay` methods the dashboard's
+    The same :class:`~drivers.replay.Replay` methods the dashboard's
     controls call, for headless use.
     """
 

@@ -24,7 +24,7 @@ Corrections, made knowingly:
   (:mod:`sim_bridge.vehicles.heli3dof`). The plant the lab flew had the
   K_f its equilibrium voltage implies, 0.1248 N/V, so its real K1 was 27 times
   smaller than the one its gains were designed on: :data:`LAB_K_F` keeps the
-  lab's value for reproducing its trials, :data:`~groundstation.models.heli3dof.K_F`
+  lab's value for reproducing its trials, :data:`~groundstation.estimation.models.heli3dof.K_F`
   is the corrected one.
 * Eq. 43 says F can be anything once integral action is added. It can, for the
   steady state; for the transient we take the F of eq. 37 computed with the

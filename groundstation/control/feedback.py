@@ -11,7 +11,7 @@ state by name (``state()``), or ``None`` until it has one. The lab document
   (eq. 51-52, on the raw specific force as the lab reads it), the rates from
   the gyro through the Euler-rate transform (the lab's "Euler block", eq. 47);
 * :class:`KalmanFeedback`: the lab's discrete Kalman filter on the IMU
-  (:func:`groundstation.estimator.heli3dof_estimator`, encoders left out as
+  (:func:`groundstation.estimation.routing.heli3dof_estimator`, encoders left out as
   in the lab's flight), fed the commanded voltages as its input;
 * :class:`PredictorFeedback`: the open-loop predictor, the linear model
   (eq. 14-16) integrated from the commanded voltages alone, exactly

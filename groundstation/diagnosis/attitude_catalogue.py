@@ -2,7 +2,7 @@
 
 The altitude and thrust models take the attitude as given (the autopilot's), so
 an error of the gyro or of the IMU's mounting never reaches their innovations.
-The drag attitude model (:mod:`groundstation.models.attitude_drag`) runs on the
+The drag attitude model (:mod:`groundstation.estimation.models.attitude_drag`) runs on the
 raw IMU: the gyro as its input, the accelerometer's horizontal specific force as
 its measurement (rotor drag of the body velocity). There both effects leave a
 residual:

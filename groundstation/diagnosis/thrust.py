@@ -167,7 +167,7 @@ def _motor_outputs_of(ms: list[Measurement]) -> int:
 
 def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
     """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
-    them (one source, as :func:`groundstation.estimator.collective` takes it)."""
+    them (one source, as :func:`groundstation.estimation.routing.collective` takes it)."""
     n = _motor_outputs_of(ms)
     outputs = [
         (m.t, float(np.nanmean(m.value[:n]))) for m in ms if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()

@@ -7,7 +7,7 @@ slant (``range_tilt``) needs it to be right. The derived measurements are
 marked by their source (``derived/gyro``); truth is never used.
 
 Why not the accelerometer. The complementary filter of the coaxial document's
-chapter 8 (:class:`~groundstation.attitude.ComplementaryFilter`) takes the
+chapter 8 (:class:`~groundstation.estimation.attitude_filters.ComplementaryFilter`) takes the
 accelerometer's gravity vector as its "position" sensor. On a multirotor in
 flight the specific force follows the thrust, not gravity (its horizontal part
 is rotor drag, a few tenths of a m/s^2), so that sensor reads a tilted vehicle
@@ -18,7 +18,7 @@ on those two logs, and 1/(cos roll cos pitch) was twice as far off as the slant
 it should correct (traj4: 32e-3 RMS against 17e-3).
 
 What is used instead: the gyro's body rates integrated to Euler angles
-(:func:`~groundstation.attitude.euler_rates`), and the gyro's bias removed as the
+(:func:`~groundstation.core.frames.euler_rates`), and the gyro's bias removed as the
 straight line over the whole log that the integrated roll and pitch drift
 along. That line is the tilt's mean and trend, and a multirotor's tilt has
 neither over a flight that starts and ends at rest where it took off, heading

@@ -6,7 +6,7 @@ Estimates, one row per estimate (after each measurement update)::
 
 ``t`` is vehicle time [s]; states in the model's units (see its docstring);
 ``sigma_<state>`` the square root of the covariance's diagonal. Written from
-the same :class:`~groundstation.loop.Snapshot` objects the dashboard reads.
+the same :class:`~groundstation.estimation.loop.Snapshot` objects the dashboard reads.
 
 Decoded measurements (tidy/long format):
 
@@ -15,7 +15,7 @@ One row per measurement component::
     t,kind,instance,component,value,variance,source
 
 ``t`` is vehicle time [s], ``value`` is in SI units (see
-:mod:`groundstation.measurement`), ``variance`` is empty when the sensor gave
+:mod:`groundstation.core.measurement`), ``variance`` is empty when the sensor gave
 none. Long format keeps the columns fixed whatever sensors a file has; pivot
 it (pandas ``pivot_table``) for a wide view. Estimates are exported in the
 estimator's own format (``t``, states, ``sigma_<state>``) by the estimation loop.

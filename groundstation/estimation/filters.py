@@ -1,7 +1,7 @@
 """A thin layer over filterpy: a declared model in, predict/update, an innovation log out.
 
 :class:`ModelFilter` drives ``filterpy.kalman.KalmanFilter`` with the exact
-discretisation of a :class:`~groundstation.models.base.LinearModel` for each
+discretisation of a :class:`~groundstation.estimation.models.base.LinearModel` for each
 step, and records for every measurement update the innovation nu, its
 covariance S, NIS = nu^T S^-1 nu, the gain K and the inputs used
 (:class:`InnovationLog`): the closed-loop diagnosis reads this log.

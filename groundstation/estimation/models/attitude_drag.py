@@ -1,6 +1,6 @@
 """Roll and pitch of a multirotor from its IMU alone, as a declared model the diagnosis can extend.
 
-The dynamics are those of :mod:`groundstation.attitude_drag` (Leishman, Macdonald,
+The dynamics are those of :mod:`groundstation.estimation.attitude_filters` (Leishman, Macdonald,
 Beard and McLain, IEEE Control Systems Magazine 34(1), 2014): on a multirotor the
 accelerometer sees the rotor drag of the horizontal body velocity, not gravity, and
 the velocity's dynamics carry the tilt. State ``x = (phi, theta, u, v)``: roll,
@@ -57,7 +57,7 @@ against an external attitude reference.
 The model is a multirotor's: a coaxial helicopter steers with its flapping lower
 rotor, whose tilted thrust, not drag, is what its accelerometer sees sideways.
 
-It runs as an extended Kalman filter in :class:`~groundstation.filters.ModelFilter`
+It runs as an extended Kalman filter in :class:`~groundstation.estimation.filters.ModelFilter`
 (the measurement is linear; the dynamics relinearised each step). The rates
 are small-angle in the mounting only; the attitude itself is kept nonlinear.
 """

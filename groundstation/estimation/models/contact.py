@@ -15,7 +15,7 @@ when a range reading sees the vehicle above the ground (:func:`note_range`). In 
 model's inputs are off and z and vz are *reset* to 0 (:func:`ground_contact`), whatever the
 other states are: as Kalman updates, a touchdown's vz = 0 against an estimate still sinking
 at 0.8 m/s was "explained" through the correlations. Used by the live thrust filter
-(:func:`groundstation.estimator.thrust_input_on_ground`, through :func:`contact_range`) and its diagnosis
+(:func:`groundstation.estimation.routing.thrust_input_on_ground`, through :func:`contact_range`) and its diagnosis
 (:func:`groundstation.diagnosis.thrust._input`).
 """
 
@@ -81,7 +81,7 @@ def in_contact(ctx: Context, t: float, h: float, lifts: bool, *, known: bool = T
 
 
 def ground_contact(model: LinearModel) -> LinearModel:
-    """``model`` (with :func:`~groundstation.models.ground.on_ground`'s constraints) with those
+    """``model`` (with :func:`~groundstation.estimation.models.ground.on_ground`'s constraints) with those
     constraints as resets, and z = 0 (:data:`CONTACT_SIGMA`) reset in contact.
 
     Landed below ground idle or in contact, vz is reset to 0, and z to 0 where ``on_ground`` says
@@ -151,5 +151,5 @@ def contact_range(model: LinearModel) -> LinearModel:
 
     meas = dict(model.measurements)
     meas["range"] = replace(rng, extract=range_read)
-    # the live estimator's input then keeps the contact (estimator.thrust_input_on_ground)
+    # the live estimator's input then keeps the contact (routing.thrust_input_on_ground)
     return replace(model, measurements=meas, options={**model.options, "ground_contact": True})

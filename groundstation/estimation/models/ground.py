@@ -77,7 +77,7 @@ RANGE_QUIET = 0.3
 
 def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False) -> LinearModel:
     """``model`` with the landed constraints (module docstring); ``height=False`` leaves out z = 0
-    (the thrust model has its own ground contact, :func:`groundstation.models.contact.ground_contact`).
+    (the thrust model has its own ground contact, :func:`groundstation.estimation.models.contact.ground_contact`).
 
     ``consider=True``: the constraints correct z and vz only (a Schmidt update); the other states
     keep what the sensors told them. The altitude diagnosis sets it: it estimates constants over

@@ -9,7 +9,7 @@ the echoes: a replay showed the standing vehicle 1.9 m up (altitude model) and
 1.5-6 m up (thrust model) for the first minute.
 
 The gate closes while the motors are stopped (throttle below
-:data:`~groundstation.estimator.TAU_STOPPED`: disarmed or spinning down; an autopilot does not stop
+:data:`~groundstation.estimation.models.ground.TAU_STOPPED`: disarmed or spinning down; an autopilot does not stop
 them in flight). That is a fact from the link, not the estimate, so the gate cannot lock a range
 sensor out in flight, which is the risk of an estimate-keyed gate: after a stretch on the baro
 alone the estimate may sit on the ground while the vehicle flies. While it is closed, a reading
