@@ -16,7 +16,7 @@ from groundstation.estimation.models.base import (
     discretize_series,
     observability_rank,
 )
-from groundstation.estimation.routing import altitude_estimator
+from groundstation.estimation.routing import altitude_estimator, horizontal_estimator
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -250,7 +250,50 @@ def test_non_finite_measurements_are_counted_and_skipped(bad):
     loop = EstimationLoop([est], reorder_s=0.0)
     loop.push(_m(0.0, Kind.ACCEL, [0, 0, -9.8]))
     loop.push(_m(0.01, Kind.RANGE, [bad]))
-    assert est.counters.skipped.get("not_finite") == 1 and np.all(np.isfinite(est.filter.x))
+    assert est.counters.skipped.get("range_not_finite") == 1 and np.all(np.isfinite(est.filter.x))
+
+
+@pytest.mark.parametrize(
+    "kind, value, why",
+    [
+        (Kind.ACCEL, [0.0, math.nan, -9.8], "accel_not_finite"),  # one component of a vector
+        (Kind.ATTITUDE, [0.0, math.nan, 0.0], "attitude_not_finite"),  # the tilt every input rotates by
+        (Kind.ATTITUDE_QUATERNION, [1.0, 0.0, math.inf, 0.0], "attitude_quaternion_not_finite"),
+        (Kind.ACCEL, [0.0, 3e4, -9.8], "accel_implausible"),
+        (Kind.BARO_PRESSURE, [-5.0], "baro_pressure_implausible"),
+    ],
+)
+def test_every_component_of_every_reading_is_checked_and_the_estimate_survives(kind, value, why):
+    """One accelerometer reading with y = NaN made the altitude and horizontal filters NaN for the rest
+    of a replay; one NaN attitude killed the live estimator. Every component is checked, the reading
+    is rejected and counted by kind and reason, and the estimates stay finite after it."""
+    est, horizontal = altitude_estimator(), horizontal_estimator()
+    loop = EstimationLoop([est, horizontal], reorder_s=0.0)
+    for k in range(100):
+        t = 0.01 * k
+        loop.push(_m(t, Kind.ACCEL, [0.0, 0.0, -9.80665]))
+        loop.push(_m(t + 0.001, Kind.ATTITUDE, [0.01, -0.02, 0.0]))
+        if k == 50:
+            loop.push(_m(t + 0.002, kind, value))
+        loop.push(_m(t + 0.003, Kind.RANGE, [1.0]))
+    assert est.counters.skipped.get(why) == 1 or horizontal.counters.skipped.get(why) == 1, est.counters.skipped
+    for e in (est, horizontal):
+        assert np.all(np.isfinite(e.filter.x)) and np.all(np.isfinite(e.filter.P)) and e.counters.diverged == 0
+    assert loop.latest["altitude"].x[0] == pytest.approx(1.0, abs=0.05)
+
+
+def test_a_filter_that_goes_non_finite_starts_over_and_says_so():
+    """Whatever gets a filter's state to NaN (here: a model's own arithmetic, injected), it is no
+    estimate: the estimator re-initialises at the next reading and counts it."""
+    est = altitude_estimator()
+    loop = EstimationLoop([est], reorder_s=0.0)
+    loop.push(_m(0.0, Kind.ACCEL, [0, 0, -9.8]))
+    loop.push(_m(0.01, Kind.RANGE, [1.0]))
+    est.filter.kf.x = est.filter.kf.x * math.nan  # a fault no reading causes: injected
+    loop.push(_m(0.02, Kind.ACCEL, [0, 0, -9.8]))
+    assert est.counters.diverged == 1 and np.all(np.isfinite(est.filter.x))
+    loop.push(_m(0.03, Kind.RANGE, [1.0]))
+    assert np.all(np.isfinite(est.filter.x))
 
 
 def test_a_consider_update_corrects_only_its_states_and_a_reset_sets_them():

@@ -45,7 +45,7 @@ from groundstation.estimation.vehicles import declared_beside, declared_effects
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
-from .console import REPLAY_HELP, StatusLine, print_link_events, replay_command
+from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import cmd_diagnose
 from .signals import on_stop_signal
@@ -373,7 +373,11 @@ async def run_connect(args) -> int:
     station = None
     if getattr(args, "control", None):
         station = ControlStation(args.control, link)
-        tasks += [asyncio.create_task(station.follow(link.measurements())), asyncio.create_task(station.run())]
+        tasks += [
+            asyncio.create_task(station.follow(link.measurements())),
+            asyncio.create_task(station.run()),
+            asyncio.create_task(print_control_notes(station.notes.subscribe())),
+        ]
         if dash is not None:
             dash.add_control(station)
     if dash is not None:

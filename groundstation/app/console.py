@@ -64,6 +64,12 @@ async def print_link_events(events) -> None:
         print(f"link {ev.state.value}: {ev.reason}", flush=True)
 
 
+async def print_control_notes(notes) -> None:
+    """One line per arming and disarming (with its reason), until the stream ends."""
+    async for text in notes:
+        print(f"control {text}", flush=True)
+
+
 REPLAY_HELP = "replay controls: p = pause/resume, s SECONDS = seek, x SPEED = speed (0.1..100 or max), q = quit"
 
 

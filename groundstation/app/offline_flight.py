@@ -82,8 +82,12 @@ def fly(
     reference: Callable[..., dict] | None = None,
     latency: float = 0.004,
     stale_after: float = 0.25,
+    tamper: Callable[[bytes, float], bytes] | None = None,
 ) -> Flight:
     """Fly ``seconds`` of simulated time; control is armed at ``arm_at``.
+
+    ``tamper(frame, t)``: what the link delivers in place of each frame the vehicle sends at
+    simulated time t (a corrupted reading, a fault injected on the wire).
 
     ``reference(t)`` or ``reference(t, truth)``: the reference at time t; the
     second form sees the vehicle's true state, as an operator watching the rig
@@ -118,6 +122,8 @@ def fly(
         wire.pump(sim.t)
         for s in sim.step():
             for fr in enc.encode(s):
+                if tamper is not None:
+                    fr = tamper(fr, sim.t)
                 for m in rx.feed(fr, t_rx):
                     cmd.feed(m)
         if k % every == 0:

@@ -21,7 +21,7 @@ from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import VEHICLES, Scenario
 from web.dashboard import Dashboard
 
-from .console import StatusLine, print_link_events
+from .console import StatusLine, print_control_notes, print_link_events
 from .signals import on_stop_signal
 
 
@@ -236,6 +236,7 @@ async def run_demo(args) -> int:
             station = ControlStation(args.vehicle, link)
             control_tasks.append(asyncio.create_task(station.follow(link.measurements())))
         control_tasks.append(asyncio.create_task(station.run()))
+        control_tasks.append(asyncio.create_task(print_control_notes(station.notes.subscribe())))
         if dash is not None:
             dash.add_control(station)
         print(

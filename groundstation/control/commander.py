@@ -7,7 +7,12 @@ Rules, in the order :meth:`Commander.tick` applies them:
    the feedback has no fresh state.
 2. Commands go out at a fixed rate (``rate``, default 100 Hz) on the link the
    data comes in on (:mod:`.uplink`).
-3. Link loss disarms at once: a LOST or CLOSED event from the link, or no
+3. A state the controller reads that is not finite or outside its plausible range
+   (:attr:`~.controllers.Controller.state_limits`: a NaN from one bad frame, a vehicle
+   upside down), or a command that is not finite or outside its range, disarms at once
+   with the value named. Python's ``min``/``max`` drop NaN, so the check is on the state
+   before the controller sees it, and on the command after.
+4. Link loss disarms at once: a LOST or CLOSED event from the link, or no
    measurement for the feedback within ``stale_after`` seconds (0.25 s: a
    lost link is noticed within that plus one tick). Commanding stops; the
    vehicle, no longer commanded, falls back to its own safe state after its
@@ -23,7 +28,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -54,6 +59,35 @@ class ControlRecord:
     saturated: bool
 
 
+def state_problem(controller: Controller, x: Mapping[str, float]) -> str | None:
+    """What is wrong with the state ``x`` for ``controller``, in one line, or None: a value it
+    needs missing, or any value it reads not finite or outside its plausible range."""
+    for name in controller.needs:
+        if name not in x:
+            return f"no {name}"
+    for name in (*controller.needs, *(k for k in controller.state_limits if k not in controller.needs)):
+        if name not in x:
+            continue
+        v = float(x[name])
+        if not math.isfinite(v):
+            return f"{name} = {v} is not finite"
+        lo, hi = controller.state_limits.get(name, (-math.inf, math.inf))
+        if not lo <= v <= hi:
+            return f"{name} = {v:.4g} is outside its plausible range [{lo:.4g}, {hi:.4g}]"
+    return None
+
+
+def command_problem(controller: Controller, command: np.ndarray) -> str | None:
+    """What is wrong with a command, in one line, or None: not finite, or outside its range."""
+    c = np.asarray(command, dtype=float)
+    if not np.all(np.isfinite(c)):
+        return f"command {np.array2string(c, precision=4)} is not finite"
+    lo, hi = controller.command_limits
+    if np.any(c < lo) or np.any(c > hi):
+        return f"command {np.array2string(c, precision=4)} is outside [{lo:g}, {hi:g}]"
+    return None
+
+
 class Commander:
     def __init__(
         self,
@@ -66,6 +100,7 @@ class Commander:
         link=None,
         clock: Callable[[], float] = time.monotonic,
         on_command: Callable[[Measurement], None] | None = None,
+        notes: Broadcast[str] | None = None,
     ) -> None:
         self.controller, self.feedback, self.uplink = controller, feedback, uplink
         self.rate, self.stale_after = rate, stale_after
@@ -78,8 +113,8 @@ class Commander:
         self.status = "disarmed"
         self.history: list[tuple[float, str]] = []  # (clock, what happened)
         self.records: Broadcast[ControlRecord] = Broadcast(10_000)
-        #: arm and disarm notes as they happen (the dashboard's status line, tests)
-        self.notes: Broadcast[str] = Broadcast(1000)
+        #: arm and disarm notes as they happen (the terminal, the dashboard's status line, tests)
+        self.notes: Broadcast[str] = notes if notes is not None else Broadcast(1000)
         self._last_rx: float | None = None
         self._t_vehicle = -math.inf
         self._stop = asyncio.Event()
@@ -118,6 +153,9 @@ class Commander:
         x = self.feedback.state()
         if x is None or any(k not in x for k in self.controller.needs):
             return f"{self.feedback.name} feedback has no state for {self.controller.name} yet"
+        bad = state_problem(self.controller, x)
+        if bad is not None:
+            return f"{self.feedback.name} feedback: {bad}"
         return None
 
     def arm(self) -> None:
@@ -154,9 +192,14 @@ class Commander:
         if x is None:
             self.disarm(f"{self.feedback.name} feedback has no state")
             return None
+        bad = state_problem(self.controller, x)
+        if bad is not None:
+            self.disarm(f"{self.feedback.name} feedback: {bad}")
+            return None
         out = self.controller.update(x, self.reference, 1.0 / self.rate)
-        if not np.all(np.isfinite(out.command)):
-            self.disarm("controller produced a non-finite command")
+        bad = command_problem(self.controller, out.command)
+        if bad is not None:
+            self.disarm(f"{self.controller.name}: {bad}")
             return None
         t = self._t_vehicle
         self.uplink.send(out.command, t)

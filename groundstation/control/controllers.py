@@ -42,6 +42,12 @@ G = 9.80665
 V_MAX = 12.0
 
 
+def clamp(v: float, lo: float, hi: float) -> float:
+    """``v`` held to [lo, hi]; NaN stays NaN (Python's ``min``/``max`` would drop it, and a NaN state
+    became a valid-looking command: the commander checks every command for it)."""
+    return v if v != v else min(hi, max(lo, v))
+
+
 @dataclass(frozen=True)
 class Output:
     command: np.ndarray  # what is sent: (V_f, V_b) [V], or (collective,) 0..1
@@ -59,6 +65,11 @@ class Controller(abc.ABC):
     references: dict[str, float] = {}
     #: names of the command components (export and plots)
     command_names: tuple[str, ...] = ()
+    #: the plausible range of each state it reads (optional ones too: checked when present); a value
+    #: outside it, or not finite, disarms (:class:`~.commander.Commander`)
+    state_limits: dict[str, tuple[float, float]] = {}
+    #: what each command component may be
+    command_limits: tuple[float, float] = (-math.inf, math.inf)
 
     @abc.abstractmethod
     def update(self, x: Mapping[str, float], r: Mapping[str, float], dt: float) -> Output:
@@ -80,18 +91,30 @@ def motor_voltages(
 ) -> tuple[np.ndarray, np.ndarray, bool]:
     """(V_f, V_b), the applied (V_s - V_s0, V_d), and whether anything was clipped."""
     V_s = V_s0 + u_s
-    V_s_c = min(2 * V_max, max(0.0, V_s))
+    V_s_c = clamp(V_s, 0.0, 2 * V_max)
     lim = min(V_s_c, 2 * V_max - V_s_c)
-    V_d_c = min(lim, max(-lim, V_d))
+    V_d_c = clamp(V_d, -lim, lim)
     sat = V_s_c != V_s or V_d_c != V_d
     return (np.array([(V_s_c - V_d_c) / 2, (V_s_c + V_d_c) / 2]), np.array([V_s_c - V_s0, V_d_c]), sat)
 
 
+#: the 3-DOF rig's angles stay within a quarter turn, its rates within 10 rad/s
+HELI3DOF_LIMITS = {
+    "p": (-math.pi / 2, math.pi / 2),
+    "e": (-math.pi / 2, math.pi / 2),
+    "p_dot": (-10.0, 10.0),
+    "e_dot": (-10.0, 10.0),
+    "lambda_dot": (-10.0, 10.0),
+}
+
+
 class _Heli3dof(Controller):
     command_names = ("V_f", "V_b")
+    state_limits = HELI3DOF_LIMITS
 
     def __init__(self, *, V_s0: float = V_S0, V_max: float = V_MAX) -> None:
         self.V_s0, self.V_max = V_s0, V_max
+        self.command_limits = (0.0, V_max)
 
     def _out(self, u_s: float, V_d: float) -> Output:
         cmd, u, sat = motor_voltages(u_s, V_d, self.V_s0, self.V_max)
@@ -278,6 +301,17 @@ class AltitudeHold(Controller):
     needs = ("z", "vz")
     references = {"z_c": 1.0}
     command_names = ("collective",)
+    #: a small rotorcraft's flight: beyond a quarter turn of tilt it is upside down, and a thrust
+    #: curve outside these is no estimate to fly on
+    state_limits = {
+        "z": (-10.0, 1000.0),
+        "vz": (-30.0, 30.0),
+        "roll": (-math.pi / 2, math.pi / 2),
+        "pitch": (-math.pi / 2, math.pi / 2),
+        "alpha": (1.0, 200.0),
+        "beta": (-50.0, 50.0),
+    }
+    command_limits = (0.0, 1.0)
 
     def __init__(
         self,
@@ -301,19 +335,19 @@ class AltitudeHold(Controller):
     def update(self, x, r, dt):
         e = x["z"] - r["z_c"]
         a = -float(self.K @ np.array([e, x["vz"], self.i]))
-        a_c = min(self.a_limit, max(-self.a_limit, a))
-        tilt = max(0.5, math.cos(x.get("roll", 0.0)) * math.cos(x.get("pitch", 0.0)))
+        a_c = clamp(a, -self.a_limit, self.a_limit)
+        tilt = clamp(math.cos(x.get("roll", 0.0)) * math.cos(x.get("pitch", 0.0)), 0.5, 1.0)
         gain = x.get("alpha", self.thrust.gain)
         offset = x.get("beta", self.thrust.offset)
         c = (G + a_c - offset) / (gain * tilt)
         lo, hi = self.thrust.limit
-        c_c = min(hi, max(lo, c))
+        c_c = clamp(c, lo, hi)
         sat = a_c != a or c_c != c
         # conditional integration: while saturated, only what unwinds it
         excess = (a - a_c) if a_c != a else (c - c_c)
         push = -self.K[2] * e * dt
         if not sat or excess * push <= 0:
-            self.i = min(self.integral_limit, max(-self.integral_limit, self.i + e * dt))
+            self.i = clamp(self.i + e * dt, -self.integral_limit, self.integral_limit)
         return Output(np.array([c_c]), np.array([a_c]), sat)
 
     def describe(self):

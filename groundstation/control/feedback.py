@@ -29,6 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.validity import reading_problem
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.heli3dof import STATES, V_S0, euler_rates, matrices
 from groundstation.estimation.routing import heli3dof_estimator
@@ -188,7 +189,7 @@ class EstimatorFeedback(Feedback):
         self._att = (0.0, 0.0)
 
     def feed(self, m):
-        if m.kind is Kind.ATTITUDE:
+        if m.kind is Kind.ATTITUDE and reading_problem(m) is None:  # the estimator rejects it too
             self._att = (float(m.value[0]), float(m.value[1]))
         if m.kind in self.estimator.kinds:
             self.estimator.handle(m)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
+from groundstation.core.broadcast import Broadcast
 from groundstation.core.measurement import Measurement
 from groundstation.estimation.routing import altitude_estimator, quad_thrust_estimator
 
@@ -86,6 +87,8 @@ class ControlStation:
         self.on_command = on_command
         self.controller_name = controller or next(iter(CONTROLLERS[vehicle]))
         self.feedback_name = feedback or next(iter(FEEDBACK[vehicle]))
+        #: every commander's arm and disarm notes, whichever is in charge
+        self.notes: Broadcast[str] = Broadcast(1000)
         self.commander = self._build()
         self._changed = asyncio.Event()
         self._stopped = False
@@ -101,7 +104,9 @@ class ControlStation:
     def _build(self) -> Commander:
         c = CONTROLLERS[self.vehicle][self.controller_name]()
         fb = FEEDBACK[self.vehicle][self.feedback_name]()
-        return Commander(c, fb, self.uplink, rate=self.rate, link=self.link, on_command=self.on_command)
+        return Commander(
+            c, fb, self.uplink, rate=self.rate, link=self.link, on_command=self.on_command, notes=self.notes
+        )
 
     def select(self, *, controller: str | None = None, feedback: str | None = None) -> None:
         """Change controller and/or feedback (refused while armed: disarm first)."""
@@ -143,3 +148,4 @@ class ControlStation:
     def stop(self) -> None:
         self._stopped = True
         self.commander.stop()
+        self.notes.close()

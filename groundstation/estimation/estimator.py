@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.validity import reading_problem
 
 from .context import Context
 from .filters import InnovationRecord, ModelFilter
@@ -28,6 +29,8 @@ class EstimatorCounters:
     updates: int = 0
     predictions: int = 0
     reinitialisations: int = 0
+    #: times the filter's state or covariance went non-finite and it started over
+    diverged: int = 0
     skipped: dict = field(default_factory=dict)
 
     def skip(self, why: str) -> None:
@@ -35,7 +38,8 @@ class EstimatorCounters:
 
     @property
     def rejected(self) -> dict[str, int]:
-        """The skips of data: not finite, out of order, invalid, or refused by a model with its reason
+        """The skips of data: readings not finite or implausible (``accel_not_finite``,
+        ``baro_pressure_implausible``), out of order, invalid, or refused by a model with its reason
         (``range_on_ground``, ``range_out_of_bounds``). Not ``*_not_used``: a barometer's calibration
         readings, a pseudo-sensor's constraint that did not apply (``landed`` in flight)."""
         return {k: n for k, n in self.skipped.items() if not k.endswith("_not_used")}
@@ -106,10 +110,26 @@ class KalmanEstimator:
         return t >= f.t - 1e-9
 
     def handle(self, m: Measurement) -> InnovationRecord | None:
-        v0 = m.value[0] if len(m.value) else math.nan
-        if m.t != m.t or not math.isfinite(v0):
-            self.counters.skip("not_finite")
+        k = m.kind
+        if k not in self.context and k not in self.inputs and k not in self._by_kind:
             return None
+        bad = reading_problem(m)
+        if bad is not None:
+            # every component checked: one NaN in a vector reading poisoned the filter for good
+            self.counters.skip(f"{m.kind.value}_{bad}")
+            return None
+        rec = self._handle(m)
+        f = self.filter
+        # the sums propagate any NaN or infinity; P only where an update touched it
+        if not math.isfinite(float(f.kf.x.sum())) or (rec is not None and not math.isfinite(float(f.kf.P.sum()))):
+            # whatever got it there (a model's own arithmetic), the estimate is no estimate: start over
+            self.counters.diverged += 1
+            self.started = False
+            f.reset(m.t)
+            return None
+        return rec
+
+    def _handle(self, m: Measurement) -> InnovationRecord | None:
         f = self.filter
         f.ctx.t = m.t
         rule = self.context.get(m.kind)
