@@ -64,6 +64,7 @@ class _MeasurementIndex:
 
     skipped: list = []
     truncated_at = None
+    clock_steps: list = []
 
     def __init__(self, ms: list[Measurement]) -> None:
         self.items = sorted(ms, key=lambda m: m.t)
@@ -243,4 +244,9 @@ class Replay:
             parts.append(f"{len(self.index.skipped)} corrupt stretches ({n} bytes) resynchronised")
         if self.index.truncated_at is not None:
             parts.append(f"truncated last record at byte {self.index.truncated_at} ignored")
+        steps = self.index.clock_steps
+        if steps:
+            parts.append(f"the recorder's clock stepped {len(steps)} time(s) (at byte {steps[0]}): played on as one")
+        if getattr(c, "undecodable", 0):
+            parts.append(f"{c.undecodable} messages that could not be decoded skipped ({c.last_undecodable})")
         return "; ".join(parts)

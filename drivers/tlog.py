@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import struct
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO
@@ -45,39 +46,71 @@ class TlogError(ValueError):
 
 
 class TlogWriter:
-    """Append-only tlog writer, flushed to the OS at least every ``flush_s``."""
+    """Append-only tlog writer, flushed to the OS at least every ``flush_s``.
 
-    def __init__(self, path: str | os.PathLike, flush_s: float = 0.5) -> None:
+    A write error (a full disk, a file over the size limit, a device pulled) stops the recording,
+    never its caller: it writes inside a live link's receive path, and telemetry, estimation and
+    the dashboard must go on. :attr:`error` then says why, in one line, and ``on_error`` is
+    called with it once; what was written before stays in the file.
+    """
+
+    def __init__(
+        self, path: str | os.PathLike, flush_s: float = 0.5, on_error: Callable[[str], None] | None = None
+    ) -> None:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._f: BinaryIO | None = open(self.path, "ab", buffering=1 << 16)
         self.flush_s = flush_s
         self._last_flush = time.monotonic()
         self.records = 0
+        self.error: str | None = None
+        self.on_error = on_error
 
     def write(self, frame: bytes, t_unix: float) -> None:
         f = self._f
         if f is None:
             return
-        f.write(_TS.pack(int(t_unix * 1e6)))
-        f.write(frame)
-        self.records += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self.flush_s:
-            f.flush()
-            self._last_flush = now
+        try:
+            f.write(_TS.pack(int(t_unix * 1e6)))
+            f.write(frame)
+            self.records += 1
+            now = time.monotonic()
+            if now - self._last_flush >= self.flush_s:
+                f.flush()
+                self._last_flush = now
+        except (OSError, ValueError, OverflowError) as e:
+            self._stop(e)
 
     def flush(self) -> None:
         """Hand buffered records to the OS (called by a timer while idle, too)."""
         if self._f is not None:
-            self._f.flush()
+            try:
+                self._f.flush()
+            except OSError as e:
+                self._stop(e)
             self._last_flush = time.monotonic()
+
+    def _stop(self, e: Exception) -> None:
+        """Stop recording after a write error: close what can be closed, say why once."""
+        f, self._f = self._f, None
+        if f is not None:
+            try:
+                f.close()
+            except OSError:
+                pass  # the buffer's last records cannot be written either
+        reason = e.strerror if isinstance(e, OSError) and e.strerror else str(e)
+        self.error = f"recording to {self.path} stopped after {self.records} records: {reason}"
+        if self.on_error is not None:
+            self.on_error(self.error)
 
     def close(self) -> None:
         if self._f is not None:
-            self._f.flush()
-            os.fsync(self._f.fileno())
-            self._f.close()
+            try:
+                self._f.flush()
+                os.fsync(self._f.fileno())
+                self._f.close()
+            except OSError as e:
+                self._stop(e)
             self._f = None
 
     @property
@@ -108,6 +141,7 @@ class TlogIndex:
     length: np.ndarray  # frame length of each record
     skipped: list[tuple[int, int]] = field(default_factory=list)  # (offset, bytes) resynced over
     truncated_at: int | None = None  # offset of an incomplete last record
+    clock_steps: list[int] = field(default_factory=list)  # offsets where the recorder's clock stepped
 
     def __len__(self) -> int:
         return len(self.t)
@@ -146,6 +180,7 @@ class TlogIndex:
         len_list: list[int] = []
         skipped: list[tuple[int, int]] = []
         truncated_at = None
+        clock_steps: list[int] = []
         unpack = _TS.unpack_from
         pos = 0
         last_ts = None
@@ -208,20 +243,32 @@ class TlogIndex:
                 skipped.append((start, n - start))
                 pos = n
                 break
-            skipped.append((start, pos - start))
+            if last_ts is not None and abs(unpack(data, pos)[0] - last_ts) > _RESYNC_WINDOW_US:
+                last_ts = None  # the recorder's clock stepped: a new segment starts here
+                clock_steps.append(pos)
+            if pos > start:
+                skipped.append((start, pos - start))
         else:
             if 0 < n - pos < 9 and ts_list:
                 truncated_at = pos
         if not ts_list:
             raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
+        t = np.array(ts_list, dtype=np.float64) * 1e-6
+        offsets = np.array(off_list, dtype=np.int64)
+        for step in clock_steps:
+            # the recording goes on where it left off: the step itself is not time that passed
+            i = int(np.searchsorted(offsets, step))
+            if 0 < i < len(t):
+                t[i:] -= t[i] - t[i - 1]
         return cls(
             p,
             data,
-            np.array(ts_list, dtype=np.float64) * 1e-6,
-            np.array(off_list, dtype=np.int64),
+            t,
+            offsets,
             np.array(len_list, dtype=np.int64),
             skipped,
             truncated_at,
+            clock_steps,
         )
 
 
@@ -240,18 +287,38 @@ def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
 
 
 def _resync(data: bytes, pos: int, last_ts: int | None) -> int:
-    """Next offset >= pos where a plausible record starts, or -1."""
+    """Next offset >= pos where a plausible record starts, or -1.
+
+    A plausible record has a timestamp within a day of the last one; or, where the recorder's clock
+    stepped (set by hand, a GPS fix after boot), a checked frame followed by another record within
+    a day of it: the rest of the file is a new segment, not damage. Each magic byte's next offset is
+    searched for once and kept until passed, so a long run of candidates (a stretch of 0xFD bytes)
+    costs one pass, not one search per byte."""
     n = len(data)
     unpack = _TS.unpack_from
+    next_fe = next_fd = -2
     while True:
-        # Find the next magic byte 8 bytes after a candidate record start.
-        a = data.find(b"\xfe", pos + 8)
-        b = data.find(b"\xfd", pos + 8)
-        cand = min(x for x in (a, b, n) if x >= 0)
+        # the next magic byte 8 bytes after a candidate record start
+        if next_fe != -1 and next_fe < pos + 8:
+            next_fe = data.find(b"\xfe", pos + 8)
+        if next_fd != -1 and next_fd < pos + 8:
+            next_fd = data.find(b"\xfd", pos + 8)
+        cand = min(x for x in (next_fe, next_fd, n) if x >= 0)
         if cand >= n:
             return -1
         start = cand - 8
         ts = unpack(data, start)[0]
-        if _TS_MIN_US <= ts <= _TS_MAX_US and (last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US):
-            return start
+        if _TS_MIN_US <= ts <= _TS_MAX_US:
+            if last_ts is None or abs(ts - last_ts) <= _RESYNC_WINDOW_US or _starts_segment(data, start, ts):
+                return start
         pos = start + 1
+
+
+def _starts_segment(data: bytes, start: int, ts: int) -> bool:
+    """A record at ``start`` whose frame checks out and which is followed by another record within a
+    day of it: a new stretch of recording after the recorder's clock stepped."""
+    flen = _frame_length(data, start + 8)
+    nxt = start + 8 + flen
+    if not flen or nxt + 9 > len(data) or not _frame_crc_ok(data, start + 8, flen):
+        return False
+    return bool(_frame_length(data, nxt + 8)) and abs(_TS.unpack_from(data, nxt)[0] - ts) <= _RESYNC_WINDOW_US

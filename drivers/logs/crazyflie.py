@@ -43,6 +43,10 @@ import numpy as np
 from groundstation.core.measurement import Kind, Measurement
 
 MAGIC = 0xBC
+#: struct codes a variable may have (the firmware logs integers and floats)
+_NUMERIC_CODES = set("bBhHiIlLqQefd")
+#: the events converted to measurements, with their number of variables
+CONVERTED = {"estAcceleration": 3, "estGyroscope": 3, "estBarometer": 1, "estTOF": 1, "estPose": 7}
 G0 = 9.80665
 _FLU = np.array([1.0, -1.0, -1.0])
 
@@ -106,6 +110,8 @@ def read_crazyflie(path: str | Path) -> CrazyflieLog:
                 pos = end + 1
                 names.append(var[: var.index("(")])
                 codes += var[var.index("(") + 1 : var.index(")")]
+            if not set(codes) <= _NUMERIC_CODES:  # a definition's type that is no number: damaged
+                raise ValueError(f"variable types {codes!r}")
             events[eid] = (name, names, struct.Struct("<HQ" + codes))
     except (struct.error, ValueError, UnicodeDecodeError):
         raise CrazyflieLogError(f"{p}: event definitions damaged near offset {pos}") from None
@@ -128,11 +134,18 @@ def read_crazyflie(path: str | Path) -> CrazyflieLog:
     if damage is None and not crc_ok:
         damage = f"{p}: CRC-32 mismatch (file damaged somewhere before offset {end_data})"
     data = {}
+    skipped: Counter = Counter()
     for eid, rs in rows.items():
         if rs:
+            name = events[eid][0]
             a = np.array(rs, dtype=float)
-            data[events[eid][0]] = (a[:, 0] * 1e-6, a[:, 1:])
-    return CrazyflieLog(p, events, data, crc_ok, damage)
+            expected = CONVERTED.get(name)
+            if expected is not None and a.shape[1] - 1 != expected:
+                # a definition whose variables are not the event's (a damaged header): not read as it
+                skipped[f"damaged_definition:{name}"] = len(rs)
+                continue
+            data[name] = (a[:, 0] * 1e-6, a[:, 1:])
+    return CrazyflieLog(p, events, data, crc_ok, damage, skipped)
 
 
 def measurements(log: CrazyflieLog, source: str = "cf/1.1") -> list[Measurement]:

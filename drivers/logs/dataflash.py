@@ -40,6 +40,7 @@ import io
 import math
 import os
 import sys
+import tempfile
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -115,14 +116,110 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
     data = p.read_bytes()
     binary = data[:2] == b"\xa3\x95"
     damage = walk_dataflash(data).damage(p) if binary else ""
+    read_from = p
+    if binary:
+        clean_bin, bad_fmts = clean_binary_formats(data)
+        if bad_fmts:
+            damage = "; ".join(x for x in (damage, f"{p}: {bad_fmts} damaged FMT record(s) skipped") if x)
+            with tempfile.NamedTemporaryFile("wb", suffix=".bin", delete=False) as tmp:
+                tmp.write(clean_bin)
+            read_from = Path(tmp.name)
+    else:
+        # DFReader reads a text log whole, and one damaged line (a byte that is not text, a field
+        # that does not read as its format says) rejected all of it: those lines are dropped first
+        clean, dropped = clean_text_log(data)
+        if dropped:
+            damage = f"{p}: {dropped} damaged line(s) skipped"
+            with tempfile.NamedTemporaryFile("wb", suffix=".log", delete=False) as tmp:
+                tmp.write(clean)
+            read_from = Path(tmp.name)
     del data  # DFReader maps the file itself
+    try:
+        return _read(p, read_from, binary, damage, source)
+    finally:
+        if read_from != p:
+            read_from.unlink(missing_ok=True)
+
+
+#: DFReader's format characters by how a text log writes them (pymavlink.DFReader.FORMAT_TO_STRUCT)
+_INT_FORMATS = set("bBhHiIMqQ")
+_FLOAT_FORMATS = set("gfcCeELd")
+_KNOWN_FORMATS = _INT_FORMATS | _FLOAT_FORMATS | set("anNZ")
+
+
+def clean_binary_formats(data: bytes) -> tuple[bytes, int]:
+    """A binary DataFlash log with its damaged FMT records (a format character DFReader does not
+    know, a name that is not a name, columns that do not match the format) unmade: their header
+    bytes zeroed, so that DFReader resyncs over them and skips that type's records instead of
+    rejecting the whole log."""
+    out: bytearray | None = None
+    bad = 0
+    pos = data.find(b"\xa3\x95\x80")
+    while pos >= 0 and pos + 89 <= len(data):
+        name = data[pos + 5 : pos + 9].rstrip(b"\0")
+        fmt = data[pos + 9 : pos + 25].rstrip(b"\0")
+        cols = data[pos + 25 : pos + 89].rstrip(b"\0").split(b",")
+        ok = name.isalnum() and bool(fmt) and all(chr(c) in _KNOWN_FORMATS for c in fmt) and len(cols) == len(fmt)
+        if not ok:
+            if out is None:
+                out = bytearray(data)
+            out[pos : pos + 2] = b"\0\0"
+            bad += 1
+        pos = data.find(b"\xa3\x95\x80", pos + 3)
+    return (bytes(out) if out is not None else data), bad
+
+
+def clean_text_log(data: bytes) -> tuple[bytes, int]:
+    """A text DataFlash log with the lines DFReader would fail on dropped: bytes that are not text,
+    an FMT line that does not define a format, a record of a known format whose fields do not read
+    as that format says. Returns the kept text and how many lines were dropped."""
+    formats: dict[str, str] = {}
+    kept, dropped = [], 0
+    for raw in data.split(b"\n"):
+        if not raw.strip():
+            kept.append(raw)
+            continue
+        if max(raw) >= 0x80:
+            dropped += 1
+            continue
+        fields = [f.strip() for f in raw.decode("ascii").rstrip("\r").split(",")]
+        name = fields[0]
+        if name == "FMT":
+            ok = len(fields) >= 5 and fields[1].isdigit() and fields[2].isdigit() and fields[3].isidentifier()
+            ok = ok and set(fields[4]) <= _KNOWN_FORMATS and len(fields) - 5 == len(fields[4])
+            if not ok:
+                dropped += 1
+                continue
+            formats[fields[3]] = fields[4]
+        elif name in formats and not _fields_read(formats[name], fields[1:]):
+            dropped += 1
+            continue
+        kept.append(raw)
+    return b"\n".join(kept), dropped
+
+
+def _fields_read(fmt: str, values: list[str]) -> bool:
+    if len(values) < len(fmt):
+        return False
+    try:
+        for ch, v in zip(fmt, values):
+            if ch in _INT_FORMATS:
+                int(v)
+            elif ch in _FLOAT_FORMATS:
+                float(v)
+    except ValueError:
+        return False
+    return True
+
+
+def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> DataFlashLog:
     msgs: list = []  # DFReader's messages, then a ("__damage__", why) where it stopped
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
     # damage, so that chatter is dropped.
     with _quiet():
         try:
-            r = DFReader.DFReader_binary(str(p)) if binary else DFReader.DFReader_text(str(p))
+            r = DFReader.DFReader_binary(str(read_from)) if binary else DFReader.DFReader_text(str(read_from))
         except Exception as e:  # DFReader raises assorted errors on foreign data
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
             raise DataFlashError(f"{p}: not a readable DataFlash log: {first}") from None
@@ -139,7 +236,11 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         damage = "; ".join(x for x in (damage, msgs[-1][1]) if x)
     types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
     has_baro = types["BARO"] > 0
-    params = {m.Name: m.Value for m in msgs if not isinstance(m, tuple) and m.get_type() == "PARM"}
+    params = {}
+    for m in msgs:
+        if not isinstance(m, tuple) and m.get_type() == "PARM":
+            with contextlib.suppress(ValueError, TypeError, AttributeError):
+                params[str(m.Name)] = float(m.Value)
     log = DataFlashLog(p, [], types, damage=damage, range_limits=rangefinder_limits(params))
     timed = any(
         hasattr(m, "TimeUS") or hasattr(m, "TimeMS")
@@ -157,16 +258,21 @@ def read_dataflash(path: str | Path, source: str = "df/1.1") -> DataFlashLog:
         typ = m.get_type()
         if typ == "CTUN":
             n_ctun += 1
-        if timed:
-            if hasattr(m, "TimeUS"):
-                t = m.TimeUS * 1e-6
-            elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
-                t = m.TimeMS * 1e-3
+        try:
+            if timed:
+                if hasattr(m, "TimeUS"):
+                    t = m.TimeUS * 1e-6
+                elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
+                    t = m.TimeMS * 1e-3
+                else:
+                    t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
             else:
-                t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
-        else:
-            t = n_ctun / CONTROL_RATE
-        _convert(typ, m, t, source, has_baro, log.range_limits, out, log.skipped)
+                t = n_ctun / CONTROL_RATE
+            _convert(typ, m, t, source, has_baro, log.range_limits, out, log.skipped)
+        except (ValueError, TypeError, AttributeError, IndexError, OverflowError):
+            # a record whose fields do not read as their format says (a damaged line or block):
+            # skipped and counted, the rest of the log kept
+            log.skipped["damaged_record"] += 1
     out.sort(key=lambda x: x.t)
     return log
 

@@ -381,7 +381,7 @@ class MavlinkDecoder:
         out.append(_new(_M, (t, Kind.ACTUATOR, v, source, t_rx, None, m.port, 1)))
 
     def _rc_channels(self, m, t, t_rx, source, instance, out):
-        n = m.chancount or 18
+        n = min(m.chancount or 18, 18)  # a count past the 18 fields the message has is damage
         raw = [getattr(m, f"chan{i}_raw") for i in range(1, n + 1)]
         v = (_array(raw, dtype=float) - 1000.0) * 1e-3
         v[_array(raw) == _UINT16_MAX] = _nan

@@ -110,6 +110,7 @@ class MavlinkLink:
         self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
         self._acks: dict[tuple[int, int], asyncio.Future] = {}
         self.stream_method: dict[int, str] = {}  # sysid -> how streams were requested
+        self._sink_faults: set[str] = set()
 
     # -- public API -----------------------------------------------------------
     @property
@@ -137,7 +138,7 @@ class MavlinkLink:
         await tr.open()
         self.transport = tr
         if self.record_path is not None:
-            self.recorder = TlogWriter(self.record_path)
+            self.recorder = TlogWriter(self.record_path, on_error=self._recording_failed)
         self._set_state(LinkState.CONNECTING, f"opened {self.endpoint}")
         loop = asyncio.get_running_loop()
         self._tasks = [loop.create_task(self._heartbeat_task()), loop.create_task(self._watchdog_task())]
@@ -180,16 +181,20 @@ class MavlinkLink:
 
     # -- receive path ------------------------------------------------------------
     def _data(self, data: bytes, t_rx: float) -> None:
-        n_before = self.receiver.counters.messages + self.receiver.counters.unknown
+        n_before = self.receiver.counters.messages
         out = self.receiver.feed(data, t_rx)
         c = self.receiver.counters
-        if c.messages + c.unknown != n_before:
+        # only a message whose CRC was checked proves the link alive (an unknown id's cannot be)
+        if c.messages != n_before:
             self._last_valid = time.monotonic()
             if self.state is not LinkState.ALIVE:
                 self._set_state(LinkState.ALIVE, "valid message received")
         if out:
             for sink in self.sinks:
-                sink(out)
+                try:
+                    sink(out)
+                except Exception as e:  # noqa: BLE001 - a consumer's fault must not stop the link
+                    self._sink_failed(sink, e)
             self._measurements.publish_many(out)
             c.dropped = self._measurements.dropped
 
@@ -228,6 +233,19 @@ class MavlinkLink:
             return
         self.state = state
         self._events.publish(LinkEvent(state, time.time(), reason))
+
+    def _sink_failed(self, sink, e: Exception) -> None:
+        """A synchronous consumer (the estimation loop) raised: counted, said once per kind of fault
+        on the event stream, and the link goes on delivering."""
+        self.receiver.counters.sink_errors += 1
+        why = f"a consumer of the link failed: {type(e).__name__}: {e}"
+        if why not in self._sink_faults:
+            self._sink_faults.add(why)
+            self._events.publish(LinkEvent(self.state, time.time(), why))
+
+    def _recording_failed(self, why: str) -> None:
+        """A write error stopped the recording; the link goes on (its state unchanged)."""
+        self._events.publish(LinkEvent(self.state, time.time(), why))
 
     def _disconnected(self, reason: str) -> None:
         self._set_state(LinkState.LOST, reason)

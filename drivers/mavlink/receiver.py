@@ -37,6 +37,9 @@ class LinkCounters:
     mavlink1: int = 0
     mavlink2: int = 0
     dropped: int = 0  # measurements dropped because a consumer fell behind
+    sink_errors: int = 0  # batches a synchronous consumer raised on (the link went on)
+    undecodable: int = 0  # messages that passed their CRC but could not be converted (skipped)
+    last_undecodable: str = ""
     #: (sysid, compid) -> [frames received, frames lost by sequence number]
     per_source: dict = field(default_factory=dict)
 
@@ -118,24 +121,40 @@ class MavlinkReceiver:
         self._track(frame[0], seq, sysid, compid, c)
         if self.on_frame is not None:
             self.on_frame(frame, self._t_rx)
-        out = self.decoder.convert(spec.cls, m, sysid, compid, self._t_rx)
+        out = self._convert(spec.cls, m, sysid, compid)
         if out:
             self._out += out
 
     def _object(self, m, sysid, compid, seq, frame) -> None:
         c = self.counters
         if type(m) is _UNKNOWN:
+            # an id this dialect does not know: its CRC cannot be checked, so its header says nothing
+            # either (no sequence, no sign of life); recorded and passed on as it came
             c.unknown += 1
-        else:
-            c.messages += 1
+            c.by_type[m.get_type()] += 1
+            if self.on_frame is not None:
+                self.on_frame(frame, self._t_rx)
+            if self.on_message is not None:
+                self.on_message(m, self._t_rx)
+            return
+        c.messages += 1
         c.by_type[m.get_type()] += 1
         self._track(frame[0], seq, sysid, compid, c)
         if self.on_frame is not None:
             self.on_frame(frame, self._t_rx)
         if self.on_message is not None:
             self.on_message(m, self._t_rx)
-        if type(m) is not _UNKNOWN:
-            self._out.extend(self.decoder.convert(type(m), m, sysid, compid, self._t_rx))
+        self._out.extend(self._convert(type(m), m, sysid, compid))
+
+    def _convert(self, cls, m, sysid: int, compid: int) -> list[Measurement]:
+        """The decoder's measurements of one message; a message it cannot convert (field values
+        that pass the CRC but no sense: a channel count past its fields) is counted and skipped."""
+        try:
+            return self.decoder.convert(cls, m, sysid, compid, self._t_rx)
+        except (AttributeError, ValueError, TypeError, IndexError, OverflowError, ZeroDivisionError) as e:
+            self.counters.undecodable += 1
+            self.counters.last_undecodable = f"{cls.__name__.removeprefix('MAVLink_').upper()}: {e}"
+            return []
 
     def _crc_error(self) -> None:
         self.counters.crc_errors += 1

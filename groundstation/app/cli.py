@@ -50,6 +50,7 @@ from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import cmd_diagnose
 from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
+from .supervise import Supervisor
 
 
 class UsageError(Exception):
@@ -281,14 +282,24 @@ class Outputs:
             if self.dashboard is not None:
                 self.dashboard.feed_snapshot(snap)
 
+    def skipped(self) -> str:
+        """What the estimator rejected so far, and its restarts, for the status line ('' if nothing)."""
+        c = self.estimator.counters
+        parts = [f"skipped {counted(c.rejected)}"] if c.rejected else []
+        if c.diverged:
+            parts.append(f"diverged and restarted {c.diverged}x")
+        return "; ".join(parts)
+
     def close(self) -> str:
         self._drain()
         parts = []
-        rejected = self.estimator.counters.rejected
-        if rejected:
-            parts.append(f"the estimator skipped {counted(rejected)}")
+        c = self.estimator.counters
+        if c.rejected:
+            parts.append(f"the estimator skipped {counted(c.rejected)}")
+        if c.diverged:
+            parts.append(f"the estimator diverged and restarted {c.diverged} times")
         if self.estimates is not None:
-            self.estimates.close()
+            self.estimates.close(counters=c)
             parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
         if self.measurements is not None:
             self.measurements.close()
@@ -352,6 +363,7 @@ async def run_connect(args) -> int:
     )
     stop = asyncio.Event()
     _install_stop(stop)
+    supervisor = Supervisor(stop.set)
     dash = _start_dashboard(args)
     out = Outputs(args, args.declared, dash, args.vehicle)
     status = out.status
@@ -363,25 +375,26 @@ async def run_connect(args) -> int:
             if dash is not None:
                 dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type)))
             if not args.quiet:
-                status.print(link.state.value, link.counters)
+                status.print(link.state.value, link.counters, out.skipped())
 
     tasks = [
-        asyncio.create_task(_consume(sub, out)),
-        asyncio.create_task(print_link_events(events)),
-        asyncio.create_task(print_status()),
+        supervisor.start("estimation", lambda: _consume(sub, out)),
+        supervisor.start("link events", lambda: print_link_events(events)),
+        supervisor.start("status line", print_status),
     ]
     station = None
     if getattr(args, "control", None):
         station = ControlStation(args.control, link)
+        control_sub, notes = link.measurements(), station.notes.subscribe()
         tasks += [
-            asyncio.create_task(station.follow(link.measurements())),
-            asyncio.create_task(station.run()),
-            asyncio.create_task(print_control_notes(station.notes.subscribe())),
+            supervisor.start("control feedback", lambda: station.follow(control_sub)),
+            supervisor.start("control", station.run),
+            supervisor.start("control notes", lambda: print_control_notes(notes)),
         ]
         if dash is not None:
             dash.add_control(station)
     if dash is not None:
-        tasks.append(asyncio.create_task(dash.run()))
+        tasks.append(supervisor.start("dashboard", dash.run))
     try:
         if args.duration:
             try:
@@ -403,10 +416,20 @@ async def run_connect(args) -> int:
     c = link.counters
     print(
         f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
-        + (f"; recorded {link.recorder.records} frames to {record}" if link.recorder else "")
+        + (
+            (
+                f"; {link.recorder.error}"
+                if link.recorder.error
+                else f"; recorded {link.recorder.records} frames to {record}"
+            )
+            if link.recorder
+            else ""
+        )
         + (f"; {written}" if written else ""),
         flush=True,
     )
+    if supervisor.fatal:
+        return 1
     return 0 if link.state is LinkState.CLOSED else 1
 
 
@@ -435,8 +458,9 @@ async def run_replay(args) -> int:
     else:
         stop = asyncio.Event()
         _install_stop(stop)
+        supervisor = Supervisor(stop.set)
         sub = rp.measurements()
-        consumer = asyncio.create_task(_consume(sub, out))
+        consumer = supervisor.start("estimation", lambda: _consume(sub, out))
         player = asyncio.create_task(rp.run())
 
         rates = RateMeter()
@@ -454,14 +478,16 @@ async def run_replay(args) -> int:
                     )
                 if not args.quiet:
                     status.print(
-                        rp.status.state.value, rp.receiver.counters, f"t {rp.position:.1f}/{rp.duration:.1f} s"
+                        rp.status.state.value,
+                        rp.receiver.counters,
+                        "  ".join(x for x in (f"t {rp.position:.1f}/{rp.duration:.1f} s", out.skipped()) if x),
                     )
 
-        printer = asyncio.create_task(print_status())
+        printer = supervisor.start("status line", print_status)
         web = None
         if dash is not None:
             dash.attach_replay(rp)
-            web = asyncio.create_task(dash.run())
+            web = supervisor.start("dashboard", dash.run)
         if sys.stdin is not None and sys.stdin.isatty():
             print(REPLAY_HELP, flush=True)
 

@@ -64,10 +64,25 @@ class Progress:
             print(file=sys.stderr)
 
 
+def writable_folder(out: Path) -> None:
+    """Make ``out`` and check that files can be written in it, before minutes of analysis: one
+    line of error (OSError, as the command line reports it) if not."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".groundstation-write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as e:
+        raise OSError(f"{out}: cannot write the report there: {e.strerror or e}") from None
+
+
 def cmd_diagnose(args) -> int:
+    out = args.out or args.file.with_name(args.file.name + ".diagnosis")
+    if not args.file.exists():
+        raise OSError(f"{args.file}: cannot read: no such file")
+    writable_folder(out)
     ms, desc, vehicle = load_measurements(args.file)
     declared = declared_effects(args.declared or declared_beside(args.file))
-    out = args.out or args.file.with_name(args.file.name + ".diagnosis")
     print(f"diagnosing {args.file}: {desc}", flush=True)
     bar = Progress()
     d = diagnose(

@@ -23,6 +23,7 @@ from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
 from .signals import on_stop_signal
+from .supervise import Supervisor
 
 
 def add_sim_parser(sub) -> None:
@@ -223,6 +224,7 @@ async def run_demo(args) -> int:
         board_port = PtyPort()
     bridge = SimBridge(scenario, udp_to=("127.0.0.1", port), board=board_port)
     await bridge.open()
+    supervisor = Supervisor(bridge.close)
     control_tasks = []
     if getattr(args, "control", False):
         if board_port is not None:
@@ -270,9 +272,13 @@ async def run_demo(args) -> int:
                     f"loss {link.counters.loss_percent:.2f} % · simulated {args.vehicle}, t {bridge.sim.t:.0f} s"
                 )
 
-    tasks = [asyncio.create_task(c) for c in (consume(), print_link_events(events), show_status())]
+    tasks = [
+        supervisor.start("dashboard feed", consume),
+        supervisor.start("link events", lambda: print_link_events(events)),
+        supervisor.start("status line", show_status),
+    ]
     if dash is not None:
-        tasks.append(asyncio.create_task(dash.run()))
+        tasks.append(supervisor.start("dashboard", dash.run))
     on_stop_signal(bridge.close)
     try:
         await bridge.run(args.duration)
@@ -290,9 +296,10 @@ async def run_demo(args) -> int:
         if dash is not None:
             dash.stop()
     c = link.counters
+    recorded = (link.recorder.error if link.recorder is not None else None) or f"recorded {args.record}"
     print(
         f"demo: {c.messages} messages, loss {c.loss_percent:.2f}%, streams via "
-        f"{link.stream_method.get(1, 'none')}; recorded {args.record}",
+        f"{link.stream_method.get(1, 'none')}; {recorded}",
         flush=True,
     )
-    return 0
+    return 1 if supervisor.fatal else 0

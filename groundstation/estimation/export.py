@@ -6,7 +6,9 @@ Estimates, one row per estimate (after each measurement update)::
 
 ``t`` is vehicle time [s]; states in the model's units (see its docstring);
 ``sigma_<state>`` the square root of the covariance's diagonal. Written from
-the same :class:`~groundstation.estimation.loop.Snapshot` objects the dashboard reads.
+the same :class:`~groundstation.estimation.loop.Snapshot` objects the dashboard reads. Beside it,
+``OUT.counters.json`` says what the estimator skipped (by sensor and reason) and how often it
+started over.
 
 Decoded measurements (tidy/long format):
 
@@ -24,6 +26,7 @@ estimator's own format (``t``, states, ``sigma_<state>``) by the estimation loop
 from __future__ import annotations
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -78,6 +81,26 @@ class EstimateCsvWriter:
         self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
         self.rows += 1
 
-    def close(self) -> None:
+    def close(self, counters=None) -> None:
+        """Close the CSV; with the estimator's ``counters``, write beside it (``OUT.counters.json``)
+        what it skipped, by sensor and reason, and how often it started over."""
         if not self._f.closed:
             self._f.close()
+        if counters is not None:
+            self.counters_path.write_text(
+                json.dumps(
+                    {
+                        "estimator": self.estimator,
+                        "estimates": self.rows,
+                        "updates": counters.updates,
+                        "skipped": counters.rejected,
+                        "diverged": counters.diverged,
+                        "reinitialisations": counters.reinitialisations,
+                    },
+                    indent=2,
+                )
+            )
+
+    @property
+    def counters_path(self) -> Path:
+        return self.path.with_suffix(".counters.json")

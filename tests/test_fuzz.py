@@ -1,0 +1,299 @@
+"""Fuzzing every reader, bounded and seeded: frames whose CRC is valid but whose contents are not
+(random payloads, extreme and non-finite field values, counts past their fields), damaged tlogs,
+board streams, DataFlash and Crazyflie logs. Nothing may raise but the reader's own one-line error,
+and what gets through must not poison an estimator."""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from drivers import board_protocol as bp
+from drivers.board import BinaryBoardReceiver, NmeaReceiver
+from drivers.logs.crazyflie import CrazyflieLogError, measurements, read_crazyflie
+from drivers.logs.dataflash import DataFlashError, read_dataflash
+from drivers.mavlink.decode import DECODED_TYPES
+from drivers.mavlink.receiver import MavlinkReceiver
+from drivers.replay import Replay
+from drivers.tlog import TlogError, TlogIndex, TlogWriter
+from groundstation.estimation.loop import EstimationLoop
+from groundstation.estimation.registry import build_estimator
+
+FIXTURES = Path(__file__).resolve().parent / "fixtures"
+EXTREMES = [0, 1, -1, math.nan, math.inf, -math.inf, 1e30, -1e30, 2**31 - 1, -(2**31), 65535, 255]
+
+
+def _random_value(rng: random.Random, fmt: str):
+    """A value of a pymavlink field's struct type: extreme or random."""
+    if fmt in "fd":
+        return rng.choice([*EXTREMES[:8], rng.uniform(-1e6, 1e6), rng.gauss(0, 10)])
+    bits = {"b": 7, "B": 8, "h": 15, "H": 16, "i": 31, "I": 32, "q": 63, "Q": 64}.get(fmt, 8)
+    signed = fmt.islower()
+    lo, hi = (-(2**bits), 2**bits - 1) if signed else (0, 2**bits - 1)
+    return rng.choice([lo, hi, 0, rng.randint(lo, hi)])
+
+
+def _random_message(rng: random.Random, cls):
+    """An instance of a pymavlink message class with every field random (arrays too)."""
+    args = []
+    for name, t, length in zip(cls.fieldnames, cls.fieldtypes, cls.array_lengths):
+        code = {
+            "float": "f",
+            "double": "d",
+            "int8_t": "b",
+            "uint8_t": "B",
+            "int16_t": "h",
+            "uint16_t": "H",
+            "int32_t": "i",
+            "uint32_t": "I",
+            "int64_t": "q",
+            "uint64_t": "Q",
+            "char": "c",
+        }.get(t, "B")
+        if code == "c":
+            args.append(bytes(rng.randrange(32, 127) for _ in range(max(length, 1))).decode())
+        elif length:
+            args.append([_random_value(rng, code) for _ in range(length)])
+        else:
+            args.append(_random_value(rng, code))
+    return cls(*args)
+
+
+def _frames(seed: int, n: int) -> list[bytes]:
+    """Valid-CRC frames: random field values of every decoded type, and random payload bytes of any
+    type with the CRC recomputed (what a buggy autopilot or a crafted packet sends)."""
+    rng = random.Random(seed)
+    enc = mavlink.MAVLink(None, 1, 1)
+    classes = [c for c in mavlink.mavlink_map.values() if c.msgname in DECODED_TYPES]
+    out = []
+    for k in range(n):
+        if k % 2 == 0:
+            cls = rng.choice(classes)
+            try:
+                msg = _random_message(rng, cls)
+                if cls.msgname == "RC_CHANNELS":
+                    msg.chancount = rng.choice([0, 18, 19, 200, 255])
+                out.append(bytes(msg.pack(enc)))
+            except (struct.error, OverflowError, ValueError, TypeError):
+                continue  # a value pymavlink itself cannot pack: not a frame
+        else:
+            cls = rng.choice(list(mavlink.mavlink_map.values()))
+            payload = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 256)))
+            hdr = struct.pack(
+                "<BBBBBBBHB", 0xFD, len(payload), 0, 0, rng.randrange(256), 1, 1, cls.id & 0xFFFF, cls.id >> 16
+            )
+            crc = mavlink.x25crc(hdr[1:] + payload)
+            crc.accumulate(struct.pack("B", cls.crc_extra))
+            out.append(hdr + payload + struct.pack("<H", crc.crc))
+        enc.seq = (enc.seq + 1) % 256
+    return out
+
+
+def test_frames_that_pass_their_crc_never_raise_and_never_poison_an_estimator():
+    rx = MavlinkReceiver("fuzz")
+    estimators = [build_estimator(name) for name in ("altitude", "quad_thrust", "horizontal", "attitude")]
+    loop = EstimationLoop(estimators, align_clocks=False)
+    t = 0.0
+    for frame in _frames(1, 6000):
+        t += 0.001
+        for m in rx.feed(frame, t):
+            loop.push(m._replace(t=t) if not math.isfinite(m.t) or abs(m.t - t) > 1e3 else m)
+    c = rx.counters
+    assert c.messages + c.crc_errors > 5000, c.as_dict()
+    for e in estimators:
+        assert np.all(np.isfinite(e.filter.x)) and np.all(np.isfinite(e.filter.P)), (e.name, e.counters.skipped)
+
+
+def test_frames_of_unknown_ids_are_recorded_but_prove_nothing():
+    rx = MavlinkReceiver("fuzz")
+    frame = bytes.fromhex("fd0400000001010a0f0b") + b"\x01\x02\x03\x04" + b"\x00\x00"  # id 0x0b0f0a: unknown
+    rx.feed(frame * 3, 0.0)
+    assert rx.counters.unknown == 3 and rx.counters.messages == 0 and not rx.counters.per_source
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_damaged_tlogs_replay_what_they_can_or_say_in_one_line_why_not(tmp_path, seed):
+    rng = random.Random(seed)
+    src = (FIXTURES / ("dronekit_flight.tlog" if seed % 2 else "ardusub_small.tlog")).read_bytes()
+    data = bytearray(src[: 200_000 + rng.randrange(200_000)])
+    for _ in range(rng.randint(1, 40)):
+        op = rng.random()
+        i = rng.randrange(len(data))
+        if op < 0.5:
+            data[i] = rng.randrange(256)
+        elif op < 0.8:
+            data[i:i] = bytes([rng.choice([0xFD, 0xFE, 0x00, 0xFF])]) * rng.randrange(1, 2000)
+        else:
+            del data[i : i + rng.randrange(1, 500)]
+    p = tmp_path / "damaged.tlog"
+    p.write_bytes(bytes(data))
+    try:
+        rp = Replay(p)
+    except TlogError as e:
+        assert str(e).startswith(str(p)) and "\n" not in str(e)
+        return
+    n = sum(1 for _ in rp.iter_measurements())
+    assert n > 0 and isinstance(rp.skipped_summary(), str)
+
+
+def test_board_streams_of_random_bytes_and_valid_crc_frames_never_raise():
+    rng = random.Random(5)
+    board, nmea = BinaryBoardReceiver("fuzz"), NmeaReceiver("fuzz")
+    for k in range(3000):
+        if k % 3 == 0:
+            msg_id = rng.choice(list(bp.PAYLOADS))
+            payload = bytes(rng.randrange(256) for _ in range(rng.choice([0, 4, bp.PAYLOADS[msg_id][1].size, 64])))
+            chunk = bp.frame(msg_id, rng.randrange(256), payload)
+        elif k % 3 == 1:
+            chunk = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 200)))
+        else:
+            body = ",".join(
+                rng.choice(["GPGGA", "GPRMC", "", "nan", "inf", "99999999", "-", "E", "W", "N", "1"])
+                for _ in range(rng.randrange(1, 16))
+            )
+            cs = 0
+            for ch in body.encode():
+                cs ^= ch
+            chunk = f"${body}*{cs:02X}\r\n".encode()
+        board.feed(chunk, k * 0.01)
+        nmea.feed(chunk, k * 0.01)
+
+
+def _dataflash_bin(rng: random.Random) -> bytes:
+    """A small binary DataFlash log: FMT records, parameters, and IMU, BARO, CTUN and GPS records."""
+
+    def fmt(type_id, length, name, form, cols):
+        return b"\xa3\x95\x80" + struct.pack(
+            "<BB4s16s64s", type_id, length, name.encode(), form.encode(), cols.encode()
+        )
+
+    recs = {
+        "IMU": (129, "QffffffI", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG"),
+        "BARO": (130, "Qffc", "TimeUS,Alt,Press,Temp"),
+        "CTUN": (131, "Qfff", "TimeUS,ThrOut,BarAlt,SonAlt"),
+        "PARM": (132, "QNf", "TimeUS,Name,Value"),
+        "GPS": (133, "QBLLf", "TimeUS,Status,Lat,Lng,Alt"),
+    }
+    out = bytearray(fmt(128, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
+    sizes = {}
+    for name, (tid, form, cols) in recs.items():
+        size = 3 + struct.calcsize("<" + form.replace("N", "16s").replace("L", "i").replace("c", "h"))
+        sizes[name] = size
+        out += fmt(tid, size, name, form, cols)
+    out += b"\xa3\x95\x84" + struct.pack("<Q16sf", 0, b"RNGFND_MIN_CM", 20.0)
+    for k in range(400):
+        t = k * 10_000
+        out += b"\xa3\x95\x81" + struct.pack("<QffffffI", t, 0, 0, 0, 0, 0, -9.8, 0)
+        if k % 5 == 0:
+            out += b"\xa3\x95\x82" + struct.pack("<Qffh", t, rng.gauss(1, 0.1), 101000.0, 2500)
+            out += b"\xa3\x95\x83" + struct.pack("<Qfff", t, 0.5, 1.0, 1.0)
+            out += b"\xa3\x95\x85" + struct.pack("<QBiif", t, 3, 474000000, -1220000000, 10.0)
+    return bytes(out)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_damaged_dataflash_logs_are_read_as_far_as_they_go_or_refused_in_one_line(tmp_path, seed):
+    rng = random.Random(seed)
+    binary = _dataflash_bin(rng)
+    text = "\n".join(
+        [
+            "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+            "FMT, 129, 23, PARM, Nf, Name,Value",
+            "FMT, 130, 40, BARO, Iffc, TimeMS,Alt,Press,Temp",
+            "PARM, SONAR_TYPE, 0",
+        ]
+        + [f"BARO, {10 * k}, {rng.gauss(1, 0.1):.2f}, 101000.0, 25.00" for k in range(300)]
+    ).encode()
+    for name, data in (("fuzz.bin", binary), ("fuzz.log", text)):
+        b = bytearray(data)
+        for _ in range(rng.randint(1, 25)):
+            b[rng.randrange(len(b))] = rng.randrange(256)
+        p = tmp_path / name
+        p.write_bytes(bytes(b))
+        try:
+            log = read_dataflash(p)
+        except DataFlashError as e:
+            assert str(e).startswith(str(p)) and "\n" not in str(e)
+            continue
+        assert all(math.isfinite(m.t) or math.isnan(m.t) for m in log.measurements)
+
+
+def _crazyflie(rng: random.Random) -> bytes:
+    defs = [
+        (1, "estAcceleration", ["acc.x(f)", "acc.y(f)", "acc.z(f)"]),
+        (2, "estTOF", ["range.zrange(H)"]),
+        (3, "estPose", [f"{v}(f)" for v in ("locSrv.x", "locSrv.y", "locSrv.z", "qx", "qy", "qz", "qw")]),
+    ]
+    out = bytearray(struct.pack("<BHH", 0xBC, 2, len(defs)))
+    for eid, name, variables in defs:
+        out += struct.pack("<H", eid) + name.encode() + b"\0" + struct.pack("<H", len(variables))
+        out += b"".join(v.encode() + b"\0" for v in variables)
+    for k in range(500):
+        t = k * 1000
+        out += struct.pack("<HQfff", 1, t, 0.0, 0.0, 1.0)
+        if k % 40 == 0:
+            out += struct.pack("<HQH", 2, t, 1000 + rng.randrange(100))
+            out += struct.pack("<HQfffffff", 3, t, 0, 0, 1, 0, 0, 0, 1)
+    return bytes(out) + struct.pack("<I", zlib.crc32(bytes(out)))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_damaged_crazyflie_logs_are_read_as_far_as_they_go_or_refused_in_one_line(tmp_path, seed):
+    rng = random.Random(seed)
+    b = bytearray(_crazyflie(rng))
+    for _ in range(rng.randint(1, 10)):
+        b[rng.randrange(150) if rng.random() < 0.6 else rng.randrange(len(b))] = rng.randrange(256)
+    p = tmp_path / "cf"
+    p.write_bytes(bytes(b))
+    try:
+        log = read_crazyflie(p)
+    except CrazyflieLogError as e:
+        assert str(e).startswith(str(p)) and "\n" not in str(e)
+        return
+    ms = measurements(log)
+    assert all(np.asarray(m.value).ndim == 1 for m in ms)
+
+
+def test_a_tlog_resyncs_over_a_long_run_of_magic_bytes_in_linear_time(tmp_path):
+    """A 640 KB run of 0xFD: each candidate's next magic byte was searched for anew, to the file's end."""
+    import time
+
+    src = (FIXTURES / "dronekit_flight.tlog").read_bytes()
+    p = tmp_path / "run.tlog"
+    p.write_bytes(src[:100_000] + b"\xfd" * 640_000 + src[100_000:])
+    t0 = time.process_time()
+    idx = TlogIndex.scan(p)
+    assert time.process_time() - t0 < 3.0  # 9 s quadratic; about 0.5 s linear, with room for a loaded CI
+    assert len(idx.skipped) == 1 and idx.skipped[0][1] >= 640_000
+
+
+def test_a_recorder_clock_step_of_days_starts_a_segment_instead_of_dropping_the_rest(tmp_path):
+    idx0 = TlogIndex.scan(FIXTURES / "dronekit_flight.tlog")
+    data = bytearray((FIXTURES / "dronekit_flight.tlog").read_bytes())
+    mid = len(idx0) // 2
+    for o in idx0.offset[mid:]:
+        ts = struct.unpack_from(">Q", data, int(o))[0]
+        struct.pack_into(">Q", data, int(o), ts + 2 * 86_400 * 10**6)
+    p = tmp_path / "step.tlog"
+    p.write_bytes(bytes(data))
+    idx = TlogIndex.scan(p)
+    assert len(idx) >= len(idx0) - 2 and len(idx.clock_steps) == 1
+    assert idx.duration == pytest.approx(idx0.duration, abs=1.0)  # the step is not time that passed
+    assert "clock stepped" in Replay(p).skipped_summary()
+
+
+def test_a_recording_written_through_a_clock_step_reads_back_whole(tmp_path):
+    p = tmp_path / "w.tlog"
+    w = TlogWriter(p)
+    frames = _frames(3, 50)
+    for k, fr in enumerate(frames):
+        w.write(fr, 1.7e9 + k * 0.01 + (0 if k < 25 else 5 * 86_400))
+    w.close()
+    assert len(TlogIndex.scan(p)) >= len(frames) - 1
