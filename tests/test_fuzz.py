@@ -43,7 +43,7 @@ def _random_value(rng: random.Random, fmt: str):
 def _random_message(rng: random.Random, cls):
     """An instance of a pymavlink message class with every field random (arrays too)."""
     args = []
-    for name, t, length in zip(cls.fieldnames, cls.fieldtypes, cls.array_lengths):
+    for t, length in zip(cls.fieldtypes, cls.array_lengths):
         code = {
             "float": "f",
             "double": "d",
