@@ -61,7 +61,7 @@ def test_dashboard_ellipsoid_takes_the_horizontal_covariance():
             )
         )
         d.update_scene()
-        np.testing.assert_allclose(d.vehicle.position, [3.0, 1.0, 2.0])  # (n, -e, -d)
+        np.testing.assert_allclose(d.vehicle_frame.position, [3.0, 1.0, 2.0])  # (n, -e, -d)
         assert sorted(np.round(d.ellipsoid.scale, 4)) == [0.03, 3.0, 6.0]  # 3 sigma: z, e, n
     finally:
         d.stop()
