@@ -45,6 +45,7 @@ def test_accelerometer_attitude_convention():
     assert accel_attitude(f) == pytest.approx((roll, pitch))
 
 
+@pytest.mark.slow
 def test_both_beat_the_accelerometer_and_the_ekf_learns_a_gyro_bias(tmp_path):
     clean, _ = _compare(tmp_path, [])
     assert clean["cf"] < clean["accel"] and clean["ekf"] < clean["accel"]

@@ -284,6 +284,7 @@ def test_sim_bad_arguments_are_one_line(tmp_path, args, text):
     assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr
 
 
+@pytest.mark.slow
 def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
     """`make demo`'s command, twice, headless: exit 0, messages without loss, and each run in a
     file of its own (a tlog appended run after run would read as one flight with hours of gaps)."""

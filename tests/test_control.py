@@ -266,6 +266,7 @@ async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_pat
     assert live.bridge.received.get("MOTORS", 0) > 200
 
 
+@pytest.mark.slow
 @async_test(timeout=90)
 async def test_live_integral_action_removes_a_constant_disturbance(tmp_path):
     """Over the pty: the rig's motor board adds +0.4 V / -0.4 V (undeclared); the integral

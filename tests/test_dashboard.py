@@ -37,6 +37,7 @@ def dark_pixels(img: np.ndarray) -> int:
     return int(np.sum(img.max(axis=2) < 120))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
 @async_test(timeout=150)
 async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path):
@@ -134,6 +135,7 @@ async def _replay_state(b: Browser) -> tuple[float, float]:
     return (float(t.group(1)) if t else -1.0), (float(z.group(1)) if z else math.nan)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
 @async_test(timeout=90)
 async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
@@ -217,6 +219,7 @@ async def test_websocket_updates_arrive_at_the_configured_rates():
         d.stop()
 
 
+@pytest.mark.slow
 @async_test(timeout=400)
 async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
     """The dashboard's Diagnosis panel, pressed by a tab: the last 60 s of a session with an

@@ -80,6 +80,7 @@ def test_foreign_and_truncated_files(tmp_path):
     assert 50 < log.duration < 278  # what came before the cut is kept
 
 
+@pytest.mark.slow
 def test_replay_export_and_evaluate_on_dataflash(tmp_path):
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")
     out = tmp_path / "e.csv"

@@ -292,6 +292,7 @@ def test_diagnose_says_why_when_the_model_cannot_run_on_a_log():
     assert r.returncode == 2 and "takes the accelerometer as its input" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_thrust_model_diagnosis_finds_thrust_loss_with_voltage_in_simulation(tmp_path):
     """The thrust-model filter sees what the altitude filter cannot: the ESCs do not
     compensate the sagging battery (thrust ~ V^n), undeclared. From the log alone, on the standard

@@ -136,6 +136,7 @@ def test_a_gyro_bias_and_a_mounting_error_at_once_are_both_found(tmp_path):
     assert d.truth.error(d.after, 8.0, 50.0) < 0.1 * d.truth.error(d.before, 8.0, 50.0)
 
 
+@pytest.mark.slow
 def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
     log, _ = fly(tmp_path, ["gyro_bias:x=0.02,y=0,z=0"], 44)
     out = tmp_path / "rep"

@@ -86,6 +86,7 @@ def test_noise_command_and_imu_only_filter(flight):
         assert 0.5 * dof < a["nis"][a["t"] > 8].mean() < 1.5 * dof
 
 
+@pytest.mark.slow
 def test_encoders_make_travel_observable(flight):
     _, imu = _run(flight, imu_only=True)
     _, enc = _run(flight, imu_only=False)

@@ -53,6 +53,7 @@ def test_thrust_coefficients_and_height_on_a_simulated_flight(tmp_path):
         assert 0.7 < a["nis"][a["t"] > 10].mean() < 1.3
 
 
+@pytest.mark.slow
 def test_thrust_loss_with_battery_sag_shows_in_this_filter(tmp_path):
     est, snaps, rows = _fly(tmp_path, 200.0, ["thrust_voltage:n=2"])
     full_early = _at(snaps, 30.0).x[2] + _at(snaps, 30.0).x[3]  # acceleration at full throttle
