@@ -427,8 +427,10 @@ async def test_dashboard_control_panel_arms_sets_references_and_disarms():
             if k >= 500:
                 break
         probe_sub.close()
-        async with ViserProbe(dash.url) as probe:
+        async with ViserProbe(dash.control_url) as probe:
+            await probe.set_gui(gui_id(panel.take), value=True)
             await probe.set_gui(gui_id(panel.arm), value=True)
+            await probe.set_gui(gui_id(panel.arm), value=True)  # ARM asks to be pressed again
             assert (await asyncio.wait_for(notes.__anext__(), 5.0)).startswith("armed")
             await probe.set_gui(gui_id(panel.sliders["z_c"]), value=1.5)
             await probe.set_gui(gui_id(panel.feedback), value="quad_thrust")

@@ -1,40 +1,65 @@
-"""The dashboard's control panel: arm/disarm, controller and feedback, references, plots.
+"""The dashboard's control panel: who holds control, arm/disarm, controller and feedback,
+references, plots.
 
-Built on a :class:`groundstation.control.station.ControlStation`:
+Built on a :class:`groundstation.control.station.ControlStation`, behind the dashboard's
+:class:`~web.authority.Authority`:
 
-* a status line (armed or why not, the last arming note);
-* ARM and DISARM buttons (arming refused shows its one-line reason);
-* controller and feedback dropdowns (changing either disarms nothing: it is
-  refused while armed, and the dropdown goes back);
-* one slider per reference of the controller in charge;
-* a plot of one reference (chosen), the state it tracks and the command (V_d
-  for the 3-DOF rig, the collective otherwise) over the last ``window_s`` seconds.
+* a status line: armed or why not, the last arming note, and which tab holds control;
+* ``Take control``: a tab that connected with the session's token, from the dashboard's own page,
+  holds control from then on (taking it over from another tab is allowed, and said);
+* ARM, which asks to be pressed again within :data:`CONFIRM_S` seconds, and DISARM: from the tab
+  that holds control only;
+* controller and feedback dropdowns (refused while armed: the dropdown goes back) and one slider
+  per reference of the controller in charge, likewise from the holder only;
+* a plot of one reference (chosen), the state it tracks and the command (V_d for the 3-DOF rig,
+  the collective otherwise) over the last ``window_s`` seconds.
 
-A gamepad is not wired: viser's GUI offers no Gamepad API hook, and the
-sliders give the same references.
+A control action from any other tab is ignored, and that tab is told why in a notification. A
+gamepad is not wired: viser's GUI offers no Gamepad API hook, and the sliders give the same
+references.
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
 from groundstation.control.commander import ArmRefused
 from groundstation.control.station import REFERENCE_RANGES, ControlStation
 
+from .authority import Authority
+
 #: what the plot shows per reference: the state it tracks
 TRACKS = {"p_c": "p", "e_c": "e", "e_dot_c": "e_dot", "z_c": "z"}
+#: seconds within which ARM must be pressed a second time
+CONFIRM_S = 5.0
 
 
 class ControlPanel:
-    def __init__(self, gui, station: ControlStation, *, window_s: float = 20.0) -> None:
+    def __init__(
+        self,
+        gui,
+        station: ControlStation,
+        authority: Authority,
+        refusal: Callable[[int | None], str | None],
+        *,
+        window_s: float = 20.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """``refusal(client_id)``: why that tab may not command (the dashboard reads its request),
+        or None."""
         self.station, self.window_s = station, window_s
+        self.authority, self.refusal, self.clock = authority, refusal, clock
         self.message = ""
+        self._arm_pending: tuple[int, float] | None = None  # (client id, when ARM was first pressed)
         self._rows: deque = deque()
         self._records = station.commander.records.subscribe(lossy=True, maxlen=5000)
         with gui.add_folder("Control"):
             self.status_md = gui.add_markdown(self._status())
+            self.take = gui.add_button("Take control")
             self.arm = gui.add_button("ARM", color="red")
             self.disarm = gui.add_button("DISARM")
             self.controller = gui.add_dropdown(
@@ -67,37 +92,95 @@ class ControlPanel:
 
         # async callbacks: viser runs them on the event loop (plain ones go to a thread
         # pool), so the commander is only ever touched from the loop it runs on
+        @self.take.on_click
+        async def _(e) -> None:
+            why = self.refusal(e.client_id)
+            if why is not None:
+                self._tell(e, "View only", why)
+            else:
+                self.message = self.authority.take(e.client_id)
+            self._refresh()
+
         @self.arm.on_click
-        async def _(_e) -> None:
-            self._arm()
+        async def _(e) -> None:
+            if self._allowed(e):
+                self._arm(e.client_id)
 
         @self.disarm.on_click
-        async def _(_e) -> None:
-            self.station.commander.disarm("by the user (dashboard)")
-            self.status_md.content = self._status()
+        async def _(e) -> None:
+            if self._allowed(e):
+                self.station.commander.disarm(f"by the user (dashboard, tab {e.client_id})")
+                self._arm_pending = None
+                self.arm.label = "ARM"
+            self._refresh()
 
         @self.plot_choice.on_update
         async def _(_e) -> None:
             self._rows.clear()
 
         @self.controller.on_update
-        async def _(_e) -> None:
-            if self.controller.value != self.station.controller_name:
+        async def _(e) -> None:
+            if self.controller.value == self.station.controller_name:
+                return
+            if self._allowed(e):
                 self._select(controller=self.controller.value)
+            else:
+                self.controller.value = self.station.controller_name
 
         @self.feedback.on_update
-        async def _(_e) -> None:
-            if self.feedback.value != self.station.feedback_name:
+        async def _(e) -> None:
+            if self.feedback.value == self.station.feedback_name:
+                return
+            if self._allowed(e):
                 self._select(feedback=self.feedback.value)
+            else:
+                self.feedback.value = self.station.feedback_name
+
+    # -- who ---------------------------------------------------------------------------------------
+    def _allowed(self, e) -> bool:
+        """Whether the tab behind event ``e`` may command now; if not it is told why."""
+        why = self.refusal(e.client_id)
+        if why is None and not self.authority.holds(e.client_id):
+            held = self.authority.holder
+            why = (
+                f"tab {held} holds control; press Take control first"
+                if held is not None
+                else ("nobody holds control: press Take control first")
+            )
+        if why is not None:
+            self._tell(e, "Not yours to command", why)
+            self._refresh()
+            return False
+        return True
+
+    def _tell(self, e, title: str, body: str) -> None:
+        self.message = f"tab {e.client_id}: {body}"
+        if e.client is not None:
+            e.client.add_notification(title, body, auto_close_seconds=6.0, color="yellow")
+
+    def client_left(self, client_id: int) -> None:
+        self.authority.left(client_id)
+        self._refresh()
 
     # -- user actions ------------------------------------------------------------------------------
-    def _arm(self) -> None:
+    def _arm(self, client_id: int) -> None:
+        """First press asks for a second within :data:`CONFIRM_S` s; the second arms."""
+        now = self.clock()
+        pending = self._arm_pending
+        if pending is None or pending[0] != client_id or now - pending[1] > CONFIRM_S:
+            self._arm_pending = (client_id, now)
+            self.arm.label = "CONFIRM ARM"
+            self.message = f"press ARM again within {CONFIRM_S:g} s to arm"
+            self._refresh()
+            return
+        self._arm_pending = None
+        self.arm.label = "ARM"
         try:
             self.station.commander.arm()
             self.message = ""
         except ArmRefused as e:
             self.message = f"arming refused: {e}"
-        self.status_md.content = self._status()
+        self._refresh()
 
     def _select(self, **choice) -> None:
         try:
@@ -111,13 +194,21 @@ class ControlPanel:
             self.controller.value = self.station.controller_name
             self.feedback.value = self.station.feedback_name
         self._show_references()
-        self.status_md.content = self._status()
+        self._refresh()
 
     def _reference_changed(self, name):
-        async def cb(_e) -> None:
+        async def cb(e) -> None:
             cmd = self.station.commander
-            if name in cmd.reference:
-                cmd.set_reference(**{name: float(self.sliders[name].value)})
+            if name not in cmd.reference or float(self.sliders[name].value) == cmd.reference[name]:
+                return
+            if self._allowed(e):
+                try:
+                    cmd.set_reference(**{name: float(self.sliders[name].value)})
+                    return
+                except (ValueError, TypeError) as err:  # a value no slider gives (NaN from a crafted tab)
+                    self._tell(e, "Reference refused", str(err))
+                    self._refresh()
+            self.sliders[name].value = cmd.reference[name]  # back to what is flown
 
         return cb
 
@@ -132,18 +223,26 @@ class ControlPanel:
                 s.value = min(s.max, max(s.min, ref[name]))
 
     # -- pushing -------------------------------------------------------------------------------------
+    def _refresh(self) -> None:
+        self.status_md.content = self._status()
+
     def _status(self) -> str:
         c = self.station.commander
         head = "**ARMED**" if c.armed else "**disarmed**"
+        held = self.authority.holder
+        who = f"control held by tab {held}" if held is not None else "nobody holds control"
         text = (
-            f"{head} · {c.controller.name} on {c.feedback.name} · "
+            f"{head} · {c.controller.name} on {c.feedback.name} · {who} · "
             f"{self.station.uplink.sent} commands sent\n\n{c.status}"
         )
         return text + (f"\n\n{self.message}" if self.message else "")
 
     def update(self) -> None:
         """Status and plot (called at the dashboard's panel rate)."""
-        self.status_md.content = self._status()
+        if self._arm_pending is not None and self.clock() - self._arm_pending[1] > CONFIRM_S:
+            self._arm_pending = None
+            self.arm.label = "ARM"
+        self._refresh()
         for rec in self._records.get_nowait():
             ref_name = self.plot_choice.value if self.plot_choice.value in rec.reference else next(iter(rec.reference))
             state = rec.state.get(TRACKS.get(ref_name, ""), np.nan)

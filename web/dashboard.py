@@ -44,6 +44,7 @@ from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdow
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.models.ground import LANDED
 
+from .authority import Authority, is_loopback
 from .control_panel import ControlPanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
@@ -81,13 +82,22 @@ class Dashboard:
         plot_hz: float = 10.0,
         window_s: float = 20.0,
         title: str = "groundstation",
+        allow_remote: bool = False,
     ) -> None:
+        """``allow_remote``: serve on an address other than loopback (refused otherwise, in one
+        line: :class:`~web.authority.RemoteRefused`); control then needs the session's token."""
+        if not is_loopback(host) and not allow_remote:
+            Authority(host, port)  # raises RemoteRefused with the one-line reason
         self.port = free_port(host, port)
         self.host = host
         self.server = viser.ViserServer(host=host, port=self.port, label=title, verbose=False)
         self.port = self.server.get_port()  # the one bound (``port=0``: the OS's choice)
         self.scene_hz, self.plot_hz, self.window_s = scene_hz, plot_hz, window_s
-        self.url = f"http://{host}:{self.port}"
+        #: who may command from which tab (web/authority.py)
+        self.authority = Authority(host, self.port, allow_remote)
+        self.url = self.authority.view_url
+        self.control_url = self.authority.control_url
+        self.server.on_client_disconnect(self._client_left)
         self.scene_updates = 0
         self.plot_updates = 0
         self._snap = None
@@ -300,9 +310,28 @@ class Dashboard:
         self.status_text = text
 
     def add_control(self, station):
-        """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`)."""
-        self.control = ControlPanel(self.server.gui, station, window_s=self.window_s)
+        """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`),
+        commanded only from a tab the :attr:`authority` admits."""
+        self.control = ControlPanel(
+            self.server.gui, station, self.authority, self.client_refusal, window_s=self.window_s
+        )
         return self.control
+
+    def client_refusal(self, client_id: int | None) -> str | None:
+        """Why the tab ``client_id`` may not command (its websocket's path and headers), or None.
+
+        The request is read from viser's table of live connections: viser offers no public hook
+        for it (its version is pinned by the tests that exercise this). A tab it cannot find is
+        refused."""
+        connections = getattr(getattr(self.server, "_websock_server", None), "_live_connections", {})
+        conn = connections.get(client_id) if client_id is not None else None
+        request = getattr(conn, "request", None)
+        if request is None:
+            return "view only: this tab's connection cannot be checked"
+        return self.authority.refusal(request.path, request.headers)
+
+    def _client_left(self, client) -> None:
+        self.authority.left(client.client_id)
 
     def attach_replay(self, replay) -> None:
         """Show the replay controls and wire them to ``replay`` (pause/resume, speed, seek)."""

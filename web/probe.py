@@ -29,8 +29,15 @@ from websockets.typing import Subprotocol
 class ViserProbe:
     """``async with ViserProbe(url) as p: async for t, messages in p.frames(): ...``"""
 
-    def __init__(self, url: str) -> None:
-        self.url = url.replace("http://", "ws://").replace("https://", "wss://")
+    def __init__(self, url: str, *, origin: str | None = "page") -> None:
+        """``url``: the dashboard's page (its control address included: the websocket it names is
+        the one opened); ``origin``: the ``Origin`` header sent, as a browser sends its page's
+        (``"page"``: the dashboard's own; None: none, as a script sends)."""
+        page, _, query = url.partition("?")
+        params = dict(p.partition("=")[::2] for p in query.split("&") if p)
+        self.url = params.get("websocket") or page.replace("http://", "ws://").replace("https://", "wss://")
+        scheme, _, rest = page.partition("://")
+        self.origin = f"{scheme}://{rest.split('/')[0]}" if origin == "page" else origin
         self._ws: ClientConnection | None = None
         self._dz = zstandard.ZstdDecompressor()
         self.frames_received = 0
@@ -39,7 +46,10 @@ class ViserProbe:
 
     async def __aenter__(self) -> ViserProbe:
         self._ws = await websockets.connect(
-            self.url, subprotocols=[Subprotocol(f"viser-v{viser.__version__}")], max_size=None
+            self.url,
+            subprotocols=[Subprotocol(f"viser-v{viser.__version__}")],
+            max_size=None,
+            additional_headers={"Origin": self.origin} if self.origin else None,
         )
         return self
 

@@ -48,6 +48,7 @@ from web.dashboard import Dashboard
 from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import cmd_diagnose
+from .options import add_web_options
 from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
 from .supervise import Supervisor
@@ -66,14 +67,8 @@ def _speed(text: str) -> float:
         raise argparse.ArgumentTypeError(str(e)) from None
 
 
-def _add_web_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--no-web", action="store_true", help="headless: no dashboard")
-    p.add_argument("--host", default="127.0.0.1", help="dashboard address (default 127.0.0.1; 0.0.0.0 exposes it)")
-    p.add_argument("--port", type=int, default=8080, help="dashboard port (a free one if taken)")
-
-
 def _add_output_options(p: argparse.ArgumentParser) -> None:
-    _add_web_options(p)
+    add_web_options(p)
     p.add_argument("--model", default="altitude", choices=CLI_MODELS, help="the estimator to run (default altitude)")
     p.add_argument(
         "--vehicle",
@@ -310,7 +305,7 @@ class Outputs:
 def _start_dashboard(args):
     if getattr(args, "no_web", True):
         return None
-    dash = Dashboard(host=args.host, port=args.port)
+    dash = Dashboard(host=args.host, port=args.port, allow_remote=args.allow_remote)
     print(f"dashboard: {dash.url}", flush=True)
     return dash
 
@@ -393,6 +388,7 @@ async def run_connect(args) -> int:
         ]
         if dash is not None:
             dash.add_control(station)
+            print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
     if dash is not None:
         tasks.append(supervisor.start("dashboard", dash.run))
     try:

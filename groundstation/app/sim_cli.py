@@ -22,6 +22,7 @@ from sim_bridge.scenario import VEHICLES, Scenario
 from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
+from .options import add_web_options
 from .signals import on_stop_signal
 from .supervise import Supervisor
 
@@ -87,9 +88,7 @@ def add_sim_parser(sub) -> None:
         help="tlog path (default out/demo-<date-time>.tlog: a fresh file per run, as connect does; "
         "an existing file is appended to)",
     )
-    d.add_argument("--no-web", action="store_true", help="no dashboard")
-    d.add_argument("--host", default="127.0.0.1")
-    d.add_argument("--port", type=int, default=8080)
+    add_web_options(d)
     d.add_argument(
         "--control",
         action="store_true",
@@ -202,7 +201,7 @@ async def run_demo(args) -> int:
     await link.open()
     dash = None
     if not args.no_web:
-        dash = Dashboard(host=args.host, port=args.port)
+        dash = Dashboard(host=args.host, port=args.port, allow_remote=args.allow_remote)
         print(f"dashboard: {dash.url}", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
     declared = [{"name": "range_tilt"}] if model == "altitude" else []
@@ -241,8 +240,10 @@ async def run_demo(args) -> int:
         control_tasks.append(asyncio.create_task(print_control_notes(station.notes.subscribe())))
         if dash is not None:
             dash.add_control(station)
+            print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
         print(
-            f"demo: control ready ({', '.join(station.controllers)}); arm it from the dashboard's Control panel",
+            f"demo: control ready ({', '.join(station.controllers)}); take control and arm it from the "
+            "dashboard's Control panel at the control address",
             flush=True,
         )
     print(

@@ -1,0 +1,105 @@
+"""Who may command the vehicle from the dashboard: the session's token, the page's origin, and one
+holder at a time.
+
+Viewing is open to whoever can reach the dashboard (loopback by default). Control (arming, the
+references, the controller and feedback choices) is accepted only from a tab
+
+* that connected with the session's token, which the command line prints at start, as Jupyter
+  does: ``http://127.0.0.1:8080/?websocket=ws://127.0.0.1:8080/control/<token>`` (viser's client
+  opens its websocket at the ``websocket`` parameter's address, and the token is its path);
+* whose ``Origin`` (what a browser sends with every websocket) is the dashboard's own page, so that
+  another web page open in the operator's browser cannot drive it, and whose ``Host`` is an address
+  the dashboard serves on (a DNS-rebinding page names its own host);
+* and that holds control: one tab at a time takes it (``Take control``), the others see which tab
+  holds it, and an authorised tab may take it over (to stop a vehicle whose holder's tab hangs),
+  which the panel says.
+
+Binding to an address other than loopback needs ``allow_remote`` (``--allow-remote``): the
+dashboard is then viewable from the network, and the token is the only key to control.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import secrets
+from dataclasses import dataclass, field
+
+LOOPBACK_NAMES = ("127.0.0.1", "localhost", "[::1]")
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+class RemoteRefused(ValueError):
+    """Binding to a non-loopback address without ``allow_remote`` (one line)."""
+
+
+@dataclass
+class Authority:
+    host: str
+    port: int
+    allow_remote: bool = False
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
+    #: the client id holding control, if one does
+    holder: int | None = None
+
+    def __post_init__(self) -> None:
+        if not is_loopback(self.host) and not self.allow_remote:
+            raise RemoteRefused(
+                f"dashboard on {self.host}: that exposes it to the network; pass --allow-remote to do so "
+                "(control then needs the session's token)"
+            )
+
+    # -- addresses -------------------------------------------------------------------------------
+    @property
+    def _shown_host(self) -> str:
+        return "127.0.0.1" if self.host in ("0.0.0.0", "::", "") else self.host
+
+    @property
+    def view_url(self) -> str:
+        return f"http://{self._shown_host}:{self.port}"
+
+    @property
+    def control_url(self) -> str:
+        return f"{self.view_url}/?websocket=ws://{self._shown_host}:{self.port}/control/{self.token}"
+
+    def _hosts(self) -> set[str]:
+        names = set(LOOPBACK_NAMES) | {self.host, self._shown_host}
+        return {f"{h}:{self.port}" for h in names}
+
+    # -- who may command ---------------------------------------------------------------------------
+    def refusal(self, path: str, headers) -> str | None:
+        """Why a connection with this request path and headers may not command, or None."""
+        if path.split("?")[0].rstrip("/") != f"/control/{self.token}":
+            return "view only: open the control address the command line printed (it carries the session's token)"
+        host = headers.get("Host", "")
+        if not self.allow_remote and host not in self._hosts():
+            return f"view only: the page came through {host or 'no host'}, not this dashboard's address"
+        origin = headers.get("Origin")
+        if origin is not None:
+            allowed = {f"http://{h}" for h in self._hosts()} | {f"https://{h}" for h in self._hosts()}
+            if self.allow_remote:
+                allowed.add(f"http://{host}")
+            if origin not in allowed:
+                return f"view only: a page from {origin} may not command this vehicle"
+        return None
+
+    def take(self, client_id: int) -> str:
+        """``client_id`` (already authorised) holds control from now on; what happened, in words."""
+        before, self.holder = self.holder, client_id
+        if before is None or before == client_id:
+            return f"tab {client_id} holds control"
+        return f"tab {client_id} took control over from tab {before}"
+
+    def left(self, client_id: int) -> None:
+        if self.holder == client_id:
+            self.holder = None
+
+    def holds(self, client_id: int) -> bool:
+        return self.holder is not None and self.holder == client_id
