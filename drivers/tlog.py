@@ -71,8 +71,7 @@ class TlogWriter:
         if f is None:
             return
         try:
-            f.write(_TS.pack(int(t_unix * 1e6)))
-            f.write(frame)
+            f.write(_TS.pack(int(t_unix * 1e6)) + frame)  # one write: a record is whole or absent
             self.records += 1
             now = time.monotonic()
             if now - self._last_flush >= self.flush_s:

@@ -2,6 +2,8 @@
 
 import asyncio
 import os
+import socket
+import time
 
 import pytest
 from pymavlink import mavutil
@@ -249,4 +251,64 @@ async def test_tcpin_serves_a_connecting_vehicle():
             msgs += back.parse_buffer(await asyncio.wait_for(reader.read(1024), 5)) or []
     finally:
         writer.close()
+        await link.close()
+
+
+def _attitude_frames(n: int, mav=None) -> tuple[list[bytes], object]:
+    mav = mav or mavlink.MAVLink(None, 1, 1)
+    frames = []
+    for i in range(n):
+        frames.append(mavlink.MAVLink_attitude_message(i + 1, 0, 0, 0, 0, 0, 0).pack(mav))
+        mav.seq = (mav.seq + 1) % 256
+    return frames, mav
+
+
+def test_a_burst_of_lost_frames_over_128_is_loss_and_a_reordered_frame_is_not():
+    from drivers.mavlink.receiver import MavlinkReceiver
+
+    frames, _ = _attitude_frames(600)
+    r = MavlinkReceiver()
+    for i, f in enumerate(frames[:100] + frames[300:310]):  # 200 frames lost in one burst
+        r.feed(f, 1000.0 + i * 1e-3)
+    assert r.counters.seq_lost == 200  # counted as a restart of the sender's counter, this was 0
+    r.feed(frames[305], 1000.2)  # a duplicate, 4 behind: no loss
+    assert r.counters.seq_lost == 200
+    r.feed(frames[400], 1003.0)  # after 2.8 s of silence the gap says nothing (a reboot restarts it)
+    assert r.counters.seq_lost == 200 and r.counters.loss_percent == pytest.approx(100 * 200 / 312)
+
+
+@async_test()
+async def test_the_kernels_own_drops_are_counted_and_receive_times_are_the_kernels(monkeypatch):
+    """A socket buffer far too small, a burst while the event loop is busy: the kernel drops
+    datagrams, and says how many; the loss shown is at least that. Each datagram that got through
+    carries its arrival time, not the time the busy loop came to read it."""
+    from drivers.transports import UdpTransport
+
+    monkeypatch.setattr(UdpTransport, "rcvbuf", 4096)
+    port = free_udp_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", streams={})
+    sub = link.measurements()
+    await link.open()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        frames, _ = _attitude_frames(502)
+        # one first: Linux switches receive timestamps on a moment after a socket asks for them
+        sock.sendto(frames[0], ("127.0.0.1", port))
+        await _take(sub, 1)
+        t_sent = time.time()
+        for f in frames[1:501]:  # the event loop is busy here: nobody reads
+            sock.sendto(f, ("127.0.0.1", port))
+        time.sleep(0.2)  # the loop stays busy a while longer; the datagrams wait in the kernel
+        got = await _take(sub, 1)
+        arrived = link.counters.by_type["ATTITUDE"] - 1
+        assert 0 < arrived < 500
+        # the kernel's count comes with the next datagram queued after the drops
+        sock.sendto(frames[501], ("127.0.0.1", port))
+        await _take(sub, 1)
+        c = link.counters
+        assert c.kernel_dropped == 500 - arrived
+        assert c.lost == 500 - arrived  # by sequence fewer: a gap over 256 wraps
+        assert got[0].t_rx < t_sent + 0.1  # as it arrived, not 0.2 s later when read
+    finally:
+        sock.close()
         await link.close()

@@ -15,6 +15,9 @@ The link
   :class:`LinkEvent` records on :meth:`events`;
 * keeps :class:`~drivers.mavlink.receiver.LinkCounters`;
 * records every valid frame, in and out, to a MAVProxy-compatible ``.tlog``.
+
+Measurements reach the consumers a burst at a time: all a UDP wake-up drained
+(or one TCP or serial read), so an estimator that sheds load sees its backlog.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from drivers.connection import Endpoint, parse_connection
 from drivers.link_state import LinkEvent, LinkState
 from drivers.tlog import TlogWriter
-from drivers.transports import Transport, open_transport
+from drivers.transports import Transport, UdpTransport, open_transport
 from groundstation.core.broadcast import Broadcast, Subscription
 from groundstation.core.measurement import Measurement
 
@@ -83,7 +86,7 @@ class MavlinkLink:
         record: str | Path | None = None,
         system_id: int = 255,
         component_id: int = 190,
-        buffer: int = 100_000,
+        buffer: int = 20_000,
         ack_timeout: float = 1.0,
     ) -> None:
         self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
@@ -111,6 +114,8 @@ class MavlinkLink:
         self._acks: dict[tuple[int, int], asyncio.Future] = {}
         self.stream_method: dict[int, str] = {}  # sysid -> how streams were requested
         self._sink_faults: set[str] = set()
+        self._burst: list[Measurement] = []  # measurements of the transport's current burst
+        self._bursts = False  # the transport calls on_burst_end (UDP)
 
     # -- public API -----------------------------------------------------------
     @property
@@ -135,6 +140,9 @@ class MavlinkLink:
         tr.on_data = self._data
         tr.on_disconnect = self._disconnected
         tr.on_connect = self._connected
+        if isinstance(tr, UdpTransport):
+            self._bursts = True  # it says when a wake-up's burst ends
+            tr.on_burst_end = self._burst_end
         await tr.open()
         self.transport = tr
         if self.record_path is not None:
@@ -181,22 +189,33 @@ class MavlinkLink:
 
     # -- receive path ------------------------------------------------------------
     def _data(self, data: bytes, t_rx: float) -> None:
-        n_before = self.receiver.counters.messages
-        out = self.receiver.feed(data, t_rx)
         c = self.receiver.counters
+        n_before = c.messages
+        out = self.receiver.feed(data, t_rx)
         # only a message whose CRC was checked proves the link alive (an unknown id's cannot be)
         if c.messages != n_before:
             self._last_valid = time.monotonic()
             if self.state is not LinkState.ALIVE:
                 self._set_state(LinkState.ALIVE, "valid message received")
         if out:
-            for sink in self.sinks:
-                try:
-                    sink(out)
-                except Exception as e:  # noqa: BLE001 - a consumer's fault must not stop the link
-                    self._sink_failed(sink, e)
-            self._measurements.publish_many(out)
-            c.dropped = self._measurements.dropped
+            self._burst += out
+        if not self._bursts:
+            self._burst_end()
+
+    def _burst_end(self) -> None:
+        """The burst's measurements to the sinks and subscribers, as one batch."""
+        batch, self._burst = self._burst, []
+        if isinstance(self.transport, UdpTransport):
+            self.receiver.counters.kernel_dropped = self.transport.kernel_drops
+        if not batch:
+            return
+        for sink in self.sinks:
+            try:
+                sink(batch)
+            except Exception as e:  # noqa: BLE001 - a consumer's fault must not stop the link
+                self._sink_failed(sink, e)
+        self._measurements.publish_many(batch)
+        self.receiver.counters.dropped = self._measurements.dropped
 
     def _frame_in(self, frame: bytes, t_rx: float) -> None:
         if self.recorder is not None:
@@ -211,7 +230,10 @@ class MavlinkLink:
             if fut is not None and not fut.done():
                 fut.set_result(m.result)
         for hook in self.message_hooks:
-            hook(m, t_rx)
+            try:
+                hook(m, t_rx)
+            except Exception as e:  # noqa: BLE001 - one consumer's fault must not stop the others
+                self._sink_failed(hook, e)
 
     def _heartbeat_in(self, m) -> None:
         hdr = m._header

@@ -22,6 +22,11 @@ from .framing import Framer
 
 _UNKNOWN = mavlink.MAVLink_unknown
 
+#: the largest sequence gap counted as lost frames; larger ones are a frame up to 15 places late
+MAX_LOSS_GAP = 240
+#: a sender silent this long [s] may have restarted its sequence counter
+SILENCE_S = 2.0
+
 
 @dataclass
 class LinkCounters:
@@ -33,10 +38,11 @@ class LinkCounters:
     crc_errors: int = 0
     bad_data: int = 0  # stretches of garbage before a start marker, bad headers
     unknown: int = 0  # message ids not in the dialect (CRC unverifiable)
-    seq_lost: int = 0  # frames missing by sequence number
+    seq_lost: int = 0  # frames missing by sequence number (vehicle, radio and this machine's kernel)
     mavlink1: int = 0
     mavlink2: int = 0
     dropped: int = 0  # measurements dropped because a consumer fell behind
+    kernel_dropped: int = 0  # datagrams this machine's kernel dropped on a full socket buffer (Linux)
     sink_errors: int = 0  # batches a synchronous consumer raised on (the link went on)
     undecodable: int = 0  # messages that passed their CRC but could not be converted (skipped)
     last_undecodable: str = ""
@@ -50,9 +56,15 @@ class LinkCounters:
         return 100.0 * lost / (rx + lost) if rx + lost else 0.0
 
     @property
+    def lost(self) -> int:
+        """Frames lost, at least: by sequence numbers (anywhere on the way, but blind to a burst of
+        more than 240) or by this machine's kernel count (exact, for its own drops), the larger."""
+        return max(self.seq_lost, self.kernel_dropped)
+
+    @property
     def loss_percent(self) -> float:
-        total = self.messages + self.seq_lost
-        return 100.0 * self.seq_lost / total if total else 0.0
+        total = self.messages + self.lost
+        return 100.0 * self.lost / total if total else 0.0
 
     def as_dict(self) -> dict:
         return {
@@ -66,6 +78,7 @@ class LinkCounters:
             "mavlink1": self.mavlink1,
             "mavlink2": self.mavlink2,
             "dropped": self.dropped,
+            "kernel_dropped": self.kernel_dropped,
             "by_type": dict(self.by_type),
         }
 
@@ -91,7 +104,7 @@ class MavlinkReceiver:
         self.counters = LinkCounters()
         self.on_frame = on_frame
         self.on_message = on_message
-        self._last_seq: dict[tuple[int, int], int | None] = {}
+        self._last_seq: dict[tuple[int, int], tuple[int, float] | None] = {}
         #: (sysid, compid) -> True if that peer speaks MAVLink 1 only so far
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
         self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)
@@ -163,29 +176,34 @@ class MavlinkReceiver:
         self.counters.bad_data += 1
 
     def _track(self, magic: int, seq: int, sysid: int, compid: int, c: LinkCounters) -> None:
-        """Sequence-gap counting per (system, component), and protocol version."""
+        """Sequence-gap counting per (system, component), and protocol version.
+
+        A frame 1..15 places behind the last (a gap of 241..255) was reordered or duplicated: no
+        loss. Any shorter gap is loss, up to 240 frames at once (a busy link loses hundreds in one
+        burst, so a gap over 128 is loss, not a restart of the sender's counter). After more
+        than :data:`SILENCE_S` without a frame from that sender the gap says nothing (a reboot
+        restarts the counter; an outage loses more than 256 frames): the link's state reports it.
+        """
         key = (sysid, compid)
         stats = c.per_source.get(key)
         if magic == 0xFD:
             c.mavlink2 += 1
         else:
             c.mavlink1 += 1
+        t = self._t_rx
         if stats is None:
             c.per_source[key] = [1, 0]
-            self._last_seq[key] = seq
+            self._last_seq[key] = (seq, t)
             self.peer_mavlink1[key] = magic != 0xFD
             return
         stats[0] += 1
         if magic == 0xFD and self.peer_mavlink1[key]:
             self.peer_mavlink1[key] = False
         last = self._last_seq[key]
-        if last is None:
-            self._last_seq[key] = seq
+        self._last_seq[key] = (seq, t)
+        if last is None or t - last[1] > SILENCE_S:  # (unknown receive times, NaN: every gap counts)
             return
-        gap = (seq - last - 1) & 0xFF
-        # A gap of 255 is a duplicate/reordered frame, not 255 lost ones;
-        # gaps above 128 are counted as restarts of the peer's counter.
-        if gap and gap < 128:
+        gap = (seq - last[0] - 1) & 0xFF
+        if gap and gap <= MAX_LOSS_GAP:
             c.seq_lost += gap
             stats[1] += gap
-        self._last_seq[key] = seq

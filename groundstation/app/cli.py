@@ -260,13 +260,24 @@ class Outputs:
         self._snaps = self.loop.snapshots.subscribe() if (args.export or dashboard) else None
 
     def see(self, m) -> None:
+        """One measurement of a recording: every one is estimated."""
+        self._show(m)
+        self.loop.push(m)
+        self._drain()
+
+    def see_live(self, batch: list) -> None:
+        """A live link's batch: estimated within the loop's latency budget (shed under load)."""
+        for m in batch:
+            self._show(m)
+        self.loop.push_many(batch)
+        self._drain()
+
+    def _show(self, m) -> None:
         self.status.see(m)
         if self.measurements is not None:
             self.measurements.write(m)
         if self.dashboard is not None:
             self.dashboard.feed_measurement(m)
-        self.loop.push(m)
-        self._drain()
 
     def _drain(self) -> None:
         if self._snaps is None:
@@ -283,6 +294,8 @@ class Outputs:
         parts = [f"skipped {counted(c.rejected)}"] if c.rejected else []
         if c.diverged:
             parts.append(f"diverged and restarted {c.diverged}x")
+        if self.loop.counters.shed:
+            parts.append(f"decimated {self.loop.counters.shed} readings under load")
         return "; ".join(parts)
 
     def close(self) -> str:
@@ -293,8 +306,10 @@ class Outputs:
             parts.append(f"the estimator skipped {counted(c.rejected)}")
         if c.diverged:
             parts.append(f"the estimator diverged and restarted {c.diverged} times")
+        if self.loop.counters.shed:
+            parts.append(f"decimated {self.loop.counters.shed} readings under load")
         if self.estimates is not None:
-            self.estimates.close(counters=c)
+            self.estimates.close(counters=c, loop=self.loop.counters)
             parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
         if self.measurements is not None:
             self.measurements.close()
@@ -310,12 +325,22 @@ def _start_dashboard(args):
     return dash
 
 
-def link_markdown(state: str, counters, rates: dict[str, float]) -> str:
+def link_markdown(state: str, counters, rates: dict[str, float], shed: int = 0) -> str:
+    """The dashboard's link panel: state, loss, errors, what was dropped or shed, rates by message."""
     top = sorted(rates.items(), key=lambda kv: -kv[1])[:8]
     lines = "\n".join(f"| {k} | {v:.1f} |" for k, v in top)
+    load = "".join(
+        f" · {text}"
+        for n, text in (
+            (counters.kernel_dropped, f"{counters.kernel_dropped} datagrams dropped by this machine"),
+            (counters.dropped, f"{counters.dropped} measurements a consumer fell behind on"),
+            (shed, f"{shed} readings decimated under load"),
+        )
+        if n
+    )
     return (
         f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
-        f"garbage {counters.bad_data}\n\n| message | Hz |\n|---|---|\n{lines}"
+        f"garbage {counters.bad_data}{load}\n\n| message | Hz |\n|---|---|\n{lines}"
     )
 
 
@@ -335,8 +360,16 @@ class RateMeter:
 
 
 async def _consume(sub, out: Outputs) -> None:
-    async for m in sub:
-        out.see(m)
+    """A recording's measurements, every one (the replay waits for the consumer)."""
+    async for batch in sub.batches():
+        for m in batch:
+            out.see(m)
+
+
+async def _consume_live(sub, out: Outputs) -> None:
+    """A live link's measurements, a batch at a time (yielding the event loop between batches)."""
+    async for batch in sub.batches():
+        out.see_live(batch)
 
 
 # ---------------------------------------------------------------- connect
@@ -368,12 +401,14 @@ async def run_connect(args) -> int:
         while True:
             await asyncio.sleep(1.0)
             if dash is not None:
-                dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type)))
+                dash.set_link_status(
+                    link_markdown(link.state.value, link.counters, rates(link.counters.by_type), out.loop.counters.shed)
+                )
             if not args.quiet:
                 status.print(link.state.value, link.counters, out.skipped())
 
     tasks = [
-        supervisor.start("estimation", lambda: _consume(sub, out)),
+        supervisor.start("estimation", lambda: _consume_live(sub, out)),
         supervisor.start("link events", lambda: print_link_events(events)),
         supervisor.start("status line", print_status),
     ]

@@ -46,6 +46,8 @@ class StatusLine:
             f"loss {counters.loss_percent:.1f}%",
             f"crc {counters.crc_errors}",
         ]
+        if counters.dropped:
+            parts.append(f"consumer dropped {counters.dropped}")
         parts += [fmt.format(self.latest[k]) for k, fmt in _SHOWN if k in self.latest]
         if extra:
             parts.append(extra)

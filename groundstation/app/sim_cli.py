@@ -252,10 +252,12 @@ async def run_demo(args) -> int:
     status = StatusLine()
 
     async def consume():
-        async for m in sub:
-            status.see(m)
+        async for batch in sub.batches():
+            for m in batch:
+                status.see(m)
+                if dash is not None:
+                    dash.feed_measurement(m)
             if dash is not None:
-                dash.feed_measurement(m)
                 for s in snaps.get_nowait():
                     dash.feed_snapshot(s)
 

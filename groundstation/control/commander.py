@@ -240,8 +240,9 @@ class Commander:
 
     async def follow(self, measurements) -> None:
         """Feed every measurement of a link's subscription (until it closes)."""
-        async for m in measurements:
-            self.feed(m)
+        async for batch in measurements.batches():
+            for m in batch:
+                self.feed(m)
 
     async def _watch(self, events) -> None:
         async for ev in events:

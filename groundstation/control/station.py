@@ -127,8 +127,9 @@ class ControlStation:
         self.commander.feed(m)
 
     async def follow(self, measurements) -> None:
-        async for m in measurements:
-            self.commander.feed(m)
+        async for batch in measurements.batches():
+            for m in batch:
+                self.commander.feed(m)
 
     async def run(self) -> None:
         """Run whichever commander is in charge (restarted when the choice changes)."""

@@ -74,6 +74,23 @@ class Subscription(Generic[T]):
             raise StopAsyncIteration
         return item
 
+    async def batches(self) -> AsyncIterator[list[T]]:
+        """``async for`` over everything buffered, one list per turn: the consumer yields the event
+        loop between lists (iterating item by item never yields while the buffer holds any, so a
+        backlog starved every other task)."""
+        while True:
+            while not self._buf:
+                if self._closed:
+                    return
+                self._event.clear()
+                await self._event.wait()
+            items = self.get_nowait()
+            if items:
+                yield items
+            if self._closed:
+                return
+            await asyncio.sleep(0)
+
     def get_nowait(self) -> list[T]:
         """Everything buffered now (for consumers that poll at their own rate)."""
         items = [x for x in self._buf if x is not _CLOSED]

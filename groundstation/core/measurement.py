@@ -63,6 +63,10 @@ class Kind(enum.Enum):
     MOTOR_VOLTAGE = "motor_voltage"  # motor voltages [V] (3-DOF helicopter: V_f, V_b)
     TRUTH_POSE = "truth_pose"  # motion capture / simulator truth: x, y, z NED [m], qw, qx, qy, qz
 
+    # members are singletons: hashed by identity, in C (Enum hashes the name in Python, and every
+    # reading costs several dict lookups by kind)
+    __hash__ = object.__hash__
+
     @property
     def is_truth(self) -> bool:
         """Truth is shown and scored against, never fed to an estimator."""

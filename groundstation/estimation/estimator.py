@@ -20,6 +20,11 @@ from .context import Context
 from .filters import InnovationRecord, ModelFilter
 from .models.base import LinearModel
 
+#: The coarsest timestamp of a vehicle's clock (MAVLink's ``time_boot_ms``): a reading stamped up
+#: to this much before the filter's time is on time, taken as current (one stamped in milliseconds
+#: trails the microsecond-stamped IMU reading of the same instant by up to that much)
+TIME_RESOLUTION_S = 1e-3
+
 InputRule = Callable[[Measurement, Context], "np.ndarray | None"]
 ContextRule = Callable[[Measurement, Context], None]
 
@@ -107,7 +112,7 @@ class KalmanEstimator:
             self.counters.reinitialisations += 1
             f.reset(t)  # the context (calibrations, tilt, throttle) carries over: same vehicle, same sensors
             return True
-        return t >= f.t - 1e-9
+        return t >= f.t
 
     def handle(self, m: Measurement) -> InnovationRecord | None:
         k = m.kind
@@ -118,8 +123,13 @@ class KalmanEstimator:
             # every component checked: one NaN in a vector reading poisoned the filter for good
             self.counters.skip(f"{m.kind.value}_{bad}")
             return None
-        rec = self._handle(m)
         f = self.filter
+        if self.started and f.t - TIME_RESOLUTION_S <= m.t < f.t:
+            # on time: taken as current, for every rule too (a hysteresis timed on it must not
+            # see time run back: the ground contact, entered at an ATTITUDE, left at the outputs
+            # stamped a fraction of a microsecond before it)
+            m = m._replace(t=f.t)
+        rec = self._handle(m)
         # the sums propagate any NaN or infinity; P only where an update touched it
         if not math.isfinite(float(f.kf.x.sum())) or (rec is not None and not math.isfinite(float(f.kf.P.sum()))):
             # whatever got it there (a model's own arithmetic), the estimate is no estimate: start over

@@ -81,9 +81,10 @@ class EstimateCsvWriter:
         self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
         self.rows += 1
 
-    def close(self, counters=None) -> None:
+    def close(self, counters=None, loop=None) -> None:
         """Close the CSV; with the estimator's ``counters``, write beside it (``OUT.counters.json``)
-        what it skipped, by sensor and reason, and how often it started over."""
+        what it skipped, by sensor and reason, and how often it started over; with the estimation
+        loop's, what it dropped as late and decimated under load."""
         if not self._f.closed:
             self._f.close()
         if counters is not None:
@@ -96,6 +97,11 @@ class EstimateCsvWriter:
                         "skipped": counters.rejected,
                         "diverged": counters.diverged,
                         "reinitialisations": counters.reinitialisations,
+                        **(
+                            {"late": loop.late, "rolled_back": loop.rollbacks, "decimated": loop.shed}
+                            if loop is not None
+                            else {}
+                        ),
                     },
                     indent=2,
                 )

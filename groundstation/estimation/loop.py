@@ -5,8 +5,14 @@
   hold-back delay). A measurement that arrives late, but within ``reorder_s``
   of the newest one, rolls the estimators back to a checkpoint before it and
   re-runs the buffered measurements in order; anything later than that is
-  counted and dropped. Live estimates thus cost no latency for ordering, and
-  replays give the same result as a perfectly ordered stream.
+  counted and dropped. Late by less than a timestamp's resolution
+  (:data:`~groundstation.estimation.estimator.TIME_RESOLUTION_S`: a
+  millisecond-stamped ATTITUDE after the microsecond-stamped IMU reading of the
+  same instant) is on time, processed in place: rolling back for it made every
+  such message cost a re-run. Live estimates thus cost no latency for ordering,
+  and replays give the result of a perfectly ordered stream.
+* Under load, a live link's batches (:meth:`EstimationLoop.push_many`) are
+  decimated rather than queued (:mod:`~groundstation.estimation.shedding`).
 * Source clocks are aligned: each source's offset to the receive clock is
   estimated (least-delayed sample), and sources are mapped onto the first
   source's clock. Sources of one vehicle (``mav/1.1``, ``mav/1.100``) share a clock.
@@ -30,8 +36,9 @@ import numpy as np
 from groundstation.core.broadcast import Broadcast
 from groundstation.core.measurement import Measurement
 
-from .estimator import KalmanEstimator
+from .estimator import TIME_RESOLUTION_S, KalmanEstimator
 from .filters import InnovationRecord
+from .shedding import LoadShedder, decimate
 
 
 @dataclass(frozen=True)
@@ -87,6 +94,7 @@ class LoopCounters:
     late: int = 0  # later than the reorder window: dropped
     rollbacks: int = 0  # late within the window: re-run in order
     truth: int = 0
+    shed: int = 0  # readings merged into block means or thinned out under load
 
 
 #: a checkpoint of every estimator at most this often (vehicle time) [s]
@@ -94,11 +102,21 @@ CHECKPOINT_EVERY = 0.01
 
 
 class EstimationLoop:
+    """Measurements in (:meth:`push`, or :meth:`push_many` for a live link's batches), snapshots
+    out. ``latency_s``: how old a live reading may be when its estimate is published; beyond it
+    :meth:`push_many` sheds load."""
+
     def __init__(
-        self, estimators: list[KalmanEstimator], *, reorder_s: float = 0.05, align_clocks: bool = True
+        self,
+        estimators: list[KalmanEstimator],
+        *,
+        reorder_s: float = 0.05,
+        align_clocks: bool = True,
+        latency_s: float = 0.025,
     ) -> None:
         self.estimators = estimators
         self.reorder_s = reorder_s
+        self.shedder = LoadShedder(latency_s)
         self.clocks = ClockAligner() if align_clocks else None
         self.snapshots: Broadcast[Snapshot] = Broadcast(200_000)
         self.truth: Broadcast[Measurement] = Broadcast(100_000)
@@ -124,8 +142,8 @@ class EstimationLoop:
             return
         if t != m.t:
             m = m._replace(t=t)
-        if t >= self._latest:
-            self._latest = t
+        if t >= self._latest - TIME_RESOLUTION_S:
+            self._latest = max(t, self._latest)
             self._process(m, publish=True)
         elif t < self._latest - 1.0:
             # a clock jump (reboot, seek), not a late sample: start the history over
@@ -208,12 +226,24 @@ class EstimationLoop:
         self.latest[est.name] = snap
         self.snapshots.publish(snap)
 
+    def push_many(self, ms: list[Measurement]) -> None:
+        """A batch as a live link delivered it, decimated as :attr:`shedder` decides when the
+        estimators cannot keep up (see :mod:`~groundstation.estimation.shedding`): live estimates stay
+        within ``latency_s`` of the vehicle at the cost of resolution, counted in ``counters.shed``."""
+        used = [m for m in ms if m.kind in self.kinds or m.kind.is_truth]
+        if not used:
+            return
+        oldest = used[0].t_rx
+        k = self.shedder.factor(len(used), time.time() - oldest if oldest == oldest else 0.0)
+        if k > 1:
+            used, removed = decimate(used, k)
+            self.counters.shed += removed
+        t0 = time.perf_counter()
+        for m in used:
+            self.push(m)
+        self.shedder.measured(len(used), time.perf_counter() - t0)
+
     # -- asyncio -----------------------------------------------------------------------------
     def attach_link(self, link) -> None:
-        """Estimate inside the link's receive path (lowest latency; never blocks)."""
-
-        def sink(ms):
-            for m in ms:
-                self.push(m)
-
-        link.sinks.append(sink)
+        """Estimate inside the link's delivery to the event loop (lowest latency; never blocks)."""
+        link.sinks.append(self.push_many)

@@ -286,7 +286,7 @@ def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple
 
 def discretize_series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float):
     """The integrals of :func:`discretize` by their Taylor series to fourth order in ``A dt``
-    (for input-dependent A, where each step has its own A and the exponentials dominate)::
+    (for steps that each have their own A or dt, where the exponentials would dominate)::
 
         Phi = sum_{k=0..4} (A T)^k / k!
         G   = sum_{k=0..3} A^k T^{k+1} / (k+1)!  B
