@@ -112,7 +112,7 @@ class EstimationLoop:
         *,
         reorder_s: float = 0.05,
         align_clocks: bool = True,
-        latency_s: float = 0.025,
+        latency_s: float = 0.015,
     ) -> None:
         self.estimators = estimators
         self.reorder_s = reorder_s

@@ -122,7 +122,7 @@ class LoadShedder:
       dashboard), which the cost per reading does not see.
     """
 
-    def __init__(self, latency_s: float = 0.025, k_max: float = 1000.0) -> None:
+    def __init__(self, latency_s: float = 0.015, k_max: float = 1000.0) -> None:
         self.latency_s = latency_s
         self.k_max = k_max
         self.k = 1.0
