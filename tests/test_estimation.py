@@ -457,28 +457,40 @@ def test_decimation_averages_the_imu_thins_the_attitude_and_keeps_order_and_the_
     assert [m.samples for m in out if m.kind is Kind.ACCEL] == [4, 1, 1, 1, 1, 4]
 
 
-def test_an_overloaded_batch_is_decimated_within_budget_and_estimates_the_same_altitude():
-    """A live batch far older than the latency budget (the loop was stalled half a second): the
-    loop decimates instead of running through it all, counts what it shed, and the estimate agrees
-    with the full run within its uncertainty. A fresh batch is processed whole."""
-    rng = np.random.default_rng(3)
+def _hover(seed: int, seconds: float = 5.0) -> list[Measurement]:
+    """A 1 kHz IMU and a 50 Hz range sensor, hovering at 1.5 m, with the noise the altitude model
+    assumes (G_acc 3e-5 (m/s^2)^2/Hz: 0.17 m/s^2 at 1 kHz; range 1.05 cm)."""
+    rng = np.random.default_rng(seed)
     ms = []
-    for k in range(2000):  # 2 s of a 1 kHz IMU and a 50 Hz range sensor, hovering at 1.5 m
+    for k in range(int(seconds * 1000)):
         t = 10 + k * 0.001
-        ms.append(_m(t, Kind.ACCEL, [0, 0, -9.80665 + rng.normal(0, 0.3)], t_rx=t))
+        ms.append(_m(t, Kind.ACCEL, [0, 0, -9.80665 + rng.normal(0, 0.173)], t_rx=t))
         if k % 20 == 0:
-            ms.append(_m(t, Kind.RANGE, [1.5 + rng.normal(0, 0.02)], t_rx=t))
-    full, shed = altitude_estimator(), altitude_estimator()
-    loop_full, loop_shed = EstimationLoop([full]), EstimationLoop([shed])
-    for m in ms:
-        loop_full.push(m)
-    now = time.time()
-    stale = [m._replace(t_rx=now - 0.5 - (ms[-1].t - m.t)) for m in ms]
-    loop_shed.push_many(stale)
-    c = loop_shed.counters
-    assert c.shed > 1000 and c.processed + c.shed == len(ms)
-    assert shed.filter.x[0] == pytest.approx(full.filter.x[0], abs=3 * math.sqrt(full.filter.P[0, 0]) + 0.01)
-    # a fresh batch, small enough for the budget: whole
+            ms.append(_m(t, Kind.RANGE, [1.5 + rng.normal(0, 0.0105)], t_rx=t))
+    return ms
+
+
+def test_an_overloaded_batch_is_decimated_within_budget_and_estimates_consistently():
+    """A live batch far older than the latency budget (the loop was stalled half a second): the
+    loop decimates instead of running through it all, and counts what it shed. Its estimates stay
+    consistent: over twelve flights, the height error in units of the filter's own sigma has an RMS
+    near 1 (1.10 here; 1.07 over 30 flights of 5 s, where the whole stream gives 0.91). A fresh
+    batch, small enough for the budget, is processed whole."""
+    errors = []
+    for seed in range(12):
+        ms = _hover(seed, 4.0)
+        est = altitude_estimator()
+        loop = EstimationLoop([est])
+        warm = [m for m in ms if m.t < 12.0]  # settled on 2 s; then 2 s come at once
+        rest = ms[len(warm) :]
+        for m in warm:
+            loop.push(m)
+        now = time.time()
+        loop.push_many([m._replace(t_rx=now - 0.5 - (rest[-1].t - m.t)) for m in rest])
+        c = loop.counters
+        assert c.shed > 1000 and c.processed - len(warm) + c.shed == len(rest)
+        errors.append((est.filter.x[0] - 1.5) / math.sqrt(est.filter.P[0, 0]))
+    assert math.sqrt(np.mean(np.square(errors))) < 1.5 and abs(np.mean(errors)) < 0.6, errors
     fresh = EstimationLoop([altitude_estimator()])
-    fresh.push_many([m._replace(t_rx=time.time()) for m in ms[:50]])
-    assert fresh.counters.shed == 0 and fresh.counters.processed == 50
+    fresh.push_many([m._replace(t_rx=time.time()) for m in _hover(0, 0.05)])
+    assert fresh.counters.shed == 0 and fresh.counters.processed == 53
