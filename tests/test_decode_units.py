@@ -114,6 +114,10 @@ def test_distance_sensor_cm_to_m_with_variance_and_bounds():
     out, r = decode(mavlink.MAVLink_distance_sensor_message(7000, 20, 400, 401, 0, 3, 25, 255))
     assert (Kind.RANGE, 3) not in out
     assert r.decoder.skipped["range_out_of_bounds"] == 1
+    # a reading at a limit is the sensor's clamp (on the ground it reads its minimum), not a height
+    for at_limit in (20, 400):
+        out, r = decode(mavlink.MAVLink_distance_sensor_message(7000, 20, 400, at_limit, 0, 3, 25, 255))
+        assert (Kind.RANGE, 3) not in out and r.decoder.skipped["range_out_of_bounds"] == 1
 
 
 def test_attitude_and_quaternion():

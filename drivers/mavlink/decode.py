@@ -288,8 +288,9 @@ class MavlinkDecoder:
 
     def _distance_sensor(self, m, t, t_rx, source, instance, out):
         d = m.current_distance
-        if d < m.min_distance or d > m.max_distance:
-            # ArduPilot and PX4 report out-of-range readings this way.
+        if d <= m.min_distance or d >= m.max_distance:
+            # a reading at or beyond a limit is the sensor's clamp, not a distance: ArduPilot and PX4
+            # report out-of-range readings this way, and a sensor on the ground reads its minimum
             self.skipped["range_out_of_bounds"] += 1
             return
         cov = m.covariance

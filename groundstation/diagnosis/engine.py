@@ -133,11 +133,16 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
         return Truth(
             np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c, roll, pitch
         )
-    p = truth_csv or (log.with_suffix(".csv") if log is not None else None)
+    p = truth_csv
+    if p is None and log is not None:
+        # the simulator's sidecar (NAME.csv) or a truth file beside the log (NAME_truth.csv)
+        p = next((q for q in (log.with_suffix(".csv"), log.with_name(log.stem + "_truth.csv")) if q.exists()), None)
     if p is not None and p.exists():
         with open(p) as f:
             rows = list(csv.DictReader(f))
-        if rows and "h" in rows[0]:
+        # the height above the floor, up: "h" (the simulator's sidecar) or "z"
+        height = next((k for k in ("h", "z") if rows and k in rows[0]), None)
+        if height is not None and "t" in rows[0]:
             roll = pitch = c = None
             if "roll" in rows[0]:
                 roll = np.array([float(r["roll"]) for r in rows])
@@ -145,7 +150,7 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
                 c = np.cos(roll) * np.cos(pitch)
             return Truth(
                 np.array([float(r["t"]) for r in rows]),
-                np.array([float(r["h"]) for r in rows]),
+                np.array([float(r[height]) for r in rows]),
                 f"simulator sidecar {p.name}",
                 c,
                 roll,

@@ -87,6 +87,7 @@ class Context:
     range_gate: str = "unsure"
     range_track: tuple[float, float, float, float] | None = None  #: (t0, d0, t_last, d_last)
     in_contact: bool | None = None  #: None before the first decision
+    landed: bool | None = None  #: models.ground's decision at the last throttle (None before the first)
     been_up: bool = False
 
     # -- the 3-DOF helicopter's estimate, for its gyro's and accelerometer's measurement functions --

@@ -87,7 +87,7 @@ class KalmanEstimator:
 
     @property
     def kinds(self) -> set[Kind]:
-        return set(self.inputs) | set(self.context) | set(self._by_kind)
+        return set(self.inputs) | set(self.context) | set(self._by_kind) | set(self.model.impulses)
 
     def checkpoint(self) -> tuple:
         """Everything a rollback needs, before the first measurement too (a late one there was
@@ -147,6 +147,10 @@ class KalmanEstimator:
             f.ctx.x = f.kf.x
             f.ctx.u = f.u
             rule(m, f.ctx)
+        for impulse in self.model.impulses.get(m.kind, ()):
+            added = impulse(m, f.ctx)
+            if added and self.started:
+                f.add_variance({self.model.index(s): q for s, q in added.items()})
         inp = self.inputs.get(m.kind)
         mms = self._by_kind.get(m.kind)
         if inp is None and not mms:

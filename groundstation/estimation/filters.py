@@ -97,6 +97,15 @@ class ModelFilter:
         self._apply_pending()
         return self.kf.P
 
+    def add_variance(self, added: dict[int, float]) -> None:
+        """P[i, i] += q for each state i: an impulse the dynamics lack, as discrete process noise at
+        the filter's time (``LinearModel.impulses``)."""
+        self._apply_pending()
+        P = self.kf.P.copy()
+        for i, q in added.items():
+            P[i, i] += q
+        self.kf.P = P
+
     def _apply_pending(self) -> None:
         """P = Phi_n P Phi_n^T + Q_n for the n equal steps not yet applied.
 

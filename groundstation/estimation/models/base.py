@@ -33,6 +33,9 @@ from ..context import Context, Zero
 
 #: a measurement model's reader: the measured vector of a record, or None to skip it
 Extract = Callable[[Measurement, Context], "np.ndarray | None"]
+#: an impulse the model's dynamics lack, read at a record of its kind: the variance [state: added
+#: variance] that the event adds to the named states at the filter's time, or None when none happened
+Impulse = Callable[[Measurement, Context], "dict[str, float] | None"]
 
 
 @dataclass
@@ -97,6 +100,9 @@ class LinearModel:
     #: the builder's keyword arguments: a model that cannot be :meth:`augmented` (a nonlinear
     #: one) is rebuilt with one more effect from them
     options: dict = field(default_factory=dict)
+    #: per record kind, events the continuous dynamics do not hold (the ground letting go of the
+    #: vehicle at lift-off): each adds process noise to named states when it happens
+    impulses: dict[Kind, tuple[Impulse, ...]] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -164,6 +170,7 @@ class LinearModel:
             self.doc,
             list(self.notes),
             options=dict(self.options),
+            impulses=dict(self.impulses),
         )
 
 
