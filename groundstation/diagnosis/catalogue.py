@@ -39,7 +39,8 @@ class Candidate:
     k: int  # parameters it adds (BIC penalty)
     needs: set = field(default_factory=set)  # kinds the log must have
     sensor: str | None = None  # the measurement it acts on
-    augment: Callable[[LinearModel], LinearModel] | None = None
+    #: the model with the effect (``augment(model, shape)`` for a candidate with ``shapes``)
+    augment: Callable[..., LinearModel] | None = None
     params: Callable[..., dict] | None = None  # (run) -> {name: value}
     delays: tuple[float, ...] = ()  # sensor_delay: the grid
     #: (measurements, grid value) -> measurements; default: the sensor's readings shifted by the delay
@@ -55,9 +56,13 @@ class Candidate:
     #: (its run, z) -> {parameter: the size a claim needs}, z = sqrt(2 x the gain it needs) (trace.smallest_claimed);
     #: default: each reported ``sigma_`` times z, for a parameter that is itself the state
     limit: Callable | None = None
+    #: a shape parameter the model is not linear in (a ground effect's fall-off height), chosen from these
+    #: by the likelihood: ``augment(model, shape)``, reported as ``params[shape_name]`` (one more parameter)
+    shapes: tuple[float, ...] = ()
+    shape_name: str = "shape"
 
 
-def _with_regressor(
+def with_regressor(
     model: LinearModel, sensor: str, state: str, regressor: Callable, P0: float, Q: float = 0.0
 ) -> LinearModel:
     """One more state c, acting on ``sensor`` as ``y = h(x) + c * regressor(ctx)``."""
@@ -76,7 +81,7 @@ def _with_regressor(
     return model.augmented(states=[state], Qc_extra=[Q], x0_extra=[0.0], P0_extra=[P0], measurements=meas)
 
 
-def _state_param(name: str, state: str, scale: float = 1.0):
+def state_param(name: str, state: str, scale: float = 1.0):
     def read(run) -> dict:
         v, s = run.final(state)
         return {name: v * scale, f"sigma_{name}": s * abs(scale)}
@@ -94,12 +99,21 @@ def _state_param(name: str, state: str, scale: float = 1.0):
 BARO_ZERO_SIGMA = 0.15
 
 
-def baro_zero(model: LinearModel) -> LinearModel:
-    """The baro's zero as a random constant, y_baro = z + b0 (prior: the calibration's own error).
+#: [m^2/s] the baro error's random walk next to a GPS: 0.2 m over a minute. Outdoors a baro wanders
+#: with the weather and the sensor's own temperature (a hectopascal an hour is 8 m), and a GPS's
+#: slow error wanders too (models.altitude.with_gps_error): with both as states the filter splits a
+#: disagreement by their rates, where with the baro held exact the GPS's state took all of it and
+#: the estimate followed the baro's drift (1.2 m off on a flight whose baro read 0.13 m/K high)
+BARO_WANDER = 0.0
 
-    Only where another absolute height (the range sensor) can show it: from the barometer alone
-    b0 and z cannot be told apart, and the calibration stays what it was."""
-    return _with_regressor(model, "baro", "baro_zero", lambda ctx: 1.0, BARO_ZERO_SIGMA**2)
+
+def baro_zero(model: LinearModel, wander: float = 0.0) -> LinearModel:
+    """The baro's zero as a random constant, y_baro = z + b0 (prior: the calibration's own error),
+    or with ``wander`` [m^2/s] a random walk.
+
+    Only where another absolute height (the range sensor, a GPS) can show it: from the barometer
+    alone b0 and z cannot be told apart, and the calibration stays what it was."""
+    return with_regressor(model, "baro", "baro_zero", lambda ctx: 1.0, BARO_ZERO_SIGMA**2, wander)
 
 
 # -- the altitude filter's candidates ----------------------------------------------------------------
@@ -183,15 +197,27 @@ def _temperature(ctx: Context) -> float:
     return ctx.temperature - t0 if t0 is not None and ctx.temperature is not None else 0.0
 
 
-def _ground(ctx: Context) -> float:
-    # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate. A logged
-    # throttle says when they run; the vibration (low-passed 0.3 s) only stands in for one, as it
-    # lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35)
-    if ctx.throttle is not None:
-        running = ctx.throttle > 0.05
-    else:
-        running = ctx.vibration is not None and ctx.vibration > 0.05
-    return math.exp(-max(0.0, ctx.z) / 0.5) if running else 0.0
+#: [m] the heights over which the rotor wash's pressure field near the ground may fall off (its
+#: e-folding height h0, about a rotor diameter): the candidate takes the one the log's likelihood picks
+GROUND_HEIGHTS = (0.25, 0.5, 1.0)
+
+
+def _ground(h0: float) -> Callable[[Context], float]:
+    def regressor(ctx: Context) -> float:
+        # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate. A
+        # logged throttle says when they run; the vibration (low-passed 0.3 s) only stands in for one,
+        # as it lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35)
+        if ctx.throttle is not None:
+            running = ctx.throttle > 0.05
+        else:
+            running = ctx.vibration is not None and ctx.vibration > 0.05
+        return math.exp(-max(0.0, ctx.z) / h0) if running else 0.0
+
+    return regressor
+
+
+def _ground_effect(model: LinearModel, h0: float = 0.5) -> LinearModel:
+    return with_regressor(model, "baro", "A_ground", _ground(h0), 3.0**2)
 
 
 def altitude_catalogue(kinds: set) -> list[Candidate]:
@@ -204,9 +230,9 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
         Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _scale_param, perturb=scale_accelerometer),
         Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2)),
     ]
-    if has_baro:
+    if has_baro and kinds & BARO_REFERENCES:
         cands += [
-            Candidate("baro_bias_drift", 2, set(), "baro", baro_bias_drift, _state_param("rate", "baro_rate")),
+            Candidate("baro_bias_drift", 2, set(), "baro", baro_bias_drift, state_param("rate", "baro_rate")),
             Candidate("sensor_delay", 1, set(), "baro", None, None, delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3)),
         ]
         if Kind.TEMPERATURE in kinds:
@@ -216,8 +242,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     1,
                     {Kind.TEMPERATURE},
                     "baro",
-                    lambda m: _with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
-                    _state_param("k", "k_thermal"),
+                    lambda m: with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
+                    state_param("k", "k_thermal"),
                 )
             )
         if has_throttle:
@@ -227,8 +253,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     1,
                     set(),
                     "baro",
-                    lambda m: _with_regressor(m, "baro", "k_thrust", lambda c: c.throttle_lp or 0.0, 10.0**2),
-                    _state_param("k", "k_thrust"),
+                    lambda m: with_regressor(m, "baro", "k_thrust", lambda c: c.throttle_lp or 0.0, 10.0**2),
+                    state_param("k", "k_thrust"),
                 )
             )
         cands.append(
@@ -237,11 +263,29 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 1,
                 set(),
                 "baro",
-                lambda m: _with_regressor(m, "baro", "A_ground", _ground, 3.0**2),
-                _state_param("A", "A_ground"),
+                _ground_effect,
+                state_param("A", "A_ground"),
+                shapes=GROUND_HEIGHTS,
+                shape_name="h0",
             )
         )
     return [c for c in cands if c.needs <= kinds]
+
+
+#: the absolute heights a baro error can be seen against: without one, a baro error and the height
+#: (or an accelerometer error integrated into it) cannot be told apart
+BARO_REFERENCES = frozenset({Kind.RANGE, Kind.GPS})
+
+
+def unobservable_in(kinds: set) -> dict[str, str]:
+    """Effects this log's sensors cannot show, beyond the model's own list."""
+    if kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE} and not kinds & BARO_REFERENCES:
+        why = (
+            "the baro is the log's only absolute height (no range sensor, no GPS): an error of the baro "
+            "cannot be told from the height itself, nor from an accelerometer error integrated into it"
+        )
+        return {name: why for name in ("baro_bias_drift", "baro_thermal", "baro_thrust", "baro_ground_effect")}
+    return {}
 
 
 #: effects this model cannot show, and why (reported, not guessed)
@@ -280,6 +324,7 @@ UNITS = {
     ("baro_thermal", "k"): "m/K",
     ("baro_thrust", "k"): "m per unit throttle",
     ("baro_ground_effect", "A"): "m",
+    ("baro_ground_effect", "h0"): "m",
     ("range_offset", "o"): "m",
     ("sensor_delay", "seconds"): "s",
     ("actuator_lag", "tc"): "s",

@@ -25,7 +25,8 @@ from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
 from groundstation.estimation.routing import altitude_estimator, attitude_estimator
 
 from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .noise_match import GPS_SLOW
 from .outputs import interval_means
 from .run import Prepared, in_time_order, prepare, run_model
 from .thrust import (
@@ -38,6 +39,10 @@ from .thrust import (
     thrust_model,
 )
 
+#: a GPS altitude's slow error [m] and its correlation time [s] (first-order Gauss-Markov): the
+#: floor of noise_match.GPS_SLOW while effects are traced, then the level the log picks; its white
+#: part is matched to the log (noise_match.py)
+GPS_ERROR = (GPS_SLOW[0], 60.0)
 #: s: a shorter log is not diagnosed (the likelihood is scored from 5 s in, once the filter settles)
 MIN_SECONDS = 10.0
 HEIGHT_SENSORS = frozenset({Kind.RANGE, Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE})
@@ -85,14 +90,23 @@ class Setup:
 def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearModel:
     """The altitude model a diagnosis starts from: the vehicle's noise, the declared slant, and what a
     person would set right before suspecting any effect (the ground, the baro's zero)."""
-    model = altitude_model(range_tilt="range_tilt" in names, **vehicle_config(vehicle, "altitude"))
+    config = vehicle_config(vehicle, "altitude")
+    if Kind.GPS in prep.kinds and Kind.RANGE not in prep.kinds and "use_gps" not in config:
+        # the GPS is the absolute height the baro is seen against when no range sensor is: with its
+        # slow error as a state. With a range sensor it is left out: its wander (a simulated
+        # receiver's 2 m over 20 s) then only hides the baro's effects from the range
+        config = {**config, "use_gps": True, "gps_error": GPS_ERROR}
+    model = altitude_model(range_tilt="range_tilt" in names, **config)
     if prep.logged_throttle:
         # a logged throttle only: a stand-in derived from the range or the vibration would feed
         # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
         # "throttle" pattern in the range innovations)
         model = on_ground(model, consider=True)
-    if {Kind.RANGE} <= prep.kinds and prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
-        model = baro_zero(model)
+    if prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
+        if Kind.RANGE in prep.kinds:
+            model = baro_zero(model)
+        elif Kind.GPS in prep.kinds:
+            model = baro_zero(model, BARO_WANDER)
     return model
 
 

@@ -8,7 +8,7 @@ report.json::
                                          # vehicle file, read beside it: file_alpha, file_beta), or null
      "effects": [{"name", "params", "evidence"}, ...],     # in the order added
      "modelled": [...], "measured_against_truth": [...], "discovered": [...],
-     "rejected": [...],                  # fitted better, made the error against truth worse
+     "rejected": [...],                  # fitted better, but failed out of sample or against truth
      "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
      "detectable": [{"name", "size": {param: value}, "delta_bic"}, ...],   # each candidate not found: the
                                          # size this log would claim it at about half the time (trace.py)
@@ -100,12 +100,22 @@ def _spans(times, gap: float = 1.0) -> list[list[float]]:
 
 def as_json(d: Diagnosis) -> dict:
     t0, t1 = d.before.t[0] + 5.0, d.before.t[-1]
-    eff = [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.effects]
+    eff = [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.effects if e.name != "discovered"]
+    added = {e.evidence.get("sensor"): e for e in d.effects if e.name == "discovered"}
     disc = [
         {
             "name": "discovered",
-            "params": {"sensor": x.sensor, "regressor": x.expression, "coefficient": x.coefficient},
+            "params": {
+                "sensor": x.sensor,
+                "regressor": x.expression,
+                "coefficient": x.coefficient,
+                # as the filter estimates it, in the model (engine._add_discovery)
+                **{k: v for k, v in added[x.sensor].params.items() if k != "expression"},
+            }
+            if x.sensor in added
+            else {"sensor": x.sensor, "regressor": x.expression, "coefficient": x.coefficient},
             "evidence": {
+                **(added[x.sensor].evidence if x.sensor in added else {}),
                 "r2": x.r2,
                 "terms": [{"regressor": a, "coefficient": b} for a, b in x.terms],
                 # null where the test could not run (strict JSON has no NaN)
@@ -129,6 +139,7 @@ def as_json(d: Diagnosis) -> dict:
         ],
         "rejected": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.rejected],
         "unobservable": d.unobservable,
+        "noise": [n.as_dict() for n in d.noise],
         "detectable": d.detectable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
@@ -157,14 +168,24 @@ def _colour(e) -> tuple[str, float]:
 
 def conclusion(d: Diagnosis, j: dict) -> str:
     parts = []
-    if d.effects:
-        found = "; ".join(_named(e) for e in d.effects)
+    differs = [n for n in d.noise if n.differs]
+    if differs:
         parts.append(
-            f"The model was missing {len(d.effects)} effect{'s' * (len(d.effects) > 1)}: {found}. "
-            f"Each was added with its parameters estimated from this log, and each improved the "
-            f"likelihood of the measurements by very strong evidence (Delta BIC < -10)."
+            "The log's own noise differs from the model's, and the diagnosis used the log's: "
+            + "; ".join(f"{n.sensor} {n.sigma_data:.3g}, the model had {n.sigma_model:.3g}" for n in differs)
+            + " (covariance matching on the innovations). A mis-set noise level is a finding of its own, "
+            "not an effect."
         )
-        coloured = [(e, *_colour(e)) for e in d.effects if e.evidence.get("innovation_colour")]
+    catalogued = [e for e in d.effects if e.name != "discovered"]
+    if catalogued:
+        found = "; ".join(_named(e) for e in catalogued)
+        parts.append(
+            f"The model was missing {len(catalogued)} effect{'s' * (len(catalogued) > 1)}: {found}. "
+            f"Each was added with its parameters estimated from this log, and each improved the "
+            f"likelihood of the measurements by very strong evidence (Delta BIC < -10), by at least "
+            f"3 standard errors, and on stretches of the log it was not fitted on."
+        )
+        coloured = [(e, *_colour(e)) for e in catalogued if e.evidence.get("innovation_colour")]
         coloured = [(e, s, f) for e, s, f in coloured if f >= COLOURED]
         if coloured:
             parts.append(
@@ -177,7 +198,7 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                 )
                 + ". Weigh those findings with care: the colour comes from something the model still lacks."
             )
-        for e in d.effects:
+        for e in catalogued:
             alt = e.evidence.get("alternative")
             if alt:
                 p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
@@ -232,6 +253,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         )
     for e in d.rejected:
         ev = e.evidence
+        if "reason" in ev:
+            parts.append(
+                f"{_named(e)} fitted the measurements better (Delta BIC {ev['delta_bic']:.0f}) but is not "
+                f"claimed: {ev['reason']}."
+            )
+            continue
         k, unit = (100.0, "cm") if ev["quantity"].startswith("height") else (math.degrees(1.0), "deg")
         parts.append(
             f"{_named(e)} fitted the measurements better (Delta BIC "
@@ -253,7 +280,9 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         white = f"; without it their Ljung-Box p goes from {p0:.2g} to {p1:.2g}" if p0 < 0.05 and p1 > p0 else ""
         parts.append(
             f"Outside the catalogue, the {x.sensor} innovations follow {x.expression} "
-            f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance{white})."
+            f"(coefficient {x.coefficient:.3g}, {x.r2:.0%} of their variance on held-out stretches{white}); "
+            f"added to the model as a regressor on the {x.sensor}, it held out of sample as a catalogued "
+            f"effect must."
         )
     b, a = j["before"], j["after"]
     rng = a["sensors"].get("range", {})
@@ -385,6 +414,14 @@ def _evidence_html(name: str, ev: dict) -> str:
             "coloured innovations: "
             + ", ".join(f"each {k} one worth 1/{v:.0f} of a sample" for k, v in coloured.items())
         )
+    if "held_out_gain" in ev:
+        z = ", ".join(f"{k} at {v:.1f} sigma" for k, v in ev.get("z", {}).items())
+        lines.append(
+            f"held out: log-likelihood gain {ev['held_out_gain']:+.1f} on blocks it was not fitted on "
+            f"({', '.join(f'{g:+.1f}' for g in ev.get('held_out_gain_by_block', []))})" + (f"; {z}" if z else "")
+        )
+    if ev.get("reason"):
+        lines.append(f"not claimed: {ev['reason']}")
     if ev.get("runner_up"):
         lines.append(f"runner-up {ev['runner_up']} ({ev['runner_up_delta_bic']:+.1f})")
     alt = ev.get("alternative")
@@ -465,7 +502,7 @@ def write(d: Diagnosis, out: Path) -> dict:
         ["effect", "parameters", "evidence"],
     )
     if j["rejected"]:
-        effects += "<h3>Rejected: a better fit, a worse estimate against truth</h3>" + _table(
+        effects += "<h3>Rejected: a better fit that does not hold (out of sample, or against truth)</h3>" + _table(
             [
                 [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
                 for e in j["rejected"]

@@ -78,7 +78,7 @@ from groundstation.estimation.routing import (
 
 from .airframe import thrust_curve
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
-from .catalogue import UNOBSERVABLE, Candidate, _state_param, altitude_catalogue
+from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, state_param
 from .run import SETTLE_S
 
 GE_MIN_H = 0.1  # m: below this the first-order ground-effect term is not used
@@ -544,7 +544,7 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
         if Kind.BATTERY_VOLTAGE in kinds:
             cands.append(
                 Candidate(
-                    "thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage, _state_param("n", "n_voltage")
+                    "thrust_voltage", 1, {Kind.BATTERY_VOLTAGE}, None, thrust_voltage, state_param("n", "n_voltage")
                 )
             )
         cands.append(

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -68,6 +68,8 @@ class Scored:
 
     gain_per_update: float = 0.0
     support: int = 0  # the updates its gain is spread over
+    #: a grid candidate's runs by grid value (a delay's profile), for its held-out evidence (holdout.py)
+    profile: dict = field(default_factory=dict)
     n: int = 1  # the innovations its Delta BIC counts
     delta_bic_effective: float = math.nan
 
@@ -200,17 +202,39 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
         p = {"tc": round(float(d), 4)} if cand.reshape else {"sensor": cand.sensor, "seconds": round(float(d), 4)}
         if math.isfinite(sd):  # a flat profile has none (and JSON no infinity)
             p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
-        return scored(cand, model, r, base, n, p, shifted)
+        out = scored(cand, model, r, base, n, p, shifted)
+        out.profile = {x: v[0] for x, v in tried.items()}
+        return out
     if cand.augment is None:
         return None
-    aug = cand.augment(model)
-    try:
-        r = run_model(aug, prep, make, measurements=ms)
-    except np.linalg.LinAlgError:
-        # the augmented filter ran away (its innovation covariance went singular): not a finding,
-        # and not the end of the diagnosis
-        return Scored(cand, aug, base, math.inf, {"note": "the filter diverged"}, ms)
-    return scored(cand, aug, r, base, n, cand.params(r) if cand.params else {}, ms)
+    best: tuple | None = None
+    for shape in cand.shapes or (None,):
+        aug = cand.augment(model) if shape is None else cand.augment(model, shape)
+        try:
+            r = run_model(aug, prep, make, measurements=ms)
+        except np.linalg.LinAlgError:
+            # the augmented filter ran away (its innovation covariance went singular): not a finding,
+            # and not the end of the diagnosis
+            continue
+        if best is None or r.loglik > best[1].loglik:
+            best = (aug, r, shape)
+    if best is None:
+        return Scored(cand, model, base, math.inf, {"note": "the filter diverged"}, ms)
+    aug, r, shape = best
+    params = cand.params(r) if cand.params else {}
+    if shape is not None:
+        params[cand.shape_name] = shape
+        cand = replace(cand, k=cand.k + 1, augment=_with_shape(cand.augment, shape), shapes=())
+    return scored(cand, aug, r, base, n, params, ms)
+
+
+def _with_shape(augment: Callable[..., LinearModel], shape: float) -> Callable[[LinearModel], LinearModel]:
+    """A shaped candidate's ``augment`` at the shape the likelihood chose."""
+
+    def at(model: LinearModel) -> LinearModel:
+        return augment(model, shape)
+
+    return at
 
 
 #: the size an input effect is made to act at for its signature (the filter is linear in it: any small one)

@@ -47,11 +47,13 @@ Corrections to the document, made knowingly:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from groundstation.core.measurement import Kind
 
-from .base import LinearModel, MeasurementModel, barometer, relative_to_estimate, slant
+from .base import LinearModel, MeasurementModel, barometer, pad_row, relative_to_estimate, slant
 
 G = 9.80665
 
@@ -80,6 +82,7 @@ def altitude_model(
     range_tilt: bool = False,
     range_offset: float = 0.0,
     use_gps: bool = False,
+    gps_error: tuple[float, float] | None = None,
 ) -> LinearModel:
     """The document's 3-state filter with our default noise densities.
 
@@ -121,9 +124,10 @@ def altitude_model(
         # GPS altitude errors are correlated over tens of seconds (2 m over 20 s in the
         # simulator, worse on real receivers): taken as white they fail every whiteness
         # test and add nothing a baro and a range sensor do not already give. ``use_gps``
-        # puts them back (the document's GPS update, eq. 9.8's sibling).
+        # puts them back (the document's GPS update, eq. 9.8's sibling), ``gps_error`` with
+        # their correlated part as a state (:func:`with_gps_error`).
         del meas["gps"]
-    return LinearModel(
+    model = LinearModel(
         name="altitude",
         states=["z", "vz", "b_acc"],
         inputs=["gamma_z", "cos_tilt"],
@@ -135,3 +139,32 @@ def altitude_model(
         measurements=meas,
         doc=__doc__,
     )
+    return with_gps_error(model, *gps_error) if use_gps and gps_error is not None else model
+
+
+def with_gps_error(model: LinearModel, sigma: float, tau: float) -> LinearModel:
+    """GPS altitude with its correlated error as a first-order Gauss-Markov state, as
+    :mod:`.horizontal` does for position: ``b_gps_dot = -b_gps / tau + w``, ``E[w^2] = 2 sigma^2 / tau``,
+    and ``y_gps = z + b_gps + v`` (v white, the model's ``sigma_gps``). Taken as white, a receiver's
+    slow vertical wander would be averaged to centimetres; with the state, GPS pins the height to
+    about ``sigma`` over ``tau`` and carries it over minutes, where a baro drifts with temperature
+    and rotor wash. The error starts at zero: the GPS zero is taken against the estimate."""
+    n = model.n
+    meas = dict(model.measurements)
+    gps = meas["gps"]
+    old = gps.row
+
+    def row(ctx, old=old):
+        r = pad_row(old(ctx), 1)
+        r[0, n] = 1.0
+        return r
+
+    augmented = model.augmented(
+        states=["b_gps"],
+        A_extra=lambda u: np.array([[-1.0 / tau]]),
+        Qc_extra=[2.0 * sigma**2 / tau],
+        x0_extra=[0.0],
+        P0_extra=[sigma**2],
+    )
+    augmented.measurements["gps"] = replace(augmented.measurements["gps"], row=row)
+    return augmented

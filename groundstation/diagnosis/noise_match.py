@@ -1,0 +1,187 @@
+"""Noise from the data, before any effect is traced: each sensor's R by covariance matching.
+
+A noise level set wrong (a vehicle file written for another airframe, a default for our
+simulator) moves every sensor's NIS off 1, and a diagnosis that trusts the file then reads the
+mis-set level as a physical effect: a baro whose noise is 0.12 m, modelled as 0.34 m, hides small
+baro effects; modelled as 0.05 m, any slow regressor "explains" the excess.
+
+Mehra's covariance matching (1970): for white measurement noise the innovation covariance is
+``S = H P- H' + R``, so ``R = E[nu^2] - E[H P- H']``. That total holds every error the model lacks,
+effects included, so it is trusted only to *lower* a level: innovations smaller than the model
+expects are no effect's doing. A level is *raised* only to the white part, from the first
+differences of consecutive innovations, which a slow error (a temperature, a rotor wash of 0.3 s
+against 25 Hz) barely reaches: ``E[(nu_k - nu_(k-1))^2] / 2 = R + E[H P- H']`` for white
+innovations. A sensor whose noise is coloured keeps its model's level when the two bracket it
+(a Crazyflie's baro: 0.15 m white, 1.5 m in the vehicle file, its slow wander in between; set to
+the white part, the slant range's likelihood fell by 350 and it was no longer found). A GPS, whose
+slow error is a state of its own, takes the white part. Iterated (the
+filter re-run with the new R, :data:`ITERATIONS` times), since P depends on R. Autocovariance least squares
+(Odelson, Rajamani and Rawlings 2006) would give the process noise too; it is not done here: the
+process noise stays the model's, and a sensor whose matched noise leaves its NIS far from 1 points
+at the dynamics, which the findings then show.
+
+The report lists each sensor's noise from the data beside the model's, and calls out a ratio
+outside [1/:data:`DIFFERS`, :data:`DIFFERS`] as a finding of its own.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from groundstation.estimation.models.base import LinearModel
+
+from .run import SETTLE_S, Prepared, Run, run_model
+
+#: scalar sensors whose R is matched (the pseudo-sensor and vector sensors keep theirs)
+MATCHED = ("range", "baro", "gps")
+ITERATIONS = 2
+#: a level from the data this many times the model's (or less than 1/this) is reported as a finding
+DIFFERS = 1.5
+#: fewest consecutive innovation pairs a level is matched on
+MIN_PAIRS = 100
+
+
+@dataclass
+class NoiseLevel:
+    sensor: str
+    sigma_data: float  # [sensor units]
+    sigma_model: float  # what the model (or the vehicle file) had
+    pairs: int
+
+    @property
+    def ratio(self) -> float:
+        return self.sigma_data / self.sigma_model if self.sigma_model > 0 else math.inf
+
+    @property
+    def differs(self) -> bool:
+        return not 1.0 / DIFFERS <= self.ratio <= DIFFERS
+
+    def as_dict(self) -> dict:
+        return {
+            "sensor": self.sensor,
+            "sigma_data": float(f"{self.sigma_data:.3g}"),
+            "sigma_model": float(f"{self.sigma_model:.3g}"),
+            "pairs": self.pairs,
+            "differs": self.differs,
+        }
+
+
+def matched_r(run: Run, sensor: str, R: float, t_from: float, white_only: bool = False) -> tuple[float, int] | None:
+    """R from one run's innovations of ``sensor`` (module docstring), and the pairs it used;
+    ``white_only``: the white part whatever the rest (a sensor whose slow error is a state)."""
+    tr = run.sensors.get(sensor)
+    if tr is None or tr.nu.shape[1] != 1:
+        return None
+    k = tr.t >= t_from
+    t, nu, S = tr.t[k], tr.nu[k, 0], tr.S[k, 0, 0]
+    if len(t) < MIN_PAIRS + 1:
+        return None
+    dt = np.diff(t)
+    # consecutive updates only: not across a dropout, a gate's gap or the ground
+    pair = dt <= 3.0 * float(np.median(dt))
+    if pair.sum() < MIN_PAIRS:
+        return None
+    hph = S - R
+    # the white part: from the differences, which a slow error barely reaches
+    white = float(np.mean(np.diff(nu)[pair] ** 2 / 2.0 - (hph[1:][pair] + hph[:-1][pair]) / 2.0))
+    # everything: the innovations' own variance (white and coloured noise, and any effect)
+    total = float(np.mean(nu**2 - hph))
+    if white_only:
+        return max(white, 0.0), int(pair.sum())
+    if white > R:
+        return white, int(pair.sum())  # even the white part exceeds the model's: raised to it
+    if total < R:
+        return max(total, 0.0), int(pair.sum())  # even all of it is below the model's: lowered to it
+    return R, int(pair.sum())
+
+
+def with_r(model: LinearModel, sensor: str, R: float) -> LinearModel:
+    meas = {
+        key: replace(mm, R=np.array([[R]])) if mm.name == sensor and mm.dim == 1 else mm
+        for key, mm in model.measurements.items()
+    }
+    return replace(model, measurements=meas)
+
+
+def sensor_r(model: LinearModel, sensor: str) -> float | None:
+    mm = next((mm for mm in model.measurements.values() if mm.name == sensor and mm.dim == 1), None)
+    return float(np.atleast_2d(mm.R)[0, 0]) if mm is not None else None
+
+
+#: [m] the GPS error's slow part (its Gauss-Markov sigma) is chosen from these by the likelihood
+GPS_SLOW = (0.03, 0.1, 0.3, 1.0)
+#: [m] a single-frequency receiver's vertical wander, as a model without the log would set it: what
+#: the level from the log is reported against
+GPS_ERROR_MODEL = 0.5
+
+
+def with_gps_slow(model: LinearModel, sigma: float) -> LinearModel:
+    """The model with its GPS error state's sigma set (``models.altitude.with_gps_error``)."""
+    i = model.index("b_gps")
+    tau = -1.0 / float(model.A(np.zeros(len(model.inputs)))[i, i])
+    Qc, P0 = model.Qc.astype(float).copy(), model.P0.astype(float).copy()
+    Qc[i, i], P0[i, i] = 2.0 * sigma**2 / tau, sigma**2
+    return replace(model, Qc=Qc, P0=P0)
+
+
+def match_gps_slow(
+    model: LinearModel, prep: Prepared, make, measurements: list | None = None, *, base: Run
+) -> tuple[LinearModel, NoiseLevel | None, Run]:
+    """The GPS error's slow part by profile likelihood over :data:`GPS_SLOW` (the one noise
+    parameter covariance matching cannot reach: a slow error lives in the low frequencies the
+    differences drop), with the model's run at it. Only with a GPS error state; ``base`` is the run
+    of ``model`` as it is, returned when nothing changes.
+
+    Chosen *after* the effects are traced, not before: a GPS's slow wander and a baro's slow error
+    (a temperature, a drift) both live in what the two disagree on, and no sensor tells which one
+    moved. Matched first, the GPS's state took the disagreement (a baro reading 0.13 m/K high with
+    the temperature rising 7 K gave it 0.3 m), the estimate followed the baro (0.64 m off) and the
+    thermal term gained nothing to be claimed with. So the effects are traced against the GPS at
+    the floor of its slow error, each on the catalogue's terms (strong, 3 sigma, held out), and what
+    they leave is then given to the GPS, at the level the log's likelihood picks."""
+    if "b_gps" not in model.states:
+        return model, None, base
+    i = model.index("b_gps")
+    now = math.sqrt(float(model.P0[i, i]))
+    runs = {
+        s: base if math.isclose(s, now) else run_model(with_gps_slow(model, s), prep, make, measurements=measurements)
+        for s in GPS_SLOW
+    }
+    best = max(runs, key=lambda s: runs[s].loglik)
+    n = int(runs[best].sensors["gps"].t.size) if "gps" in runs[best].sensors else 0
+    level = NoiseLevel("gps (slow)", best, GPS_ERROR_MODEL, n)
+    return (model if math.isclose(best, now) else with_gps_slow(model, best)), level, runs[best]
+
+
+def match_noise(model: LinearModel, prep: Prepared, make) -> tuple[LinearModel, list[NoiseLevel]]:
+    """The model with each matched sensor's R from the data, and the levels found."""
+    original = {s: r for s in MATCHED if (r := sensor_r(model, s)) is not None}
+    if not original:
+        return model, []
+    pairs: dict[str, int] = {}
+    for _ in range(ITERATIONS):
+        run = run_model(model, prep, make)
+        changed = False
+        for s in original:
+            R = sensor_r(model, s)
+            assert R is not None
+            # a GPS's slow error is a state of the model (b_gps): its R is the white part alone
+            got = matched_r(run, s, R, prep.t0 + SETTLE_S, white_only=s == "gps" and "b_gps" in model.states)
+            if got is None:
+                continue
+            # never below a hundredth of the model's variance: a quantised sensor whose readings do
+            # not change between updates has no difference to match on
+            r_new, pairs[s] = max(got[0], original[s] * 1e-2), got[1]
+            if abs(r_new - R) > 1e-3 * R:
+                model, changed = with_r(model, s, r_new), True
+        if not changed:
+            break
+    levels = [
+        NoiseLevel(s, math.sqrt(sensor_r(model, s) or 0.0), math.sqrt(original[s]), pairs[s])
+        for s in original
+        if s in pairs
+    ]
+    return model, levels
