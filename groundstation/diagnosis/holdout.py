@@ -23,7 +23,8 @@ How each kind of candidate is fitted without a block:
   block's sensor updates blind to the added states (Schmidt updates that correct the model's own
   states only, so the height stays tracked through the block) gives the parameters at the end;
   carried back to the log's start through their own dynamics (``expm(-A_ee T)``: the added
-  states evolve on their own, they are not driven by the old ones), they are fixed (P0 = 0, no process noise) for the run scored on the block;
+  states evolve on their own, they are not driven by the old ones), they are fixed (P0 = 0, no
+  process noise) for the run scored on the block;
 * a delay or a lag on a grid: the grid value whose runs score best on the other blocks;
 * a changed measurement function with nothing to fit (the slant range): the block's gain as it is.
 
