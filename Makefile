@@ -51,6 +51,7 @@ bench: setup
 	$(BIN)/python bench/estimation.py
 	$(BIN)/python bench/control.py
 	$(BIN)/python bench/real_logs.py
+	$(BIN)/python bench/foreign.py
 
 clean:
 	rm -rf $(VENV) out artifacts .pytest_cache .mypy_cache .ruff_cache

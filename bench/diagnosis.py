@@ -2,6 +2,7 @@
 
     python bench/diagnosis.py [--seeds 5] [--effects baro_thrust,sensor_delay] [--jobs 2] [--seconds 60]
                               [--airframe sim_quad] [--baro-flight standard]
+    python bench/diagnosis.py --foreign     # the foreign flights' table (bench/foreign.py)
 
 For every run: a simulated flight (vehicle alternating quad / coax, the seed
 changing the flight), the effect acting but not declared, then ``diagnose``
@@ -42,6 +43,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 from groundstation.diagnosis.catalogue import GEOMETRIC  # noqa: E402
 
 #: effect -> (parameter checked, magnitudes spread over the realistic range, extra spec)
@@ -282,7 +284,17 @@ def main() -> int:
         default="high",
         help="the flight of the barometer's effects and clean_high (default: high)",
     )
+    ap.add_argument(
+        "--foreign",
+        action="store_true",
+        help="the foreign flights' table instead (bench/foreign.py: another generator's flights, with truth)",
+    )
     args = ap.parse_args()
+    if args.foreign:
+        import foreign  # bench/foreign.py, beside this file
+
+        sys.argv = [sys.argv[0], "--jobs", str(args.jobs)]
+        return foreign.main()
     jobs = []
     for effect in args.effects.split(","):
         param, mags, extra = SWEEP[effect]
