@@ -98,25 +98,27 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     assert vehicle == "crazyflie"
     d = diagnose(ms, source=str(p), vehicle=vehicle, truth=truth_from(ms, None, None))
     found = {e.name: e.params for e in d.effects}
-    assert list(found)[:2] == ["baro_thrust", "baro_bias_drift"], list(found)
+    assert list(found)[:1] == ["baro_thrust"], list(found)
     assert 6.0 < found["baro_thrust"]["k"] < 11.0  # per unit throttle; ~0.9 at hover here
-    assert 0.07 < found["baro_bias_drift"]["rate"] < 0.14
+    # the drift is sized as the README gives it; a constant rate fitted on two thirds of this flight
+    # loses on the third (25.6 in log-likelihood), so it is claimed only when it holds out of sample
+    drift = {e.name: e for e in d.effects + d.rejected}["baro_bias_drift"]
+    assert 0.07 < drift.params["rate"] < 0.14
+    assert drift in d.effects or "not fitted on" in drift.evidence["reason"], drift.evidence
     offset = {e.name: e.params for e in d.against_truth}["range_offset"]["o"]
     assert -0.042 < offset < -0.030
     before, after = (d.truth.rmse(r.t, r.x[:, 0], r.t[0] + 5.0, r.t[-1]) for r in (d.before, d.after))
     assert after < 0.3 * before, (before, after)
     # the baro's innovations stay coloured (vibration, the throttle's shape): the report says how much
     # of the evidence survives counting them at their effective sample size
-    drift = {e.name: e.evidence for e in d.effects}["baro_bias_drift"]
-    assert drift["innovation_colour"]["baro"] > 10 and drift["delta_bic_effective"] > drift["delta_bic"]
+    thrust = {e.name: e.evidence for e in d.effects}["baro_thrust"]
+    assert thrust["innovation_colour"]["baro"] > 10 and thrust["delta_bic_effective"] > thrust["delta_bic"]
     from groundstation.diagnosis.report import as_json, conclusion
 
     assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
-    # what still colours the baro after both: the regression names the throttle's shape (README: 60 %);
-    # as a regressor beside baro_thrust's own throttle term it is claimed, or turned away with the reason
-    named = [x.expression for x in d.discoveries if x.sensor == "baro"]
-    named += [e.params["expression"] for e in d.rejected if e.name == "discovered" and e.evidence["sensor"] == "baro"]
-    assert any("throttle" in x for x in named), (named, [(e.name, e.evidence.get("reason")) for e in d.rejected])
+    # what still colours the baro after the fit (the throttle's shape, README: 60 % in sample) is not
+    # named: predicted on stretches it was not fitted on, the regression explains too little of it
+    assert not any(x.sensor == "baro" for x in d.discoveries)
 
 
 @pytest.mark.slow
