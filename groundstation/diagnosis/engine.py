@@ -1,11 +1,12 @@
 """The closed loop: residual -> detect -> trace -> add -> repeat, then the error before and after.
 
-:func:`diagnose` runs the model on the measured data (step 1), tests every
-sensor's innovations (step 2, :mod:`.detect`), ranks the catalogue's effects
-through the filter (step 3, :mod:`.trace`) and names what lies outside it
-(:mod:`.discover`), adds the winner to the model with its parameters
-estimated from the data (step 4), and repeats until the residuals pass or no
-candidate improves the criterion by strong evidence (Delta BIC < -10).
+:func:`diagnose` takes each sensor's noise from the log (:mod:`.noise_match`), runs the model
+on the measured data (step 1), tests every sensor's innovations (step 2, :mod:`.detect`), ranks
+the catalogue's effects through the filter (step 3, :mod:`.trace`), adds the best one that holds
+out of sample (:mod:`.holdout`) to the model with its parameters estimated from the data
+(step 4), and repeats until the residuals pass or no candidate improves the criterion by strong
+evidence (Delta BIC < -10); then names what lies outside the catalogue (:mod:`.discover`) and
+adds it on the same terms.
 With truth (motion capture), a winner whose fix makes the error against it
 worse is rejected and reported as such, and the next candidate is tried.
 """
@@ -232,12 +233,7 @@ def diagnose(
     base = run_model(model, prep, make)
     # before: the model as the log's noise has it, the GPS's slow error included; the effects are
     # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
-    matched, _, first = match_gps_slow(model, prep, make, base=base)
-    if Kind.RANGE in prep.kinds:
-        # a range sensor is the reference the baro's effects are traced against; the GPS keeps the
-        # slow error the log gives it (a simulated receiver's 2 m over 20 s, traced at the floor,
-        # read as baro effects that then failed out of sample)
-        model, base = matched, first
+    _, _, first = match_gps_slow(model, prep, make, base=base)
     findings0 = sensor_findings(first)
     cands = [c for c in catalogue(prep.kinds) if c.name not in names]
     stream = prep.measurements
