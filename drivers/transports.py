@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import contextlib
 import errno
 import os
 import socket
@@ -226,18 +227,14 @@ class UdpTransport(Transport):
 
 def _ask_receive_buffer(s: socket.socket, size: int) -> None:
     """``size`` bytes of receive buffer: forced past ``net.core.rmem_max`` where the process may
-    (Linux ``SO_RCVBUFFORCE``, with CAP_NET_ADMIN), else as much as the system allows."""
-    force = getattr(socket, "SO_RCVBUFFORCE", None)
-    if force is not None:
-        try:
-            s.setsockopt(socket.SOL_SOCKET, force, size)
+    (Linux ``SO_RCVBUFFORCE``, with CAP_NET_ADMIN), else as much as the system allows. What was
+    granted is :attr:`UdpTransport.receive_buffer`, which ``connect`` prints when it is short."""
+    for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        if option is None:
+            continue
+        with contextlib.suppress(OSError):  # not permitted: the next, or the system's default
+            s.setsockopt(socket.SOL_SOCKET, option, size)
             return
-        except OSError:
-            pass
-    try:
-        s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, size)
-    except OSError:
-        pass
 
 
 # --------------------------------------------------------------------- TCP

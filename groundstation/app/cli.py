@@ -373,6 +373,18 @@ async def _consume_live(sub, out: Outputs) -> None:
 
 
 # ---------------------------------------------------------------- connect
+def _short_buffer(transport) -> str:
+    """A UDP receive buffer smaller than asked, as the status line's clause (else nothing): bursts
+    beyond it are dropped by the kernel (counted as kernel drops)."""
+    granted, asked = getattr(transport, "receive_buffer", 0), getattr(transport, "rcvbuf", 0)
+    if not granted or granted >= asked:
+        return ""
+    return (
+        f"; UDP receive buffer {granted / 1e6:.1f} MB of {asked / 1e6:.1f} MB asked "
+        "(raise net.core.rmem_max for bursts)"
+    )
+
+
 async def run_connect(args) -> int:
     endpoint = parse_connection(args.url)
     record = None
@@ -386,7 +398,8 @@ async def run_connect(args) -> int:
     print(
         f"link open: {endpoint}"
         + (f" (bound to {where[0]}:{where[1]})" if where else "")
-        + (f"; recording to {record}" if record else ""),
+        + (f"; recording to {record}" if record else "")
+        + _short_buffer(link.transport),
         flush=True,
     )
     stop = asyncio.Event()
