@@ -33,6 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from groundstation.core.measurement import Kind, Measurement  # noqa: E402
+from groundstation.diagnosis.discover import lowpass  # noqa: E402
 from groundstation.diagnosis.engine import diagnose, truth_from  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
 from groundstation.diagnosis.noise_match import match_noise  # noqa: E402
@@ -60,14 +61,6 @@ def height_error(t: np.ndarray, z: np.ndarray, truth: np.ndarray, suite: str) ->
     return float(math.sqrt(np.mean((z[k] - zt[k]) ** 2)))
 
 
-def _lowpass(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for i in range(1, len(x)):
-        y[i] = y[i - 1] + (x[i] - y[i - 1]) * (1.0 - math.exp(-(t[i] - t[i - 1]) / tau))
-    return y
-
-
 def baro_error(effect: dict, truth: np.ndarray) -> np.ndarray | None:
     """The hidden baro effect's height error [m] on the truth file's 100 Hz grid, or None when it is
     not a baro effect. The forms are the effects' physics; the sign of a ground effect (which way the
@@ -78,7 +71,7 @@ def baro_error(effect: dict, truth: np.ndarray) -> np.ndarray | None:
     if name == "baro_thermal":
         return effect["m_per_K"] * (truth["temperature"] - truth["temperature"][0])
     if name == "baro_thrust":
-        return effect["k_m_per_throttle"] * _lowpass(t, truth["throttle"], effect["tau_s"])
+        return effect["k_m_per_throttle"] * lowpass(t, truth["throttle"], effect["tau_s"])
     if name == "baro_ground_effect":
         on = truth["throttle"] > 0.05
         return effect["k_m"] * np.exp(-np.maximum(truth["z"], 0.0) / effect["h0_m"]) * on

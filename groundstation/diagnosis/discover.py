@@ -64,7 +64,9 @@ class Discovery:
     signal: np.ndarray | None = field(default=None, repr=False)
 
 
-def _lowpass(t: np.ndarray, x: np.ndarray, tc: float) -> np.ndarray:
+def lowpass(t: np.ndarray, x: np.ndarray, tc: float) -> np.ndarray:
+    """``x`` sampled at ``t`` through a first-order low-pass of time constant ``tc`` [s], exact for
+    a signal held between samples."""
     y = np.empty_like(x)
     acc = x[0]
     for i in range(len(x)):
@@ -102,7 +104,7 @@ def library(run: Run, sensor: str) -> dict[str, np.ndarray]:
         if name == "time":
             continue
         for tc in (0.5, 2.0):
-            lib[f"lowpass({name}, {tc:g} s)"] = _lowpass(t, x, tc)
+            lib[f"lowpass({name}, {tc:g} s)"] = lowpass(t, x, tc)
         for d in (0.1, 0.3):
             lib[f"delay({name}, {d:g} s)"] = np.interp(t - d, t, x)
     return lib

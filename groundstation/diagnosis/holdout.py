@@ -103,10 +103,7 @@ def window_loglik(run: Run, lo: float, hi: float) -> dict[str, float]:
         k = (tr.t >= lo) & (tr.t < hi)
         if not k.any():
             continue
-        S = tr.S[k]
-        dim = S.shape[1]
-        logdet = np.log(np.linalg.det(S)) if dim > 1 else np.log(S[:, 0, 0])
-        out[s] = float(-0.5 * np.sum(tr.nis[k] + logdet + dim * math.log(2 * math.pi)))
+        out[s] = float(np.sum(tr.loglik[k]))
     return out
 
 
@@ -181,15 +178,6 @@ def _gains(run: Run, base: Run, lo: float, hi: float) -> dict[str, float]:
     return {s: a.get(s, 0.0) - b.get(s, 0.0) for s in set(a) | set(b)}
 
 
-def _terms(run: Run, sensor: str) -> tuple[np.ndarray, np.ndarray]:
-    """A sensor's updates: their times and each one's log-likelihood term."""
-    tr = run.sensors[sensor]
-    S = tr.S
-    dim = S.shape[1]
-    logdet = np.log(np.linalg.det(S)) if dim > 1 else np.log(S[:, 0, 0])
-    return tr.t, -0.5 * (tr.nis + logdet + dim * math.log(2 * math.pi))
-
-
 def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> float:
     """The standard error of a sensor's held-out gain: the spread of the per-update log-likelihood
     differences (the same updates in both runs, paired by time) over the held-out windows."""
@@ -197,8 +185,8 @@ def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> f
     for run, lo, hi in runs:
         if sensor not in run.sensors or sensor not in base.sensors:
             continue
-        ta, la = _terms(run, sensor)
-        tb, lb = _terms(base, sensor)
+        ta, la = run.sensors[sensor].t, run.sensors[sensor].loglik
+        tb, lb = base.sensors[sensor].t, base.sensors[sensor].loglik
         _, i, j = np.intersect1d(ta, tb, return_indices=True)
         k = (ta[i] >= lo) & (ta[i] < hi)
         diffs.append(la[i][k] - lb[j][k])

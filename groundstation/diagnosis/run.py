@@ -189,6 +189,13 @@ class SensorTrace:
     def nu_normalised(self) -> np.ndarray:
         return self.nu[:, 0] / np.sqrt(self.S[:, 0, 0])
 
+    @property
+    def loglik(self) -> np.ndarray:
+        """Each update's innovation log-likelihood, -1/2 (nu' S^-1 nu + log det(2 pi S))."""
+        dim = self.S.shape[1]
+        logdet = np.log(np.linalg.det(self.S)) if dim > 1 else np.log(self.S[:, 0, 0])
+        return -0.5 * (self.nis + logdet + dim * math.log(2 * math.pi))
+
 
 @dataclass
 class Run:
@@ -255,10 +262,7 @@ def run_model(
         sensors[s] = tr
         scored = tr.t >= t_score
         if scored.any() and s != LANDED:
-            S = tr.S[scored]
-            dim = S.shape[1]
-            logdet = np.log(np.linalg.det(S)) if dim > 1 else np.log(S[:, 0, 0])
-            ll_by[s] = float(-0.5 * np.sum(tr.nis[scored] + logdet + dim * math.log(2 * math.pi)))
+            ll_by[s] = float(np.sum(tr.loglik[scored]))
             inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
             n_sc += int(scored.sum())
     return Run(
