@@ -51,6 +51,7 @@ from pymavlink import DFReader
 from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import walk_dataflash
+from .tables import LogTables, table_from_rows
 
 CONTROL_RATE = 10.0  # CTUN's rate in logs without a clock [Hz]
 
@@ -82,6 +83,8 @@ class DataFlashLog:
     clock: str = "TimeUS/TimeMS"
     damage: str = ""  # one line naming the file and the offsets of damage, or ''
     range_limits: tuple[float, float] | None = None  # [m], from the log's parameters, if it has them
+    #: every record type as columns on the measurements' clock, and the parameters (for triage)
+    tables: LogTables = field(default_factory=LogTables)
 
     @property
     def duration(self) -> float:
@@ -203,6 +206,8 @@ def _fields_read(fmt: str, values: list[str]) -> bool:
         return False
     try:
         for ch, v in zip(fmt, values):
+            if ch == "M" and not v.lstrip("-").isdigit():
+                continue  # a flight mode: a text log writes its name (STABILIZE), a binary one its number
             if ch in _INT_FORMATS:
                 int(v)
             elif ch in _FLOAT_FORMATS:
@@ -242,6 +247,8 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> D
             with contextlib.suppress(ValueError, TypeError, AttributeError):
                 params[str(m.Name)] = float(m.Value)
     log = DataFlashLog(p, [], types, damage=damage, range_limits=rangefinder_limits(params))
+    log.tables = LogTables(params=params, fmt="dataflash", autopilot="ardupilot")
+    rows: dict[str, tuple[list[float], list[dict]]] = {}
     timed = any(
         hasattr(m, "TimeUS") or hasattr(m, "TimeMS")
         for m in msgs
@@ -250,6 +257,9 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> D
     if not timed:
         log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
     n_ctun = 0
+    # DFReader's clock minus the records' own (TimeUS/TimeMS): a record without a time field
+    # (ERR, EV, MODE, old GPS) is put on the same clock as the records around it
+    offset: float | None = None
     out = log.measurements
     for m in msgs:
         if isinstance(m, tuple):
@@ -264,17 +274,32 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> D
                     t = m.TimeUS * 1e-6
                 elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
                     t = m.TimeMS * 1e-3
+                elif typ == "GPS" and hasattr(m, "T"):  # ArduCopter 3.x: T is the boot time [ms]
+                    t = m.T * 1e-3
+                elif hasattr(m, "_timestamp"):
+                    t = m._timestamp - (offset if offset is not None else msgs[0]._timestamp)
                 else:
-                    t = m._timestamp - msgs[0]._timestamp if hasattr(m, "_timestamp") else math.nan
+                    t = math.nan
+                if hasattr(m, "_timestamp") and (hasattr(m, "TimeUS") or (hasattr(m, "TimeMS") and typ != "GPS")):
+                    offset = m._timestamp - t
             else:
                 t = n_ctun / CONTROL_RATE
             _convert(typ, m, t, source, has_baro, log.range_limits, out, log.skipped)
+            if typ not in _NOT_TABLED:
+                ts, rs = rows.setdefault(typ, ([], []))
+                ts.append(t)
+                rs.append(m.to_dict())
         except (ValueError, TypeError, AttributeError, IndexError, OverflowError):
             # a record whose fields do not read as their format says (a damaged line or block):
             # skipped and counted, the rest of the log kept
             log.skipped["damaged_record"] += 1
     out.sort(key=lambda x: x.t)
+    log.tables.tables = {typ: table_from_rows(ts, rs) for typ, (ts, rs) in rows.items()}
     return log
+
+
+#: record types that describe the log itself (formats, units, parameters: read above), not the flight
+_NOT_TABLED = frozenset({"FMT", "FMTU", "UNIT", "MULT", "PARM"})
 
 
 def rangefinder_limits(params: dict[str, float]) -> tuple[float, float] | None:

@@ -29,6 +29,7 @@ import numpy as np
 from drivers.connection import ConnectionStringError, parse_connection
 from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
 from drivers.logs.dataflash import DataFlashError, is_dataflash
+from drivers.logs.ulog import ULogError, is_ulog
 from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.replay import Replay, check_speed
 from drivers.tlog import TlogError, TlogIndex
@@ -47,7 +48,7 @@ from web.dashboard import Dashboard
 
 from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
-from .diagnose_cli import cmd_diagnose
+from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
 from .options import add_web_options
 from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
@@ -134,6 +135,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
     add_sim_parser(sub)
     add_diagnose_parser(sub)
+    add_triage_parser(sub)
     return ap
 
 
@@ -157,6 +159,8 @@ def _run(args) -> int:
             return cmd_noise(args)
         if args.command == "diagnose":
             return cmd_diagnose(args)
+        if args.command == "triage":
+            return cmd_triage(args)
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":
@@ -175,6 +179,7 @@ def _run(args) -> int:
         ScenarioError,
         CrazyflieLogError,
         DataFlashError,
+        ULogError,
         OSError,
         ValueError,
     ) as e:
@@ -479,9 +484,9 @@ async def run_connect(args) -> int:
 
 # ---------------------------------------------------------------- replay
 def _open_replay(args) -> tuple[Replay, str, str | None]:
-    """A tlog replays through the live receive path; DataFlash and Crazyflie logs through their readers."""
+    """A tlog replays through the live receive path; DataFlash, ULog and Crazyflie logs through their readers."""
 
-    if is_dataflash(args.file) or is_crazyflie_log(args.file):
+    if is_dataflash(args.file) or is_crazyflie_log(args.file) or is_ulog(args.file):
         ms, desc, vehicle = load_measurements(args.file)
         rp = Replay(args.file, speed=args.speed, loop=args.loop, start=args.start, measurements=ms)
         return rp, desc, vehicle

@@ -50,10 +50,12 @@ from groundstation.estimation.export import EstimateCsvWriter
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import ljung_box
 
+from .autopilot_params import ParamSuggestion
 from .catalogue import unit_of
 from .engine import CLOSE_CALL, Diagnosis
 from .run import Run
 from .thrust import LIFTOFF_REACH, ThrustContext
+from .triage import Triage
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, float] | None = None) -> dict:
@@ -466,10 +468,29 @@ def _table(rows: list[list], head: list[str]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def write(d: Diagnosis, out: Path) -> dict:
+def write(
+    d: Diagnosis,
+    out: Path,
+    *,
+    triage: Triage | None = None,
+    used: list[tuple[float, float]] | None = None,
+    cut: list[dict] | None = None,
+    parameters: list[ParamSuggestion] | None = None,
+) -> dict:
+    """report.json, report.html and the estimates' CSVs in ``out``. With the triage: what the log
+    says happened opens both, with the stretches the fit used and those it cut; with parameters:
+    what to set on the autopilot for each effect found."""
     out.mkdir(parents=True, exist_ok=True)
     j = as_json(d)
     j["conclusion"] = conclusion(d, j)
+    if triage is not None:
+        j["triage"] = triage.as_json()
+        j["triage_clock"] = triage.clock
+        j["segments_used"] = [{"t_start": a, "t_end": b} for a, b in used or []]
+        j["segments_cut"] = cut or []
+        j["conclusion"] = triage_headline(triage, used or [], cut or []) + j["conclusion"]
+    if parameters is not None:
+        j["parameters"] = [p.as_json() for p in parameters]
     (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
     for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
         w = EstimateCsvWriter(out / name, "x", run.model.states)
@@ -543,8 +564,9 @@ def write(d: Diagnosis, out: Path) -> dict:
 table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
 th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
 <body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}{_vehicle_line(d)}</p>
-<div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{truth}
-<h2>Effects found</h2>{effects}<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
+<div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{_triage_html(triage, j)}{truth}
+<h2>Effects found</h2>{effects}{_parameters_html(parameters)}
+<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
 <h2>Tests that failed before</h2>{failed}
 <h2>Tests that still fail after</h2>{still}
@@ -553,6 +575,55 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
     (out / "report.html").write_text(page)
     return j
+
+
+def triage_headline(tr: Triage, used: list[tuple[float, float]], cut: list[dict]) -> str:
+    """The conclusion's first sentences: what went wrong in the flight, and what the fit left out."""
+    serious = [f for f in tr.findings if f.severity in ("critical", "error")]
+    if not serious:
+        return ""
+    seen: dict[str, str] = {}
+    for f in serious:
+        seen.setdefault(f.name, f"{f.name.replace('_', ' ')} at {f.t_start:.1f} s")
+    text = "The log shows " + "; ".join(list(seen.values())[:6]) + " (triage below). "
+    if cut:
+        spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
+        names = ", ".join(dict.fromkeys(c["name"] for c in cut))
+        text += f"The model was fitted to {spans} only: the stretches of {names} were cut. "
+    return text
+
+
+def _triage_html(tr: Triage | None, j: dict) -> str:
+    if tr is None:
+        return ""
+    clock = "seconds since the recording began" if tr.clock == "recording" else "seconds of the vehicle's clock"
+    rows = [
+        [
+            f.severity,
+            f.name,
+            f"{f.t_start:.1f}" + (f"-{f.t_end:.1f}" if f.t_end - f.t_start >= 0.05 else ""),
+            f.evidence + (" (cut from the fit)" if f.cuts else ""),
+            _Html(f'<a href="{html.escape(f.doc)}">docs</a>') if f.doc else "",
+        ]
+        for f in tr.findings
+    ] or [["", "(nothing)", "", "nothing wrong in the log's own records", ""]]
+    used = ", ".join(f"{s['t_start']:.1f}-{s['t_end']:.1f} s" for s in j.get("segments_used", []))
+    return (
+        f"<h2>What the log says happened (triage, {tr.seconds:.2f} s)</h2><p>Times in {clock}. "
+        f"The fit used {html.escape(used or 'the whole log')}.</p>"
+        + _table(rows, ["severity", "finding", "when [s]", "evidence", ""])
+    )
+
+
+def _parameters_html(ps: list[ParamSuggestion] | None) -> str:
+    if not ps:
+        return ""
+    rows = [[p.autopilot, p.name or "(none)", "" if p.value is None else f"{p.value:g}", p.effect, p.why] for p in ps]
+    return (
+        "<h2>Parameters to set on the autopilot</h2><p>Also written as params_ardupilot.param and "
+        "params_px4.params; review each before loading.</p>"
+        + _table(rows, ["autopilot", "parameter", "value", "effect", "why"])
+    )
 
 
 def _vehicle_line(d: Diagnosis) -> str:

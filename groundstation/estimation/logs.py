@@ -1,14 +1,20 @@
 """Any supported log in, measurements out: a tlog through the live receive path, an ArduPilot
-DataFlash log or a Crazyflie uSD log through their readers (the Crazyflie's tilt derived from
-its gyro, :mod:`.derived`). Recognised by content, not by extension."""
+DataFlash log, a PX4 ULog or a Crazyflie uSD log through their readers (the Crazyflie's tilt
+derived from its gyro, :mod:`.derived`). Recognised by content, not by extension.
+
+:func:`load_log` also gives the log's other records as tables (:mod:`drivers.logs.tables`:
+events, modes, vibration, motors, the autopilot's own filter, parameters) for the triage."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.logs.crazyflie import is_crazyflie_log, read_crazyflie
 from drivers.logs.crazyflie import measurements as cf_measurements
 from drivers.logs.dataflash import is_dataflash, read_dataflash
+from drivers.logs.tables import LogTables, tables_from_tlog
+from drivers.logs.ulog import is_ulog, read_ulog
 from drivers.replay import Replay
 from groundstation.core.counts import counted
 from groundstation.core.measurement import Measurement
@@ -22,29 +28,49 @@ def _reader_skipped(skipped) -> str:
     return f"; the reader skipped {text}" if text else ""
 
 
-def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
-    """Any supported log -> (measurements in time order, a one-line description,
-    the vehicle configuration it implies)."""
+@dataclass
+class LoadedLog:
+    measurements: list[Measurement]  # in time order
+    description: str  # one line: format, duration, damage, skips
+    vehicle: str | None  # the vehicle configuration the log implies, if any
+    tables: LogTables = field(default_factory=LogTables)
+
+
+def load_log(path: Path) -> LoadedLog:
+    """Any supported log -> its measurements, a description, the vehicle it implies, its tables."""
     if is_crazyflie_log(path):
         log = read_crazyflie(path)
         ms = list(with_attitude(cf_measurements(log)))
         desc = f"Crazyflie uSD log, {log.duration:.1f} s, {len(ms)} measurements" + (
             f"; {log.damage}" if log.damage else ""
         )
-        return ms, desc + _reader_skipped(log.skipped), "crazyflie"
+        return LoadedLog(ms, desc + _reader_skipped(log.skipped), "crazyflie", LogTables(fmt="crazyflie"))
     if is_dataflash(path):
         df = read_dataflash(path)
-        return (
-            df.measurements,
-            (
-                f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} "
-                f"measurements (clock: {df.clock})"
-                + (f"; {df.damage}" if df.damage else "")
-                + _reader_skipped(df.skipped)
-            ),
-            None,
+        desc = (
+            f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} measurements (clock: {df.clock})"
+            + (f"; {df.damage}" if df.damage else "")
+            + _reader_skipped(df.skipped)
         )
+        return LoadedLog(df.measurements, desc, None, df.tables)
+    if is_ulog(path):
+        ul = read_ulog(path)
+        desc = (
+            f"PX4 ULog{f' ({ul.hardware})' if ul.hardware else ''}, {ul.duration:.1f} s, "
+            f"{len(ul.measurements)} measurements"
+            + (f"; {ul.damage}" if ul.damage else "")
+            + _reader_skipped(ul.skipped)
+        )
+        return LoadedLog(ul.measurements, desc, None, ul.tables)
     rp = Replay(path)
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()
-    return ms, f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else ""), None
+    desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
+    return LoadedLog(ms, desc, None, tables_from_tlog(path))
+
+
+def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
+    """Any supported log -> (measurements in time order, a one-line description,
+    the vehicle configuration it implies)."""
+    log = load_log(path)
+    return log.measurements, log.description, log.vehicle

@@ -1,0 +1,197 @@
+"""PX4 ULog (``.ulg``) to measurements and tables.
+
+Parsing is pyulog's (``pyulog.ULog``: definitions, multi-instance topics, logged messages,
+parameters); this module maps topics to measurements, as :mod:`.dataflash` does DataFlash records.
+Time is each topic's ``timestamp`` [us since boot] x 1e-6 (the sample time where the topic has
+``timestamp_sample``).
+
+========================  ==========================================  ==============================
+topic                     fields                                      measurement
+========================  ==========================================  ==============================
+sensor_combined           gyro_rad[3] [rad/s], accelerometer_m_s2[3]  GYRO, ACCEL (FRD already)
+vehicle_air_data          baro_alt_meter [m], baro_pressure_pa,       BARO_ALTITUDE, BARO_PRESSURE,
+                          baro_temp_celcius                           TEMPERATURE [K]
+distance_sensor           current_distance [m], min/max_distance,     RANGE (downward-facing, inside
+                          orientation (25 = down), signal_quality     its limits, quality not 0)
+vehicle_gps_position      lat, lon [1e-7 deg], alt [mm], fix_type     GPS (3-D fix only)
+                          (newer PX4: latitude_deg, altitude_msl_m)
+vehicle_attitude          q[4] (w, x, y, z; FRD to NED)               ATTITUDE [rad]
+actuator_outputs          output[0..3] [us]                           ACTUATOR, (us - 1000) / 1000
+actuator_controls_0       control[3] (thrust 0..1)                    THROTTLE
+battery_status            voltage_v [V], current_a [A]                BATTERY_VOLTAGE, BATTERY_CURRENT
+========================  ==========================================  ==============================
+
+Every topic also goes to :attr:`UlogLog.tables` (``name`` for instance 0, ``name[i]`` for the
+others), the logged messages to the table ``logged_messages`` (``level``, ``text``), the
+parameters to ``tables.params``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.core.measurement import Kind, Measurement
+
+from .tables import LogTables, Table
+
+#: a ULog file's first bytes: "ULog", then 0x01 0x12 0x35 (the format's magic)
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+
+class ULogError(ValueError):
+    """Not a readable ULog (one line naming the file)."""
+
+
+def is_ulog(path: str | Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(7) == ULOG_MAGIC
+    except OSError:
+        return False
+
+
+@dataclass
+class UlogLog:
+    path: Path
+    measurements: list[Measurement]
+    tables: LogTables
+    skipped: Counter = field(default_factory=Counter)
+    damage: str = ""
+    hardware: str = ""
+
+    @property
+    def duration(self) -> float:
+        return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
+
+
+def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
+    from pyulog import ULog  # imported here: its import costs 0.3 s that other logs do not need
+
+    p = Path(path)
+    if not p.exists():
+        raise ULogError(f"{p}: cannot read: no such file")
+    if not is_ulog(p):
+        raise ULogError(f"{p}: not a ULog (no ULog magic at offset 0)")
+    try:
+        u = ULog(str(p))
+    except Exception as e:  # pyulog raises assorted errors on damaged files
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ULogError(f"{p}: not a readable ULog: {first}") from None
+    tables = LogTables(params=dict(u.initial_parameters), fmt="ulog", autopilot="px4")
+    for d in u.data_list:
+        name = d.name if d.multi_id == 0 else f"{d.name}[{d.multi_id}]"
+        t = np.asarray(d.data["timestamp"], dtype=float) * 1e-6
+        tables.tables[name] = Table(t, {k: np.asarray(v) for k, v in d.data.items() if k != "timestamp"})
+    msgs = list(u.logged_messages)
+    tables.tables["logged_messages"] = Table(
+        np.array([m.timestamp * 1e-6 for m in msgs], dtype=float),
+        {
+            "level": np.array([m.log_level for m in msgs], dtype=float),
+            "text": np.array([m.message for m in msgs], dtype=object),
+        },
+    )
+    log = UlogLog(p, [], tables, hardware=str(u.msg_info_dict.get("ver_hw", "")))
+    if getattr(u, "file_corruption", False):
+        log.damage = f"{p}: damaged stretches skipped by the reader"
+    _measurements(tables, log, source)
+    log.measurements.sort(key=lambda m: m.t)
+    return log
+
+
+def _sample_time(tb: Table) -> np.ndarray:
+    ts = tb.numeric("timestamp_sample")
+    return ts * 1e-6 if ts is not None and np.all(ts > 0) else tb.t
+
+
+def _vec(tb: Table, base: str, n: int) -> np.ndarray | None:
+    cols = [tb.numeric(f"{base}[{i}]") for i in range(n)]
+    if any(c is None for c in cols):
+        return None
+    return np.column_stack(cols)  # type: ignore[arg-type]
+
+
+def _measurements(tables: LogTables, log: UlogLog, s: str) -> None:
+    out, skipped = log.measurements, log.skipped
+
+    def add_rows(kind: Kind, t: np.ndarray, values: np.ndarray, instance: int = 0) -> None:
+        for ti, v in zip(t.tolist(), values):
+            out.append(Measurement(ti, kind, np.asarray(v, dtype=float), s, ti, None, instance))
+
+    sc = tables.get("sensor_combined")
+    if sc is not None:
+        gyro, acc = _vec(sc, "gyro_rad", 3), _vec(sc, "accelerometer_m_s2", 3)
+        if gyro is not None and acc is not None:
+            add_rows(Kind.GYRO, sc.t, gyro)
+            rel = sc.numeric("accelerometer_timestamp_relative")
+            add_rows(Kind.ACCEL, sc.t + (rel * 1e-6 if rel is not None else 0.0), acc)
+    ad = tables.get("vehicle_air_data")
+    if ad is not None:
+        t = _sample_time(ad)
+        for col, kind, conv in (
+            ("baro_alt_meter", Kind.BARO_ALTITUDE, 0.0),
+            ("baro_pressure_pa", Kind.BARO_PRESSURE, 0.0),
+            ("baro_temp_celcius", Kind.TEMPERATURE, 273.15),
+        ):
+            v = ad.numeric(col)
+            if v is not None:
+                add_rows(kind, t, (v + conv)[:, None])
+    for name, ds in tables.starting("distance_sensor"):
+        d = ds.numeric("current_distance")
+        if d is None:
+            continue
+        lo, hi = ds.numeric("min_distance"), ds.numeric("max_distance")
+        ori, q = ds.numeric("orientation"), ds.numeric("signal_quality")
+        ok = np.isfinite(d)
+        if ori is not None:
+            ok &= ori == 25  # ROTATION_DOWNWARD_FACING
+        if lo is not None and hi is not None:
+            inside = (d > lo) & (d < hi)
+            skipped["range_out_of_bounds"] += int((ok & ~inside).sum())
+            ok &= inside
+        if q is not None:
+            skipped["range_no_signal"] += int((ok & (q == 0)).sum())
+            ok &= q != 0
+        add_rows(Kind.RANGE, ds.t[ok], d[ok][:, None], 0 if name == "distance_sensor" else 1)
+    gps = tables.get("vehicle_gps_position", "sensor_gps")
+    if gps is not None:
+        fix = gps.numeric("fix_type")
+        if gps.get("latitude_deg") is not None:
+            lat, lon, alt = gps.numeric("latitude_deg"), gps.numeric("longitude_deg"), gps.numeric("altitude_msl_m")
+        else:
+            lat, lon, alt = gps.numeric("lat"), gps.numeric("lon"), gps.numeric("alt")
+            if lat is not None and lon is not None and alt is not None:
+                lat, lon, alt = lat * 1e-7, lon * 1e-7, alt * 1e-3
+        if lat is not None and lon is not None and alt is not None:
+            ok = fix >= 3 if fix is not None else np.ones(len(gps), bool)
+            skipped["gps_no_3d_fix"] += int((~ok).sum())
+            add_rows(Kind.GPS, gps.t[ok], np.column_stack([lat, lon, alt])[ok])
+    att = tables.get("vehicle_attitude")
+    if att is not None:
+        q = _vec(att, "q", 4)
+        if q is not None:
+            w, x, y, z = q.T
+            roll = np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+            pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
+            yaw = np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+            add_rows(Kind.ATTITUDE, att.t, np.column_stack([roll, pitch, yaw]))
+    ao = tables.get("actuator_outputs")
+    if ao is not None:
+        pwm = _vec(ao, "output", 4)
+        if pwm is not None:
+            add_rows(Kind.ACTUATOR, ao.t, np.where(pwm > 0, (pwm - 1000.0) / 1000.0, math.nan))
+    ac = tables.get("actuator_controls_0")
+    if ac is not None and (thr := ac.numeric("control[3]")) is not None:
+        add_rows(Kind.THROTTLE, ac.t, np.clip(thr, 0.0, 1.0)[:, None])
+    bat = tables.get("battery_status")
+    if bat is not None:
+        v, i = bat.numeric("voltage_v"), bat.numeric("current_a")
+        if v is not None and i is not None:
+            ok = v > 0
+            skipped["battery_not_connected"] += int((~ok).sum())
+            add_rows(Kind.BATTERY_VOLTAGE, bat.t[ok], v[ok][:, None])
+            add_rows(Kind.BATTERY_CURRENT, bat.t[ok], i[ok][:, None])

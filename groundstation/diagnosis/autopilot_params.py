@@ -1,0 +1,187 @@
+"""Each effect found, as what the user's autopilot would take: parameters to set, and a file
+the ground station loads (Mission Planner, MAVProxy and QGroundControl read ``NAME,VALUE``
+lines with ``#`` comments).
+
+The translation, per effect (``k`` as the catalogue gives it; rho g is the air's weight per
+metre at the log's own pressure and temperature, about 12 Pa/m at sea level):
+
+==================  ======================================  ======================================
+effect              ArduPilot                               PX4
+==================  ======================================  ======================================
+sensor_delay(baro)  EK3_HGT_DELAY [ms]                      EKF2_BARO_DELAY [ms]
+sensor_delay(gps)   GPS_DELAY_MS [ms] (GPS1_DELAY_MS 4.6+)  EKF2_GPS_DELAY [ms]
+sensor_delay(range) (no EKF parameter)                      EKF2_RNG_DELAY [ms]
+accel_scale s       INS_ACCSCAL_Z / (1 + s)                 CAL_ACC0_ZSCALE / (1 + s)
+accel_bias z b      INS_ACCOFFS_Z + b                       CAL_ACC0_ZOFF + b
+baro_thrust k       BARO1_THST_SCALE = -rho g k [Pa per     (no parameter)
+                    unit throttle; ArduPilot 4.5+]
+baro_ground_effect  EK3_GND_EFF_DZ = |A| [m]                EKF2_GND_EFF_DZ = |A|, EKF2_GND_MAX_HGT
+                                                            = 3 h0 [m]
+baro_thermal k      (no parameter: AP's TCAL is for IMUs)   TC_B0_X1 = -rho g k [Pa/K], TC_B_ENABLE 1
+thrust_voltage      MOT_BAT_VOLT_MAX / _MIN from the pack   MC_BAT_SCALE_EN = 1
+noise (sensor)      EK3_ALT_M_NSE (baro), EK3_RNG_M_NSE,    EKF2_BARO_NOISE, EKF2_RNG_NOISE,
+                    EK3_POSNE_M_NSE (GPS) [m]               EKF2_GPS_P_NOISE [m]
+==================  ======================================  ======================================
+
+Signs: the catalogue's effects add to the reading (a baro ``k`` > 0 reads high as throttle
+rises); ArduPilot subtracts ``BARO1_THST_SCALE`` times throttle from the pressure, so a baro
+that reads high (pressure low) takes a negative scale. An effect with no parameter anywhere
+(a range sensor's tilt, which both EKFs already model; a drift) is listed with the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from groundstation.core.measurement import Kind, Measurement
+
+from .engine import Diagnosis
+from .triage.finding import cell_count
+
+G = 9.80665
+R_AIR = 287.05  # J/(kg K)
+
+
+@dataclass
+class ParamSuggestion:
+    autopilot: str  # "ArduPilot" or "PX4"
+    name: str  # the parameter, or "" when there is none
+    value: float | None
+    effect: str
+    why: str
+
+    def as_json(self) -> dict:
+        return {
+            "autopilot": self.autopilot,
+            "name": self.name,
+            "value": self.value,
+            "effect": self.effect,
+            "why": self.why,
+        }
+
+
+def _mean(ms: list[Measurement], kind: Kind) -> float | None:
+    v = [float(m.value[0]) for m in ms if m.kind is kind]
+    return float(np.mean(v)) if v else None
+
+
+def _rho_g(ms: list[Measurement]) -> float:
+    """rho g [Pa/m] at the log's mean pressure and temperature (ISA sea level if it has neither)."""
+    p, t = _mean(ms, Kind.BARO_PRESSURE), _mean(ms, Kind.TEMPERATURE)
+    if p and t and p > 1e4 and t > 150:
+        return p / (R_AIR * t) * G
+    return 1.225 * G
+
+
+def _current(params: dict, name: str, default: float) -> float:
+    v = params.get(name)
+    return float(v) if v is not None and math.isfinite(v) and v != 0 else default
+
+
+def suggest(
+    d: Diagnosis, ms: list[Measurement], params: dict[str, float], autopilot: str = ""
+) -> list[ParamSuggestion]:
+    """What to set for each effect found and each noise level that differs from the model's.
+    ``ms``: the log's measurements (air density, the pack); ``params``: the log's own parameters
+    (for values that scale what is set now); ``autopilot``: "ardupilot", "px4" or "" (both)."""
+    out: list[ParamSuggestion] = []
+    ap, px = autopilot in ("ardupilot", ""), autopilot in ("px4", "")
+
+    def add(which: str, name: str, value: float | None, effect: str, why: str) -> None:
+        if (which == "ArduPilot" and ap) or (which == "PX4" and px):
+            out.append(ParamSuggestion(which, name, None if value is None else float(f"{value:.4g}"), effect, why))
+
+    rho_g = _rho_g(ms)
+    for e in d.effects:
+        base, _, sensor = e.name.partition("(")
+        sensor = sensor.rstrip(")") or str(e.evidence.get("sensor", ""))
+        p = e.params
+        if base == "sensor_delay" and "seconds" in p:
+            ms_ = round(1000.0 * p["seconds"])
+            why = f"{sensor} lags the accelerometer by {p['seconds'] * 1000:.0f} ms"
+            if sensor == "baro":
+                add("ArduPilot", "EK3_HGT_DELAY", ms_, e.name, why)
+                add("PX4", "EKF2_BARO_DELAY", ms_, e.name, why)
+            elif sensor == "gps":
+                add("ArduPilot", "GPS_DELAY_MS", ms_, e.name, why + " (GPS1_DELAY_MS from ArduPilot 4.6)")
+                add("PX4", "EKF2_GPS_DELAY", ms_, e.name, why)
+            elif sensor == "range":
+                add("ArduPilot", "", None, e.name, why + "; ArduPilot's EKF has no rangefinder delay parameter")
+                add("PX4", "EKF2_RNG_DELAY", ms_, e.name, why)
+        elif base == "accel_scale" and "s" in p:
+            s = p["s"]
+            why = f"the accelerometer reads {s:+.2%} along z; the calibration's scale divided by 1 + s"
+            add("ArduPilot", "INS_ACCSCAL_Z", _current(params, "INS_ACCSCAL_Z", 1.0) / (1 + s), e.name, why)
+            add("PX4", "CAL_ACC0_ZSCALE", _current(params, "CAL_ACC0_ZSCALE", 1.0) / (1 + s), e.name, why)
+        elif base == "accel_bias" and "z" in p:
+            b = p["z"]
+            why = f"the accelerometer reads {b:+.3f} m/s^2 along z; the offset is subtracted from the reading"
+            add("ArduPilot", "INS_ACCOFFS_Z", params.get("INS_ACCOFFS_Z", 0.0) + b, e.name, why)
+            add("PX4", "CAL_ACC0_ZOFF", params.get("CAL_ACC0_ZOFF", 0.0) + b, e.name, why)
+        elif base == "baro_thrust" and "k" in p:
+            why = (
+                f"the baro reads {p['k']:+.2f} m high per unit throttle; ArduPilot 4.5+ subtracts the scale times "
+                f"throttle from the pressure ({rho_g:.2f} Pa/m here)"
+            )
+            add("ArduPilot", "BARO1_THST_SCALE", -rho_g * p["k"], e.name, why)
+            add("PX4", "", None, e.name, "PX4 has no throttle compensation of the baro")
+        elif base == "baro_ground_effect" and "A" in p:
+            why = f"the baro is off by {p['A']:+.2f} m near the ground (falling off over {p.get('h0', math.nan):.2f} m)"
+            add("ArduPilot", "EK3_GND_EFF_DZ", min(abs(p["A"]), 10.0), e.name, why + "; the EKF's dead zone there")
+            add("PX4", "EKF2_GND_EFF_DZ", abs(p["A"]), e.name, why)
+            if "h0" in p:
+                add("PX4", "EKF2_GND_MAX_HGT", 3.0 * p["h0"], e.name, "where the ground effect has fallen to 5 %")
+        elif base == "baro_thermal" and "k" in p:
+            why = f"the baro drifts {p['k']:+.3f} m per K of its temperature"
+            add(
+                "ArduPilot", "", None, e.name, why + "; ArduPilot's temperature calibration (TCAL) covers the IMUs only"
+            )
+            add("PX4", "TC_B0_X1", -rho_g * p["k"], e.name, why + " (Pa/K; with TC_B_ENABLE = 1)")
+            add("PX4", "TC_B_ENABLE", 1, e.name, "turns the baro's temperature compensation on")
+        elif base == "thrust_voltage":
+            why = f"thrust falls with the pack's voltage (exponent {p.get('n', math.nan):.2f})"
+            volts = [float(m.value[0]) for m in ms if m.kind is Kind.BATTERY_VOLTAGE]
+            if volts:
+                cells = cell_count(float(np.percentile(volts, 99)))
+                add("ArduPilot", "MOT_BAT_VOLT_MAX", 4.2 * cells, e.name, why + f"; {cells}S pack, full")
+                add("ArduPilot", "MOT_BAT_VOLT_MIN", 3.3 * cells, e.name, why + f"; {cells}S pack, empty")
+            add("PX4", "MC_BAT_SCALE_EN", 1, e.name, why)
+        else:
+            add("ArduPilot", "", None, e.name, "no autopilot parameter for this effect")
+            add("PX4", "", None, e.name, "no autopilot parameter for this effect")
+    names = {"baro": ("EK3_ALT_M_NSE", "EKF2_BARO_NOISE"), "range": ("EK3_RNG_M_NSE", "EKF2_RNG_NOISE"),
+             "gps": ("EK3_POSNE_M_NSE", "EKF2_GPS_P_NOISE")}  # fmt: skip
+    for n in d.noise:
+        if n.differs and n.sensor in names:
+            why = f"{n.sensor} noise in this log {n.sigma_data:.3g} m (the model had {n.sigma_model:.3g})"
+            add("ArduPilot", names[n.sensor][0], n.sigma_data, f"noise({n.sensor})", why)
+            add("PX4", names[n.sensor][1], n.sigma_data, f"noise({n.sensor})", why)
+    return out
+
+
+#: PX4 parameters that are integers (the rest are floats), for QGroundControl's file's type column
+_PX4_INTEGERS = {"TC_B_ENABLE", "MC_BAT_SCALE_EN"}
+MAV_PARAM_TYPE_INT32, MAV_PARAM_TYPE_REAL32 = 6, 9
+
+
+def write_param_file(path: Path, suggestions: list[ParamSuggestion], autopilot: str, source: str) -> int:
+    """The settable suggestions for one autopilot, as its ground stations load them: ArduPilot's
+    ``NAME,VALUE`` (Mission Planner, MAVProxy), PX4's QGroundControl file (``sysid compid NAME
+    VALUE type``, tab-separated). Each value follows a comment saying why. Returns how many."""
+    rows = [s for s in suggestions if s.autopilot == autopilot and s.name and s.value is not None]
+    lines = [f"# {autopilot} parameters from the diagnosis of {source}", "# review each before loading"]
+    for s in rows:
+        lines.append(f"# {s.effect}: {s.why}")
+        if autopilot == "PX4":
+            integer = s.name in _PX4_INTEGERS
+            value = f"{int(round(s.value))}" if integer else f"{s.value:.6g}"  # type: ignore[arg-type]
+            kind = MAV_PARAM_TYPE_INT32 if integer else MAV_PARAM_TYPE_REAL32
+            lines.append(f"1\t1\t{s.name}\t{value}\t{kind}")
+        else:
+            lines.append(f"{s.name},{s.value:g}")
+    path.write_text("\n".join(lines) + "\n")
+    return len(rows)

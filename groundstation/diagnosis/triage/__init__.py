@@ -1,0 +1,116 @@
+"""Triage: what the log says happened, before any model is fitted to it.
+
+A flight that crashed, flipped, vibrated, lost its GPS or fell back to a failsafe is not a flight
+the physical model describes; fitting effects to it explains a mechanical failure as sensor
+error. :func:`triage` reads the log's own records (:class:`drivers.logs.tables.LogTables`) and
+its measurements, and states what happened, worst first: crash and flip, failsafes and the
+autopilot's errors, GPS, logging gaps, vibration and clipping, IMU mismatch, motors, the
+autopilot's own EKF, the battery, configuration risks. :func:`usable` then cuts the stretches
+where the model does not hold out of the fit, and lists what it cut.
+
+Each check is a module: :mod:`.events` (ERR, EV, MODE, MSG/STATUSTEXT, PX4 status),
+:mod:`.flight` (attitude, gaps, battery, GPS fix), :mod:`.sensors` (vibration, clipping, IMU
+mismatch), :mod:`.motors`, :mod:`.ekf`, :mod:`.config`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.logs.tables import LogTables
+from groundstation.core.measurement import Measurement
+
+from .config import check_config
+from .ekf import check_ekf
+from .events import check_events
+from .finding import SEVERITIES, TriageFinding
+from .flight import check_attitude, check_battery, check_gaps, check_gps
+from .motors import check_motors
+from .sensors import check_imu_mismatch, check_vibration
+
+
+@dataclass
+class Triage:
+    findings: list[TriageFinding]  # worst first
+    clock: str  # "vehicle" or "recording" (see drivers.logs.tables)
+    span: tuple[float, float]  # the log's first and last time on that clock [s]
+    seconds: float  # how long the triage took
+    origin: float = 0.0  # recording clock: its zero as a receive time [s, UNIX]
+    checks: list[str] = field(default_factory=list)  # what was looked at
+
+    @property
+    def cut(self) -> list[TriageFinding]:
+        return [f for f in self.findings if f.cuts]
+
+    def as_json(self) -> list[dict]:
+        return [f.as_json() for f in self.findings]
+
+    def summary(self, limit: int = 12) -> str:
+        """The findings as lines, worst first (info-level mode changes only when nothing else)."""
+        shown = [f for f in self.findings if f.severity != "info"] or self.findings
+        lines = [f.line() for f in shown[:limit]]
+        if len(shown) > limit:
+            lines.append(f"... and {len(shown) - limit} more (report.json)")
+        clock = "seconds since the recording began" if self.clock == "recording" else "seconds of the vehicle's clock"
+        head = f"triage ({len(self.findings)} findings, {self.seconds:.1f} s; times in {clock}):"
+        return "\n".join([head] + (lines or ["nothing wrong found in the log's own records"]))
+
+
+def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
+    start = time.monotonic()
+    t0, t1 = tables.span
+    if ms and tables.clock == "vehicle":
+        t0, t1 = min(t0, ms[0].t) if tables.tables else ms[0].t, max(t1, ms[-1].t) if tables.tables else ms[-1].t
+    found: list[TriageFinding] = []
+    found += check_events(tables, t1)
+    found += check_attitude(tables, t1)
+    crashed = min((f.t_start for f in found if f.name in ("crash", "flip")), default=np.inf)
+    found += check_gaps(tables)
+    found += check_battery(tables, t1)
+    found += check_gps(tables)
+    found += check_vibration(tables, ms if tables.clock == "vehicle" else [])
+    found += check_imu_mismatch(tables, ms if tables.clock == "vehicle" else [])
+    found += check_motors(tables, until=crashed)
+    found += check_ekf(tables)
+    found += check_config(tables, t0)
+    found.sort(key=lambda f: f.rank)
+    return Triage(found, tables.clock, (t0, t1), time.monotonic() - start, tables.origin)
+
+
+def _time_of(m: Measurement, tr: Triage) -> float:
+    return m.t_rx - tr.origin if tr.clock == "recording" else m.t
+
+
+def usable(ms: list[Measurement], tr: Triage) -> tuple[list[Measurement], list[tuple[float, float]], list[dict]]:
+    """The measurements outside every stretch the triage cuts, the stretches used [(t0, t1)], and
+    what was cut and why ([{name, t_start, t_end, why}]), all on the triage's clock."""
+    cuts = sorted(((f.t_start, f.t_end, f) for f in tr.cut), key=lambda c: (c[0], c[1]))
+    merged: list[list] = []
+    for a, b, _ in cuts:
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    if not merged or not ms:
+        return ms, [tr.span] if ms else [], []
+    starts = np.array([a for a, _ in merged])
+    ends = np.array([b for _, b in merged])
+    t = np.array([_time_of(m, tr) for m in ms])
+    k = np.searchsorted(starts, t, side="right") - 1
+    inside = (k >= 0) & (t <= ends[np.clip(k, 0, None)])
+    kept = [m for m, cut in zip(ms, inside) if not cut]
+    used, lo = [], tr.span[0]
+    for a, b in merged:
+        if a > lo:
+            used.append((lo, a))
+        lo = max(lo, b)
+    if lo < tr.span[1]:
+        used.append((lo, tr.span[1]))
+    why = [{"name": f.name, "t_start": round(a, 3), "t_end": round(b, 3), "why": f.evidence} for a, b, f in cuts]
+    return kept, [(round(a, 3), round(b, 3)) for a, b in used], why
+
+
+__all__ = ["SEVERITIES", "Triage", "TriageFinding", "triage", "usable"]
