@@ -81,6 +81,10 @@ class Effect:
     def thrust_factor(self, sim) -> float:
         return 1.0
 
+    def outputs(self, values: list[float], sim) -> list[float]:
+        """The motor outputs (PWM, normalised) as the log records them."""
+        return values
+
     def accel(self, f, sim):
         return f
 
@@ -376,6 +380,70 @@ class MotorOffset(Effect):
         if sim.scenario.vehicle != "heli3dof":
             return cmd
         return type(cmd)(cmd.V_f + self.front, cmd.V_b + self.back)
+
+
+@register
+class MotorFailure(Effect):
+    """One rotor of a quadcopter losing thrust from ``t`` on (a damaged propeller, a failing motor or
+    ESC). The attitude loop holds the vehicle level by driving that motor harder: its output reads
+    ``tau / (1 - loss)`` while the others keep ``tau``. When that passes full output (``tau > 1 -
+    loss``), the loop has no authority left: the vehicle lacks ``tau - (1 - loss)`` of one motor's
+    full thrust, and the torque of that deficit over the inertia rolls (or pitches) it away
+    (``authority`` [rad/s^2] per unit deficit) until, past 90 degrees, it falls. ``loss = 1`` is a
+    motor that stops. Motors in ArduPilot's quad X order: 1 front right, 2 back left, 3 front left,
+    4 back right."""
+
+    name = "motor_failure"
+    equation = "out_k = tau / (1 - loss); deficit = max(0, tau - (1 - loss)): thrust lost, roll/pitch accel ~ deficit"
+    in_the_motors = False
+    params = {
+        "motor": Param(1.0, "", 1.0, 4.0, "which motor (1-4, ArduPilot quad X order)"),
+        "loss": Param(0.15, "", 0.0, 1.0, "fraction of its thrust lost"),
+        "t": Param(10.0, "s", 0.0, 3600.0, "onset"),
+        "authority": Param(60.0, "rad/s^2", 1.0, 500.0, "angular acceleration per unit thrust deficit"),
+    }
+    #: each motor's position (forward, right) in ArduPilot's quad X, sign only
+    POSITION = {1: (1, 1), 2: (-1, -1), 3: (1, -1), 4: (-1, 1)}
+
+    def setup(self, kw):
+        self.rate = [0.0, 0.0]  # the roll and pitch rates the lost authority has built [rad/s]
+
+    def _deficit(self, sim) -> float:
+        """The thrust motor k cannot give at full output, in units of its full thrust: it is asked
+        for tau (the others' share) and gives at most 1 - loss."""
+        return max(0.0, sim.vehicle.throttle - (1.0 - self.loss))
+
+    def active(self, sim) -> bool:
+        return sim.t >= self.t and sim.scenario.vehicle == "quad"
+
+    def outputs(self, values, sim):
+        if not self.active(sim):
+            return values
+        out = list(values)
+        k = int(self.motor) - 1
+        out[k] = min(1.0, out[k] / (1.0 - self.loss)) if self.loss < 1.0 else (1.0 if out[k] > 0 else 0.0)
+        return out
+
+    def thrust_factor(self, sim) -> float:
+        tau = sim.vehicle.throttle
+        if not self.active(sim) or tau <= 0:
+            return 1.0
+        return 1.0 - self._deficit(sim) / (4.0 * tau)
+
+    def step(self, dt, sim) -> None:
+        v = sim.vehicle
+        if not self.active(sim) or v.on_ground:
+            self.rate = [0.0, 0.0]
+            return
+        deficit = self._deficit(sim)
+        if deficit <= 0.0 and abs(self.rate[0]) + abs(self.rate[1]) == 0.0:
+            return
+        fwd, right = self.POSITION[int(self.motor)]
+        # a weak motor on the right lets the vehicle roll right (+roll), one in front pitch down (-pitch)
+        self.rate[0] += right * self.authority * deficit * dt
+        self.rate[1] += -fwd * self.authority * deficit * dt
+        v.phi = (v.phi + self.rate[0] * dt + math.pi) % (2 * math.pi) - math.pi
+        v.theta = max(-1.5, min(1.5, v.theta + self.rate[1] * dt))
 
 
 def parse_effect(text: str) -> Effect:

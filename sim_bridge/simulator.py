@@ -204,7 +204,10 @@ class Simulator:
         v = self.vehicle
         c = v.clipped(self.output_command) if self.output_command is not None else None
         if isinstance(v, Quad):
-            return [c.throttle if c is not None else v.tau] * 4
+            out = [c.throttle if c is not None else v.tau] * 4
+            for e in self.effects:
+                out = e.outputs(out, self)
+            return out
         if isinstance(v, Coax):
             if c is None:
                 return [0.0, 0.0, 0.5, 0.5]

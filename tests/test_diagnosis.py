@@ -511,18 +511,22 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     baro climbs slowly (README: BarAlt - SonAlt +2.4 m in flight, 0.0125 m/s over the 190 s to its
     middle), and it reads low with the rotors running near the ground (README: the dip at spin-up),
     which the excursion test locates in time. The sonar's spurious echoes as the motors spin up are
-    skipped. The whole loop on this log (five effects, about 20 minutes here) is
+    skipped. The log as ``diagnose`` fits it: without the battery failsafe's last 5 s, which the
+    triage cuts. The whole loop on this log (five effects, about 20 minutes here) is
     ``bench/real_logs.py``; this is each effect's first step, scored alone against the base model."""
     from groundstation.diagnosis.engine import sensor_findings
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import ThrustContext
     from groundstation.diagnosis.trace import rank
-    from groundstation.estimation.logs import load_measurements
+    from groundstation.diagnosis.triage import triage, usable
+    from groundstation.estimation.logs import load_log
 
     from .conftest import real_file
 
-    ms, _, _ = load_measurements(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
+    log = load_log(real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log"))
+    ms, used, _ = usable(log.measurements, triage(log.tables, log.measurements))
+    assert used[-1][1] == pytest.approx(425.2, abs=1.0)  # the battery failsafe onward is cut
     su = setup(ms, model_name="quad_thrust", vehicle="apm2_sonar")
     base = run_model(su.model, su.prep, su.make)
     ctx = base.estimator.filter.ctx

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.logs.tables import LogTables
-from groundstation.core.measurement import Measurement
+from groundstation.core.measurement import Kind, Measurement
 
 from .config import check_config
 from .ekf import check_ekf
@@ -71,8 +71,11 @@ def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
     found += check_gaps(tables)
     found += check_battery(tables, t1)
     found += check_gps(tables)
-    found += check_vibration(tables, ms if tables.clock == "vehicle" else [])
-    found += check_imu_mismatch(tables, ms if tables.clock == "vehicle" else [])
+    imu = [m for m in ms if m.kind in (Kind.ACCEL, Kind.GYRO)]
+    if tables.clock == "recording":  # the raw IMU on the tables' clock: its receive times
+        imu = [m._replace(t=m.t_rx - tables.origin) for m in imu]
+    found += check_vibration(tables, imu)
+    found += check_imu_mismatch(tables, imu)
     found += check_motors(tables, until=crashed)
     found += check_ekf(tables)
     found += check_config(tables, t0)

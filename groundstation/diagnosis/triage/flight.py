@@ -58,17 +58,26 @@ def check_attitude(tables: LogTables, t_end: float) -> list[TriageFinding]:
     out: list[TriageFinding] = []
     if not len(t):
         return out
-    # upside down: the body's z axis points up, cos(roll) cos(pitch) < 0
+    # upside down: the body's z axis points up, cos(roll) cos(pitch) < 0; one finding per flight
     up = np.cos(np.radians(r)) * np.cos(np.radians(p)) < 0
-    for a, _, i, j in runs(up, t, join=1.0):
+    tilt = np.degrees(np.arccos(np.clip(np.cos(np.radians(r)) * np.cos(np.radians(p)), -1.0, 1.0)))
+    for end, group in _by_flight(tables, runs(up, t, join=1.0), t_end).items():
+        i, j = group[0][2], group[-1][3]
         k = i + int(np.argmax(np.abs(r[i : j + 1])))
+        # the roll-over began where the tilt last passed the crash check's angle: cut from there
+        s = i
+        while s > 0 and tilt[s - 1] > TRACKING_ERROR_DEG:
+            s -= 1
+        again = f", {len(group)} times over {group[-1][1] - group[0][0]:.1f} s" if len(group) > 1 else ""
+        over = f"tilting past {TRACKING_ERROR_DEG:.0f} deg from {t[s]:.1f} s, " if s < i else ""
         out.append(
             TriageFinding(
                 "flip",
-                a,
-                _end_of_flight(tables, a, t_end),
+                float(t[s]),
+                end,
                 "critical",
-                f"upside down from {a:.1f} s (roll {r[k]:.0f} deg at {t[k]:.1f} s, pitch {p[k]:.0f} deg)",
+                f"{over}upside down from {group[0][0]:.1f} s{again} "
+                f"(roll {r[k]:.0f} deg at {t[k]:.1f} s, pitch {p[k]:.0f} deg)",
                 DOCS["flip"],
                 cuts=True,
             )
@@ -79,10 +88,7 @@ def check_attitude(tables: LogTables, t_end: float) -> list[TriageFinding]:
         armed = _in(t, spans) if spans else np.ones(len(t), bool)
         lost = runs((err > TRACKING_ERROR_DEG) & armed, t, join=0.5, min_len=TRACKING_TIME_S)
         # one finding per flight: from the first loss of control, with the worst of them
-        by_flight: dict[float, list] = {}
-        for a, b, i, j in lost:
-            by_flight.setdefault(_end_of_flight(tables, a, t_end), []).append((a, b, i, j))
-        for end, group in by_flight.items():
+        for end, group in _by_flight(tables, lost, t_end).items():
             i = group[0][2]
             j = group[-1][3]
             k = i + int(np.argmax(err[i : j + 1]))
@@ -100,6 +106,14 @@ def check_attitude(tables: LogTables, t_end: float) -> list[TriageFinding]:
                     cuts=True,
                 )
             )
+    return out
+
+
+def _by_flight(tables: LogTables, spans: list, t_end: float) -> dict[float, list]:
+    """Runs grouped by the flight they start in (keyed by its end)."""
+    out: dict[float, list] = {}
+    for span in spans:
+        out.setdefault(_end_of_flight(tables, span[0], t_end), []).append(span)
     return out
 
 

@@ -25,6 +25,7 @@ VIBE_WARN, VIBE_BAD = 30.0, 60.0  # m/s^2
 ACCEL_MISMATCH, GYRO_MISMATCH = 0.75, np.radians(5.0)  # m/s^2, rad/s
 RAW_VIBE_HIGHPASS_HZ = 5.0
 VIBE_JOIN_S, CLIP_JOIN_S = 10.0, 10.0  # stretches this close are one episode
+CLIP_FLAT_TOP = 3  # readings at the same largest magnitude: a clipped sensor's flat top
 
 
 def _vibe_tables(tables: LogTables):
@@ -142,6 +143,8 @@ def _raw(ms: list[Measurement], docs: dict) -> list[TriageFinding]:
         if peak[i] < 76.0:
             continue
         stuck = np.abs(a[:, i]) >= 0.995 * peak[i]
+        if stuck.sum() < CLIP_FLAT_TOP:  # one reading at the peak is an impact, not a sensor's range
+            continue
         for s, e, _, _ in runs(stuck, t, join=1.0):
             out.append(
                 TriageFinding(
