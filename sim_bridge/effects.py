@@ -397,8 +397,8 @@ class MotorFailure(Effect):
     equation = "out_k = tau / (1 - loss); deficit = max(0, tau - (1 - loss)): thrust lost, roll/pitch accel ~ deficit"
     in_the_motors = False
     params = {
-        "motor": Param(1.0, "", 1.0, 4.0, "which motor (1-4, ArduPilot quad X order)"),
-        "loss": Param(0.15, "", 0.0, 1.0, "fraction of its thrust lost"),
+        "motor": Param(1.0, "1", 1.0, 4.0, "which motor (1-4, ArduPilot quad X order)"),
+        "loss": Param(0.15, "1", 0.0, 1.0, "fraction of its thrust lost"),
         "t": Param(10.0, "s", 0.0, 3600.0, "onset"),
         "authority": Param(60.0, "rad/s^2", 1.0, 500.0, "angular acceleration per unit thrust deficit"),
     }
