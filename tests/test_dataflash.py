@@ -125,3 +125,56 @@ def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero()
     row = rows["baro"]
     assert n_baro - 60 <= row.n <= n_baro and row.nis < 10.0
     assert "landed" not in rows  # the ground's pseudo-sensor (models.ground) is not a sensor's row
+
+
+def test_current_messages_rangefinder_battery_compass_and_instances(tmp_path):
+    """ArduPilot 4.x records, as a text log writes them: RFND (metres; only a good, downward
+    reading is a range), BAT, CTUN's short names (ThO, BAlt), BARO and IMU with their instance, MAG
+    in milligauss; the rest (VIBE) kept as a table on the same clock."""
+    lines = [
+        "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+        "FMT, 129, 31, IMU, QBffffff, TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+        "FMT, 130, 20, BARO, QBfff, TimeUS,I,Alt,Press,Temp",
+        "FMT, 131, 20, RFND, QBfBB, TimeUS,Instance,Dist,Stat,Orient",
+        "FMT, 132, 20, BAT, QBff, TimeUS,Inst,Volt,Curr",
+        "FMT, 133, 20, CTUN, Qff, TimeUS,ThO,BAlt",
+        "FMT, 134, 20, MAG, QBfff, TimeUS,I,MagX,MagY,MagZ",
+        "FMT, 135, 20, VIBE, QBfff, TimeUS,IMU,VibeX,VibeY,VibeZ",
+    ]
+    for k in range(20):
+        us = 1_000_000 + 100_000 * k
+        lines += [
+            f"IMU, {us}, {k % 2}, 0, 0, 0, 0, 0, -9.8",
+            f"BARO, {us}, 1, 2.5, 101000, 30",
+            f"RFND, {us}, 0, 1.25, {4 if k < 15 else 1}, {25 if k % 5 else 0}",
+            f"BAT, {us}, 0, 15.6, 12.5",
+            f"CTUN, {us}, 0.42, 2.4",
+            f"MAG, {us}, 0, 200, 0, 400",
+            f"VIBE, {us}, 0, 3.5, 4.5, 12.0",
+        ]
+    p = tmp_path / "modern.log"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_dataflash(p)
+    by = {k: [m for m in log.measurements if m.kind is k] for k in Kind}
+    assert len(by[Kind.RANGE]) == 12 and all(m.value[0] == 1.25 for m in by[Kind.RANGE])  # good and down
+    assert log.skipped["range_not_good"] == 4
+    assert {m.instance for m in by[Kind.ACCEL]} == {0, 1} and {m.instance for m in by[Kind.BARO_PRESSURE]} == {1}
+    assert by[Kind.BATTERY_VOLTAGE][0].value[0] == 15.6 and by[Kind.BATTERY_CURRENT][0].value[0] == 12.5
+    assert by[Kind.THROTTLE][0].value[0] == pytest.approx(0.42)
+    assert np.allclose(by[Kind.MAG][0].value, [2e-5, 0.0, 4e-5])  # 200 and 400 mG in tesla
+    vibe = log.tables["VIBE"]
+    assert vibe.t[0] == pytest.approx(1.0) and vibe["VibeZ"][0] == pytest.approx(12.0)
+
+
+def test_records_without_a_clock_share_the_imus():
+    """The erle log's ERR records and its ArduCopter 3.3 GPS (boot time in T) on the IMU's clock:
+    the crash check's ERR comes as logging resumes after the 22 s gap, and the first GPS fix
+    within a second of the first IMU sample (the log starts 20.7 s after boot)."""
+    log = read_dataflash(real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin"))
+    first_imu = min(m.t for m in log.measurements if m.kind is Kind.ACCEL)
+    first_gps = min(m.t for m in log.measurements if m.kind is Kind.GPS)
+    assert first_imu == pytest.approx(20.66, abs=0.05) and abs(first_gps - first_imu) < 1.0
+    err = log.tables["ERR"]
+    crash = err.t[(err["Subsys"] == 12) & (err["ECode"] == 1)]
+    imu_t = log.tables["IMU"].t
+    assert len(crash) == 1 and imu_t[imu_t < crash[0]].max() == pytest.approx(51.5, abs=0.1)

@@ -11,16 +11,23 @@ loop: ``t = (CTUN records so far) / 10`` for every record.
 =========  =====================================  ====================================
 record     fields                                 measurement
 =========  =====================================  ====================================
-IMU, IMU2  AccX/Y/Z [m/s^2], GyrX/Y/Z [rad/s]     ACCEL, GYRO (FRD already); IMU2 -> 1
-BARO       Alt [m], Press [Pa], Temp [degC]       BARO_ALTITUDE, BARO_PRESSURE, TEMPERATURE [K]
-CTUN       ThrOut (0..1000 old, 0..1 new),         THROTTLE [0..1]; BarAlt -> BARO_ALTITUDE
-           BarAlt [m], SonAlt [m]                 (only in logs without BARO); SonAlt -> RANGE (inside
-                                                  the rangefinder's limits, see below)
+IMU, IMU2  AccX/Y/Z [m/s^2], GyrX/Y/Z [rad/s]     ACCEL, GYRO (FRD already); IMU2 or I -> instance
+BARO       Alt [m], Press [Pa], Temp [degC]       BARO_ALTITUDE, BARO_PRESSURE, TEMPERATURE [K]; I
+CTUN       ThrOut/ThO (0..1000 old, 0..1 new),    THROTTLE [0..1]; BarAlt/BAlt -> BARO_ALTITUDE
+           BarAlt/BAlt [m], SonAlt/SAlt [m]       (only in logs without BARO); SonAlt -> RANGE (only in
+                                                  logs without RFND; inside the limits, see below)
+RFND       Dist [m] (3.x: Dist1 [cm]), Stat,      RANGE, downward (Orient 25) and good (Stat 4) only;
+           Orient, Instance                       inside the limits
 CURR       Volt, Curr (V x 100, A x 100 in old)   BATTERY_VOLTAGE [V], BATTERY_CURRENT [A] (0: not connected)
+BAT        Volt [V], Curr [A], Inst               BATTERY_VOLTAGE, BATTERY_CURRENT
+MAG        MagX/Y/Z [milligauss], I               MAG [T]
 ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
-GPS        Lat, Lng [deg], Alt [m], Status        GPS (3-D fix only)
+GPS        Lat, Lng [deg], Alt [m], Status, I     GPS (3-D fix only)
 RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
 =========  =====================================  ====================================
+
+Every record, these and the rest (ERR, EV, MODE, MSG, VIBE, XKF*, NKF*, EKF*, ...), is also kept
+as columns in :attr:`DataFlashLog.tables` (:mod:`.tables`), with the log's parameters.
 
 The rangefinder's limits come from the log's own parameters (PARM), as the MAVLink driver takes
 DISTANCE_SENSOR's ``min_distance``/``max_distance``: ``RNGFND_MIN_CM``/``RNGFND_MAX_CM`` (or
@@ -241,6 +248,7 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> D
         damage = "; ".join(x for x in (damage, msgs[-1][1]) if x)
     types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
     has_baro = types["BARO"] > 0
+    has_rfnd = types["RFND"] > 0
     params = {}
     for m in msgs:
         if not isinstance(m, tuple) and m.get_type() == "PARM":
@@ -284,7 +292,7 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str) -> D
                     offset = m._timestamp - t
             else:
                 t = n_ctun / CONTROL_RATE
-            _convert(typ, m, t, source, has_baro, log.range_limits, out, log.skipped)
+            _convert(typ, m, t, source, has_baro, has_rfnd, log.range_limits, out, log.skipped)
             if typ not in _NOT_TABLED:
                 ts, rs = rows.setdefault(typ, ([], []))
                 ts.append(t)
@@ -314,7 +322,7 @@ def rangefinder_limits(params: dict[str, float]) -> tuple[float, float] | None:
     return None
 
 
-def _convert(typ, m, t, s, has_baro, range_limits, out, skipped) -> None:
+def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> None:
     def add(kind, value, instance=0):
         out.append(Measurement(t, kind, np.asarray(value, dtype=float), s, t, None, instance))
 
@@ -323,15 +331,19 @@ def _convert(typ, m, t, s, has_baro, range_limits, out, skipped) -> None:
         add(Kind.ACCEL, [m.AccX, m.AccY, m.AccZ], inst)
         add(Kind.GYRO, [m.GyrX, m.GyrY, m.GyrZ], inst)
     elif typ == "BARO":
-        add(Kind.BARO_ALTITUDE, [m.Alt])
-        add(Kind.BARO_PRESSURE, [m.Press])
-        add(Kind.TEMPERATURE, [m.Temp + 273.15])
+        inst = int(getattr(m, "I", 0))
+        add(Kind.BARO_ALTITUDE, [m.Alt], inst)
+        add(Kind.BARO_PRESSURE, [m.Press], inst)
+        add(Kind.TEMPERATURE, [m.Temp + 273.15], inst)
     elif typ == "CTUN":
-        thr = getattr(m, "ThrOut", None)
+        thr = getattr(m, "ThrOut", getattr(m, "ThO", None))
         if thr is not None:
             add(Kind.THROTTLE, [thr / 1000.0 if thr > 1.5 else thr])
-        if not has_baro and hasattr(m, "BarAlt"):
-            add(Kind.BARO_ALTITUDE, [m.BarAlt])
+        bar = getattr(m, "BarAlt", getattr(m, "BAlt", None))
+        if not has_baro and bar is not None:
+            add(Kind.BARO_ALTITUDE, [bar])
+        if has_rfnd:  # the rangefinder's own records carry it (RFND), with its status
+            return
         son = getattr(m, "SonAlt", getattr(m, "SAlt", 0.0))
         if not son or son <= 0:
             skipped["range_invalid"] += 1
@@ -352,9 +364,35 @@ def _convert(typ, m, t, s, has_baro, range_limits, out, skipped) -> None:
         add(Kind.ATTITUDE, np.radians([m.Roll, m.Pitch, m.Yaw]))
     elif typ == "GPS":
         if getattr(m, "Status", 0) >= 3:
-            add(Kind.GPS, [m.Lat, m.Lng, m.Alt])
+            add(Kind.GPS, [m.Lat, m.Lng, m.Alt], int(getattr(m, "I", 0)))
         else:
             skipped["gps_no_3d_fix"] += 1
+    elif typ == "RFND":
+        # ArduPilot 4.x: Dist [m], Stat (4: good), Orient (25: down); 3.x: Dist1 [cm]
+        dist = getattr(m, "Dist", None)
+        if dist is None and hasattr(m, "Dist1"):
+            dist = m.Dist1 / 100.0
+        if dist is None or getattr(m, "Orient", 25) != 25:
+            return
+        if getattr(m, "Stat", 4) != 4:
+            skipped["range_not_good"] += 1
+        elif range_limits is not None and not range_limits[0] < dist < range_limits[1]:
+            skipped["range_out_of_bounds"] += 1
+        else:
+            add(Kind.RANGE, [dist], int(getattr(m, "Instance", 0)))
+    elif typ == "BAT":
+        v, i = getattr(m, "Volt", 0.0), getattr(m, "Curr", 0.0)
+        if v > 0:
+            inst = int(getattr(m, "Inst", getattr(m, "Instance", 0)))
+            add(Kind.BATTERY_VOLTAGE, [v], inst)
+            add(Kind.BATTERY_CURRENT, [i], inst)
+        else:
+            skipped["battery_not_connected"] += 1
+    elif typ == "MAG" and hasattr(m, "MagX"):
+        if m.MagX == m.MagY == m.MagZ == 0:
+            skipped["mag_not_connected"] += 1
+        else:  # milligauss -> tesla
+            add(Kind.MAG, [m.MagX * 1e-7, m.MagY * 1e-7, m.MagZ * 1e-7], int(getattr(m, "I", 0)))
     elif typ == "RCOU":
         ch = [getattr(m, f"C{k}", 0) or getattr(m, f"Ch{k}", 0) for k in range(1, 5)]
         add(Kind.ACTUATOR, [(c - 1000.0) / 1000.0 if c else math.nan for c in ch])
