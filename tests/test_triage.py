@@ -306,3 +306,44 @@ def test_diagnosis_of_a_simulated_crash_claims_nothing_from_the_tumble(tmp_path)
     assert {e["name"] for e in j["effects"]} <= {"range_tilt"}, j["conclusion"]
     whole = diagnose(load_log(p).measurements, source=str(p), model_name="altitude")
     assert {e.name for e in whole.effects} - {"range_tilt"}  # what the cut keeps out
+
+
+def test_two_imus_that_disagree_past_the_pre_arm_limit():
+    """IMU 1 reads 1.0 m/s^2 more along x than IMU 0 from 10 to 20 s (ArduPilot's pre-arm limit
+    is 0.75); gyros agree."""
+    ms = []
+    for t in np.arange(0, 30, 0.01):
+        off = 1.0 if 10 <= t < 20 else 0.0
+        for inst, dx in ((0, 0.0), (1, off)):
+            ms.append(Measurement(float(t), Kind.ACCEL, np.array([dx, 0.0, -9.81]), "x", float(t), None, inst))
+            ms.append(Measurement(float(t), Kind.GYRO, np.zeros(3), "x", float(t), None, inst))
+    (f,) = _named(triage(LogTables(fmt="dataflash"), ms), "imu_mismatch")
+    assert f.t_start == pytest.approx(10, abs=1) and f.t_end == pytest.approx(20, abs=1)
+    assert "accel 0 and 1 differ by up to 1.00 m/s^2" in f.evidence
+
+
+def test_ekf_lane_switch_and_px4_test_ratios():
+    t = np.arange(0, 10, 0.1)
+    xkf4 = Table(t, {"C": np.zeros_like(t), "PI": np.where(t > 6, 1.0, 0.0), "SV": np.full_like(t, 0.2)})
+    est = Table(t, {"hgt_test_ratio": np.where((t > 3) & (t < 4), 1.7, 0.1), "mag_test_ratio": np.full_like(t, np.inf)})
+    tr = triage(LogTables({"XKF4": xkf4, "estimator_status": est}, fmt="ulog"), [])
+    (lane,) = _named(tr, "lane_switch")
+    assert lane.t_start == pytest.approx(6.1) and "from 0 to 1" in lane.evidence
+    (ekf,) = _named(tr, "ekf_innovation")  # the magnetometer's inf (not fused) is no finding
+    assert "height test ratio up to 1.70" in ekf.evidence and ekf.severity == "error"
+
+
+def test_vibe_clipping_counts_and_a_saturated_motor():
+    t = np.arange(0, 60, 0.1)
+    clip = np.cumsum((t > 30) & (t < 33)).astype(float)  # one clip a record for 3 s
+    vibe = Table(t, {"VibeX": np.full_like(t, 5.0), "VibeY": np.full_like(t, 5.0), "VibeZ": np.full_like(t, 20.0),
+                     "Clip0": clip, "Clip1": np.zeros_like(t), "Clip2": np.zeros_like(t)})  # fmt: skip
+    pwm = np.full((len(t), 4), 1550.0)
+    pwm[t > 40, 2] = 2000.0  # motor 3 at the top for the last 20 s of the flight
+    rcou = Table(t, {f"C{i + 1}": pwm[:, i] for i in range(4)})
+    tr = triage(LogTables({"VIBE": vibe, "RCOU": rcou}, fmt="dataflash", autopilot="ardupilot"), [])
+    (c,) = _named(tr, "clipping")
+    assert c.t_start == pytest.approx(30.1, abs=0.11) and "counter 0: 29" in c.evidence and c.cuts
+    assert not _named(tr, "vibration")  # 20 m/s^2 is within ArduPilot's 30
+    (s,) = _named(tr, "motor_saturation")
+    assert "most often motor 3" in s.evidence and s.severity == "error"  # a third of the flight
