@@ -347,3 +347,16 @@ def test_vibe_clipping_counts_and_a_saturated_motor():
     assert not _named(tr, "vibration")  # 20 m/s^2 is within ArduPilot's 30
     (s,) = _named(tr, "motor_saturation")
     assert "most often motor 3" in s.evidence and s.severity == "error"  # a third of the flight
+
+
+def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
+    """The simulator's 123 Hz rotor harmonic on the accelerometer (500 Hz IMU): a throttle-referenced
+    notch at that frequency, half as wide, referenced to the hover throttle; a clean flight none."""
+    from groundstation.diagnosis.autopilot_params import suggest_notch
+
+    p, _ = _sim(tmp_path, "vibration:A=20")
+    got = {s.name: s.value for s in suggest_notch(load_log(p).measurements, "ardupilot")}
+    assert got["INS_HNTCH_FREQ"] == pytest.approx(123, abs=1.0) and got["INS_HNTCH_BW"] == pytest.approx(61.5, abs=1)
+    assert 0.4 < got["INS_HNTCH_REF"] < 0.7 and got["INS_HNTCH_MODE"] == 1
+    p, _ = _sim(tmp_path, "")
+    assert suggest_notch(load_log(p).measurements, "ardupilot") == []

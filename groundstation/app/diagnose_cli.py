@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from groundstation.diagnosis import report
-from groundstation.diagnosis.autopilot_params import suggest, write_param_file
+from groundstation.diagnosis.autopilot_params import suggest, suggest_notch, write_param_file
 from groundstation.diagnosis.engine import diagnose, truth_from
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.diagnosis.report import triage_headline
@@ -142,7 +142,9 @@ def cmd_diagnose(args) -> int:
         veto_with_truth=not args.no_truth_veto,
     )
     bar.done()
-    suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot)
+    suggestions = []
+    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
+        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(ms, log.tables.autopilot)
     j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
     files = []
     for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):

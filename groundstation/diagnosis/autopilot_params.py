@@ -19,6 +19,7 @@ baro_ground_effect  EK3_GND_EFF_DZ = |A| [m]                EKF2_GND_EFF_DZ = |A
                                                             = 3 h0 [m]
 baro_thermal k      (no parameter: AP's TCAL is for IMUs)   TC_B0_X1 = -rho g k [Pa/K], TC_B_ENABLE 1
 thrust_voltage      MOT_BAT_VOLT_MAX / _MIN from the pack   MC_BAT_SCALE_EN = 1
+vibration peak      INS_HNTCH_* (throttle-referenced)       IMU_GYRO_NF0_FRQ / _BW
 noise (sensor)      EK3_ALT_M_NSE (baro), EK3_RNG_M_NSE,    EKF2_BARO_NOISE, EKF2_RNG_NOISE,
                     EK3_POSNE_M_NSE (GPS) [m]               EKF2_GPS_P_NOISE [m]
 ==================  ======================================  ======================================
@@ -185,3 +186,76 @@ def write_param_file(path: Path, suggestions: list[ParamSuggestion], autopilot: 
             lines.append(f"{s.name},{s.value:g}")
     path.write_text("\n".join(lines) + "\n")
     return len(rows)
+
+
+#: the rotor harmonic must stand this far above the spectrum's median to set a notch on it
+NOTCH_PROMINENCE = 50.0
+NOTCH_MIN_HZ = 20.0  # below: the airframe's own motion, not the rotors
+
+
+def notch_from_imu(ms: list[Measurement]) -> tuple[float, float, float, str] | None:
+    """The IMU's vibration peak in flight, for a harmonic notch: (frequency [Hz], its prominence
+    over the spectrum's median, the median throttle there, the sensor it stands out on), or None
+    when the IMU is too slow to show rotor harmonics (below 200 Hz) or no peak stands out. Welch's
+    PSD per axis, summed, of the gyro and of the accelerometer (a rotor harmonic shows on both,
+    more or less), over the samples with the throttle above idle."""
+    from scipy.signal import welch  # SciPy's Welch estimate: the standard spectrum of a long record
+
+    thr = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE]
+    best: tuple[float, float, float, str] | None = None
+    for kind in (Kind.GYRO, Kind.ACCEL):
+        sensor = [m for m in ms if m.kind is kind and m.instance == 0]
+        if len(sensor) < 2048:
+            continue
+        t = np.array([m.t for m in sensor])
+        rate = (len(t) - 1) / max(t[-1] - t[0], 1e-9)
+        if rate < 200.0:
+            continue
+        flying, hover = np.ones(len(t), bool), math.nan
+        if thr:
+            tt, tv = np.array(thr).T
+            u = np.interp(t, tt, tv)
+            flying = u > 0.1
+            hover = float(np.median(u[flying])) if flying.any() else math.nan
+        if flying.sum() < 2048:
+            continue
+        x = np.array([m.value for m in sensor])[flying]
+        f, pxx = welch(x - x.mean(axis=0), fs=rate, nperseg=1024, axis=0)
+        psd = pxx.sum(axis=1)
+        band = (f >= NOTCH_MIN_HZ) & (f <= 0.45 * rate)
+        if not band.any():
+            continue
+        k = int(np.argmax(np.where(band, psd, 0.0)))
+        prominence = float(psd[k] / np.median(psd[band]))
+        if prominence >= NOTCH_PROMINENCE and (best is None or prominence > best[1]):
+            best = (float(f[k]), prominence, hover, "gyro" if kind is Kind.GYRO else "accelerometer")
+    return best
+
+
+def suggest_notch(ms: list[Measurement], autopilot: str = "") -> list[ParamSuggestion]:
+    """A throttle-referenced harmonic notch on the gyro's rotor peak (ArduPilot INS_HNTCH_*, mode 1:
+    the frequency scales with the square root of the throttle from INS_HNTCH_REF; PX4's static
+    notch IMU_GYRO_NF0_*), bandwidth half the frequency as ArduPilot's guide advises."""
+    peak = notch_from_imu(ms)
+    if peak is None:
+        return []
+    freq, prominence, hover, sensor = peak
+    why = f"the {sensor}'s vibration peaks at {freq:.0f} Hz in flight ({prominence:.0f} times the spectrum's median)"
+    out = []
+    if autopilot in ("ardupilot", ""):
+        out += [
+            ParamSuggestion("ArduPilot", "INS_HNTCH_ENABLE", 1, "vibration", why),
+            ParamSuggestion("ArduPilot", "INS_HNTCH_MODE", 1, "vibration", "the notch follows the throttle"),
+            ParamSuggestion("ArduPilot", "INS_HNTCH_FREQ", float(f"{freq:.4g}"), "vibration", why),
+            ParamSuggestion("ArduPilot", "INS_HNTCH_BW", float(f"{freq / 2:.4g}"), "vibration", "half the frequency"),
+        ]
+        if math.isfinite(hover):
+            out.append(
+                ParamSuggestion("ArduPilot", "INS_HNTCH_REF", float(f"{hover:.3g}"), "vibration", "the hover throttle")
+            )
+    if autopilot in ("px4", ""):
+        out += [
+            ParamSuggestion("PX4", "IMU_GYRO_NF0_FRQ", float(f"{freq:.4g}"), "vibration", why),
+            ParamSuggestion("PX4", "IMU_GYRO_NF0_BW", float(f"{freq / 2:.4g}"), "vibration", "half the frequency"),
+        ]
+    return out

@@ -46,8 +46,8 @@ ERR_FAILSAFE_GPS = 7
 #: (Subsys, ECode) whose code says more than "it happened"
 ERR_CODES = {(11, 2): "GPS glitch", (12, 1): "crash detected", (12, 2): "loss of control", (7, 1): "GPS lost"}
 
-#: EV ids that start or end a flight
-EV_ARMED, EV_DISARMED, EV_LAND_COMPLETE, EV_NOT_LANDED, EV_TAKEOFF = 10, 11, 18, 28, 16
+#: EV ids that start and end a flight (arming)
+EV_ARMED, EV_DISARMED = 10, 11
 EV_NOTES = {19: ("gps_glitch", "error", "GPS lost"), 54: ("failsafe", "critical", "motors emergency stopped")}
 
 COPTER_MODES = {
@@ -98,7 +98,8 @@ def is_copter(tables: LogTables) -> bool:
 
 def flights(tables: LogTables, t_end: float) -> list[tuple[float, float]]:
     """The armed stretches [s]: EV ARMED..DISARMED (ArduPilot), HEARTBEAT's armed bit (MAVLink),
-    ``vehicle_status.arming_state`` (PX4); the whole log when none says."""
+    ``vehicle_status.arming_state`` (PX4); empty when the log does not say (callers then take the
+    whole log as one flight)."""
     ev = tables.get("EV")
     if ev is not None and (ids := ev.numeric("Id")) is not None:
         out, start = [], None
@@ -161,7 +162,7 @@ def check_events(tables: LogTables, t_end: float) -> list[TriageFinding]:
             if i in EV_NOTES:
                 name, sev, what = EV_NOTES[i]
                 out.append(TriageFinding(name, float(t), float(t), sev, f"EV: {what} (Id {i})", DOCS[name]))
-    out += _texts(tables, docs)
+    out += _texts(tables, docs, t_end)
     out += _modes(tables)
     vs = tables.get("vehicle_status")
     if vs is not None and (fs := vs.numeric("failsafe")) is not None:
@@ -190,7 +191,7 @@ def _next_disarm(tables: LogTables, t: float, t_end: float) -> float:
     return t_end
 
 
-def _texts(tables: LogTables, docs: dict) -> list[TriageFinding]:
+def _texts(tables: LogTables, docs: dict, t_end: float) -> list[TriageFinding]:
     out = []
     for name, col in (("MSG", "Message"), ("STATUSTEXT", "text"), ("logged_messages", "text")):
         tb = tables.get(name)
@@ -210,6 +211,8 @@ def _texts(tables: LogTables, docs: dict) -> list[TriageFinding]:
                         f = TriageFinding(
                             finding, float(t), float(t), sev, f'{name}: "{text}"', docs.get(finding, DOCS[finding])
                         )
+                        if finding == "crash":  # the autopilot's own crash check: the rest of that flight
+                            f.t_end, f.cuts = _next_disarm(tables, float(t), t_end), True
                         f.detail["n"] = 1
                         seen[text] = f
                         out.append(f)
