@@ -49,6 +49,8 @@ from web.dashboard import Dashboard
 from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
+from .fleet_cli import add_parser as add_fleet_parser
+from .fleet_cli import cmd_fleet
 from .options import add_web_options
 from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
@@ -136,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_sim_parser(sub)
     add_diagnose_parser(sub)
     add_triage_parser(sub)
+    add_fleet_parser(sub)
     return ap
 
 
@@ -161,6 +164,8 @@ def _run(args) -> int:
             return cmd_diagnose(args)
         if args.command == "triage":
             return cmd_triage(args)
+        if args.command == "fleet":
+            return cmd_fleet(args)
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":

@@ -4,18 +4,14 @@ the effects found translated into autopilot parameters; ``groundstation triage L
 
 from __future__ import annotations
 
-import html
 import json
 import sys
 import time
 from pathlib import Path
 
-from groundstation.diagnosis import report
-from groundstation.diagnosis.autopilot_params import suggest, suggest_notch, write_param_file
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis import pipeline
 from groundstation.diagnosis.models import DIAGNOSABLE
-from groundstation.diagnosis.report import triage_headline
-from groundstation.diagnosis.triage import Triage, triage, usable
+from groundstation.diagnosis.triage import triage
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.vehicles import declared_beside, declared_effects
 
@@ -75,10 +71,12 @@ class Progress:
     def __init__(self, total_hint: int = 12) -> None:
         self.tty = sys.stderr.isatty()
         self.n, self.total, self.t0 = 0, total_hint, time.monotonic()
+        self.open = False  # the bar's line is on the terminal, unfinished
 
     def __call__(self, what: str) -> None:
         self.n += 1
         if self.tty:
+            self.open = True
             k = min(self.n, self.total)
             bar = "#" * (20 * k // self.total) + "." * (20 - 20 * k // self.total)
             print(
@@ -88,8 +86,9 @@ class Progress:
             print(f"  {what}", file=sys.stderr, flush=True)
 
     def done(self) -> None:
-        if self.tty:
+        if self.open:
             print(file=sys.stderr)
+            self.open = False
 
 
 def writable_folder(out: Path) -> None:
@@ -104,80 +103,26 @@ def writable_folder(out: Path) -> None:
         raise OSError(f"{out}: cannot write the report there: {e.strerror or e}") from None
 
 
-#: the least of a log the fit is run on, after the triage's cuts [s]
-MIN_FIT_SECONDS = 10.0
-
-
 def cmd_diagnose(args) -> int:
     out = args.out or args.file.with_name(args.file.name + ".diagnosis")
     if not args.file.exists():
         raise OSError(f"{args.file}: cannot read: no such file")
     writable_folder(out)
-    log = load_log(args.file)
-    declared = declared_effects(args.declared or declared_beside(args.file))
-    print(f"diagnosing {args.file}: {log.description}", flush=True)
-    tr = triage(log.tables, log.measurements)
-    print(tr.summary(), flush=True)
-    ms, used, cut = usable(log.measurements, tr)
-    if cut:
-        spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
-        print(f"fitting the model to {spans}: {len(cut)} stretch(es) cut (report.json: segments_cut)", flush=True)
-    fit_seconds = sum(b - a for a, b in used)
-    if cut and fit_seconds < MIN_FIT_SECONDS:  # (a log short in itself is the engine's one-line error)
-        write_triage_only(out, args.file, log.description, tr, used, cut)
-        print(
-            f"not fitted: {fit_seconds:.1f} s of the log is usable (at least {MIN_FIT_SECONDS:.0f} s needed); "
-            f"the triage is in {out / 'report.json'}"
-        )
-        return 0
     bar = Progress()
-    d = diagnose(
-        ms,
-        source=str(args.file),
-        model_name=args.model,
-        declared=declared,
-        vehicle=args.vehicle or log.vehicle,
-        truth=truth_from(ms, args.file, args.truth),
-        progress=bar,
+
+    def say(line: str) -> None:
+        bar.done()  # the bar's line ends before the next line is printed
+        print(line, flush=True)
+
+    pipeline.run(
+        args.file,
+        out,
+        model=args.model,
+        declared=declared_effects(args.declared or declared_beside(args.file)),
+        vehicle=args.vehicle,
+        truth_csv=args.truth,
         veto_with_truth=not args.no_truth_veto,
-    )
-    bar.done()
-    suggestions = []
-    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
-        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(ms, log.tables.autopilot)
-    j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
-    files = []
-    for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):
-        if write_param_file(out / name, suggestions, autopilot, str(args.file)):
-            files.append(name)
-        else:
-            (out / name).unlink(missing_ok=True)
-    print(j["conclusion"])
-    settable = [p for p in suggestions if p.name and p.value is not None]
-    if settable:
-        print("parameters to set: " + "; ".join(f"{p.autopilot} {p.name} = {p.value:g}" for p in settable))
-    print(
-        f"report: {out / 'report.html'} and report.json; estimates_before.csv, estimates_after.csv"
-        + (f"; {', '.join(files)}" if files else "")
+        progress=bar,
+        say=say,
     )
     return 0
-
-
-def write_triage_only(out: Path, source: Path, description: str, tr: Triage, used, cut) -> None:
-    """report.json and report.html with the triage alone (nothing left to fit)."""
-    j = {
-        "source": str(source),
-        "description": description,
-        "triage": tr.as_json(),
-        "triage_clock": tr.clock,
-        "segments_used": [{"t_start": a, "t_end": b} for a, b in used],
-        "segments_cut": cut,
-        "parameters": [],
-        "conclusion": triage_headline(tr, used, cut) + "Too little of the log is usable to fit the model.",
-    }
-    (out / "report.json").write_text(json.dumps(j, indent=2))
-    (out / "report.html").write_text(
-        f"<!doctype html><html><head><meta charset='utf-8'><title>triage: {html.escape(str(source))}</title></head>"
-        f"<body><h1>Triage of {html.escape(str(source))}</h1><p>{html.escape(j['conclusion'])}</p>"
-        f"<pre>{html.escape(tr.summary(limit=1000))}</pre></body></html>"
-    )

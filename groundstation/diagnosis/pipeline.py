@@ -1,0 +1,123 @@
+"""One log, end to end, as ``diagnose`` runs it: read, triage, cut, fit, report, parameters.
+
+The command line (``groundstation diagnose``) and the fleet (:mod:`.fleet`, one of these per log on
+a Dask worker) run this same function; ``say`` is where its lines go (the terminal, or nowhere).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from groundstation.estimation.logs import load_log
+
+from . import report
+from .autopilot_params import suggest, suggest_notch, write_param_file
+from .engine import diagnose, truth_from
+from .report import triage_headline
+from .triage import Triage, triage, usable
+
+#: the least of a log the fit is run on, after the triage's cuts [s]
+MIN_FIT_SECONDS = 10.0
+
+
+@dataclass
+class LogDiagnosis:
+    report: dict  # report.json as written
+    description: str  # the reader's one line about the log
+    duration: float  # [s]
+    files: list[str]  # what was written in the output folder besides the reports
+
+
+def _quiet(_: str) -> None:
+    """Where the lines go when nobody reads them."""
+
+
+def run(
+    path: Path,
+    out: Path,
+    *,
+    model: str = "altitude",
+    declared: list | None = None,
+    vehicle: str | None = None,
+    truth_csv: Path | None = None,
+    veto_with_truth: bool = True,
+    progress: Callable[[str], None] | None = None,
+    say: Callable[[str], None] = _quiet,
+) -> LogDiagnosis:
+    """Diagnose ``path`` into the folder ``out`` (which must be writable). Raises the readers' and
+    the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed."""
+    log = load_log(path)
+    ms_all = log.measurements
+    duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
+    say(f"diagnosing {path}: {log.description}")
+    tr = triage(log.tables, ms_all)
+    say(tr.summary())
+    ms, used, cut = usable(ms_all, tr)
+    if cut:
+        spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
+        say(f"fitting the model to {spans}: {len(cut)} stretch(es) cut (report.json: segments_cut)")
+    fit_seconds = sum(b - a for a, b in used)
+    if cut and fit_seconds < MIN_FIT_SECONDS:  # (a log short in itself is the engine's one-line error)
+        j = write_triage_only(out, path, log.description, tr, used, cut)
+        say(
+            f"not fitted: {fit_seconds:.1f} s of the log is usable (at least {MIN_FIT_SECONDS:.0f} s needed); "
+            f"the triage is in {out / 'report.json'}"
+        )
+        return LogDiagnosis(j, log.description, duration, [])
+    d = diagnose(
+        ms,
+        source=str(path),
+        model_name=model,
+        declared=declared or [],
+        vehicle=vehicle or log.vehicle,
+        truth=truth_from(ms, path, truth_csv),
+        progress=progress,
+        veto_with_truth=veto_with_truth,
+    )
+    suggestions = []
+    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
+        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(ms, log.tables.autopilot)
+    j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
+    files = []
+    for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):
+        if write_param_file(out / name, suggestions, autopilot, str(path)):
+            files.append(name)
+        else:
+            (out / name).unlink(missing_ok=True)
+    if progress is not None:
+        progress("done")
+    say(j["conclusion"])
+    settable = [p for p in suggestions if p.name and p.value is not None]
+    if settable:
+        say("parameters to set: " + "; ".join(f"{p.autopilot} {p.name} = {p.value:g}" for p in settable))
+    say(
+        f"report: {out / 'report.html'} and report.json; estimates_before.csv, estimates_after.csv"
+        + (f"; {', '.join(files)}" if files else "")
+    )
+    return LogDiagnosis(j, log.description, duration, files)
+
+
+def write_triage_only(out: Path, source: Path, description: str, tr: Triage, used, cut) -> dict:
+    """report.json and report.html with the triage alone (nothing left to fit)."""
+    j = {
+        "source": str(source),
+        "description": description,
+        "triage": tr.as_json(),
+        "triage_clock": tr.clock,
+        "segments_used": [{"t_start": a, "t_end": b} for a, b in used],
+        "segments_cut": cut,
+        "effects": [],
+        "parameters": [],
+        "conclusion": triage_headline(tr, used, cut) + "Too little of the log is usable to fit the model.",
+    }
+    (out / "report.json").write_text(json.dumps(j, indent=2))
+    (out / "report.html").write_text(
+        f"<!doctype html><html><head><meta charset='utf-8'><title>triage: {html.escape(str(source))}</title></head>"
+        f"<body><h1>Triage of {html.escape(str(source))}</h1><p>{html.escape(j['conclusion'])}</p>"
+        f"<pre>{html.escape(tr.summary(limit=1000))}</pre></body></html>"
+    )
+    return j

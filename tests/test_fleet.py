@@ -1,0 +1,125 @@
+"""``groundstation fleet diagnose``: an archive of logs on a real Dask cluster (a LocalCluster of
+worker processes, and a dask-scheduler with a dask-worker started as processes on loopback),
+resumable, one failed log reported without stopping the rest."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from .conftest import REPO, free_tcp_port
+
+pytestmark = pytest.mark.slow
+
+GS = [sys.executable, "-m", "groundstation"]
+
+
+def _archive(root: Path) -> Path:
+    """Two flights of one quadcopter (its baro thrust coefficient 2.0 then 3.0: a wearing motor's
+    wash), a PX4 SITL flight, a DataFlash log cut to its header (corrupt), and a text file."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    a = root / "archive"
+    (a / "quad-1").mkdir(parents=True)
+    (a / "px4").mkdir()
+    for name, seed, k in (("2026-05-01.tlog", 1, 2.0), ("2026-05-08.tlog", 2, 3.0)):
+        run_fast(Scenario.from_args("quad", seed, 25.0, ["range_tilt"], [f"baro_thrust:k={k}"]), a / "quad-1" / name)
+    shutil.copy(REPO / "tests" / "fixtures" / "px4_sitl_events.ulg", a / "px4" / "sitl.ulg")
+    (a / "quad-1" / "broken.bin").write_bytes(b"\xa3\x95\x80" + b"\x01" * 200)
+    (a / "notes.txt").write_text("not a log\n")
+    return a
+
+
+def _fleet(*args, timeout=900):
+    return subprocess.run(GS + ["fleet", "diagnose", *map(str, args)], capture_output=True, text=True, timeout=timeout)
+
+
+def _rows(out: Path) -> list[dict]:
+    return list(csv.DictReader(open(out / "fleet.csv")))
+
+
+def test_fleet_on_a_local_cluster_resumes_and_reports_the_broken_log(tmp_path):
+    import pyarrow.parquet as pq
+
+    a, out = _archive(tmp_path), tmp_path / "fleet"
+    r = _fleet(a, "--out", out, "--workers", "2")
+    assert r.returncode == 1, r.stderr  # one log failed, the rest were diagnosed
+    assert "4 logs under" in r.stdout and "a local cluster of 2 workers" in r.stdout
+    assert "failed: quad-1/broken.bin: " in r.stdout and "Traceback" not in r.stdout + r.stderr
+    err = json.loads((out / "quad-1__broken.bin.diagnosis" / "error.json").read_text())
+    assert "broken.bin" in err["error"] and len(err["error"].splitlines()) == 1
+    rows = _rows(out)
+    assert {r["log"] for r in rows} == {"quad-1/2026-05-01.tlog", "quad-1/2026-05-08.tlog", "px4/sitl.ulg"}
+    thrust = {r["log"]: json.loads(r["parameters"])["k"] for r in rows if r["effect"] == "baro_thrust"}
+    assert thrust["quad-1/2026-05-01.tlog"] == pytest.approx(2.0, rel=0.25)
+    assert thrust["quad-1/2026-05-08.tlog"] == pytest.approx(3.0, rel=0.25)
+    assert all(r["vehicle"] == r["log"].split("/")[0] for r in rows)
+    table = pq.read_table(out / "fleet.parquet").to_pylist()
+    assert [t["log"] for t in table] == [r["log"] for r in rows] and table[0]["duration_s"] > 20
+    page = (out / "report.html").read_text()
+    assert "quad-1: 2 flights" in page and "baro_thrust" in page and "2 of 2" in page and "<svg" in page
+    assert "broken.bin" in page
+    stamp = (out / "quad-1__2026-05-01.tlog.diagnosis" / "done.json").stat().st_mtime_ns
+    # again: the three done are skipped, the broken one is tried (and fails) again
+    r = _fleet(a, "--out", out, "--workers", "2")
+    assert r.returncode == 1 and "3 already diagnosed, 1 to do" in r.stdout, r.stdout
+    assert (out / "quad-1__2026-05-01.tlog.diagnosis" / "done.json").stat().st_mtime_ns == stamp
+    assert len(_rows(out)) == len(rows)
+
+
+def test_fleet_through_a_scheduler_and_worker_started_as_processes(tmp_path):
+    """A scheduler and a worker (``dask scheduler``, ``dask worker``) on loopback, as a lab's
+    cluster would run: the logs go to it through ``--scheduler``; both processes are stopped by the
+    test, whatever happens."""
+    from dask.distributed import Client
+
+    a, out = _archive(tmp_path), tmp_path / "fleet"
+    (a / "quad-1" / "broken.bin").unlink()
+    port = free_tcp_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    bindir = Path(sys.executable).parent
+    procs = [
+        subprocess.Popen(
+            [bindir / "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
+    ]
+    try:
+        procs.append(
+            subprocess.Popen(
+                [bindir / "dask", "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+        with Client(addr, timeout="60s") as c:
+            c.wait_for_workers(1, timeout=60)  # the worker has registered: an event, not a sleep
+        r = _fleet(a, "--out", out, "--scheduler", addr)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert f"on {addr}" in r.stdout and "3 logs diagnosed, 0 failed" in r.stdout
+        assert {r["log"] for r in _rows(out)} == {"quad-1/2026-05-01.tlog", "quad-1/2026-05-08.tlog", "px4/sitl.ulg"}
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def test_fleet_errors_are_one_line(tmp_path):
+    r = _fleet(tmp_path / "nope", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "not a folder" in r.stderr and "Traceback" not in r.stderr
+    (tmp_path / "empty").mkdir()
+    r = _fleet(tmp_path / "empty", "--out", tmp_path / "o")
+    assert r.returncode == 2 and "no log in it" in r.stderr
