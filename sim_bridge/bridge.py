@@ -8,7 +8,9 @@ the wall clock and speaks MAVLink 2 over
 * a serial pseudo-terminal whose path it prints (the ground station opens it
   with pyserial like a USB radio).
 
-Towards the ground station it behaves like an autopilot: HEARTBEAT at 1 Hz;
+Towards the ground station it behaves like an ArduPilot vehicle: HEARTBEAT and
+EXTENDED_SYS_STATE at 1 Hz; parameters, commands with addressed ACKs, modes,
+arming, AUTOPILOT_VERSION, PING and the mission list (:mod:`.vehicle_protocol`);
 ``SET_MESSAGE_INTERVAL`` changes a stream's rate (COMMAND_ACK ACCEPTED, or
 UNSUPPORTED for a message it does not send); ``REQUEST_DATA_STREAM`` sets the
 rates of the ArduPilot stream groups; ``MANUAL_CONTROL`` and
@@ -45,6 +47,7 @@ from .profile import CoaxAutopilot
 from .pty_port import PtyPort
 from .scenario import Scenario
 from .simulator import Simulator
+from .vehicle_protocol import VehicleProtocol
 from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
 from .vehicles.quad import QuadCommand
 
@@ -88,6 +91,7 @@ class SimBridge:
         self.sim = Simulator(scenario, command_timeout=command_timeout)
         self.sim.keep_truth = False
         self.encoder = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
+        self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid)
         self.udp_to = udp_to
         self.pty = pty
         #: the sensor board's own serial port: binary frames (3-DOF helicopter)
@@ -200,26 +204,39 @@ class SimBridge:
                 self.commands_received += 1
                 self.sim.command(Heli3dofCommand(float(m.value[0]), float(m.value[1])))
 
-    def _ack(self, command: int, result: int) -> None:
-        self._send(self.encoder.packer.pack("COMMAND_ACK", command=command, result=result))
-
-    def _on_command_long(self, m) -> None:
-        if m.target_system not in (0, self.encoder.packer.sysid):
-            return
-        if m.command != mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
-            return
+    def _message_interval(self, m) -> int:
+        """SET_MESSAGE_INTERVAL: a stream's rate (0: its default); UNSUPPORTED for a message it does not send."""
         cls = mavlink.mavlink_map.get(int(m.param1))
         stream = STREAM_OF_MESSAGE.get(cls.msgname if cls else "")
         if stream is None or stream not in self.sim.sensors.rates:
-            self._ack(m.command, mavlink.MAV_RESULT_UNSUPPORTED)
-            return
+            return mavlink.MAV_RESULT_UNSUPPORTED
         interval = m.param2
         if interval > 0:
             self.sim.sensors.set_rate(stream, 1e6 / interval)
         elif interval == 0:
             self.sim.sensors.set_rate(stream, self.scenario.sensors.rates[stream])
-        self._ack(m.command, mavlink.MAV_RESULT_ACCEPTED)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _on_command_long(self, m) -> None:
+        self.protocol.command(m, self._message_interval)
+
+    def _on_command_int(self, m) -> None:
+        self.protocol.command(m, self._message_interval)
+
+    def _on_param_request_list(self, m) -> None:
+        self.protocol.on_param_request_list(m)
+
+    def _on_param_request_read(self, m) -> None:
+        self.protocol.on_param_request_read(m)
+
+    def _on_param_set(self, m) -> None:
+        self.protocol.on_param_set(m)
+
+    def _on_ping(self, m) -> None:
+        self.protocol.on_ping(m)
+
+    def _on_mission_request_list(self, m) -> None:
+        self.protocol.on_mission_request_list(m)
 
     def _on_request_data_stream(self, m) -> None:
         for stream in DATA_STREAM_GROUPS.get(m.req_stream_id, ()):
@@ -265,8 +282,11 @@ class SimBridge:
         while sim.t + 0.5 * sim.dt < target_t:
             samples = sim.step()
             if sim.step_count % int(round(1.0 / sim.dt)) == 1:
-                self._send(enc.heartbeat(sim.profile(sim.t).armed or sim.externally_commanded))
+                self._send(enc.heartbeat(self.protocol.armed, self.protocol.mode))
+                self._send(self.protocol.extended_sys_state())
             for s in samples:
+                if s.sensor == "gps" and self.protocol.home is None:
+                    self.protocol.home = tuple(float(v) for v in s.values[:3])  # type: ignore[assignment]
                 for fr in enc.encode(s):
                     self._send(fr)
                 if self.board_encoder is not None and self.board is not None:

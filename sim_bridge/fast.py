@@ -46,14 +46,18 @@ def declared_path(log: Path) -> Path:
 
 
 def run_fast(
-    scenario: Scenario, log: str | Path, truth: str | Path | None = None, duration: float | None = None
+    scenario: Scenario,
+    log: str | Path,
+    truth: str | Path | None = None,
+    duration: float | None = None,
+    sysid: int = 1,
 ) -> FastResult:
     log = Path(log)
     log.parent.mkdir(parents=True, exist_ok=True)
     seconds = scenario.duration if duration is None else duration
     sim = Simulator(scenario)
     sim.keep_truth = truth is not None
-    enc = MavlinkEncoder(scenario.vehicle, ground_alt=scenario.sensors.ground_alt)
+    enc = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
     t0 = time.perf_counter()
     frames = 0
     next_hb = 0.0

@@ -117,7 +117,9 @@ class MavlinkEncoder:
     def encode(self, s: Sample) -> list[bytes]:
         return getattr(self, "_" + s.sensor)(s)
 
-    def heartbeat(self, armed: bool) -> bytes:
+    def heartbeat(self, armed: bool, mode: int = 0) -> bytes:
+        """As an ArduPilot vehicle sends it: its type, ArduPilot's autopilot id (a ground station
+        then reads ``mode`` as ArduCopter's mode number), armed in the base mode."""
         mav_type = {
             "quad": mavlink.MAV_TYPE_QUADROTOR,
             "coax": mavlink.MAV_TYPE_COAXIAL,
@@ -128,9 +130,9 @@ class MavlinkEncoder:
         return self.packer.pack(
             "HEARTBEAT",
             type=mav_type,
-            autopilot=mavlink.MAV_AUTOPILOT_GENERIC,
+            autopilot=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA,
             base_mode=base,
-            custom_mode=0,
+            custom_mode=mode,
             system_status=state,
             mavlink_version=3,
         )
@@ -224,11 +226,30 @@ class MavlinkEncoder:
             out.append(self.packer.pack("VFR_HUD", throttle=int(round(100 * thr)), alt=self._last_baro_alt))
         return out
 
+    #: the sensors SYS_STATUS says are present, enabled and healthy (all of them: nothing fails here)
+    SENSOR_BITS = (
+        mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO
+        | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+        | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+        | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+        | mavlink.MAV_SYS_STATUS_SENSOR_LASER_POSITION
+        | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+        | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+        | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+        | mavlink.MAV_SYS_STATUS_AHRS
+        | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+    )
+
     def _battery(self, s):
         v, i, soc = s.values
+        bits = self.SENSOR_BITS
         return [
             self.packer.pack(
                 "SYS_STATUS",
+                onboard_control_sensors_present=bits,
+                onboard_control_sensors_enabled=bits,
+                # ArduPilot reports the fence healthy (not breached) whether or not one is set up
+                onboard_control_sensors_health=bits | mavlink.MAV_SYS_STATUS_GEOFENCE,
                 voltage_battery=int(round(v * 1000)),
                 current_battery=int(round(i * 100)),
                 battery_remaining=int(round(soc * 100)),

@@ -70,6 +70,7 @@ def add_sim_parser(sub) -> None:
         action="store_true",
         help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)",
     )
+    s.add_argument("--sysid", type=int, default=1, help="the vehicle's MAVLink system id (1-255; default 1)")
     s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
     s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
     s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
@@ -112,7 +113,7 @@ def cmd_sim(args) -> int:
     if args.fast:
         if args.log is None:
             raise ValueError("--fast needs --log OUT.tlog")
-        r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration)
+        r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration, sysid=_sysid(args.sysid))
         print(
             f"sim: {scenario.vehicle} seed {scenario.seed}: {r.seconds:g} s simulated in {r.wall:.2f} s "
             f"({r.speedup:.0f}x real time), {r.frames} frames -> {r.log}"
@@ -132,6 +133,12 @@ def _udp(text: str):
     return host or "127.0.0.1", int(port)
 
 
+def _sysid(n: int) -> int:
+    if not 1 <= n <= 255:
+        raise ValueError(f"--sysid {n}: a MAVLink system id is 1-255")
+    return n
+
+
 async def _run_realtime(args, scenario: Scenario) -> int:
     pty = PtyPort(args.serial_link) if (args.serial or args.serial_link) else None
     board = PtyPort() if args.board else None
@@ -142,6 +149,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         board=board,
         speed=args.speed,
         faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
+        sysid=_sysid(args.sysid),
     )
     truth_file = None
     if args.truth:

@@ -1,0 +1,277 @@
+"""What the simulated vehicle answers a ground station beyond its telemetry, as an ArduPilot
+vehicle does: parameters, commands with addressed acknowledgements, flight modes, arming,
+its version, ping and (an empty) mission list.
+
+* **Parameters**: the vehicle model's physical constants and the sensors' noise and rates, as
+  ``SIM_*`` parameters (REAL32), plus ``SYSID_THISMAV``; PARAM_REQUEST_LIST streams them all,
+  PARAM_REQUEST_READ reads one by name or index, PARAM_SET changes the running simulation and
+  echoes the new value (an unknown name gets no answer, as ArduPilot gives none).
+* **Commands** (COMMAND_LONG and COMMAND_INT), each answered with a COMMAND_ACK addressed to the
+  sender: arm/disarm (disarming in flight is refused unless forced with 21196, as ArduPilot does),
+  takeoff (refused unless armed), land, DO_SET_MODE (ArduCopter's mode numbers), message interval
+  (the streams, :mod:`.mavlink_out`), REQUEST_MESSAGE and REQUEST_AUTOPILOT_CAPABILITIES
+  (AUTOPILOT_VERSION, HOME_POSITION); anything else UNSUPPORTED.
+* **PING** answered to its sender; **MISSION_REQUEST_LIST** with a count of 0.
+
+The flight itself stays the simulator's (its built-in profile, or the ground station's
+MANUAL_CONTROL / SET_ATTITUDE_TARGET): arming and modes here are what the vehicle *reports*.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from .mavlink_out import FramePacker
+
+#: ArduCopter's flight modes (Mode::Number) the simulated vehicle accepts
+COPTER_MODES = {0: "STABILIZE", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 9: "LAND", 16: "POSHOLD"}
+MODE_GUIDED, MODE_LAND, MODE_LOITER = 4, 9, 5
+FORCE_DISARM = 21196  # ArduPilot's magic number for a disarm in flight
+FIRMWARE_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # reported as 4.5.0 (official)
+
+
+@dataclasses.dataclass
+class _Param:
+    name: str
+    get: Callable[[], float]
+    set: Callable[[float], None] | None  # None: read-only
+
+
+class VehicleProtocol:
+    def __init__(self, sim, packer: FramePacker, send: Callable[[bytes], None], sysid: int) -> None:
+        self.sim = sim
+        self.packer = packer
+        self.send = send
+        self.sysid = sysid
+        self.armed_cmd: bool | None = None  # arming by command overrides the flight profile's
+        self.mode = MODE_LOITER
+        self.params = self._parameters()
+        self.home: tuple[float, float, float] | None = None  # lat, lon [deg], alt AMSL [m]
+
+    # -- parameters -----------------------------------------------------------------------------
+    def _parameters(self) -> list[_Param]:
+        out = [_Param("SYSID_THISMAV", lambda: float(self.sysid), None)]
+        for owner, prefix in ((getattr(self.sim.vehicle, "p", None), "SIM_"), (self.sim.sensors.cfg, "SIM_S_")):
+            if owner is None or not dataclasses.is_dataclass(owner):
+                continue
+            for f in dataclasses.fields(owner):
+                v = getattr(owner, f.name)
+                if isinstance(v, bool) or not isinstance(v, (int, float)):
+                    continue
+                name = (prefix + f.name.upper())[:16]
+                out.append(_Param(name, _getter(owner, f.name), _setter(owner, f.name, type(v))))
+        for stream in sorted(self.sim.sensors.rates):
+            name = f"SIM_RATE_{stream.upper()}"[:16]
+            out.append(_Param(name, _rate_getter(self.sim, stream), _rate_setter(self.sim, stream)))
+        return out
+
+    def _param_value(self, k: int) -> bytes:
+        p = self.params[k]
+        return self.packer.pack(
+            "PARAM_VALUE",
+            param_id=p.name.encode(),
+            param_value=float(p.get()),
+            param_type=mavlink.MAV_PARAM_TYPE_REAL32,
+            param_count=len(self.params),
+            param_index=k,
+        )
+
+    def _index(self, name: str) -> int | None:
+        for k, p in enumerate(self.params):
+            if p.name == name:
+                return k
+        return None
+
+    def on_param_request_list(self, m) -> None:
+        if _for_me(m, self.sysid):
+            for k in range(len(self.params)):
+                self.send(self._param_value(k))
+
+    def on_param_request_read(self, m) -> None:
+        if not _for_me(m, self.sysid):
+            return
+        k = _name(m.param_id) if m.param_index < 0 else m.param_index
+        idx = self._index(k) if isinstance(k, str) else (k if 0 <= k < len(self.params) else None)
+        if idx is not None:
+            self.send(self._param_value(idx))
+
+    def on_param_set(self, m) -> None:
+        if not _for_me(m, self.sysid):
+            return
+        idx = self._index(_name(m.param_id))
+        if idx is None or not math.isfinite(m.param_value):
+            return  # unknown or not a number: no answer, as ArduPilot (the sender sees no echo)
+        p = self.params[idx]
+        if p.set is not None:
+            p.set(float(m.param_value))
+        self.send(self._param_value(idx))
+
+    # -- commands -------------------------------------------------------------------------------
+    def ack(self, m, result: int) -> None:
+        src_sys, src_comp = _sender(m)
+        self.send(
+            self.packer.pack(
+                "COMMAND_ACK", command=m.command, result=result, target_system=src_sys, target_component=src_comp
+            )
+        )
+
+    def command(self, m, message_interval: Callable[[object], int]) -> None:
+        """A COMMAND_LONG or COMMAND_INT addressed to us: act and acknowledge."""
+        if not _for_me(m, self.sysid):
+            return
+        c = m.command
+        if c == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            result = message_interval(m)
+        elif c == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            result = self._arm(m)
+        elif c == mavlink.MAV_CMD_DO_SET_MODE:
+            mode = int(m.param2)
+            if mode in COPTER_MODES and int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+                self.mode, result = mode, mavlink.MAV_RESULT_ACCEPTED
+            else:
+                result = mavlink.MAV_RESULT_DENIED
+        elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
+            if self.armed:
+                self.mode, result = MODE_GUIDED, mavlink.MAV_RESULT_ACCEPTED
+            else:
+                result = mavlink.MAV_RESULT_DENIED
+        elif c == mavlink.MAV_CMD_NAV_LAND:
+            self.mode, result = MODE_LAND, mavlink.MAV_RESULT_ACCEPTED
+        elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
+            self.send(self.autopilot_version())
+            result = mavlink.MAV_RESULT_ACCEPTED
+        elif c == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            frame = self._message(int(m.param1))
+            if frame is not None:
+                self.send(frame)
+            result = mavlink.MAV_RESULT_ACCEPTED if frame is not None else mavlink.MAV_RESULT_UNSUPPORTED
+        else:
+            result = mavlink.MAV_RESULT_UNSUPPORTED
+        self.ack(m, result)
+
+    def _arm(self, m) -> int:
+        if m.param1 == 1:
+            self.armed_cmd = True
+            return mavlink.MAV_RESULT_ACCEPTED
+        if not self.on_ground and int(m.param2) != FORCE_DISARM:
+            return mavlink.MAV_RESULT_DENIED  # in flight: only a forced disarm stops the motors' report
+        self.armed_cmd = False
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    @property
+    def on_ground(self) -> bool:
+        return bool(getattr(self.sim.vehicle, "on_ground", True))
+
+    @property
+    def armed(self) -> bool:
+        if self.armed_cmd is not None:
+            return self.armed_cmd
+        return bool(self.sim.profile(self.sim.t).armed or self.sim.externally_commanded)
+
+    def _message(self, msgid: int) -> bytes | None:
+        if msgid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            return self.autopilot_version()
+        if msgid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            return self.home_position()
+        if msgid == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return self.extended_sys_state()
+        return None
+
+    def autopilot_version(self) -> bytes:
+        caps = (
+            mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+        )
+        return self.packer.pack(
+            "AUTOPILOT_VERSION",
+            capabilities=caps,
+            flight_sw_version=FIRMWARE_VERSION,
+            middleware_sw_version=0,
+            os_sw_version=0,
+            board_version=0,
+            flight_custom_version=b"\0" * 8,
+            middleware_custom_version=b"\0" * 8,
+            os_custom_version=b"\0" * 8,
+            vendor_id=0,
+            product_id=0,
+            uid=self.sysid,
+        )
+
+    def home_position(self) -> bytes:
+        lat, lon, alt = self.home or (0.0, 0.0, 0.0)
+        return self.packer.pack(
+            "HOME_POSITION",
+            latitude=int(round(lat * 1e7)),
+            longitude=int(round(lon * 1e7)),
+            altitude=int(round(alt * 1e3)),
+            x=0.0,
+            y=0.0,
+            z=0.0,
+            q=[1.0, 0.0, 0.0, 0.0],
+            approach_x=0.0,
+            approach_y=0.0,
+            approach_z=0.0,
+        )
+
+    def extended_sys_state(self) -> bytes:
+        landed = mavlink.MAV_LANDED_STATE_ON_GROUND if self.on_ground else mavlink.MAV_LANDED_STATE_IN_AIR
+        return self.packer.pack("EXTENDED_SYS_STATE", vtol_state=0, landed_state=landed)
+
+    def on_ping(self, m) -> None:
+        if m.target_system == 0:  # a request (a reply names its target)
+            src_sys, src_comp = _sender(m)
+            self.send(
+                self.packer.pack(
+                    "PING", time_usec=m.time_usec, seq=m.seq, target_system=src_sys, target_component=src_comp
+                )
+            )
+
+    def on_mission_request_list(self, m) -> None:
+        if _for_me(m, self.sysid):
+            src_sys, src_comp = _sender(m)
+            self.send(
+                self.packer.pack(
+                    "MISSION_COUNT",
+                    target_system=src_sys,
+                    target_component=src_comp,
+                    count=0,
+                    mission_type=getattr(m, "mission_type", 0),
+                )
+            )
+
+
+def _for_me(m, sysid: int) -> bool:
+    return getattr(m, "target_system", 0) in (0, sysid)
+
+
+def _sender(m) -> tuple[int, int]:
+    return m.get_srcSystem(), m.get_srcComponent()
+
+
+def _name(raw) -> str:
+    return (raw.decode("latin-1") if isinstance(raw, bytes) else str(raw)).split("\0", 1)[0]
+
+
+def _getter(owner, field: str) -> Callable[[], float]:
+    return lambda: float(getattr(owner, field))
+
+
+def _setter(owner, field: str, kind: type) -> Callable[[float], None]:
+    def set_(v: float) -> None:
+        setattr(owner, field, kind(round(v)) if kind is int else kind(v))
+
+    return set_
+
+
+def _rate_getter(sim, stream: str) -> Callable[[], float]:
+    return lambda: float(sim.sensors.rates.get(stream, 0.0))
+
+
+def _rate_setter(sim, stream: str) -> Callable[[float], None]:
+    return lambda v: sim.sensors.set_rate(stream, max(0.0, v))

@@ -1,0 +1,183 @@
+"""The simulated vehicle as a ground station sees it, beyond its telemetry: an ArduPilot-like
+HEARTBEAT, parameters, commands with addressed ACKs, modes, arming, its version, ping, the mission
+list; driven by pymavlink frames over a real UDP socket, and by MAVProxy itself."""
+
+from __future__ import annotations
+
+import queue
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from .conftest import free_udp_port
+
+GS = [sys.executable, "-m", "groundstation"]
+ME_SYS, ME_COMP = 250, 190  # the test's own MAVLink address: ACKs must name it
+
+
+class _Sim:
+    """``groundstation sim`` as a process sending to ``port``; stopped on exit whatever happens."""
+
+    def __init__(self, port: int, sysid: int = 7) -> None:
+        self.args = GS + ["sim", "--udp", f"127.0.0.1:{port}", "--sysid", str(sysid), "--duration", "120"]
+
+    def __enter__(self):
+        self.p = subprocess.Popen(self.args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        return self
+
+    def __exit__(self, *exc):
+        self.p.terminate()
+        try:
+            self.p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.p.kill()
+            self.p.wait()
+
+
+def _recv(c, kind: str, cond=lambda m: True, timeout: float = 10.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        m = c.recv_match(type=kind, blocking=True, timeout=end - time.monotonic())
+        if m is not None and cond(m):
+            return m
+    raise AssertionError(f"no {kind} within {timeout} s")
+
+
+def _ack(c, command: int):
+    return _recv(c, "COMMAND_ACK", lambda m: m.command == command)
+
+
+def test_parameters_commands_and_acks_over_real_frames():
+    port = free_udp_port()
+    c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=ME_SYS, source_component=ME_COMP)
+    try:
+        with _Sim(port):
+            hb = _recv(c, "HEARTBEAT", lambda m: m.get_srcSystem() == 7)
+            assert hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == mavlink.MAV_TYPE_QUADROTOR
+            c.target_system, c.target_component = 7, 1
+            # parameters: all of them, one read, one set that changes the running simulation
+            c.mav.param_request_list_send(7, 1)
+            first = _recv(c, "PARAM_VALUE")
+            names = {first.param_id: first.param_value}
+            while len(names) < first.param_count:
+                m = _recv(c, "PARAM_VALUE")
+                names[m.param_id] = m.param_value
+            assert names["SYSID_THISMAV"] == 7 and names["SIM_ALPHA"] == pytest.approx(22.0)
+            assert {"SIM_S_BARO_SIGMA", "SIM_RATE_IMU"} <= set(names)
+            c.mav.param_set_send(7, 1, b"SIM_ALPHA", 23.5, mavlink.MAV_PARAM_TYPE_REAL32)
+            assert _recv(c, "PARAM_VALUE", lambda m: m.param_id == "SIM_ALPHA").param_value == pytest.approx(23.5)
+            c.mav.param_request_read_send(7, 1, b"SIM_ALPHA", -1)
+            assert _recv(c, "PARAM_VALUE", lambda m: m.param_id == "SIM_ALPHA").param_value == pytest.approx(23.5)
+            # commands: each ACK names us; the state shows in the next HEARTBEAT
+            c.mav.command_long_send(7, 1, mavlink.MAV_CMD_DO_SET_MODE, 0, 1, 4, 0, 0, 0, 0, 0)
+            ack = _ack(c, mavlink.MAV_CMD_DO_SET_MODE)
+            assert ack.result == mavlink.MAV_RESULT_ACCEPTED
+            assert (ack.target_system, ack.target_component) == (ME_SYS, ME_COMP)
+            _recv(c, "HEARTBEAT", lambda m: m.get_srcSystem() == 7 and m.custom_mode == 4)
+            c.mav.command_long_send(7, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0)
+            assert _ack(c, mavlink.MAV_CMD_COMPONENT_ARM_DISARM).result == mavlink.MAV_RESULT_ACCEPTED
+            _recv(c, "HEARTBEAT", lambda m: m.get_srcSystem() == 7 and m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            c.mav.command_long_send(7, 1, mavlink.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 2)
+            assert _ack(c, mavlink.MAV_CMD_NAV_TAKEOFF).result == mavlink.MAV_RESULT_ACCEPTED
+            c.mav.command_long_send(7, 1, mavlink.MAV_CMD_DO_SET_SERVO, 0, 5, 1500, 0, 0, 0, 0, 0)
+            assert _ack(c, mavlink.MAV_CMD_DO_SET_SERVO).result == mavlink.MAV_RESULT_UNSUPPORTED
+            msgid = mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION
+            c.mav.command_long_send(7, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0, msgid, 0, 0, 0, 0, 0, 0)
+            v = _recv(c, "AUTOPILOT_VERSION")
+            assert v.flight_sw_version >> 24 == 4 and v.capabilities & mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            # ping, the mission list, the state and the sensors' health
+            c.mav.ping_send(123456, 9, 0, 0)
+            pong = _recv(c, "PING", lambda m: m.seq == 9 and m.target_system == ME_SYS)
+            assert pong.time_usec == 123456
+            c.mav.mission_request_list_send(7, 1)
+            assert _recv(c, "MISSION_COUNT").count == 0
+            assert _recv(c, "EXTENDED_SYS_STATE").landed_state in (
+                mavlink.MAV_LANDED_STATE_ON_GROUND,
+                mavlink.MAV_LANDED_STATE_IN_AIR,
+            )
+            st = _recv(c, "SYS_STATUS")
+            want = mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_GPS
+            assert st.onboard_control_sensors_health & want == want
+    finally:
+        c.close()
+
+
+def _mavproxy() -> Path:
+    p = Path(sys.executable).parent / "mavproxy.py"
+    if not p.exists() and shutil.which("mavproxy.py") is None:
+        pytest.skip("MAVProxy is not installed (pip install mavproxy: it is in the test extras)")
+    return p if p.exists() else Path(shutil.which("mavproxy.py") or "")
+
+
+@pytest.mark.slow
+def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mission(tmp_path):
+    """MAVProxy 1.8 (its param, mode, arm, wp and cmdlong modules) against the simulator on loopback,
+    scripted through its console: what a user opens MAVProxy for works without retrying forever."""
+    port = free_udp_port()
+    mp = subprocess.Popen(
+        [
+            str(_mavproxy()),
+            f"--master=udpin:127.0.0.1:{port}",
+            f"--state-basedir={tmp_path}",
+            "--default-modules=param,mode,arm,wp,cmdlong",
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        bufsize=1,
+    )
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(ln) for ln in mp.stdout], daemon=True).start()  # type: ignore[union-attr]
+    seen: list[str] = []
+
+    def until(text: str, timeout: float = 30.0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                ln = lines.get(timeout=end - time.monotonic())
+            except queue.Empty:
+                break
+            seen.append(ln)
+            if text in ln:
+                return ln
+        raise AssertionError(f"MAVProxy never said {text!r}:\n" + "".join(seen[-30:]))
+
+    def say(cmd: str) -> None:
+        assert mp.stdin is not None
+        mp.stdin.write(cmd + "\n")
+        mp.stdin.flush()
+
+    try:
+        with _Sim(port):
+            until("Detected vehicle 7:1")
+            n = int(until("Received ").split("Received ")[1].split()[0])
+            assert n > 30
+            say("param set SIM_DRAG 0.4")
+            for _ in range(20):  # MAVProxy shows the new value once the vehicle's echo is in its cache
+                say("param show SIM_DRAG")
+                if float(until("SIM_DRAG").split()[-1]) == pytest.approx(0.4):
+                    break
+            else:
+                raise AssertionError("the set value never came back")
+            say("mode GUIDED")
+            until("DO_SET_MODE: ACCEPTED")
+            say("arm throttle")
+            until("COMPONENT_ARM_DISARM: ACCEPTED")
+            say("wp list")
+            until("Requesting 0 waypoints")
+            assert (tmp_path / "mav_7_1.parm").exists()  # MAVProxy saved the parameters it fetched
+    finally:
+        mp.terminate()
+        try:
+            mp.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            mp.kill()
+            mp.wait()
