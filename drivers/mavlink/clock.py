@@ -31,10 +31,12 @@ import math
 #: ``time_usec`` above this is a UNIX-epoch time (MAVLink lets senders use
 #: either); 1e15 us is about 31 years of uptime.
 EPOCH_THRESHOLD_US = 1e15
+#: [s] a vehicle time this far behind the newest one seen is a restart, not a late message
+RESTART_BACK_S = 0.5
 
 
 class VehicleClock:
-    __slots__ = ("offset", "_last_rx", "jump_s", "drift", "resets", "assumed", "_newest", "_newest_rx")
+    __slots__ = ("offset", "_last_rx", "jump_s", "drift", "resets", "restarts", "assumed", "_newest", "_newest_rx")
 
     def __init__(self, jump_s: float = 1.0, drift: float = 1e-4) -> None:
         self.offset = math.nan
@@ -42,6 +44,7 @@ class VehicleClock:
         self.jump_s = jump_s
         self.drift = drift
         self.resets = 0
+        self.restarts = 0  # times the vehicle's clock went back (a reboot): RESTART_BACK_S or more
         self.assumed = False  # True while running on receive time (no time field seen)
         self._newest = math.nan  # the newest timed message's vehicle time, and when it came
         self._newest_rx = math.nan
@@ -65,7 +68,10 @@ class VehicleClock:
                 off = new
             self.offset = off
         self._last_rx = t_rx
-        if not t_vehicle <= self._newest or abs(t_vehicle - self._newest) > self.jump_s:
+        if t_vehicle < self._newest - RESTART_BACK_S:  # its uptime went back: it restarted
+            self.restarts += 1
+            self._newest, self._newest_rx = t_vehicle, t_rx
+        elif not t_vehicle <= self._newest or abs(t_vehicle - self._newest) > self.jump_s:
             self._newest, self._newest_rx = t_vehicle, t_rx
 
     def assume_receive_time(self) -> None:

@@ -8,8 +8,11 @@ The link
 
 * opens any transport of :mod:`drivers.connection` (UDP, TCP, serial), MAVLink 1 and 2;
 * sends a GCS HEARTBEAT at 1 Hz, in the protocol version the vehicle speaks;
-* asks each vehicle for the streams it needs with SET_MESSAGE_INTERVAL, and
-  falls back to REQUEST_DATA_STREAM when the vehicle does not accept it;
+* asks each vehicle for the streams it needs with SET_MESSAGE_INTERVAL until they
+  come at the rates asked (each request until acknowledged, short streams asked
+  again, everything again after a restart), within the link's budget (a serial
+  link's baud), and falls back to REQUEST_DATA_STREAM when the vehicle does not
+  accept it (:mod:`.streams`);
 * knows whether it is alive: any valid message proves it, ``lost_after``
   seconds of silence (or the device vanishing) lose it; state changes are
   :class:`LinkEvent` records on :meth:`events`;
@@ -38,6 +41,7 @@ from groundstation.core.broadcast import Broadcast, Subscription
 from groundstation.core.measurement import Measurement
 
 from .receiver import LinkCounters, MavlinkReceiver
+from .streams import StreamRequester
 
 #: Streams requested from a vehicle: message name -> rate [Hz].
 #: What the estimators need most comes first (IMU, baro, range), then the rest.
@@ -88,13 +92,21 @@ class MavlinkLink:
         component_id: int = 190,
         buffer: int = 20_000,
         ack_timeout: float = 1.0,
+        max_rate: float | None = None,
+        check_every: float = 5.0,
     ) -> None:
+        """``max_rate``: the link's budget [bytes/s] the streams are fitted to (default: a serial
+        link's baud / 10, unlimited otherwise); ``check_every`` [s]: how often the streams' rates
+        are compared with those asked."""
         self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
         self.name = name
         self.lost_after = lost_after
         self.heartbeat_hz = heartbeat_hz
         self.streams = dict(streams or {})
         self.ack_timeout = ack_timeout
+        if max_rate is None and self.endpoint.scheme == "serial":
+            max_rate = self.endpoint.baud / 10.0  # 8N1: ten bits a byte
+        self.max_rate = max_rate
         self.record_path = Path(record) if record else None
         self.recorder: TlogWriter | None = None
         self._mav_out = mavlink.MAVLink(None, system_id, component_id)
@@ -111,9 +123,18 @@ class MavlinkLink:
         self._last_valid = 0.0
         self._tasks: list[asyncio.Task] = []
         self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
-        self._acks: dict[tuple[int, int], asyncio.Future] = {}
-        self.stream_method: dict[int, str] = {}  # sysid -> how streams were requested
+        self.requester = StreamRequester(
+            self.send,
+            lambda: self.receiver.counters.by_type,
+            self.streams,
+            ack_timeout=ack_timeout,
+            check_every=check_every,
+            budget=max_rate,
+            fallback=FALLBACK_DATA_STREAMS,
+        )
         self._sink_faults: set[str] = set()
+        self._lost_since_heartbeat: dict[int, bool] = {}  # sysid -> the link was lost since its last heartbeat
+        self._clock_restarts: dict[int, int] = {}  # sysid -> its clock's restarts at its last heartbeat
         self._burst: list[Measurement] = []  # measurements of the transport's current burst
         self._bursts = False  # the transport calls on_burst_end (UDP)
 
@@ -133,6 +154,11 @@ class MavlinkLink:
     @property
     def vehicles(self) -> dict[int, int]:
         return dict(self._vehicles)
+
+    @property
+    def stream_method(self) -> dict[int, str]:
+        """sysid -> how its streams were requested (SET_MESSAGE_INTERVAL or REQUEST_DATA_STREAM)."""
+        return {s: v.method for s, v in self.requester.vehicles.items() if v.method}
 
     async def open(self) -> None:
         """Open the transport; raises :class:`drivers.transports.TransportError`."""
@@ -154,6 +180,7 @@ class MavlinkLink:
             self._tasks.append(loop.create_task(self._flush_task()))
 
     async def close(self) -> None:
+        self._tasks += self.requester.close()
         for t in self._tasks:
             t.cancel()
         # the link's own tasks end by cancellation; anything else is a bug to show
@@ -226,9 +253,7 @@ class MavlinkLink:
         if mtype == "HEARTBEAT":
             self._heartbeat_in(m)
         elif mtype == "COMMAND_ACK":
-            fut = self._acks.get((m._header.srcSystem, m.command))
-            if fut is not None and not fut.done():
-                fut.set_result(m.result)
+            self.requester.ack(m._header.srcSystem, m.command, m.result)
         for hook in self.message_hooks:
             try:
                 hook(m, t_rx)
@@ -239,10 +264,18 @@ class MavlinkLink:
         hdr = m._header
         if m.type in _GCS_TYPES or m.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
             return
-        if hdr.srcSystem not in self._vehicles:
-            self._vehicles[hdr.srcSystem] = hdr.srcComponent
-            if self.streams:
-                asyncio.get_running_loop().create_task(self._request_streams(hdr.srcSystem, hdr.srcComponent))
+        sysid = hdr.srcSystem
+        clock = self.receiver.decoder.clocks.get(sysid)
+        restarts = clock.restarts if clock is not None else 0
+        new = sysid not in self._vehicles
+        # heard again after the link was lost, or its clock went back (a reboot): it starts over
+        # at its default rates, so everything is asked again
+        again = not new and (self._lost_since_heartbeat.get(sysid) or restarts > self._clock_restarts.get(sysid, 0))
+        self._vehicles[sysid] = hdr.srcComponent
+        self._lost_since_heartbeat[sysid] = False
+        self._clock_restarts[sysid] = restarts
+        if self.streams and (new or again):
+            self.requester.start(sysid, hdr.srcComponent)
 
     def _peer_is_v1(self) -> bool:
         peers = self.receiver.peer_mavlink1
@@ -254,6 +287,9 @@ class MavlinkLink:
         if state is self.state:
             return
         self.state = state
+        if state is LinkState.LOST:
+            for sysid in self._lost_since_heartbeat:
+                self._lost_since_heartbeat[sysid] = True
         self._events.publish(LinkEvent(state, time.time(), reason))
 
     def _sink_failed(self, sink, e: Exception) -> None:
@@ -296,28 +332,3 @@ class MavlinkLink:
         while self.recorder is not None and not self.recorder.closed:
             await asyncio.sleep(self.recorder.flush_s)
             self.recorder.flush()
-
-    # -- stream requests ---------------------------------------------------------------
-    async def _request_streams(self, sysid: int, compid: int) -> None:
-        """SET_MESSAGE_INTERVAL for every stream; REQUEST_DATA_STREAM if refused."""
-        loop = asyncio.get_running_loop()
-        cmd = mavlink.MAV_CMD_SET_MESSAGE_INTERVAL
-        accepted = 0
-        for name, hz in self.streams.items():
-            msg_id = getattr(mavlink, f"MAVLINK_MSG_ID_{name}")
-            fut = loop.create_future()
-            self._acks[(sysid, cmd)] = fut
-            self.send(mavlink.MAVLink_command_long_message(sysid, compid, cmd, 0, msg_id, 1e6 / hz, 0, 0, 0, 0, 0))
-            try:
-                result = await asyncio.wait_for(fut, self.ack_timeout)
-            except TimeoutError:
-                break  # no answer at all: the vehicle does not take the command
-            # A refusal for one message only means the vehicle lacks that sensor.
-            accepted += result == mavlink.MAV_RESULT_ACCEPTED
-        self._acks.pop((sysid, cmd), None)
-        if accepted:
-            self.stream_method[sysid] = "SET_MESSAGE_INTERVAL"
-            return
-        self.stream_method[sysid] = "REQUEST_DATA_STREAM"
-        for stream_id, hz in FALLBACK_DATA_STREAMS.items():
-            self.send(mavlink.MAVLink_request_data_stream_message(sysid, compid, stream_id, int(hz), 1))

@@ -1,0 +1,116 @@
+"""Stream requests that converge: each asked until acknowledged over a lossy link, everything asked
+again after the vehicle restarts, and the rates fitted to a serial link's budget. The simulated
+vehicle on real loopback UDP; its link drops a fifth of what it sends, acknowledgements included."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+
+from drivers.mavlink.link import DEFAULT_STREAMS, MavlinkLink
+from drivers.mavlink.streams import MIN_RATE, PRIORITY, fit_budget, frame_bytes
+from sim_bridge.bridge import LinkFaults, SimBridge
+from sim_bridge.scenario import Scenario
+
+from .conftest import async_test
+
+#: what the simulated quadcopter sends, as the ground station asks it (message -> its stream)
+ASKED = {"imu": 250.0, "baro": 50.0, "range": 25.0, "gps": 5.0, "attitude": 50.0, "actuators": 50.0, "battery": 5.0}
+
+
+async def _until(cond, timeout: float, what: str) -> None:
+    """Wait for a condition the link or the vehicle reaches (checked as the loop turns)."""
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f"not within {timeout} s: {what}")
+        await asyncio.sleep(0.02)
+
+
+def _settled(link: MavlinkLink, bridge: SimBridge) -> bool:
+    """The vehicle sends at the rates asked, and has answered every request."""
+    v = link.requester.vehicles.get(1)
+    answered = v is not None and len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS)
+    return answered and bridge.sim.sensors.rates == ASKED
+
+
+def _start(bridge: SimBridge) -> asyncio.Task:
+    return asyncio.get_running_loop().create_task(bridge.run())
+
+
+@async_test(timeout=90)
+async def test_every_stream_converges_at_twenty_percent_loss_and_again_after_a_restart():
+    link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
+    await link.open()
+    port = link.transport.local_address[1]
+    bridges: list[SimBridge] = []
+    tasks: list[asyncio.Task] = []
+    try:
+        a = SimBridge(Scenario("quad", seed=4), udp_to=("127.0.0.1", port), faults=LinkFaults(loss=0.2))
+        bridges.append(a)
+        await a.open()
+        tasks.append(_start(a))
+        await _until(lambda: _settled(link, a), 30, f"the streams asked ({a.sim.sensors.rates})")
+        v = link.requester.vehicles[1]
+        assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
+        assert v.acked == {"HIGHRES_IMU", "SCALED_PRESSURE", "DISTANCE_SENSOR", "ATTITUDE", "GPS_RAW_INT",
+                           "SERVO_OUTPUT_RAW", "SYS_STATUS"}  # fmt: skip
+        assert a.frames_dropped > 0  # the loss was real, ACKs among it
+        # the vehicle restarts after 2 s up: a new process at its default rates, its clock from zero
+        await _until(lambda: a.sim.t > 2.0, 10, "2 s of uptime")
+        a.close()
+        b = SimBridge(Scenario("quad", seed=5), udp_to=("127.0.0.1", port))
+        bridges.append(b)
+        await b.open()
+        tasks.append(_start(b))
+        assert b.sim.sensors.rates["imu"] == 500.0
+        await _until(lambda: _settled(link, b), 30, f"asked again after the restart ({b.sim.sensors.rates})")
+        assert v.requests == 2
+    finally:
+        for br in bridges:
+            br.close()
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await link.close()
+
+
+@async_test(timeout=60)
+async def test_a_short_stream_is_asked_again():
+    """The vehicle forgets one stream's rate (a parameter reset): the link sees it arrive short of
+    the rate asked and asks again."""
+    link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=0.5)
+    await link.open()
+    br = SimBridge(Scenario("quad", seed=6), udp_to=("127.0.0.1", link.transport.local_address[1]))
+    await br.open()
+    task = _start(br)
+    try:
+        await _until(lambda: _settled(link, br), 20, "the streams asked")
+        br.sim.sensors.set_rate("baro", 5.0)  # a tenth of what was asked
+        await _until(lambda: br.sim.sensors.rates["baro"] == 50.0, 10, "the baro asked again")
+        assert link.requester.vehicles[1].reasked.get("SCALED_PRESSURE") == 1
+    finally:
+        br.close()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await link.close()
+
+
+def test_a_57600_baud_radio_gets_the_estimators_streams_first():
+    """57600 baud carries 5,760 bytes/s; the streams asked need about 24 kB/s (HIGHRES_IMU at 250 Hz
+    alone 18 kB/s). Fitted: within the budget, the first streams slowed least."""
+    asked = sum(hz * frame_bytes(n) for n, hz in DEFAULT_STREAMS.items())
+    assert asked > 20_000
+    got = fit_budget(DEFAULT_STREAMS, 5760.0)
+    assert sum(hz * frame_bytes(n) for n, hz in got.items()) <= 5760.0 * 1.001
+    first = list(DEFAULT_STREAMS)[:PRIORITY]
+    rest = list(DEFAULT_STREAMS)[PRIORITY:]
+    assert all(got[n] >= MIN_RATE for n in got)
+    kept = min(got[n] / DEFAULT_STREAMS[n] for n in first)
+    assert all(got[n] == MIN_RATE or got[n] / DEFAULT_STREAMS[n] <= kept for n in rest)  # slowed first, to the floor
+    roomy = fit_budget(DEFAULT_STREAMS, 92_160.0)  # 921600 baud: everything as asked
+    assert roomy == DEFAULT_STREAMS
+    link = MavlinkLink("/dev/ttyUSB9,57600")  # not opened: the budget comes from the baud
+    assert link.max_rate == pytest.approx(5760.0) and link.requester.streams == got
