@@ -153,7 +153,7 @@ def check_events(tables: LogTables, t_end: float) -> list[TriageFinding]:
                 f.name, f.severity, f.cuts, f.doc = "config_risk", "warning", False, DOCS["config_risk"]
                 f.evidence += ": the log has no GPS fix at all (no GPS fitted or enabled?)"
             if name == "crash":
-                f.t_end = _next_disarm(tables, float(t), t_end)
+                f.t_end = end_of_flight(tables, float(t), t_end)
             open_at[s] = len(out)
             out.append(f)
     ev = tables.get("EV")
@@ -183,7 +183,7 @@ def _had_gps_fix(tables: LogTables) -> bool:
     return False
 
 
-def _next_disarm(tables: LogTables, t: float, t_end: float) -> float:
+def end_of_flight(tables: LogTables, t: float, t_end: float) -> float:
     """The end of the flight a crash happened in: the next disarm, or the end of the log."""
     for a, b in flights(tables, t_end):
         if a <= t <= b:
@@ -212,7 +212,7 @@ def _texts(tables: LogTables, docs: dict, t_end: float) -> list[TriageFinding]:
                             finding, float(t), float(t), sev, f'{name}: "{text}"', docs.get(finding, DOCS[finding])
                         )
                         if finding == "crash":  # the autopilot's own crash check: the rest of that flight
-                            f.t_end, f.cuts = _next_disarm(tables, float(t), t_end), True
+                            f.t_end, f.cuts = end_of_flight(tables, float(t), t_end), True
                         f.detail["n"] = 1
                         seen[text] = f
                         out.append(f)

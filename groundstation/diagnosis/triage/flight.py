@@ -13,7 +13,7 @@ import numpy as np
 
 from drivers.logs.tables import LogTables
 
-from .events import flights
+from .events import end_of_flight, flights
 from .finding import DOCS, TriageFinding, cell_count, runs
 
 TRACKING_ERROR_DEG = 30.0  # ArduCopter's CRASH_CHECK_ANGLE_DEVIATION_DEG
@@ -59,8 +59,9 @@ def check_attitude(tables: LogTables, t_end: float) -> list[TriageFinding]:
     if not len(t):
         return out
     # upside down: the body's z axis points up, cos(roll) cos(pitch) < 0; one finding per flight
-    up = np.cos(np.radians(r)) * np.cos(np.radians(p)) < 0
-    tilt = np.degrees(np.arccos(np.clip(np.cos(np.radians(r)) * np.cos(np.radians(p)), -1.0, 1.0)))
+    up_z = np.cos(np.radians(r)) * np.cos(np.radians(p))
+    up = up_z < 0
+    tilt = np.degrees(np.arccos(np.clip(up_z, -1.0, 1.0)))
     for end, group in _by_flight(tables, runs(up, t, join=1.0), t_end).items():
         i, j = group[0][2], group[-1][3]
         k = i + int(np.argmax(np.abs(r[i : j + 1])))
@@ -113,7 +114,7 @@ def _by_flight(tables: LogTables, spans: list, t_end: float) -> dict[float, list
     """Runs grouped by the flight they start in (keyed by its end)."""
     out: dict[float, list] = {}
     for span in spans:
-        out.setdefault(_end_of_flight(tables, span[0], t_end), []).append(span)
+        out.setdefault(end_of_flight(tables, span[0], t_end), []).append(span)
     return out
 
 
@@ -122,13 +123,6 @@ def _in(t: np.ndarray, spans: list[tuple[float, float]]) -> np.ndarray:
     for a, b in spans:
         m |= (t >= a) & (t <= b)
     return m
-
-
-def _end_of_flight(tables: LogTables, t: float, t_end: float) -> float:
-    for a, b in flights(tables, t_end):
-        if a <= t <= b:
-            return b
-    return t_end
 
 
 def check_gaps(tables: LogTables) -> list[TriageFinding]:
