@@ -31,6 +31,7 @@ from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
 from drivers.logs.dataflash import DataFlashError, is_dataflash
 from drivers.logs.ulog import ULogError, is_ulog
 from drivers.mavlink.link import LinkState, MavlinkLink
+from drivers.mavlink.params import ParamError
 from drivers.replay import Replay, check_speed
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
@@ -52,6 +53,8 @@ from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
 from .fleet_cli import add_parser as add_fleet_parser
 from .fleet_cli import cmd_fleet
 from .options import add_web_options
+from .param_cli import add_parser as add_param_parser
+from .param_cli import run_param
 from .signals import on_stop_signal
 from .sim_cli import add_sim_parser, cmd_sim, run_demo
 from .supervise import Supervisor
@@ -139,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_diagnose_parser(sub)
     add_triage_parser(sub)
     add_fleet_parser(sub)
+    add_param_parser(sub)
     return ap
 
 
@@ -166,6 +170,8 @@ def _run(args) -> int:
             return cmd_triage(args)
         if args.command == "fleet":
             return cmd_fleet(args)
+        if args.command == "param":
+            return asyncio.run(run_param(args))
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":
@@ -185,6 +191,7 @@ def _run(args) -> int:
         CrazyflieLogError,
         DataFlashError,
         ULogError,
+        ParamError,
         OSError,
         ValueError,
     ) as e:

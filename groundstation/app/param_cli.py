@@ -1,0 +1,88 @@
+"""``groundstation param CONNECTION fetch|get|set|load``: a vehicle's parameters, as MAVProxy's
+``param`` command gives them (:mod:`drivers.mavlink.params`)."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+from pathlib import Path
+
+from drivers.mavlink.link import MavlinkLink
+from drivers.mavlink.params import ParamClient, load, save
+
+WAIT_FOR_VEHICLE_S = 10.0
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("param", help="a vehicle's parameters: fetch all (to a file), get, set with verification, load")
+    p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
+    p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
+    a = p.add_subparsers(dest="param_command", required=True)
+    f = a.add_parser("fetch", help="every parameter; printed, or written to --out")
+    f.add_argument("--out", type=Path, help="write them here (MAVProxy's format; --qgc for QGroundControl's)")
+    f.add_argument("--qgc", action="store_true")
+    g = a.add_parser("get", help="read parameters by name")
+    g.add_argument("names", nargs="+")
+    s = a.add_parser("set", help="set one and verify the vehicle's echo")
+    s.add_argument("name")
+    s.add_argument("value", type=float)
+    ld = a.add_parser("load", help="set every parameter of a file (MAVProxy, QGroundControl or Mission Planner format)")
+    ld.add_argument("file", type=Path)
+
+
+async def _vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, int]:
+    loop = asyncio.get_running_loop()
+    end = loop.time() + WAIT_FOR_VEHICLE_S
+    events = link.events()
+    while True:
+        vehicles = link.vehicles
+        if sysid is None and vehicles:
+            return next(iter(vehicles.items()))
+        if sysid is not None and sysid in vehicles:
+            return sysid, vehicles[sysid]
+        left = end - loop.time()
+        if left <= 0:
+            who = f"vehicle {sysid}" if sysid is not None else "a vehicle"
+            raise OSError(f"{link.endpoint}: no heartbeat from {who} within {WAIT_FOR_VEHICLE_S:g} s")
+        try:  # any link event or message wakes the check; the heartbeat is a message
+            await asyncio.wait_for(events.__anext__(), min(left, 0.2))
+        except (TimeoutError, StopAsyncIteration):
+            pass
+
+
+async def run_param(args) -> int:
+    if args.param_command == "load":
+        wanted = load(args.file)  # a bad file is an error before anything is sent
+    link = MavlinkLink(args.connection, streams={})
+    await link.open()
+    try:
+        sysid, compid = await _vehicle(link, args.sysid)
+        client = ParamClient(link, sysid, compid)
+        if args.param_command == "fetch":
+
+            def progress(n: int, total: int) -> None:
+                if sys.stderr.isatty():
+                    print(f"\r{n}/{total} parameters", end="", file=sys.stderr, flush=True)
+
+            values = await client.fetch_all(progress)
+            if sys.stderr.isatty():
+                print(file=sys.stderr)
+            if args.out:
+                save(args.out, values, qgc=args.qgc, sysid=sysid, compid=compid, types=client.types)
+                print(f"{len(values)} parameters of vehicle {sysid} written to {args.out}")
+            else:
+                for n, v in sorted(values.items()):
+                    print(f"{n:<16s} {v:.7g}")
+        elif args.param_command == "get":
+            for n in args.names:
+                print(f"{n:<16s} {await client.get(n):.7g}")
+        elif args.param_command == "set":
+            print(f"{args.name:<16s} {await client.set(args.name, args.value):.7g} (confirmed by the vehicle)")
+        else:
+            for n, v in wanted.items():
+                await client.set(n, v)
+            print(f"{len(wanted)} parameters set and confirmed from {args.file}")
+        client.close()
+    finally:
+        await link.close()
+    return 0
