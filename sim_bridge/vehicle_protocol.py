@@ -25,11 +25,15 @@ from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from drivers.mavlink.commands import MODE_NUMBERS
+
 from .mavlink_out import FramePacker
 
-#: ArduCopter's flight modes (Mode::Number) the simulated vehicle accepts
-COPTER_MODES = {0: "STABILIZE", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 9: "LAND", 16: "POSHOLD"}
-MODE_GUIDED, MODE_LAND, MODE_LOITER = 4, 9, 5
+#: the ArduCopter flight modes (drivers.mavlink.commands.COPTER_MODES) the simulated vehicle accepts
+ACCEPTED_MODES = {
+    MODE_NUMBERS[n] for n in ("STABILIZE", "ALT_HOLD", "AUTO", "GUIDED", "LOITER", "RTL", "LAND", "POSHOLD")
+}
+MODE_GUIDED, MODE_LAND, MODE_LOITER = MODE_NUMBERS["GUIDED"], MODE_NUMBERS["LAND"], MODE_NUMBERS["LOITER"]
 FORCE_DISARM = 21196  # ArduPilot's magic number for a disarm in flight
 FIRMWARE_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # reported as 4.5.0 (official)
 
@@ -130,7 +134,7 @@ class VehicleProtocol:
             result = self._arm(m)
         elif c == mavlink.MAV_CMD_DO_SET_MODE:
             mode = int(m.param2)
-            if mode in COPTER_MODES and int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            if mode in ACCEPTED_MODES and int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
                 self.mode, result = mode, mavlink.MAV_RESULT_ACCEPTED
             else:
                 result = mavlink.MAV_RESULT_DENIED

@@ -133,6 +133,7 @@ class MavlinkLink:
             fallback=FALLBACK_DATA_STREAMS,
         )
         self._sink_faults: set[str] = set()
+        self._command_acks: dict[tuple[int, int], asyncio.Future] = {}  # (sysid, command) -> its ACK
         self._lost_since_heartbeat: dict[int, bool] = {}  # sysid -> the link was lost since its last heartbeat
         self._clock_restarts: dict[int, int] = {}  # sysid -> its clock's restarts at its last heartbeat
         self._burst: list[Measurement] = []  # measurements of the transport's current burst
@@ -203,6 +204,12 @@ class MavlinkLink:
     async def __aexit__(self, *exc) -> None:
         await self.close()
 
+    def expect_ack(self, sysid: int, command: int) -> asyncio.Future:
+        """A future for the next COMMAND_ACK of ``command`` from ``sysid`` (its result code)."""
+        fut = asyncio.get_running_loop().create_future()
+        self._command_acks[(sysid, command)] = fut
+        return fut
+
     def send(self, msg, *, force_mavlink1: bool | None = None) -> None:
         """Encode and send a pymavlink message (recorded like MAVProxy does)."""
         if self.transport is None:
@@ -254,6 +261,9 @@ class MavlinkLink:
             self._heartbeat_in(m)
         elif mtype == "COMMAND_ACK":
             self.requester.ack(m._header.srcSystem, m.command, m.result)
+            fut = self._command_acks.pop((m._header.srcSystem, m.command), None)
+            if fut is not None and not fut.done():
+                fut.set_result(m.result)
         for hook in self.message_hooks:
             try:
                 hook(m, t_rx)

@@ -30,6 +30,7 @@ from drivers.connection import ConnectionStringError, parse_connection
 from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
 from drivers.logs.dataflash import DataFlashError, is_dataflash
 from drivers.logs.ulog import ULogError, is_ulog
+from drivers.mavlink.commands import CommandError
 from drivers.mavlink.link import LinkState, MavlinkLink
 from drivers.mavlink.params import ParamError
 from drivers.replay import Replay, check_speed
@@ -47,6 +48,8 @@ from groundstation.estimation.vehicles import declared_beside, declared_effects
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
+from .command_cli import add_parser as add_command_parser
+from .command_cli import run_command_cli
 from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
@@ -143,6 +146,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_triage_parser(sub)
     add_fleet_parser(sub)
     add_param_parser(sub)
+    add_command_parser(sub)
     return ap
 
 
@@ -172,6 +176,8 @@ def _run(args) -> int:
             return cmd_fleet(args)
         if args.command == "param":
             return asyncio.run(run_param(args))
+        if args.command == "command":
+            return asyncio.run(run_command_cli(args))
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":
@@ -192,6 +198,7 @@ def _run(args) -> int:
         DataFlashError,
         ULogError,
         ParamError,
+        CommandError,
         OSError,
         ValueError,
     ) as e:

@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
     ld.add_argument("file", type=Path)
 
 
-async def _vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, int]:
+async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, int]:
     loop = asyncio.get_running_loop()
     end = loop.time() + WAIT_FOR_VEHICLE_S
     events = link.events()
@@ -56,7 +56,7 @@ async def run_param(args) -> int:
     link = MavlinkLink(args.connection, streams={})
     await link.open()
     try:
-        sysid, compid = await _vehicle(link, args.sysid)
+        sysid, compid = await wait_for_vehicle(link, args.sysid)
         client = ParamClient(link, sysid, compid)
         if args.param_command == "fetch":
 

@@ -14,6 +14,7 @@ import re
 import numpy as np
 
 from drivers.logs.tables import LogTables, Table
+from drivers.mavlink.commands import COPTER_MODES
 
 from .finding import DOCS, PX4_DOCS, TriageFinding, runs
 
@@ -50,12 +51,6 @@ ERR_CODES = {(11, 2): "GPS glitch", (12, 1): "crash detected", (12, 2): "loss of
 EV_ARMED, EV_DISARMED = 10, 11
 EV_NOTES = {19: ("gps_glitch", "error", "GPS lost"), 54: ("failsafe", "critical", "motors emergency stopped")}
 
-COPTER_MODES = {
-    0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL", 7: "CIRCLE",
-    9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP", 15: "AUTOTUNE", 16: "POSHOLD", 17: "BRAKE", 18: "THROW",
-    19: "AVOID_ADSB", 20: "GUIDED_NOGPS", 21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG",
-    25: "SYSTEMID", 26: "AUTOROTATE", 27: "AUTO_RTL",
-}  # fmt: skip
 #: modes a failsafe puts a copter in (a change into one is said with the mode change)
 RECOVERY_MODES = {"RTL", "LAND", "SMART_RTL", "AUTO_RTL"}
 
