@@ -86,7 +86,10 @@ class SimBridge:
         speed: float = 1.0,
         command_timeout: float = 0.5,
         sysid: int = 1,
+        signing_key: bytes | None = None,
     ) -> None:
+        """``signing_key``: MAVLink 2 signing required, as a vehicle with its signing set up: its
+        frames signed, and anything unsigned or signed with another key refused (pymavlink's check)."""
         self.scenario = scenario
         self.sim = Simulator(scenario, command_timeout=command_timeout)
         self.sim.keep_truth = False
@@ -105,11 +108,15 @@ class SimBridge:
         self._sock: socket.socket | None = None
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
+        if signing_key is not None:
+            self._parser.signing.secret_key = signing_key  # no allow_unsigned_callback: unsigned refused
+            self.encoder.packer.sign_with(signing_key)
         self.frames_sent = 0
         self.frames_dropped = 0
         self.send_errors = 0
         self.received: dict[str, int] = {}
         self.commands_received = 0
+        self.signature_refused = 0
         self._down_until = 0.0
         self._burst_until = 0.0
         self._next_burst = math.inf
@@ -189,6 +196,8 @@ class SimBridge:
         for m in self._parser.parse_buffer(data) or ():
             t = m.get_type()
             if t == "BAD_DATA":
+                if "signature" in str(getattr(m, "reason", "")):
+                    self.signature_refused += 1  # unsigned, or signed with another key
                 continue
             self.received[t] = self.received.get(t, 0) + 1
             handler = getattr(self, "_on_" + t.lower(), None)

@@ -23,12 +23,14 @@ are zero-truncated as the protocol prescribes. Sequence numbers are real.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import struct
 
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from drivers.mavlink.signing import timestamp_now
 from groundstation.core.atmosphere import altitude_at
 
 from .simulator import Sample
@@ -44,6 +46,19 @@ class FramePacker:
         self.sysid, self.compid = sysid, compid
         self.seq = 0
         self._specs: dict[str, tuple] = {}
+        #: MAVLink 2 signing (drivers.mavlink.signing): every frame signed with this key
+        self.signing_key: bytes | None = None
+        self._sign_ts = 0
+
+    def sign_with(self, key: bytes | None) -> None:
+        self.signing_key = key
+        self._sign_ts = timestamp_now()
+
+    def _signed(self, frame: bytes) -> bytes:
+        """The frame with its signature block: link id 0, the timestamp, SHA-256(key + all before)[:6]."""
+        self._sign_ts += 1
+        block = frame + b"\x00" + self._sign_ts.to_bytes(6, "little")
+        return block + hashlib.sha256(self.signing_key + block).digest()[:6]  # type: ignore[operator]
 
     def _spec(self, name: str):
         s = self._specs.get(name)
@@ -70,25 +85,36 @@ class FramePacker:
         else:
             vals = [fields.get(f, 0) for f, _ in order]
         payload = pack(*vals).rstrip(b"\x00") or b"\x00"
-        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
+        flags = 1 if self.signing_key is not None else 0
+        hdr = _HDR.pack(0xFD, len(payload), flags, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
         self.seq = (self.seq + 1) & 0xFF
         body = hdr[1:] + payload
         crc = crc16.mcrf4xx(extra, crc16.mcrf4xx(body))
-        return hdr[:1] + body + struct.pack("<H", crc)
+        frame = hdr[:1] + body + struct.pack("<H", crc)
+        return self._signed(frame) if flags else frame
 
     def pack_ordered(self, name: str, values) -> bytes:
         """As :meth:`pack`, with every value given in wire order (the hot path)."""
         msgid, pack, extra, _, _ = self._spec(name)
         payload = pack(*values).rstrip(b"\x00") or b"\x00"
-        hdr = _HDR.pack(0xFD, len(payload), 0, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
+        flags = 1 if self.signing_key is not None else 0
+        hdr = _HDR.pack(0xFD, len(payload), flags, 0, self.seq, self.sysid, self.compid, msgid & 0xFFFF, msgid >> 16)
         self.seq = (self.seq + 1) & 0xFF
         body = hdr[1:] + payload
-        return hdr[:1] + body + _CRC.pack(crc16.mcrf4xx(extra, crc16.mcrf4xx(body)))
+        frame = hdr[:1] + body + _CRC.pack(crc16.mcrf4xx(extra, crc16.mcrf4xx(body)))
+        return self._signed(frame) if flags else frame
 
     def pack_message(self, msg) -> bytes:
         """A pymavlink message object (rare messages: heartbeats, ACKs)."""
         enc = mavlink.MAVLink(None, self.sysid, self.compid)
         enc.seq = self.seq
+        if self.signing_key is not None:
+            self._sign_ts += 1
+            enc.signing.secret_key, enc.signing.sign_outgoing, enc.signing.timestamp = (
+                self.signing_key,
+                True,
+                self._sign_ts,
+            )
         self.seq = (self.seq + 1) & 0xFF
         return bytes(msg.pack(enc))
 

@@ -111,6 +111,9 @@ class Framer:
         self.on_crc_error = on_crc_error
         self.on_garbage = on_garbage
         self._mav = mavlink.MAVLink(None)  # pymavlink's full decoder for the rest
+        #: set to check MAVLink 2 signatures (drivers.mavlink.signing); refused frames go to on_refused
+        self.signing = None
+        self.on_refused: Callable[[], None] = lambda: None
         self._crc_extra: dict[int, bytes] = {}
         self._fast: dict[int, FastSpec] = {}
         for msgid, cls in mavlink.mavlink_map.items():
@@ -171,6 +174,10 @@ class Framer:
             crc = _crc(extra, _crc(buf[pos + 1 : end_crc]))
             if crc != (buf[end_crc] | buf[end_crc + 1] << 8):
                 self.on_crc_error()
+                pos += flen
+                continue
+            if self.signing is not None and not self.signing.accept(frame, msgid, sysid, compid):
+                self.on_refused()
                 pos += flen
                 continue
             spec = fast.get(msgid)

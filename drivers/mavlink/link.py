@@ -41,6 +41,7 @@ from groundstation.core.broadcast import Broadcast, Subscription
 from groundstation.core.measurement import Measurement
 
 from .receiver import LinkCounters, MavlinkReceiver
+from .signing import SignatureCheck, timestamp_now
 from .streams import StreamRequester
 
 #: Streams requested from a vehicle: message name -> rate [Hz].
@@ -94,10 +95,12 @@ class MavlinkLink:
         ack_timeout: float = 1.0,
         max_rate: float | None = None,
         check_every: float = 5.0,
+        signing_key: bytes | None = None,
     ) -> None:
         """``max_rate``: the link's budget [bytes/s] the streams are fitted to (default: a serial
         link's baud / 10, unlimited otherwise); ``check_every`` [s]: how often the streams' rates
-        are compared with those asked."""
+        are compared with those asked; ``signing_key``: MAVLink 2 signing required, our frames signed
+        and every incoming one checked (:mod:`.signing`)."""
         self.endpoint = url if isinstance(url, Endpoint) else parse_connection(url)
         self.name = name
         self.lost_after = lost_after
@@ -111,6 +114,11 @@ class MavlinkLink:
         self.recorder: TlogWriter | None = None
         self._mav_out = mavlink.MAVLink(None, system_id, component_id)
         self.receiver = MavlinkReceiver(name, on_frame=self._frame_in, on_message=self._message_in)
+        if signing_key is not None:
+            self._mav_out.signing.secret_key = signing_key
+            self._mav_out.signing.sign_outgoing = True
+            self._mav_out.signing.timestamp = timestamp_now()
+            self.receiver.require_signing(SignatureCheck(signing_key))
         self.message_hooks: list[Callable[[object, float], None]] = []
         #: called synchronously with each batch of new measurements, before the
         #: ``async for`` subscribers see them: the estimation loop attaches here

@@ -45,6 +45,7 @@ class LinkCounters:
     kernel_dropped: int = 0  # datagrams this machine's kernel dropped on a full socket buffer (Linux)
     sink_errors: int = 0  # batches a synchronous consumer raised on (the link went on)
     undecodable: int = 0  # messages that passed their CRC but could not be converted (skipped)
+    signature_refused: int = 0  # frames refused by MAVLink 2 signing (unsigned, another key, replayed)
     last_undecodable: str = ""
     #: (sysid, compid) -> [frames received, frames lost by sequence number]
     per_source: dict = field(default_factory=dict)
@@ -108,8 +109,16 @@ class MavlinkReceiver:
         #: (sysid, compid) -> True if that peer speaks MAVLink 1 only so far
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
         self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)
+        self._framer.on_refused = self._refused
         self._out: list[Measurement] = []
         self._t_rx = 0.0
+
+    def require_signing(self, check) -> None:
+        """Refuse every frame that ``check`` (a :class:`~drivers.mavlink.signing.SignatureCheck`) refuses."""
+        self._framer.signing = check
+
+    def _refused(self) -> None:
+        self.counters.signature_refused += 1
 
     def reset(self) -> None:
         """Drop a partial frame and the sequence history (a replay seeking

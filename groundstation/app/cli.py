@@ -55,7 +55,7 @@ from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
 from .fleet_cli import add_parser as add_fleet_parser
 from .fleet_cli import cmd_fleet
-from .options import add_web_options
+from .options import add_signing_option, add_web_options, key_of
 from .param_cli import add_parser as add_param_parser
 from .param_cli import run_param
 from .signals import on_stop_signal
@@ -115,6 +115,10 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--no-record", action="store_true", help="do not record the session")
     c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
     c.add_argument("--duration", type=float, help="stop after this many seconds")
+    c.add_argument(
+        "--max-rate", type=float, help="the link's budget [bytes/s] the streams are fitted to (serial: baud/10)"
+    )
+    add_signing_option(c)
     c.add_argument(
         "--control",
         choices=("quad", "coax"),
@@ -414,7 +418,9 @@ async def run_connect(args) -> int:
     record = None
     if not args.no_record:
         record = args.record or Path("sessions") / f"{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog"
-    link = MavlinkLink(endpoint, record=record, lost_after=args.lost_after)
+    link = MavlinkLink(
+        endpoint, record=record, lost_after=args.lost_after, max_rate=args.max_rate, signing_key=key_of(args)
+    )
     sub = link.measurements()
     events = link.events()
     await link.open()

@@ -8,6 +8,7 @@ from __future__ import annotations
 from drivers.mavlink.commands import CommandError, run_command
 from drivers.mavlink.link import MavlinkLink
 
+from .options import add_signing_option, key_of
 from .param_cli import wait_for_vehicle
 
 #: commands that start the motors: only with --yes
@@ -21,6 +22,7 @@ def add_parser(sub) -> None:
     c.add_argument("arg", nargs="?", help="the mode's name (mode), the altitude in metres (takeoff)")
     c.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
     c.add_argument("--yes", action="store_true", help="confirm a command that starts the motors (arm, takeoff)")
+    add_signing_option(c)
 
 
 async def run_command_cli(args) -> int:
@@ -34,7 +36,7 @@ async def run_command_cli(args) -> int:
             arg = float(args.arg)
         except ValueError:
             raise CommandError(f"takeoff {args.arg!r}: an altitude in metres") from None
-    link = MavlinkLink(args.connection, streams={})
+    link = MavlinkLink(args.connection, streams={}, signing_key=key_of(args))
     await link.open()
     try:
         sysid, compid = await wait_for_vehicle(link, args.sysid)

@@ -10,6 +10,8 @@ from pathlib import Path
 from drivers.mavlink.link import MavlinkLink
 from drivers.mavlink.params import ParamClient, load, save
 
+from .options import add_signing_option, key_of
+
 WAIT_FOR_VEHICLE_S = 10.0
 
 
@@ -17,6 +19,7 @@ def add_parser(sub) -> None:
     p = sub.add_parser("param", help="a vehicle's parameters: fetch all (to a file), get, set with verification, load")
     p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
     p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
+    add_signing_option(p)
     a = p.add_subparsers(dest="param_command", required=True)
     f = a.add_parser("fetch", help="every parameter; printed, or written to --out")
     f.add_argument("--out", type=Path, help="write them here (MAVProxy's format; --qgc for QGroundControl's)")
@@ -43,7 +46,9 @@ async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, i
         left = end - loop.time()
         if left <= 0:
             who = f"vehicle {sysid}" if sysid is not None else "a vehicle"
-            raise OSError(f"{link.endpoint}: no heartbeat from {who} within {WAIT_FOR_VEHICLE_S:g} s")
+            refused = link.counters.signature_refused
+            why = f" ({refused} frames refused by MAVLink 2 signing: another key?)" if refused else ""
+            raise OSError(f"{link.endpoint}: no heartbeat from {who} within {WAIT_FOR_VEHICLE_S:g} s{why}")
         try:  # any link event or message wakes the check; the heartbeat is a message
             await asyncio.wait_for(events.__anext__(), min(left, 0.2))
         except (TimeoutError, StopAsyncIteration):
@@ -53,7 +58,7 @@ async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, i
 async def run_param(args) -> int:
     if args.param_command == "load":
         wanted = load(args.file)  # a bad file is an error before anything is sent
-    link = MavlinkLink(args.connection, streams={})
+    link = MavlinkLink(args.connection, streams={}, signing_key=key_of(args))
     await link.open()
     try:
         sysid, compid = await wait_for_vehicle(link, args.sysid)

@@ -22,7 +22,7 @@ from sim_bridge.scenario import VEHICLES, Scenario
 from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
-from .options import add_web_options
+from .options import add_signing_option, add_web_options, key_of
 from .signals import on_stop_signal
 from .supervise import Supervisor
 
@@ -71,6 +71,7 @@ def add_sim_parser(sub) -> None:
         help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)",
     )
     s.add_argument("--sysid", type=int, default=1, help="the vehicle's MAVLink system id (1-255; default 1)")
+    add_signing_option(s)
     s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
     s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
     s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
@@ -150,6 +151,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         speed=args.speed,
         faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
         sysid=_sysid(args.sysid),
+        signing_key=key_of(args),
     )
     truth_file = None
     if args.truth:
