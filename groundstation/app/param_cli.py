@@ -49,7 +49,7 @@ async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, i
             refused = link.counters.signature_refused
             why = f" ({refused} frames refused by MAVLink 2 signing: another key?)" if refused else ""
             raise OSError(f"{link.endpoint}: no heartbeat from {who} within {WAIT_FOR_VEHICLE_S:g} s{why}")
-        try:  # any link event or message wakes the check; the heartbeat is a message
+        try:  # a link event wakes the check at once; a heartbeat is looked for again every 0.2 s
             await asyncio.wait_for(events.__anext__(), min(left, 0.2))
         except (TimeoutError, StopAsyncIteration):
             pass
