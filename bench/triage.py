@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 from pymavlink import DFReader, mavutil
@@ -39,8 +40,7 @@ def pymavlink_read(p: Path) -> float | None:
         r = DFReader.DFReader_binary(str(p)) if binary else DFReader.DFReader_text(str(p))
     else:
         r = mavutil.mavlink_connection(str(p))
-    while r.recv_msg() is not None:
-        pass
+    deque(iter(r.recv_msg, None), maxlen=0)  # every message, none kept
     return time.perf_counter() - t0
 
 

@@ -1,6 +1,9 @@
-"""Shared builders for tests: real pymavlink frames and tlogs."""
+"""Shared builders for tests: real pymavlink frames and tlogs, and processes a test runs."""
 
+import contextlib
 import struct
+import subprocess
+import sys
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -27,3 +30,26 @@ def write_tlog(path: Path, frames, t0=1_700_000_000.0, dt=0.01, gap_after=None, 
             if gap_after is not None and i == gap_after:
                 t += gap
     return path
+
+
+@contextlib.contextmanager
+def running(args, **popen):
+    """A process the test starts, stopped when the block ends, also when the test fails
+    (terminated, then killed if it does not end within 10 s)."""
+    popen.setdefault("stdout", subprocess.DEVNULL)
+    popen.setdefault("stderr", subprocess.DEVNULL)
+    p = subprocess.Popen([str(a) for a in args], **popen)
+    try:
+        yield p
+    finally:
+        p.terminate()
+        try:
+            p.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def simulated_vehicle(port: int, *args: str):
+    """``groundstation sim`` sending to 127.0.0.1:``port`` (more options in ``args``), as :func:`running`."""
+    return running([sys.executable, "-m", "groundstation", "sim", "--udp", f"127.0.0.1:{port}", *args])

@@ -7,32 +7,17 @@ import subprocess
 import sys
 
 from .conftest import free_udp_port
+from .helpers import simulated_vehicle
 
 
 def test_commands_and_their_one_line_results():
     port = free_udp_port()
     gs = [sys.executable, "-m", "groundstation", "command", f"udpin:127.0.0.1:{port}"]
-    sim = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "groundstation",
-            "sim",
-            "--udp",
-            f"127.0.0.1:{port}",
-            "--sysid",
-            "4",
-            "--duration",
-            "60",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
 
     def run(*args):
         return subprocess.run(gs + list(args), capture_output=True, text=True, timeout=60)
 
-    try:
+    with simulated_vehicle(port, "--sysid", "4", "--duration", "60"):
         r = run("arm")
         assert r.returncode == 2 and "arm starts the motors: add --yes to confirm" in r.stderr
         assert run("arm", "--yes").stdout.strip() == "arm: accepted by vehicle 4"
@@ -45,10 +30,3 @@ def test_commands_and_their_one_line_results():
         assert run("land").stdout.strip() == "land: accepted by vehicle 4"
         r = run("arm", "--yes", "--sysid", "9")  # nobody is vehicle 9
         assert r.returncode == 2 and "no heartbeat from vehicle 9" in r.stderr
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()

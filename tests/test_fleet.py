@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from .conftest import REPO, free_tcp_port
+from .helpers import running
 
 pytestmark = pytest.mark.slow
 
@@ -84,37 +85,16 @@ def test_fleet_through_a_scheduler_and_worker_started_as_processes(tmp_path):
     (a / "quad-1" / "broken.bin").unlink()
     port = free_tcp_port()
     addr = f"tcp://127.0.0.1:{port}"
-    bindir = Path(sys.executable).parent
-    procs = [
-        subprocess.Popen(
-            [bindir / "dask", "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-    ]
-    try:
-        procs.append(
-            subprocess.Popen(
-                [bindir / "dask", "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"],
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-            )
-        )
+    dask = Path(sys.executable).parent / "dask"
+    scheduler = [dask, "scheduler", "--host", "127.0.0.1", "--port", port, "--no-dashboard"]
+    worker = [dask, "worker", addr, "--nworkers", "1", "--nthreads", "1", "--no-dashboard"]
+    with running(scheduler), running(worker):
         with Client(addr, timeout="60s") as c:
             c.wait_for_workers(1, timeout=60)  # the worker has registered: an event, not a sleep
         r = _fleet(a, "--out", out, "--scheduler", addr)
         assert r.returncode == 0, r.stdout + r.stderr
         assert f"on {addr}" in r.stdout and "3 logs diagnosed, 0 failed" in r.stdout
         assert {r["log"] for r in _rows(out)} == {"quad-1/2026-05-01.tlog", "quad-1/2026-05-08.tlog", "px4/sitl.ulg"}
-    finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
 
 
 def test_fleet_errors_are_one_line(tmp_path):

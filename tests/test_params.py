@@ -16,6 +16,7 @@ from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.scenario import Scenario
 
 from .conftest import async_test, free_udp_port
+from .helpers import simulated_vehicle
 
 
 @async_test(timeout=60)
@@ -67,23 +68,7 @@ def test_param_command_fetches_to_a_file_and_loads_it_back(tmp_path):
     stopped by the test)."""
     port = free_udp_port()
     gs = [sys.executable, "-m", "groundstation", "param", f"udpin:127.0.0.1:{port}"]
-    sim = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "groundstation",
-            "sim",
-            "--udp",
-            f"127.0.0.1:{port}",
-            "--sysid",
-            "3",
-            "--duration",
-            "60",
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
+    with simulated_vehicle(port, "--sysid", "3", "--duration", "60"):
         out = tmp_path / "v.params"
         r = subprocess.run(gs + ["fetch", "--out", str(out), "--qgc"], capture_output=True, text=True, timeout=60)
         assert r.returncode == 0 and "parameters of vehicle 3 written" in r.stdout, r.stderr
@@ -95,10 +80,3 @@ def test_param_command_fetches_to_a_file_and_loads_it_back(tmp_path):
         assert r.returncode == 0 and "2 parameters set and confirmed" in r.stdout, r.stderr
         r = subprocess.run(gs + ["get", "SIM_ALPHA", "SIM_DRAG"], capture_output=True, text=True, timeout=60)
         assert r.stdout.split() == ["SIM_ALPHA", "21.5", "SIM_DRAG", "0.33"], r.stderr
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()

@@ -5,6 +5,8 @@ gets through either way, and the refusals are counted."""
 from __future__ import annotations
 
 import asyncio
+import subprocess
+import sys
 import time
 
 import pytest
@@ -15,7 +17,8 @@ from drivers.mavlink.signing import SignatureCheck, signing_key
 from sim_bridge.bridge import SimBridge
 from sim_bridge.scenario import Scenario
 
-from .conftest import async_test
+from .conftest import async_test, free_udp_port
+from .helpers import simulated_vehicle
 
 KEY = signing_key("correct horse battery staple")
 
@@ -71,30 +74,24 @@ def test_signature_check_refuses_replays_and_unsigned_frames():
         signing_key("")
 
 
+def test_a_key_from_a_file(tmp_path):
+    """32 raw bytes, or 64 hex digits (a text file); anything else is a one-line error."""
+    raw, hexed, bad = tmp_path / "k.bin", tmp_path / "k.hex", tmp_path / "k.txt"
+    raw.write_bytes(KEY)
+    hexed.write_text(KEY.hex() + "\n")
+    bad.write_text("z" * 64)
+    assert signing_key(str(raw)) == KEY and signing_key(str(hexed)) == KEY
+    with pytest.raises(ValueError, match="not a signing key"):
+        signing_key(str(bad))
+
+
 def test_the_commands_take_a_key_and_say_when_frames_are_refused():
     """``groundstation sim --signing`` and ``param --signing``: the right passphrase reads a
     parameter, another says its frames were refused by signing (processes, stopped by the test)."""
-    import subprocess
-    import sys
-
-    from .conftest import free_udp_port
-
     port = free_udp_port()
-    sim = subprocess.Popen(
-        [sys.executable, "-m", "groundstation", "sim", "--udp", f"127.0.0.1:{port}", "--signing", "s3cret"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
     gs = [sys.executable, "-m", "groundstation", "param", f"udpin:127.0.0.1:{port}", "--signing"]
-    try:
+    with simulated_vehicle(port, "--signing", "s3cret"):
         r = subprocess.run(gs + ["s3cret", "get", "SIM_ALPHA"], capture_output=True, text=True, timeout=60)
         assert r.stdout.split() == ["SIM_ALPHA", "22"], r.stderr
         r = subprocess.run(gs + ["other", "get", "SIM_ALPHA"], capture_output=True, text=True, timeout=60)
         assert r.returncode == 2 and "refused by MAVLink 2 signing" in r.stderr and "Traceback" not in r.stderr
-    finally:
-        sim.terminate()
-        try:
-            sim.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()

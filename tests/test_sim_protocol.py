@@ -5,7 +5,6 @@ list; driven by pymavlink frames over a real UDP socket, and by MAVProxy itself.
 from __future__ import annotations
 
 import queue
-import shutil
 import subprocess
 import sys
 import threading
@@ -17,28 +16,10 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from .conftest import free_udp_port
+from .helpers import running, simulated_vehicle
 
 GS = [sys.executable, "-m", "groundstation"]
 ME_SYS, ME_COMP = 250, 190  # the test's own MAVLink address: ACKs must name it
-
-
-class _Sim:
-    """``groundstation sim`` as a process sending to ``port``; stopped on exit whatever happens."""
-
-    def __init__(self, port: int, sysid: int = 7) -> None:
-        self.args = GS + ["sim", "--udp", f"127.0.0.1:{port}", "--sysid", str(sysid), "--duration", "120"]
-
-    def __enter__(self):
-        self.p = subprocess.Popen(self.args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        return self
-
-    def __exit__(self, *exc):
-        self.p.terminate()
-        try:
-            self.p.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.p.kill()
-            self.p.wait()
 
 
 def _recv(c, kind: str, cond=lambda m: True, timeout: float = 10.0):
@@ -58,7 +39,7 @@ def test_parameters_commands_and_acks_over_real_frames():
     port = free_udp_port()
     c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=ME_SYS, source_component=ME_COMP)
     try:
-        with _Sim(port):
+        with simulated_vehicle(port, "--sysid", "7", "--duration", "120"):
             hb = _recv(c, "HEARTBEAT", lambda m: m.get_srcSystem() == 7)
             assert hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == mavlink.MAV_TYPE_QUADROTOR
             c.target_system, c.target_component = 7, 1
@@ -109,11 +90,8 @@ def test_parameters_commands_and_acks_over_real_frames():
         c.close()
 
 
-def _mavproxy() -> Path:
-    p = Path(sys.executable).parent / "mavproxy.py"
-    if not p.exists() and shutil.which("mavproxy.py") is None:
-        pytest.skip("MAVProxy is not installed (pip install mavproxy: it is in the test extras)")
-    return p if p.exists() else Path(shutil.which("mavproxy.py") or "")
+#: MAVProxy, from the test extras (installed beside this Python by make test)
+MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 
 @pytest.mark.slow
@@ -121,21 +99,7 @@ def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mi
     """MAVProxy 1.8 (its param, mode, arm, wp and cmdlong modules) against the simulator on loopback,
     scripted through its console: what a user opens MAVProxy for works without retrying forever."""
     port = free_udp_port()
-    mp = subprocess.Popen(
-        [
-            str(_mavproxy()),
-            f"--master=udpin:127.0.0.1:{port}",
-            f"--state-basedir={tmp_path}",
-            "--default-modules=param,mode,arm,wp,cmdlong",
-        ],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        bufsize=1,
-    )
     lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(ln) for ln in mp.stdout], daemon=True).start()  # type: ignore[union-attr]
     seen: list[str] = []
 
     def until(text: str, timeout: float = 30.0) -> str:
@@ -150,34 +114,40 @@ def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mi
                 return ln
         raise AssertionError(f"MAVProxy never said {text!r}:\n" + "".join(seen[-30:]))
 
-    def say(cmd: str) -> None:
-        assert mp.stdin is not None
-        mp.stdin.write(cmd + "\n")
-        mp.stdin.flush()
+    mavproxy = [
+        MAVPROXY,
+        f"--master=udpin:127.0.0.1:{port}",
+        f"--state-basedir={tmp_path}",
+        "--default-modules=param,mode,arm,wp,cmdlong",
+    ]
+    pipes = {
+        "stdin": subprocess.PIPE,
+        "stdout": subprocess.PIPE,
+        "stderr": subprocess.STDOUT,
+        "text": True,
+        "bufsize": 1,
+    }
+    with running(mavproxy, **pipes) as mp, simulated_vehicle(port, "--sysid", "7", "--duration", "120"):
+        threading.Thread(target=lambda: [lines.put(ln) for ln in mp.stdout], daemon=True).start()
 
-    try:
-        with _Sim(port):
-            until("Detected vehicle 7:1")
-            n = int(until("Received ").split("Received ")[1].split()[0])
-            assert n > 30
-            say("param set SIM_DRAG 0.4")
-            for _ in range(20):  # MAVProxy shows the new value once the vehicle's echo is in its cache
-                say("param show SIM_DRAG")
-                if float(until("SIM_DRAG").split()[-1]) == pytest.approx(0.4):
-                    break
-            else:
-                raise AssertionError("the set value never came back")
-            say("mode GUIDED")
-            until("DO_SET_MODE: ACCEPTED")
-            say("arm throttle")
-            until("COMPONENT_ARM_DISARM: ACCEPTED")
-            say("wp list")
-            until("Requesting 0 waypoints")
-            assert (tmp_path / "mav_7_1.parm").exists()  # MAVProxy saved the parameters it fetched
-    finally:
-        mp.terminate()
-        try:
-            mp.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            mp.kill()
-            mp.wait()
+        def say(cmd: str) -> None:
+            mp.stdin.write(cmd + "\n")
+            mp.stdin.flush()
+
+        until("Detected vehicle 7:1")
+        n = int(until("Received ").split("Received ")[1].split()[0])
+        assert n > 30
+        say("param set SIM_DRAG 0.4")
+        for _ in range(20):  # MAVProxy shows the new value once the vehicle's echo is in its cache
+            say("param show SIM_DRAG")
+            if float(until("SIM_DRAG").split()[-1]) == pytest.approx(0.4):
+                break
+        else:
+            raise AssertionError("the set value never came back")
+        say("mode GUIDED")
+        until("DO_SET_MODE: ACCEPTED")
+        say("arm throttle")
+        until("COMPONENT_ARM_DISARM: ACCEPTED")
+        say("wp list")
+        until("Requesting 0 waypoints")
+        assert (tmp_path / "mav_7_1.parm").exists()  # MAVProxy saved the parameters it fetched

@@ -12,6 +12,7 @@ modem cannot sign (MAVProxy accepts it too).
 from __future__ import annotations
 
 import hashlib
+import string
 import time
 from pathlib import Path
 
@@ -28,11 +29,8 @@ def signing_key(text: str) -> bytes:
         if len(raw) == 32:
             return raw
         s = raw.decode("ascii", "replace").strip()
-        if len(s) == 64:
-            try:
-                return bytes.fromhex(s)
-            except ValueError:
-                pass
+        if len(s) == 64 and all(c in string.hexdigits for c in s):
+            return bytes.fromhex(s)
         raise ValueError(f"{p}: not a signing key (32 bytes, or 64 hex digits)")
     if not text:
         raise ValueError("signing: an empty passphrase")

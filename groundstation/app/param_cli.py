@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import sys
 from pathlib import Path
 
@@ -49,10 +50,9 @@ async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, i
             refused = link.counters.signature_refused
             why = f" ({refused} frames refused by MAVLink 2 signing: another key?)" if refused else ""
             raise OSError(f"{link.endpoint}: no heartbeat from {who} within {WAIT_FOR_VEHICLE_S:g} s{why}")
-        try:  # a link event wakes the check at once; a heartbeat is looked for again every 0.2 s
+        # a link event wakes the check at once; a heartbeat is looked for again every 0.2 s
+        with contextlib.suppress(TimeoutError, StopAsyncIteration):
             await asyncio.wait_for(events.__anext__(), min(left, 0.2))
-        except (TimeoutError, StopAsyncIteration):
-            pass
 
 
 async def run_param(args) -> int:

@@ -36,8 +36,9 @@ class LoadedLog:
     tables: LogTables = field(default_factory=LogTables)
 
 
-def load_log(path: Path) -> LoadedLog:
-    """Any supported log -> its measurements, a description, the vehicle it implies, its tables."""
+def load_log(path: Path, *, tables: bool = True) -> LoadedLog:
+    """Any supported log -> its measurements, a description, the vehicle it implies, and (with
+    ``tables``) its other records as tables."""
     if is_crazyflie_log(path):
         log = read_crazyflie(path)
         ms = list(with_attitude(cf_measurements(log)))
@@ -46,7 +47,7 @@ def load_log(path: Path) -> LoadedLog:
         )
         return LoadedLog(ms, desc + _reader_skipped(log.skipped), "crazyflie", LogTables(fmt="crazyflie"))
     if is_dataflash(path):
-        df = read_dataflash(path)
+        df = read_dataflash(path, tables=tables)
         desc = (
             f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} measurements (clock: {df.clock})"
             + (f"; {df.damage}" if df.damage else "")
@@ -66,11 +67,11 @@ def load_log(path: Path) -> LoadedLog:
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()
     desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
-    return LoadedLog(ms, desc, None, tables_from_tlog(path))
+    return LoadedLog(ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"))
 
 
 def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
     """Any supported log -> (measurements in time order, a one-line description,
     the vehicle configuration it implies)."""
-    log = load_log(path)
+    log = load_log(path, tables=False)  # the measurements alone: the records' tables are not built
     return log.measurements, log.description, log.vehicle

@@ -16,7 +16,7 @@ mismatch), :mod:`.motors`, :mod:`.ekf`, :mod:`.config`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -39,7 +39,7 @@ class Triage:
     span: tuple[float, float]  # the log's first and last time on that clock [s]
     seconds: float  # how long the triage took
     origin: float = 0.0  # recording clock: its zero as a receive time [s, UNIX]
-    checks: list[str] = field(default_factory=list)  # what was looked at
+    records: int = 0  # the log's records and measurements the checks read
 
     @property
     def cut(self) -> list[TriageFinding]:
@@ -56,7 +56,8 @@ class Triage:
             lines.append(f"... and {len(shown) - limit} more (report.json)")
         clock = "seconds since the recording began" if self.clock == "recording" else "seconds of the vehicle's clock"
         head = f"triage ({len(self.findings)} findings, {self.seconds:.1f} s; times in {clock}):"
-        return "\n".join([head] + (lines or ["nothing wrong found in the log's own records"]))
+        empty = "nothing wrong found in the log's own records" if self.records else "the log has no records to check"
+        return "\n".join([head] + (lines or [empty]))
 
 
 def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
@@ -80,7 +81,8 @@ def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
     found += check_ekf(tables)
     found += check_config(tables, t0)
     found.sort(key=lambda f: f.rank)
-    return Triage(found, tables.clock, (t0, t1), time.monotonic() - start, tables.origin)
+    records = len(ms) + sum(len(tb) for tb in tables.tables.values())
+    return Triage(found, tables.clock, (t0, t1), time.monotonic() - start, tables.origin, records)
 
 
 def _time_of(m: Measurement, tr: Triage) -> float:
