@@ -138,12 +138,14 @@ def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mi
         n = int(until("Received ").split("Received ")[1].split()[0])
         assert n > 30
         say("param set SIM_DRAG 0.4")
-        for _ in range(20):  # MAVProxy shows the new value once the vehicle's echo is in its cache
-            say("param show SIM_DRAG")
-            if float(until("SIM_DRAG").split()[-1]) == pytest.approx(0.4):
+        # MAVProxy queues a set for its idle loop and sends a "param fetch" at once, so the first
+        # replies may predate the set: ask the vehicle again after each reply until it holds the value
+        end = time.monotonic() + 30.0
+        while True:
+            say("param fetch SIM_DRAG")
+            if float(until("SIM_DRAG = ").split("=")[1]) == pytest.approx(0.4):
                 break
-        else:
-            raise AssertionError("the set value never came back")
+            assert time.monotonic() < end, "the vehicle never took the set value"
         say("mode GUIDED")
         until("DO_SET_MODE: ACCEPTED")
         say("arm throttle")
