@@ -42,10 +42,11 @@ from groundstation.core.measurement import Kind
 
 from .board_out import BoardEncoder
 from .fast import EPOCH
-from .mavlink_out import STREAM_OF_MESSAGE, MavlinkEncoder
+from .mavlink_out import DERIVED_FROM, STREAM_OF_MESSAGE, MavlinkEncoder
 from .profile import CoaxAutopilot
 from .pty_port import PtyPort
 from .scenario import Scenario
+from .sensors import M_PER_DEG
 from .simulator import Simulator
 from .vehicle_protocol import VehicleProtocol
 from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
@@ -60,10 +61,14 @@ DATA_STREAM_GROUPS = {
     mavlink.MAV_DATA_STREAM_EXTENDED_STATUS: ("battery",),
     mavlink.MAV_DATA_STREAM_RC_CHANNELS: ("actuators",),
     mavlink.MAV_DATA_STREAM_POSITION: ("gps",),
-    mavlink.MAV_DATA_STREAM_EXTRA1: ("attitude",),
+    mavlink.MAV_DATA_STREAM_EXTRA1: ("attitude", "encoders"),
     mavlink.MAV_DATA_STREAM_EXTRA3: ("range",),
 }
 MAX_TILT = math.radians(30.0)
+#: [Hz] each stream's rate over MAVLink until a ground station asks for it (SET_MESSAGE_INTERVAL
+#: or REQUEST_DATA_STREAM), as an autopilot starts at its low default stream rates (ArduPilot's
+#: SRn_* parameters: 0-4 Hz); the sensors themselves sample at their own rates all along
+UNASKED_RATE = 2.0
 
 
 @dataclass
@@ -87,13 +92,24 @@ class SimBridge:
         command_timeout: float = 0.5,
         sysid: int = 1,
         signing_key: bytes | None = None,
+        unasked_rate: float | None = UNASKED_RATE,
     ) -> None:
         """``signing_key``: MAVLink 2 signing required, as a vehicle with its signing set up: its
-        frames signed, and anything unsigned or signed with another key refused (pymavlink's check)."""
+        frames signed, and anything unsigned or signed with another key refused (pymavlink's check).
+        ``unasked_rate`` [Hz]: each stream's rate until it is asked for (None: every stream at its
+        sensor's rate from the start, as a radio set up to stream)."""
         self.scenario = scenario
         self.sim = Simulator(scenario, command_timeout=command_timeout)
         self.sim.keep_truth = False
         self.encoder = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
+        #: [s] between frames: a stream's (its sensor's name) or a derived message's (its name),
+        #: while nobody has asked for it, and for a derived message asked at a rate
+        self._every: dict[str, float] = (
+            {n: 1.0 / unasked_rate for n in [*self.sim.sensors.rates, *DERIVED_FROM]} if unasked_rate else {}
+        )
+        self._last_out: dict[str, float] = {}
+        #: protocol messages asked for at an interval: msg id -> [interval, next due] [s]
+        self._periodic: dict[int, list[float]] = {}
         self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid)
         self.udp_to = udp_to
         self.pty = pty
@@ -200,6 +216,8 @@ class SimBridge:
                     self.signature_refused += 1  # unsigned, or signed with another key
                 continue
             self.received[t] = self.received.get(t, 0) + 1
+            if t.startswith("MISSION_") and self.protocol.mission.on_message(m, self.sim.t):
+                continue
             handler = getattr(self, "_on_" + t.lower(), None)
             if handler is not None:
                 handler(m)
@@ -216,14 +234,36 @@ class SimBridge:
     def _message_interval(self, m) -> int:
         """SET_MESSAGE_INTERVAL: a stream's rate (0: its default); UNSUPPORTED for a message it does not send."""
         cls = mavlink.mavlink_map.get(int(m.param1))
-        stream = STREAM_OF_MESSAGE.get(cls.msgname if cls else "")
-        if stream is None or stream not in self.sim.sensors.rates:
-            return mavlink.MAV_RESULT_UNSUPPORTED
+        name = cls.msgname if cls else ""
+        rates = self.sim.sensors.rates
         interval = m.param2
+        if DERIVED_FROM.get(name) in rates:
+            if interval > 0:
+                self._every[name] = interval * 1e-6
+            elif interval == 0:
+                self._every.pop(name, None)  # its default: with every sample of its sensor
+            else:
+                self._every[name] = math.inf
+            return mavlink.MAV_RESULT_ACCEPTED
+        stream = next((n for n in STREAM_OF_MESSAGE.get(name, ()) if n in rates), None)
+        if stream is None:
+            return self._protocol_interval(int(m.param1), interval)
+        self._every.pop(stream, None)
         if interval > 0:
             self.sim.sensors.set_rate(stream, 1e6 / interval)
         elif interval == 0:
             self.sim.sensors.set_rate(stream, self.scenario.sensors.rates[stream])
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _protocol_interval(self, msgid: int, interval_us: float) -> int:
+        """A message the vehicle sends on request (HOME_POSITION, EXTENDED_SYS_STATE, ...), now
+        also every ``interval_us`` (-1: never again; 0: its default, once a second)."""
+        if self.protocol.message(msgid) is None:
+            return mavlink.MAV_RESULT_UNSUPPORTED
+        if interval_us < 0:
+            self._periodic.pop(msgid, None)
+        else:
+            self._periodic[msgid] = [interval_us * 1e-6 if interval_us > 0 else 1.0, self.sim.t]
         return mavlink.MAV_RESULT_ACCEPTED
 
     def _on_command_long(self, m) -> None:
@@ -244,11 +284,14 @@ class SimBridge:
     def _on_ping(self, m) -> None:
         self.protocol.on_ping(m)
 
-    def _on_mission_request_list(self, m) -> None:
-        self.protocol.on_mission_request_list(m)
-
     def _on_request_data_stream(self, m) -> None:
-        for stream in DATA_STREAM_GROUPS.get(m.req_stream_id, ()):
+        groups = DATA_STREAM_GROUPS.values() if m.req_stream_id == mavlink.MAV_DATA_STREAM_ALL else ()
+        streams = [n for g in groups for n in g] or DATA_STREAM_GROUPS.get(m.req_stream_id, ())
+        for stream in streams:
+            self._every.pop(stream, None)
+            for name, sensor in DERIVED_FROM.items():
+                if sensor == stream:
+                    self._every.pop(name, None)
             if m.start_stop and m.req_message_rate > 0:
                 self.sim.sensors.set_rate(stream, float(m.req_message_rate))
 
@@ -293,19 +336,53 @@ class SimBridge:
             if sim.step_count % int(round(1.0 / sim.dt)) == 1:
                 self._send(enc.heartbeat(self.protocol.armed, self.protocol.mode))
                 self._send(self.protocol.extended_sys_state())
+            for msgid, due in self._periodic.items():
+                if sim.t >= due[1]:
+                    due[1] += max(due[0], sim.dt)
+                    frame = self.protocol.message(msgid)
+                    if frame is not None:
+                        self._send(frame)
             for s in samples:
-                if s.sensor == "gps" and self.protocol.home is None:
-                    self.protocol.home = tuple(float(v) for v in s.values[:3])  # type: ignore[assignment]
-                for fr in enc.encode(s):
-                    self._send(fr)
+                if self._due(s.sensor, s.t):
+                    for fr in enc.encode(s):
+                        self._send(fr)
+                for name, sensor in DERIVED_FROM.items():
+                    if sensor == s.sensor and self._due(name, s.t):
+                        self._send(self._derived(name, s))
                 if self.board_encoder is not None and self.board is not None:
                     for fr in self.board_encoder.encode(s):
                         self.board.write(fr)
             if self.truth_sink is not None and sim.step_count % sim.truth_every == 0:
                 self.truth_sink(sim.truth())
+        self.protocol.tick()
         if self.faults.burst_every > 0 and sim.t >= self._next_burst:
             self._burst_until = time.monotonic() + self.faults.burst_len
             self._next_burst = sim.t + self._rng.expovariate(1.0 / self.faults.burst_every)
+
+    def _derived(self, name: str, s) -> bytes:
+        if name == "BATTERY_STATUS":
+            return self.encoder.battery_status(*s.values)
+        # the autopilot's position estimate: the true state, which the simulator's autopilot flies
+        # on (profile.py), about the GPS model's origin, where it was switched on: home, set with
+        # the first estimate it sends
+        kin, cfg = self.sim.vehicle.kin, self.sim.sensors.cfg
+        lat0, lon0 = cfg.gps_origin
+        if self.protocol.home is None:
+            self.protocol.home = (lat0, lon0, cfg.ground_alt)
+        n, e, d = (float(v) for v in kin.pos)
+        lat = lat0 + n / M_PER_DEG
+        lon = lon0 + e / (M_PER_DEG * math.cos(math.radians(lat0)))
+        return self.encoder.global_position(s.t, lat, lon, cfg.ground_alt - d, -d, kin.vel)
+
+    def _due(self, key: str, t: float) -> bool:
+        """Whether a stream's sample, or a derived message, goes out at ``t`` (:attr:`_every`)."""
+        every = self._every.get(key)
+        if every is None:
+            return True
+        if t - self._last_out.get(key, -math.inf) < every - 1e-9:
+            return False
+        self._last_out[key] = t
+        return True
 
     async def run(self, duration: float | None = None, tick: float = 0.004) -> None:
         """Run in real time (times ``speed``) until ``duration`` or :meth:`close`.

@@ -119,17 +119,22 @@ class FramePacker:
         return bytes(msg.pack(enc))
 
 
-#: The message each sensor stream is sent as, hence requested by (SET_MESSAGE_INTERVAL);
-#: a request for any other message is answered UNSUPPORTED.
-STREAM_OF_MESSAGE = {
-    "HIGHRES_IMU": "imu",
-    "SCALED_PRESSURE": "baro",
-    "DISTANCE_SENSOR": "range",
-    "GPS_RAW_INT": "gps",
-    "ATTITUDE": "attitude",
-    "SERVO_OUTPUT_RAW": "actuators",
-    "SYS_STATUS": "battery",
+#: The sensor stream each message is sent with, hence requested by (SET_MESSAGE_INTERVAL): the
+#: first of these the vehicle has; a request for any other message is answered UNSUPPORTED.
+STREAM_OF_MESSAGE: dict[str, tuple[str, ...]] = {
+    "HIGHRES_IMU": ("imu",),
+    "SCALED_PRESSURE": ("baro",),
+    "DISTANCE_SENSOR": ("range",),
+    "GPS_RAW_INT": ("gps",),
+    "ATTITUDE": ("attitude", "encoders"),  # the 3-DOF rig's encoder angles go out as ATTITUDE
+    "SERVO_OUTPUT_RAW": ("actuators",),
+    "SYS_STATUS": ("battery",),
 }
+
+#: What an autopilot sends from its own estimate and battery monitor, sent here with a sensor's
+#: samples (the fix; the battery's voltage and current): message -> that sensor. Asked for, each
+#: goes out at its own rate, at most the sensor's, without changing the sensor's.
+DERIVED_FROM = {"GLOBAL_POSITION_INT": "gps", "BATTERY_STATUS": "battery"}
 
 
 class MavlinkEncoder:
@@ -141,6 +146,7 @@ class MavlinkEncoder:
         self._last_baro_alt = 0.0
 
     def encode(self, s: Sample) -> list[bytes]:
+        """The sensor's own messages (what a log of the sensors holds: ``sim --fast``)."""
         return getattr(self, "_" + s.sensor)(s)
 
     def heartbeat(self, armed: bool, mode: int = 0) -> bytes:
@@ -223,6 +229,23 @@ class MavlinkEncoder:
             )
         ]
 
+    def global_position(self, t: float, lat: float, lon: float, alt: float, height: float, vel) -> bytes:
+        """GLOBAL_POSITION_INT: the autopilot's position estimate (lat, lon [deg], alt AMSL and
+        height above home [m], NED velocity [m/s]), its heading from the course (cdeg)."""
+        vn, ve, vd = (float(v) for v in vel)
+        return self.packer.pack(
+            "GLOBAL_POSITION_INT",
+            time_boot_ms=int(round(t * 1e3)) & 0xFFFFFFFF,
+            lat=int(round(lat * 1e7)),
+            lon=int(round(lon * 1e7)),
+            alt=int(round(alt * 1e3)),
+            relative_alt=int(round(height * 1e3)),
+            vx=int(round(vn * 100)),
+            vy=int(round(ve * 100)),
+            vz=int(round(vd * 100)),
+            hdg=int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)) if math.hypot(vn, ve) > 0.5 else 65535,
+        )
+
     def _attitude(self, s):
         r, p, y, wx, wy, wz = s.values
         return [
@@ -264,6 +287,7 @@ class MavlinkEncoder:
         | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
         | mavlink.MAV_SYS_STATUS_AHRS
         | mavlink.MAV_SYS_STATUS_SENSOR_BATTERY
+        | mavlink.MAV_SYS_STATUS_PREARM_CHECK  # its pre-arm checks pass (what MAVSDK reads as armable)
     )
 
     def _battery(self, s):
@@ -281,3 +305,17 @@ class MavlinkEncoder:
                 battery_remaining=int(round(soc * 100)),
             )
         ]
+
+    def battery_status(self, v: float, i: float, soc: float) -> bytes:
+        return self.packer.pack(
+            "BATTERY_STATUS",
+            id=0,
+            battery_function=mavlink.MAV_BATTERY_FUNCTION_ALL,
+            type=mavlink.MAV_BATTERY_TYPE_LIPO,
+            temperature=32767,  # unknown
+            voltages=[min(65534, int(round(v * 1000)))] + [65535] * 9,
+            current_battery=int(round(i * 100)),
+            current_consumed=-1,
+            energy_consumed=-1,
+            battery_remaining=int(round(soc * 100)),
+        )

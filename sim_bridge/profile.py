@@ -49,16 +49,18 @@ class Setpoint:
     armed: bool = False
     rate: float = 0.0  # [m/s] the height's rate and
     accel: float = 0.0  # [m/s^2] acceleration, fed forward (only the ramps set them: FlightProfile._ramp)
+    north: float = 0.0  # [m] the position held, from where the vehicle was switched on
+    east: float = 0.0
 
 
-FLIGHTS = ("standard", "thrust_test", "high")
+FLIGHTS = ("standard", "thrust_test", "high", "guided")
 
 
 class FlightProfile:
     """Height and tilt references over time, varied by the seed."""
 
     def __init__(self, seed: int = 0, duration: float = 60.0, flight: str = "standard") -> None:
-        if flight not in FLIGHTS:
+        if flight not in FLIGHTS or flight == "guided":
             raise ValueError(f"unknown flight {flight!r}; use one of {', '.join(FLIGHTS)}")
         rng = np.random.default_rng(seed + 1000)
         self.h1 = rng.uniform(1.0, 2.0)  # hover height
@@ -132,10 +134,73 @@ class FlightProfile:
         )
 
 
+class GuidedProfile:
+    """The flight a ground station commands (``flight="guided"``), as ArduCopter's GUIDED and AUTO
+    modes fly it: on the ground, motors off, until armed and told to take off; then a climb to the
+    height asked, a hold, straight legs to the positions asked at :attr:`SPEED`, and a landing
+    that ends disarmed, as ArduCopter disarms itself after touching down. The vehicle protocol
+    (:mod:`sim_bridge.vehicle_protocol`) and the mission (:mod:`sim_bridge.mission`) call it."""
+
+    CLIMB = 1.0  # [m/s] take-off and landing rates
+    SPEED = 2.0  # [m/s] horizontal speed along a leg
+
+    def __init__(self, duration: float = 60.0) -> None:
+        self.duration = duration
+        self.flight = "guided"
+        self.armed = False
+        self.flying = False  # taken off and not yet landed
+        self.landing = False
+        self._h = (0.0, 0.0, 0.0, 1.0)  # height ramp: t0, from, to, duration
+        self._leg = (0.0, 0.0, 0.0, 0.0, 0.0, 1.0)  # t0, north/east from, north/east to, duration
+
+    def __call__(self, t: float) -> Setpoint:
+        if not (self.armed and self.flying):
+            return Setpoint(0.0, armed=False)
+        t0, h0, h1, T = self._h
+        sp = FlightProfile._ramp(min(t - t0, T), T, h0, h1) if t - t0 < T else Setpoint(h1, armed=True)
+        lt0, n0, e0, n1, e1, LT = self._leg
+        f = min(1.0, max(0.0, (t - lt0) / LT))
+        sp.north, sp.east = n0 + f * (n1 - n0), e0 + f * (e1 - e0)
+        return sp
+
+    def height_target(self, t: float) -> float:
+        return self(t).height if self.flying else 0.0
+
+    def arrived(self, t: float) -> bool:
+        """The height ramp and the leg are flown (the vehicle itself settles behind them)."""
+        return t >= self._h[0] + self._h[3] and t >= self._leg[0] + self._leg[5]
+
+    def takeoff(self, t: float, height: float) -> None:
+        self.flying, self.landing = True, False
+        self.climb_to(t, height, from_height=0.0)
+
+    def climb_to(self, t: float, height: float, from_height: float | None = None) -> None:
+        h0 = self.height_target(t) if from_height is None else from_height
+        self._h = (t, h0, height, max(1.0, abs(height - h0) / self.CLIMB))
+
+    def go_to(self, t: float, north: float, east: float) -> None:
+        sp = self(t)
+        dist = math.hypot(north - sp.north, east - sp.east)
+        self._leg = (t, sp.north, sp.east, north, east, max(1.0, dist / self.SPEED))
+
+    def land(self, t: float) -> None:
+        """Down to below the ground (-0.3 m: the height loop pushes it onto the ground)."""
+        if self.flying:
+            self.landing = True
+            self.climb_to(t, -0.3)
+
+    def landed(self, t: float, on_ground: bool) -> bool:
+        """After a landing: on the ground with the descent flown; the motors stop."""
+        if self.landing and on_ground and t >= self._h[0] + self._h[3]:
+            self.flying = self.landing = self.armed = False
+            return True
+        return False
+
+
 class QuadAutopilot:
     """Height PID through the nominal thrust model; horizontal position hold by tilt."""
 
-    def __init__(self, quad: Quad, profile: FlightProfile) -> None:
+    def __init__(self, quad: Quad, profile: FlightProfile | GuidedProfile) -> None:
         self.q, self.profile = quad, profile
         self.i = 0.0
 
@@ -153,8 +218,8 @@ class QuadAutopilot:
         tau = (a_cmd + G - p.beta) / (p.alpha * tilt)
         # horizontal: hold the origin (tilt setpoints from a PD on position)
         c, s = math.cos(q.psi), math.sin(q.psi)
-        an = -0.8 * q.n - 1.2 * q.vn
-        ae = -0.8 * q.e - 1.2 * q.ve
+        an = -0.8 * (q.n - sp.north) - 1.2 * q.vn
+        ae = -0.8 * (q.e - sp.east) - 1.2 * q.ve
         pitch = -(c * an + s * ae) / G
         roll = (-s * an + c * ae) / G
         lim = 0.35
@@ -164,7 +229,7 @@ class QuadAutopilot:
 class CoaxAutopilot:
     """Collective for height, flapping angles for roll/pitch, differential for yaw."""
 
-    def __init__(self, coax: Coax, profile: FlightProfile) -> None:
+    def __init__(self, coax: Coax, profile: FlightProfile | GuidedProfile) -> None:
         self.c, self.profile = coax, profile
         self.i = 0.0
 
@@ -182,8 +247,8 @@ class CoaxAutopilot:
         tilt = max(0.5, math.cos(roll) * math.cos(pitch))
         i_col = p.mass * (G + a_cmd) / ((1 + p.k_w) * p.k_F * tilt)
         # position hold -> attitude setpoints
-        an = -0.5 * k.pos[0] - 1.0 * k.vel[0]
-        ae = -0.5 * k.pos[1] - 1.0 * k.vel[1]
+        an = -0.5 * (k.pos[0] - sp.north) - 1.0 * k.vel[0]
+        ae = -0.5 * (k.pos[1] - sp.east) - 1.0 * k.vel[1]
         pitch_sp = max(-0.3, min(0.3, -an / G + sp.pitch))
         roll_sp = max(-0.3, min(0.3, ae / G + sp.roll))
         return self.stabilised(i_col, roll_sp, pitch_sp, 0.0)

@@ -46,6 +46,8 @@ class Scenario:
             raise ScenarioError(f"unknown vehicle {self.vehicle!r}; use one of {', '.join(VEHICLES)}")
         if self.flight not in FLIGHTS:
             raise ScenarioError(f"unknown flight {self.flight!r}; use one of {', '.join(FLIGHTS)}")
+        if self.flight == "guided" and self.vehicle == "heli3dof":
+            raise ScenarioError("the 3-DOF rig is on its stand: it flies no guided flight")
 
     @property
     def effects(self) -> list[Effect]:

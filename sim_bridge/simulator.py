@@ -22,7 +22,7 @@ import numpy as np
 from groundstation.core.frames import euler_from_matrix
 
 from .effects import Effect
-from .profile import CoaxAutopilot, FlightProfile, Heli3dofAutopilot, QuadAutopilot
+from .profile import CoaxAutopilot, FlightProfile, GuidedProfile, Heli3dofAutopilot, QuadAutopilot
 from .scenario import Scenario
 from .sensors import SensorSuite
 from .vehicles.coax import Coax
@@ -45,7 +45,11 @@ class Simulator:
     def __init__(self, scenario: Scenario, *, truth_rate: float = 100.0, command_timeout: float = 0.5) -> None:
         self.scenario = scenario
         self.rng = np.random.default_rng(scenario.seed)
-        self.profile = FlightProfile(scenario.seed, scenario.duration, scenario.flight)
+        self.profile: FlightProfile | GuidedProfile = (
+            GuidedProfile(scenario.duration)
+            if scenario.flight == "guided"
+            else FlightProfile(scenario.seed, scenario.duration, scenario.flight)
+        )
         name = scenario.vehicle
         self.vehicle: Quad | Coax | Heli3dof
         self.autopilot: QuadAutopilot | CoaxAutopilot | Heli3dofAutopilot
@@ -57,6 +61,7 @@ class Simulator:
             self.vehicle, self.autopilot = coax, CoaxAutopilot(coax, self.profile)
         else:
             rig = Heli3dof()
+            assert isinstance(self.profile, FlightProfile)  # the scenario refuses a guided flight here
             self.vehicle, self.autopilot = rig, Heli3dofAutopilot(rig, self.profile)
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
         self.dt = 1.0 / self.rate

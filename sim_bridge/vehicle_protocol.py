@@ -1,6 +1,6 @@
 """What the simulated vehicle answers a ground station beyond its telemetry, as an ArduPilot
 vehicle does: parameters, commands with addressed acknowledgements, flight modes, arming,
-its version, ping and (an empty) mission list.
+its version, ping and the mission (:mod:`.mission`).
 
 * **Parameters**: the vehicle model's physical constants and the sensors' noise and rates, as
   ``SIM_*`` parameters (REAL32), plus ``SYSID_THISMAV``; PARAM_REQUEST_LIST streams them all,
@@ -11,10 +11,14 @@ its version, ping and (an empty) mission list.
   takeoff (refused unless armed), land, DO_SET_MODE (ArduCopter's mode numbers), message interval
   (the streams, :mod:`.mavlink_out`), REQUEST_MESSAGE and REQUEST_AUTOPILOT_CAPABILITIES
   (AUTOPILOT_VERSION, HOME_POSITION); anything else UNSUPPORTED.
-* **PING** answered to its sender; **MISSION_REQUEST_LIST** with a count of 0.
+* **PING** answered to its sender.
 
-The flight itself stays the simulator's (its built-in profile, or the ground station's
-MANUAL_CONTROL / SET_ATTITUDE_TARGET): arming and modes here are what the vehicle *reports*.
+On the guided flight (``flight="guided"``, :class:`~sim_bridge.profile.GuidedProfile`) the
+commands fly the vehicle, as on ArduCopter SITL: it waits on the ground until armed; takeoff
+climbs to the altitude asked (param7, above home; GUIDED); LAND and RTL come down (RTL over
+home first) and disarm on touching down; AUTO flies the mission; MISSION_START (300) is AUTO.
+On the built-in flights the flight stays the simulator's (its profile, or the ground station's
+MANUAL_CONTROL / SET_ATTITUDE_TARGET): arming and modes there are what the vehicle *reports*.
 """
 
 from __future__ import annotations
@@ -28,12 +32,16 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from drivers.mavlink.commands import MODE_NUMBERS
 
 from .mavlink_out import FramePacker
+from .mission import Mission
+from .profile import GuidedProfile
 
 #: the ArduCopter flight modes (drivers.mavlink.commands.COPTER_MODES) the simulated vehicle accepts
 ACCEPTED_MODES = {
     MODE_NUMBERS[n] for n in ("STABILIZE", "ALT_HOLD", "AUTO", "GUIDED", "LOITER", "RTL", "LAND", "POSHOLD")
 }
 MODE_GUIDED, MODE_LAND, MODE_LOITER = MODE_NUMBERS["GUIDED"], MODE_NUMBERS["LAND"], MODE_NUMBERS["LOITER"]
+MODE_AUTO, MODE_RTL = MODE_NUMBERS["AUTO"], MODE_NUMBERS["RTL"]
+TAKEOFF_DEFAULT = 2.5  # [m] a takeoff without an altitude climbs this high (as MAVSDK's default)
 FORCE_DISARM = 21196  # ArduPilot's magic number for a disarm in flight
 FIRMWARE_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # reported as 4.5.0 (official)
 
@@ -52,9 +60,12 @@ class VehicleProtocol:
         self.send = send
         self.sysid = sysid
         self.armed_cmd: bool | None = None  # arming by command overrides the flight profile's
-        self.mode = MODE_LOITER
+        #: the guided flight, which the commands fly (None: the built-in flight, reported only)
+        self.guided = sim.profile if isinstance(sim.profile, GuidedProfile) else None
+        self.mode = MODE_GUIDED if self.guided is not None else MODE_LOITER
         self.params = self._parameters()
         self.home: tuple[float, float, float] | None = None  # lat, lon [deg], alt AMSL [m]
+        self.mission = Mission(packer, send, sysid, self._home_or_origin)
 
     # -- parameters -----------------------------------------------------------------------------
     def _parameters(self) -> list[_Param]:
@@ -135,21 +146,20 @@ class VehicleProtocol:
         elif c == mavlink.MAV_CMD_DO_SET_MODE:
             mode = int(m.param2)
             if mode in ACCEPTED_MODES and int(m.param1) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                self.mode, result = mode, mavlink.MAV_RESULT_ACCEPTED
+                result = self.set_mode(mode)
             else:
                 result = mavlink.MAV_RESULT_DENIED
+        elif c == mavlink.MAV_CMD_MISSION_START:
+            result = self.set_mode(MODE_AUTO)
         elif c == mavlink.MAV_CMD_NAV_TAKEOFF:
-            if self.armed:
-                self.mode, result = MODE_GUIDED, mavlink.MAV_RESULT_ACCEPTED
-            else:
-                result = mavlink.MAV_RESULT_DENIED
+            result = self._takeoff(m.param7)
         elif c == mavlink.MAV_CMD_NAV_LAND:
-            self.mode, result = MODE_LAND, mavlink.MAV_RESULT_ACCEPTED
+            result = self.set_mode(MODE_LAND)
         elif c == mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self.send(self.autopilot_version())
             result = mavlink.MAV_RESULT_ACCEPTED
         elif c == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            frame = self._message(int(m.param1))
+            frame = self.message(int(m.param1))
             if frame is not None:
                 self.send(frame)
             result = mavlink.MAV_RESULT_ACCEPTED if frame is not None else mavlink.MAV_RESULT_UNSUPPORTED
@@ -160,11 +170,74 @@ class VehicleProtocol:
     def _arm(self, m) -> int:
         if m.param1 == 1:
             self.armed_cmd = True
+            if self.guided is not None:
+                self.guided.armed = True
             return mavlink.MAV_RESULT_ACCEPTED
         if not self.on_ground and int(m.param2) != FORCE_DISARM:
-            return mavlink.MAV_RESULT_DENIED  # in flight: only a forced disarm stops the motors' report
+            return mavlink.MAV_RESULT_DENIED  # in flight: only a forced disarm stops the motors
         self.armed_cmd = False
+        if self.guided is not None:
+            self.guided.armed = self.guided.flying = self.guided.landing = False
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _takeoff(self, altitude: float) -> int:
+        """Refused unless armed; on the guided flight, refused outside GUIDED (as ArduCopter)."""
+        if not self.armed:
+            return mavlink.MAV_RESULT_DENIED
+        if self.guided is None:
+            self.mode = MODE_GUIDED
+            return mavlink.MAV_RESULT_ACCEPTED
+        if self.mode != MODE_GUIDED:
+            return mavlink.MAV_RESULT_DENIED
+        height = altitude if math.isfinite(altitude) and altitude > 0 else TAKEOFF_DEFAULT
+        if self.guided.flying:
+            self.guided.climb_to(self.sim.t, height)
+        else:
+            self.guided.takeoff(self.sim.t, height)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def set_mode(self, mode: int) -> int:
+        """Change the flight mode; on the guided flight it acts: LAND comes down where it is, RTL
+        over home first, AUTO flies the mission from its current item, GUIDED holds where it is."""
+        g = self.guided
+        if g is not None and mode != self.mode:
+            t = self.sim.t
+            if mode == MODE_LAND:
+                g.land(t)
+            elif mode == MODE_RTL:
+                g.go_to(t, 0.0, 0.0)
+            elif mode == MODE_AUTO:
+                self.mission.resume()
+            elif g.flying and not g.landing:
+                sp = g(t)
+                g.climb_to(t, sp.height)
+                g.go_to(t, sp.north, sp.east)
+        self.mode = mode
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def tick(self) -> None:
+        """Each step of the bridge: the mission's uploads time out; on the guided flight, AUTO
+        flies on, RTL comes down once over home, and a landing ends disarmed."""
+        t = self.sim.t
+        self.mission.timeouts(t)
+        g = self.guided
+        if g is None:
+            return
+        kin = self.sim.vehicle.kin
+        position = (float(kin.pos[0]), float(kin.pos[1]))
+        if self.mode == MODE_AUTO and g.armed:
+            self.mission.fly(g, t, self.on_ground, position)
+        elif self.mode == MODE_RTL and g.flying and not g.landing and g.arrived(t):
+            g.land(t)
+        if g.landed(t, self.on_ground):
+            self.armed_cmd = False
+
+    def _home_or_origin(self) -> tuple[float, float, float]:
+        """Home: the first fix; before one, the GPS model's origin on the ground."""
+        if self.home is not None:
+            return self.home
+        cfg = self.sim.sensors.cfg
+        return (*cfg.gps_origin, cfg.ground_alt)
 
     @property
     def on_ground(self) -> bool:
@@ -172,11 +245,14 @@ class VehicleProtocol:
 
     @property
     def armed(self) -> bool:
+        if self.guided is not None:
+            return self.guided.armed
         if self.armed_cmd is not None:
             return self.armed_cmd
         return bool(self.sim.profile(self.sim.t).armed or self.sim.externally_commanded)
 
-    def _message(self, msgid: int) -> bytes | None:
+    def message(self, msgid: int) -> bytes | None:
+        """The protocol message with this id, as the vehicle sends it now (None: not one it sends)."""
         if msgid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return self.autopilot_version()
         if msgid == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
@@ -225,6 +301,11 @@ class VehicleProtocol:
 
     def extended_sys_state(self) -> bytes:
         landed = mavlink.MAV_LANDED_STATE_ON_GROUND if self.on_ground else mavlink.MAV_LANDED_STATE_IN_AIR
+        g = self.guided
+        if g is not None and g.landing:
+            landed = mavlink.MAV_LANDED_STATE_LANDING
+        elif g is not None and g.flying and self.on_ground:
+            landed = mavlink.MAV_LANDED_STATE_TAKEOFF
         return self.packer.pack("EXTENDED_SYS_STATE", vtol_state=0, landed_state=landed)
 
     def on_ping(self, m) -> None:
@@ -233,19 +314,6 @@ class VehicleProtocol:
             self.send(
                 self.packer.pack(
                     "PING", time_usec=m.time_usec, seq=m.seq, target_system=src_sys, target_component=src_comp
-                )
-            )
-
-    def on_mission_request_list(self, m) -> None:
-        if _for_me(m, self.sysid):
-            src_sys, src_comp = _sender(m)
-            self.send(
-                self.packer.pack(
-                    "MISSION_COUNT",
-                    target_system=src_sys,
-                    target_component=src_comp,
-                    count=0,
-                    mission_type=getattr(m, "mission_type", 0),
                 )
             )
 

@@ -56,7 +56,8 @@ async def test_a_wrong_key_or_none_is_refused(key):
     assert br.sim.sensors.rates["imu"] == 500.0  # nothing we sent was taken
     assert br.received.get("COMMAND_LONG", 0) == 0 and br.signature_refused > 0  # our frames, refused
     if key is not None:  # we check: the vehicle's frames, signed with its key, are refused and counted
-        assert not link.vehicles and link.counters.signature_refused > 100
+        c = link.counters
+        assert not link.vehicles and c.messages == 0 and c.signature_refused >= 0.8 * br.frames_sent > 10
 
 
 def test_signature_check_refuses_replays_and_unsigned_frames():

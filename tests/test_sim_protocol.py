@@ -1,6 +1,7 @@
 """The simulated vehicle as a ground station sees it, beyond its telemetry: an ArduPilot-like
 HEARTBEAT, parameters, commands with addressed ACKs, modes, arming, its version, ping, the mission
-list; driven by pymavlink frames over a real UDP socket, and by MAVProxy itself."""
+protocol and the guided flight; driven by pymavlink frames over a real UDP socket, and by MAVProxy
+itself."""
 
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from .helpers import running, simulated_vehicle
 
 GS = [sys.executable, "-m", "groundstation"]
 ME_SYS, ME_COMP = 250, 190  # the test's own MAVLink address: ACKs must name it
+HOME = (47.397742, 8.545594)  # the simulator's GPS origin (sim_bridge/sensors.py)
 
 
 def _recv(c, kind: str, cond=lambda m: True, timeout: float = 10.0):
@@ -95,9 +97,10 @@ MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 
 @pytest.mark.slow
-def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mission(tmp_path):
-    """MAVProxy 1.8 (its param, mode, arm, wp and cmdlong modules) against the simulator on loopback,
-    scripted through its console: what a user opens MAVProxy for works without retrying forever."""
+def test_mavproxy_fetches_parameters_sets_one_uploads_a_mission_and_the_vehicle_flies_it(tmp_path):
+    """MAVProxy 1.8 (its param, mode, arm, wp and cmdlong modules) against the simulator's guided
+    flight on loopback, scripted through its console: parameters fetched and one set, a mission
+    uploaded and listed back, then armed and flown in AUTO until it lands and disarms."""
     port = free_udp_port()
     lines: queue.Queue[str] = queue.Queue()
     seen: list[str] = []
@@ -127,7 +130,10 @@ def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mi
         "text": True,
         "bufsize": 1,
     }
-    with running(mavproxy, **pipes) as mp, simulated_vehicle(port, "--sysid", "7", "--duration", "120"):
+    with (
+        running(mavproxy, **pipes) as mp,
+        simulated_vehicle(port, "--sysid", "7", "--duration", "120", "--flight", "guided"),
+    ):
         threading.Thread(target=lambda: [lines.put(ln) for ln in mp.stdout], daemon=True).start()
 
         def say(cmd: str) -> None:
@@ -146,10 +152,24 @@ def test_mavproxy_fetches_parameters_sets_one_changes_mode_arms_and_lists_the_mi
             if float(until("SIM_DRAG = ").split("=")[1]) == pytest.approx(0.4):
                 break
             assert time.monotonic() < end, "the vehicle never took the set value"
-        say("mode GUIDED")
-        until("DO_SET_MODE: ACCEPTED")
-        say("arm throttle")
-        until("COMPONENT_ARM_DISARM: ACCEPTED")
         say("wp list")
         until("Requesting 0 waypoints")
+        # a mission in MAVProxy's file format (item 0 home): take off to 3 m, 5 m north, land
+        wpl = tmp_path / "mission.txt"
+        rows = [(0, 1, 0, 16, 0, HOME[0], HOME[1], 120.0), (1, 0, 3, 22, 0, 0, 0, 3.0),
+                (2, 0, 3, 16, 0, HOME[0] + 5 / 111_320, HOME[1], 3.0), (3, 0, 3, 21, 0, 0, 0, 0.0)]  # fmt: skip
+        wpl.write_text("QGC WPL 110\n" + "".join(
+            f"{i}\t{cur}\t{frame}\t{cmd}\t{p1}\t0\t0\t0\t{lat:.7f}\t{lon:.7f}\t{alt}\t1\n"
+            for i, cur, frame, cmd, p1, lat, lon, alt in rows))  # fmt: skip
+        say(f"wp load {wpl}")
+        until("Loaded 4 waypoints in")
+        say("wp list")
+        until("Requesting 4 waypoints")
+        say("arm throttle")
+        until("COMPONENT_ARM_DISARM: ACCEPTED")
+        say("mode AUTO")
+        until("DO_SET_MODE: ACCEPTED")
+        until("waypoint 2")  # the take-off flown, on to the waypoint (MISSION_CURRENT)
+        until("waypoint 3", timeout=60)  # the waypoint reached, landing
+        until("DISARMED", timeout=60)  # on the ground, the motors stopped: the mission flown
         assert (tmp_path / "mav_7_1.parm").exists()  # MAVProxy saved the parameters it fetched

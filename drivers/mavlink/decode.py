@@ -153,6 +153,8 @@ class MavlinkDecoder:
         self.unknown: Counter[str] = Counter()
         self._sources: dict[tuple[int, int], str] = {}
         self._pending: dict[int, list[Measurement]] = {}
+        #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
+        self._battery_status_from: set[str] = set()
         # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
         self._handlers: dict[type, tuple[Callable, tuple[str, float] | None, int]] = {}
         for cls in mavlink.mavlink_map.values():
@@ -355,9 +357,13 @@ class MavlinkDecoder:
         )
 
     def _sys_status(self, m, t, t_rx, source, instance, out):
+        if source in self._battery_status_from:
+            return  # the same battery monitor's reading, already taken from BATTERY_STATUS
         self._battery(m.voltage_battery, m.current_battery, m.battery_remaining, t, t_rx, source, 0, out)
 
     def _battery_status(self, m, t, t_rx, source, instance, out):
+        if m.id == 0:
+            self._battery_status_from.add(source)
         cells = [v for v in m.voltages if v != _UINT16_MAX]
         cells += [v for v in (getattr(m, "voltages_ext", None) or ()) if v not in (0, _UINT16_MAX)]
         volts = sum(cells) if cells else _UINT16_MAX

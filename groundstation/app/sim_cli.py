@@ -13,7 +13,7 @@ from drivers.mavlink.link import MavlinkLink
 from groundstation.control.station import ControlStation
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.registry import build_estimator
-from sim_bridge.bridge import LinkFaults, SimBridge
+from sim_bridge.bridge import UNASKED_RATE, LinkFaults, SimBridge
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
 from sim_bridge.profile import FLIGHTS
@@ -37,7 +37,8 @@ def add_sim_parser(sub) -> None:
         default="standard",
         help="the built-in flight: standard; thrust_test (a low hover in ground effect and "
         "throttle steps instead of the altitude sine); or high (a climb to 5-8 m, above the "
-        "range sensor's 4 m, where the barometer alone carries the height)",
+        "range sensor's 4 m, where the barometer alone carries the height); or guided (on the ground "
+        "until armed and commanded: take-off, land, GUIDED and AUTO with a mission, as ArduCopter SITL)",
     )
     s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
     s.add_argument(
@@ -71,6 +72,14 @@ def add_sim_parser(sub) -> None:
         help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)",
     )
     s.add_argument("--sysid", type=int, default=1, help="the vehicle's MAVLink system id (1-255; default 1)")
+    s.add_argument(
+        "--unasked-rate",
+        type=float,
+        default=UNASKED_RATE,
+        metavar="HZ",
+        help=f"each stream's rate until a ground station asks for it (default {UNASKED_RATE:g}, as an "
+        "autopilot's default stream rates; 0: every stream at its sensor's rate from the start)",
+    )
     add_signing_option(s)
     s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
     s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
@@ -152,6 +161,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
         sysid=_sysid(args.sysid),
         signing_key=key_of(args),
+        unasked_rate=args.unasked_rate if args.unasked_rate > 0 else None,
     )
     truth_file = None
     if args.truth:
