@@ -97,7 +97,8 @@ _TIMESPEC = struct.Struct("qq")
 
 
 class UdpTransport(Transport):
-    """``udpin`` listens and answers the last sender; ``udpout`` talks to one address.
+    """``udpin`` listens and answers the last sender (or one it names: :meth:`send_to`, :attr:`source`);
+    ``udpout`` talks to one address.
 
     A plain non-blocking socket on ``loop.add_reader`` rather than asyncio's
     datagram transport, which reads one datagram per event-loop turn: under a
@@ -131,6 +132,8 @@ class UdpTransport(Transport):
         super().__init__(endpoint)
         self._sock: socket.socket | None = None
         self.peer: tuple | None = None
+        #: udpin: the address of the datagram being handed on (who sent what ``on_data`` is given)
+        self.source: tuple | None = None
         self.send_errors = 0
         self.kernel_drops = 0
         self.on_burst_end: Callable[[], None] = _nothing
@@ -181,7 +184,7 @@ class UdpTransport(Transport):
                     break
                 t_rx = self._ancillary(anc) if anc else time.time()
                 if udpin:
-                    self.peer = addr
+                    self.peer = self.source = addr
                 # each datagram is handed on as it is read: a burst does not make its first frame
                 # wait for its last
                 on_data(data, t_rx)
@@ -205,9 +208,13 @@ class UdpTransport(Transport):
         return t_rx or time.time()
 
     def send(self, data: bytes) -> None:
-        if self._sock is not None and self.peer is not None:
+        if self.peer is not None:
+            self.send_to(data, self.peer)
+
+    def send_to(self, data: bytes, addr: tuple) -> None:
+        if self._sock is not None:
             try:
-                self._sock.sendto(data, self.peer)
+                self._sock.sendto(data, addr)
             except OSError:
                 self.send_errors += 1
 

@@ -132,6 +132,7 @@ class SimBridge:
         self.send_errors = 0
         self.received: dict[str, int] = {}
         self.commands_received = 0
+        self.addressed_elsewhere = 0  # messages received that name another system id
         self.signature_refused = 0
         self._down_until = 0.0
         self._burst_until = 0.0
@@ -216,6 +217,8 @@ class SimBridge:
                     self.signature_refused += 1  # unsigned, or signed with another key
                 continue
             self.received[t] = self.received.get(t, 0) + 1
+            if getattr(m, "target_system", 0) not in (0, self.protocol.sysid):
+                self.addressed_elsewhere += 1  # for another vehicle: each one ignores the others'
             if t.startswith("MISSION_") and self.protocol.mission.on_message(m, self.sim.t):
                 continue
             handler = getattr(self, "_on_" + t.lower(), None)

@@ -117,3 +117,33 @@ def test_a_57600_baud_radio_gets_the_estimators_streams_first():
     assert roomy == DEFAULT_STREAMS
     link = MavlinkLink("/dev/ttyUSB9,57600")  # not opened: the budget comes from the baud
     assert link.max_rate == pytest.approx(5760.0) and link.requester.streams == got
+
+
+@async_test(timeout=60)
+async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_address():
+    """Two simulated vehicles (system ids 1 and 2, each its own socket) write to one ``udpin``
+    port: each is asked for its streams, and a request for one never reaches the other."""
+    link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
+    await link.open()
+    port = link.transport.local_address[1]
+    bridges = [SimBridge(Scenario("quad", seed=7 + k), udp_to=("127.0.0.1", port), sysid=k) for k in (1, 2)]
+    tasks = []
+    try:
+        for br in bridges:
+            await br.open()
+            tasks.append(_start(br))
+        for k, br in zip((1, 2), bridges, strict=True):
+            await _until(lambda br=br: br.sim.sensors.rates == ASKED, 30, f"vehicle {k}'s streams asked")
+        assert set(link.vehicles) == {1, 2}
+        for k, br in zip((1, 2), bridges, strict=True):
+            v = link.requester.vehicles[k]
+            assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
+            assert len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS)
+            assert br.received["COMMAND_LONG"] > 0 and br.addressed_elsewhere == 0  # its own, none of the other's
+    finally:
+        for br in bridges:
+            br.close()
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await link.close()

@@ -131,6 +131,7 @@ class MavlinkLink:
         self._last_valid = 0.0
         self._tasks: list[asyncio.Task] = []
         self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
+        self._address_of: dict[int, tuple] = {}  # udpin: sysid -> the address its heartbeats come from
         self.requester = StreamRequester(
             self.send,
             lambda: self.receiver.counters.by_type,
@@ -225,7 +226,15 @@ class MavlinkLink:
         v1 = self._peer_is_v1() if force_mavlink1 is None else force_mavlink1
         buf = msg.pack(self._mav_out, force_mavlink1=v1)
         self._mav_out.seq = (self._mav_out.seq + 1) % 256
-        self.transport.send(buf)
+        tr = self.transport
+        if isinstance(tr, UdpTransport) and self._address_of:
+            # udpin with vehicles heard: a message for one goes to its address, the rest to each
+            target = getattr(msg, "target_system", 0)
+            addrs = [self._address_of[target]] if target in self._address_of else set(self._address_of.values())
+            for addr in addrs:
+                tr.send_to(buf, addr)
+        else:
+            tr.send(buf)
         if self.recorder is not None:
             self.recorder.write(buf, time.time())
 
@@ -283,6 +292,9 @@ class MavlinkLink:
         if m.type in _GCS_TYPES or m.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
             return
         sysid = hdr.srcSystem
+        tr = self.transport
+        if isinstance(tr, UdpTransport) and tr.endpoint.scheme == "udpin" and tr.source is not None:
+            self._address_of[sysid] = tr.source  # answered there, whoever wrote last
         clock = self.receiver.decoder.clocks.get(sysid)
         restarts = clock.restarts if clock is not None else 0
         new = sysid not in self._vehicles
