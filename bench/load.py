@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.mavlink.link import MavlinkLink  # noqa: E402
 from drivers.mavlink.receiver import MavlinkReceiver  # noqa: E402
 from drivers.tlog import TlogIndex  # noqa: E402
-from groundstation.app.cli import Outputs  # noqa: E402
+from groundstation.app.outputs import Outputs  # noqa: E402
 
 SENDER = textwrap.dedent("""
     import random, socket, sys, time

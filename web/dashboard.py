@@ -126,6 +126,8 @@ class Dashboard:
         self.declared: list[dict] = []
         #: the airframe file the session's estimator was given (--vehicle): the diagnosis starts from it too
         self.airframe: str | None = None
+        #: called with a system id when the user picks another vehicle (:meth:`set_vehicles`)
+        self.on_vehicle: Callable[[int], None] | None = None
         self._build()
         #: update failures by one-line description, with their counts (:meth:`run`)
         self.update_errors: dict[str, int] = {}
@@ -159,6 +161,14 @@ class Dashboard:
         )
         with gui.add_folder("Link"):
             self.link_md = gui.add_markdown("waiting for data")
+            # several vehicles on the link: which one the view shows (hidden while there is one)
+            self.vehicle_choice = gui.add_dropdown("vehicle", options=("1",), visible=False)
+
+        @self.vehicle_choice.on_update
+        async def _(_e) -> None:
+            if self.on_vehicle is not None:
+                self.on_vehicle(int(self.vehicle_choice.value))
+
         with gui.add_folder("State"):
             self.state_md = gui.add_markdown("no estimate yet")
         with gui.add_folder("Plots"):
@@ -308,6 +318,24 @@ class Dashboard:
 
     def set_link_status(self, text: str) -> None:
         self.status_text = text
+
+    def set_vehicles(self, sysids: list[int]) -> None:
+        """The vehicles on the link (their system ids): offered in the vehicle picker."""
+        current = self.vehicle_choice.value
+        self.vehicle_choice.options = tuple(str(k) for k in sysids)
+        if current in self.vehicle_choice.options:
+            self.vehicle_choice.value = current  # type: ignore[misc]  # viser's setter is typed apart from its getter
+        self.vehicle_choice.visible = len(sysids) > 1
+
+    def clear_view(self) -> None:
+        """Forget what is shown (another vehicle comes next): its place, trail, plots and window."""
+        self._snap, self._truth, self._P_ne = None, None, None
+        self._att, self._pos_ne, self._range = (0.0, 0.0, 0.0), np.zeros(2), math.nan
+        for buf in (self._trail, self._series, self._meas, self._innov, self._params):
+            buf.clear()
+        self._ellipsoid_shape = None
+        self.session = SessionBuffer()
+        self._dirty = True
 
     def add_control(self, station):
         """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`),

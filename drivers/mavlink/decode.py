@@ -153,6 +153,8 @@ class MavlinkDecoder:
         self.unknown: Counter[str] = Counter()
         self._sources: dict[tuple[int, int], str] = {}
         self._pending: dict[int, list[Measurement]] = {}
+        #: system ids heard with a ground station's heartbeat
+        self.ground_stations: set[int] = set()
         #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
         self._battery_status_from: set[str] = set()
         # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
@@ -415,7 +417,9 @@ class MavlinkDecoder:
 
     def _heartbeat(self, m, t, t_rx, source, instance, out):
         if m.type == mavlink.MAV_TYPE_GCS:
-            return  # a ground station's (ours, recorded in a tlog): no vehicle status
+            # a ground station's (ours, recorded in a tlog): no vehicle status, and not a vehicle
+            self.ground_stations.add(int(source.rsplit("/", 1)[1].split(".")[0]))
+            return
         armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
         out.append(
             _new(

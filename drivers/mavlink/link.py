@@ -76,6 +76,9 @@ FALLBACK_DATA_STREAMS: dict[int, float] = {
     mavlink.MAV_DATA_STREAM_EXTRA3: 10.0,
 }
 
+#: our system id on the link, as MAVProxy's and QGroundControl's
+GCS_SYSTEM_ID = 255
+
 _GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
 
 
@@ -89,7 +92,7 @@ class MavlinkLink:
         heartbeat_hz: float = 1.0,
         streams: dict[str, float] | None = DEFAULT_STREAMS,
         record: str | Path | None = None,
-        system_id: int = 255,
+        system_id: int = GCS_SYSTEM_ID,
         component_id: int = 190,
         buffer: int = 20_000,
         ack_timeout: float = 1.0,
@@ -132,6 +135,7 @@ class MavlinkLink:
         self._tasks: list[asyncio.Task] = []
         self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
         self._address_of: dict[int, tuple] = {}  # udpin: sysid -> the address its heartbeats come from
+        self._ground_stations: set[int] = set()  # sysids heard with a ground station's heartbeat
         self.requester = StreamRequester(
             self.send,
             lambda: self.receiver.counters.by_type,
@@ -164,6 +168,15 @@ class MavlinkLink:
     @property
     def vehicles(self) -> dict[int, int]:
         return dict(self._vehicles)
+
+    @property
+    def ground_stations(self) -> set[int]:
+        """System ids heard with a ground station's (or companion's) heartbeat: not vehicles."""
+        return set(self._ground_stations)
+
+    def is_vehicle(self, sysid: int) -> bool:
+        """Not a ground station on the link (a vehicle, or not yet known as anything else)."""
+        return sysid not in self._ground_stations
 
     @property
     def stream_method(self) -> dict[int, str]:
@@ -289,9 +302,10 @@ class MavlinkLink:
 
     def _heartbeat_in(self, m) -> None:
         hdr = m._header
-        if m.type in _GCS_TYPES or m.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
-            return
         sysid = hdr.srcSystem
+        if m.type in _GCS_TYPES or m.autopilot == mavlink.MAV_AUTOPILOT_INVALID:
+            self._ground_stations.add(sysid)
+            return
         tr = self.transport
         if isinstance(tr, UdpTransport) and tr.endpoint.scheme == "udpin" and tr.source is not None:
             self._address_of[sysid] = tr.source  # answered there, whoever wrote last

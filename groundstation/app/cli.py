@@ -31,31 +31,29 @@ from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
 from drivers.logs.dataflash import DataFlashError, is_dataflash
 from drivers.logs.ulog import ULogError, is_ulog
 from drivers.mavlink.commands import CommandError
-from drivers.mavlink.link import LinkState, MavlinkLink
+from drivers.mavlink.link import GCS_SYSTEM_ID, LinkState, MavlinkLink
 from drivers.mavlink.params import ParamError
 from drivers.replay import Replay, check_speed
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 from groundstation.control.station import ControlStation
-from groundstation.core.counts import counted
 from groundstation.estimation.evaluate import evaluate
-from groundstation.estimation.export import EstimateCsvWriter, MeasurementCsvWriter
 from groundstation.estimation.logs import load_measurements
-from groundstation.estimation.loop import EstimationLoop
-from groundstation.estimation.noise import load_noise, stationary_noise
+from groundstation.estimation.noise import stationary_noise
 from groundstation.estimation.registry import CLI_MODELS, build_estimator, vehicle_config
-from groundstation.estimation.vehicles import declared_beside, declared_effects
+from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
 from .command_cli import add_parser as add_command_parser
 from .command_cli import run_command_cli
-from .console import REPLAY_HELP, StatusLine, print_control_notes, print_link_events, replay_command
+from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import add_parser as add_diagnose_parser
 from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
 from .fleet_cli import add_parser as add_fleet_parser
 from .fleet_cli import cmd_fleet
 from .options import add_signing_option, add_web_options, key_of
+from .outputs import Outputs, VehicleOutputs
 from .param_cli import add_parser as add_param_parser
 from .param_cli import run_param
 from .signals import on_stop_signal
@@ -263,88 +261,6 @@ def _install_stop(stop: asyncio.Event) -> None:
     on_stop_signal(stop.set)
 
 
-class Outputs:
-    """The estimation loop and the files a command writes, fed measurement by measurement."""
-
-    def __init__(self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None) -> None:
-        declared = declared_effects(declared_path)
-        self.estimator = build_estimator(args.model, declared, load_noise(args.noise), vehicle=vehicle)
-        estimators = [self.estimator]
-        if dashboard is not None:
-            # the 3D view needs a horizontal place and its covariance; none of the
-            # documents' models has one (see models/horizontal.py)
-            estimators.append(build_estimator("horizontal"))
-            dashboard.attach_session(
-                model=args.model, declared=declared, counters=self.estimator.counters, vehicle=vehicle
-            )
-        self.loop = EstimationLoop(estimators)
-        self.status = StatusLine()
-        self.dashboard = dashboard
-        self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None
-        self.estimates = None
-        if args.export:
-            self.estimates = EstimateCsvWriter(args.export, self.estimator.name, self.estimator.model.states)
-        # the exporter and the dashboard read the same snapshots
-        self._snaps = self.loop.snapshots.subscribe() if (args.export or dashboard) else None
-
-    def see(self, m) -> None:
-        """One measurement of a recording: every one is estimated."""
-        self._show(m)
-        self.loop.push(m)
-        self._drain()
-
-    def see_live(self, batch: list) -> None:
-        """A live link's batch: estimated within the loop's latency budget (shed under load)."""
-        for m in batch:
-            self._show(m)
-        self.loop.push_many(batch)
-        self._drain()
-
-    def _show(self, m) -> None:
-        self.status.see(m)
-        if self.measurements is not None:
-            self.measurements.write(m)
-        if self.dashboard is not None:
-            self.dashboard.feed_measurement(m)
-
-    def _drain(self) -> None:
-        if self._snaps is None:
-            return
-        for snap in self._snaps.get_nowait():
-            if self.estimates is not None:
-                self.estimates.write(snap)
-            if self.dashboard is not None:
-                self.dashboard.feed_snapshot(snap)
-
-    def skipped(self) -> str:
-        """What the estimator rejected so far, and its restarts, for the status line ('' if nothing)."""
-        c = self.estimator.counters
-        parts = [f"skipped {counted(c.rejected)}"] if c.rejected else []
-        if c.diverged:
-            parts.append(f"diverged and restarted {c.diverged}x")
-        if self.loop.counters.shed:
-            parts.append(f"decimated {self.loop.counters.shed} readings under load")
-        return "; ".join(parts)
-
-    def close(self) -> str:
-        self._drain()
-        parts = []
-        c = self.estimator.counters
-        if c.rejected:
-            parts.append(f"the estimator skipped {counted(c.rejected)}")
-        if c.diverged:
-            parts.append(f"the estimator diverged and restarted {c.diverged} times")
-        if self.loop.counters.shed:
-            parts.append(f"decimated {self.loop.counters.shed} readings under load")
-        if self.estimates is not None:
-            self.estimates.close(counters=c, loop=self.loop.counters)
-            parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
-        if self.measurements is not None:
-            self.measurements.close()
-            parts.append(f"wrote {self.measurements.rows} measurement rows to {self.measurements.path}")
-        return "; ".join(parts)
-
-
 def _start_dashboard(args):
     if getattr(args, "no_web", True):
         return None
@@ -387,14 +303,14 @@ class RateMeter:
         return rates
 
 
-async def _consume(sub, out: Outputs) -> None:
+async def _consume(sub, out: Outputs | VehicleOutputs) -> None:
     """A recording's measurements, every one (the replay waits for the consumer)."""
     async for batch in sub.batches():
         for m in batch:
             out.see(m)
 
 
-async def _consume_live(sub, out: Outputs) -> None:
+async def _consume_live(sub, out: Outputs | VehicleOutputs) -> None:
     """A live link's measurements, a batch at a time (yielding the event loop between batches)."""
     async for batch in sub.batches():
         out.see_live(batch)
@@ -436,22 +352,30 @@ async def run_connect(args) -> int:
     _install_stop(stop)
     supervisor = Supervisor(stop.set)
     dash = _start_dashboard(args)
-    out = Outputs(args, args.declared, dash, args.vehicle)
-    status = out.status
+    outs = VehicleOutputs(
+        args,
+        args.declared,
+        dash,
+        args.vehicle,
+        is_vehicle=link.is_vehicle,
+        on_new=dash.set_vehicles if dash is not None else None,
+    )
+    if dash is not None:
+        dash.on_vehicle = outs.show
     rates = RateMeter()
 
     async def print_status():
         while True:
             await asyncio.sleep(1.0)
+            shown = outs.by_id.get(outs.shown) if outs.shown is not None else outs.first
             if dash is not None:
-                dash.set_link_status(
-                    link_markdown(link.state.value, link.counters, rates(link.counters.by_type), out.loop.counters.shed)
-                )
+                shed = shown.loop.counters.shed if shown is not None else 0
+                dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type), shed))
             if not args.quiet:
-                status.print(link.state.value, link.counters, out.skipped())
+                outs.print_status(link.state.value, link.counters)
 
     tasks = [
-        supervisor.start("estimation", lambda: _consume_live(sub, out)),
+        supervisor.start("estimation", lambda: _consume_live(sub, outs)),
         supervisor.start("link events", lambda: print_link_events(events)),
         supervisor.start("status line", print_status),
     ]
@@ -486,7 +410,7 @@ async def run_connect(args) -> int:
         await asyncio.gather(*tasks, return_exceptions=True)
         if dash is not None:
             dash.stop()
-        written = out.close()
+        written = outs.close()
     c = link.counters
     print(
         f"closed: {c.messages} messages, {c.crc_errors} CRC errors, loss {c.loss_percent:.1f}%"
@@ -522,8 +446,19 @@ def _open_replay(args) -> tuple[Replay, str, str | None]:
 async def run_replay(args) -> int:
     rp, desc, vehicle = _open_replay(args)
     dash = _start_dashboard(args)
-    out = Outputs(args, args.declared or declared_beside(args.file), dash, args.vehicle or vehicle)
-    status = out.status
+    decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
+    stations = decoder.ground_stations if decoder is not None else set()
+    out = VehicleOutputs(
+        args,
+        args.declared or declared_beside(args.file),
+        dash,
+        args.vehicle or vehicle,
+        # our own frames are in a tlog too, some before our first heartbeat
+        is_vehicle=lambda sysid: sysid not in stations and sysid != GCS_SYSTEM_ID,
+        on_new=dash.set_vehicles if dash is not None else None,
+    )
+    if dash is not None:
+        dash.on_vehicle = out.show
     print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}", flush=True)
     if rp.speed == math.inf and not args.loop and dash is None:
         # Batch: the same receive path, without an event loop round trip per record.
@@ -551,10 +486,8 @@ async def run_replay(args) -> int:
                         )
                     )
                 if not args.quiet:
-                    status.print(
-                        rp.status.state.value,
-                        rp.receiver.counters,
-                        "  ".join(x for x in (f"t {rp.position:.1f}/{rp.duration:.1f} s", out.skipped()) if x),
+                    out.print_status(
+                        rp.status.state.value, rp.receiver.counters, f"t {rp.position:.1f}/{rp.duration:.1f} s"
                     )
 
         printer = supervisor.start("status line", print_status)
@@ -586,7 +519,7 @@ async def run_replay(args) -> int:
     written = out.close()
     damage = rp.skipped_summary()
     print(
-        f"done: {status.count} measurements from {rp.receiver.counters.messages} messages"
+        f"done: {out.count} measurements from {rp.receiver.counters.messages} messages"
         + (f"; {damage}" if damage else "")
         + (f"; {written}" if written else ""),
         flush=True,
