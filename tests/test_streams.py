@@ -147,3 +147,39 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await link.close()
+
+
+@async_test(timeout=60)
+async def test_a_restart_is_a_new_segment_not_loss():
+    """The vehicle restarts within a second (its sequence numbers and clock start over): the link
+    counts a restart and no lost frames, says so on its event stream, and asks again."""
+    link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
+    events = link.events()
+    await link.open()
+    port = link.transport.local_address[1]
+    bridges: list[SimBridge] = []
+    tasks: list[asyncio.Task] = []
+    try:
+        a = SimBridge(Scenario("quad", seed=8), udp_to=("127.0.0.1", port))
+        bridges.append(a)
+        await a.open()
+        tasks.append(_start(a))
+        await _until(lambda: _settled(link, a) and a.sim.t > 3.0, 30, "streams asked and 3 s up")
+        a.close()
+        b = SimBridge(Scenario("quad", seed=8), udp_to=("127.0.0.1", port))
+        bridges.append(b)
+        await b.open()
+        tasks.append(_start(b))
+        v = link.requester.vehicles[1]
+        await _until(lambda: v.requests == 2 and _settled(link, b), 30, "asked again after the restart")
+        c = link.counters
+        assert c.restarts == 1 and c.seq_lost == 0, (c.restarts, c.seq_lost)
+        said = [e.reason for e in events.get_nowait()]
+        assert any("vehicle 1 restarted" in r for r in said), said
+    finally:
+        for br in bridges:
+            br.close()
+        for t in tasks:
+            t.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        await link.close()

@@ -153,6 +153,8 @@ class MavlinkDecoder:
         self.unknown: Counter[str] = Counter()
         self._sources: dict[tuple[int, int], str] = {}
         self._pending: dict[int, list[Measurement]] = {}
+        #: called with a system id whose clock went back (it restarted: VehicleClock.restarts)
+        self.on_restart: Callable[[int], None] | None = None
         #: system ids heard with a ground station's heartbeat
         self.ground_stations: set[int] = set()
         #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
@@ -189,7 +191,10 @@ class MavlinkDecoder:
             raw = getattr(m, tfield[0])
             if raw and not (tfield[1] == 1e-6 and raw > EPOCH_THRESHOLD_US):
                 t = raw * tfield[1]
+                restarts = clock.restarts
                 clock.observe(t, t_rx)
+                if clock.restarts != restarts and self.on_restart is not None:
+                    self.on_restart(sysid)
         if t != t:
             t = clock.vehicle_time(t_rx)
         key = (sysid, compid)

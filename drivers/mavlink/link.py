@@ -314,7 +314,11 @@ class MavlinkLink:
         new = sysid not in self._vehicles
         # heard again after the link was lost, or its clock went back (a reboot): it starts over
         # at its default rates, so everything is asked again
-        again = not new and (self._lost_since_heartbeat.get(sysid) or restarts > self._clock_restarts.get(sysid, 0))
+        restarted = not new and restarts > self._clock_restarts.get(sysid, 0)
+        again = not new and (self._lost_since_heartbeat.get(sysid) or restarted)
+        if restarted:
+            why = f"vehicle {sysid} restarted (its clock went back): a new flight segment, its streams asked again"
+            self._events.publish(LinkEvent(self.state, time.time(), why))
         self._vehicles[sysid] = hdr.srcComponent
         self._lost_since_heartbeat[sysid] = False
         self._clock_restarts[sysid] = restarts

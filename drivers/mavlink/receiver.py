@@ -26,6 +26,8 @@ _UNKNOWN = mavlink.MAVLink_unknown
 MAX_LOSS_GAP = 240
 #: a sender silent this long [s] may have restarted its sequence counter
 SILENCE_S = 2.0
+#: a gap ending below this sequence number may be a restarted sender's counter starting over
+RESET_SEQ = 32
 
 
 @dataclass
@@ -46,6 +48,7 @@ class LinkCounters:
     sink_errors: int = 0  # batches a synchronous consumer raised on (the link went on)
     undecodable: int = 0  # messages that passed their CRC but could not be converted (skipped)
     signature_refused: int = 0  # frames refused by MAVLink 2 signing (unsigned, another key, replayed)
+    restarts: int = 0  # vehicles seen to restart (their clock went back): a new flight segment each
     last_undecodable: str = ""
     #: (sysid, compid) -> [frames received, frames lost by sequence number]
     per_source: dict = field(default_factory=dict)
@@ -75,6 +78,7 @@ class LinkCounters:
             "bad_data": self.bad_data,
             "unknown": self.unknown,
             "seq_lost": self.seq_lost,
+            "restarts": self.restarts,
             "loss_percent": round(self.loss_percent, 3),
             "mavlink1": self.mavlink1,
             "mavlink2": self.mavlink2,
@@ -102,10 +106,14 @@ class MavlinkReceiver:
         on_message: Callable[[object, float], None] | None = None,
     ) -> None:
         self.decoder = MavlinkDecoder(link_name)
+        self.decoder.on_restart = self._restarted
         self.counters = LinkCounters()
         self.on_frame = on_frame
         self.on_message = on_message
         self._last_seq: dict[tuple[int, int], tuple[int, float] | None] = {}
+        #: (sysid, compid) -> a gap counted as loss where the sequence started over near 0: a
+        #: restart's, if the sender's clock turns out to have gone back too (:meth:`_restarted`)
+        self._reset_gap: dict[tuple[int, int], int] = {}
         #: (sysid, compid) -> True if that peer speaks MAVLink 1 only so far
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
         self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)
@@ -210,9 +218,22 @@ class MavlinkReceiver:
             self.peer_mavlink1[key] = False
         last = self._last_seq[key]
         self._last_seq[key] = (seq, t)
+        if seq >= RESET_SEQ and self._reset_gap:
+            self._reset_gap.pop(key, None)  # well past a start of the counter: that gap was loss
         if last is None or t - last[1] > SILENCE_S:  # (unknown receive times, NaN: every gap counts)
             return
         gap = (seq - last[0] - 1) & 0xFF
         if gap and gap <= MAX_LOSS_GAP:
             c.seq_lost += gap
             stats[1] += gap
+            if seq < RESET_SEQ:
+                self._reset_gap[key] = gap
+
+    def _restarted(self, sysid: int) -> None:
+        """A vehicle's clock went back: it restarted, and its sequence numbers started over. The
+        gap that start made is not loss; the restart is counted instead."""
+        self.counters.restarts += 1
+        for key in [k for k in self._reset_gap if k[0] == sysid]:
+            gap = self._reset_gap.pop(key)
+            self.counters.seq_lost -= gap
+            self.counters.per_source[key][1] -= gap

@@ -21,6 +21,11 @@ One row per measurement component::
 none. Long format keeps the columns fixed whatever sensors a file has; pivot
 it (pandas ``pivot_table``) for a wide view. Estimates are exported in the
 estimator's own format (``t``, states, ``sigma_<state>``) by the estimation loop.
+
+**Flight segments.** When the vehicle's time goes back by more than
+:data:`~drivers.mavlink.clock.RESTART_BACK_S` (it restarted; a replay looped or was sought back)
+the rows go on in a new file beside the first, ``OUT.seg2.csv``, ``OUT.seg3.csv``, ...: time
+never goes back within one file.
 """
 
 from __future__ import annotations
@@ -30,25 +35,65 @@ import json
 import math
 from pathlib import Path
 
+from drivers.mavlink.clock import RESTART_BACK_S
 from groundstation.core.measurement import KIND_COMPONENTS, Measurement
 
 HEADER = ("t", "kind", "instance", "component", "value", "variance", "source")
+
+
+def segment_path(path: Path, n: int) -> Path:
+    """The file of flight segment ``n`` (1: ``path`` itself; then ``OUT.seg2.csv``, ...)."""
+    return path if n == 1 else path.with_name(f"{path.stem}.seg{n}{path.suffix}")
+
+
+class _SegmentedCsv:
+    """A CSV writer that starts a new file, with the same header, when time goes back."""
+
+    def __init__(self, path: str | Path, header) -> None:
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.header = list(header)
+        self.segments = 1
+        self._f = open(self.path, "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(self.header)
+
+    def _start(self) -> None:
+        """The next segment's file."""
+        self._f.close()
+        self.segments += 1
+        self._f = open(segment_path(self.path, self.segments), "w", newline="")
+        self._w = csv.writer(self._f)
+        self._w.writerow(self.header)
+
+    @property
+    def paths(self) -> list[Path]:
+        return [segment_path(self.path, n) for n in range(1, self.segments + 1)]
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self._f.close()
 
 
 def _fmt(x: float) -> str:
     return "" if x is None or (isinstance(x, float) and math.isnan(x)) else repr(float(x))
 
 
-class MeasurementCsvWriter:
+class MeasurementCsvWriter(_SegmentedCsv):
+    """Each source's time is followed on its own (a board and a vehicle may keep different clocks)."""
+
     def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._f = open(self.path, "w", newline="")
-        self._w = csv.writer(self._f)
-        self._w.writerow(HEADER)
+        super().__init__(path, HEADER)
         self.rows = 0
+        self._newest: dict[str, float] = {}  # source -> its newest time written
 
     def write(self, m: Measurement) -> None:
+        newest = self._newest.get(m.source)
+        if newest is not None and m.t < newest - RESTART_BACK_S:
+            self._start()
+            self._newest.clear()
+        if newest is None or m.t > newest:
+            self._newest[m.source] = m.t
         names = KIND_COMPONENTS.get(m.kind)
         var = m.variance
         for j, v in enumerate(m.value):
@@ -58,26 +103,23 @@ class MeasurementCsvWriter:
             )
             self.rows += 1
 
-    def close(self) -> None:
-        if not self._f.closed:
-            self._f.close()
 
-
-class EstimateCsvWriter:
+class EstimateCsvWriter(_SegmentedCsv):
     """``t, states, sigma_<state>`` from snapshots of one estimator."""
 
     def __init__(self, path: str | Path, estimator: str, states: list[str]) -> None:
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        super().__init__(path, ["t", *states, *[f"sigma_{s}" for s in states]])
         self.estimator = estimator
-        self._f = open(self.path, "w", newline="")
-        self._w = csv.writer(self._f)
-        self._w.writerow(["t", *states, *[f"sigma_{s}" for s in states]])
         self.rows = 0
+        self._newest = -math.inf
 
     def write(self, snap) -> None:
         if snap.estimator != self.estimator:
             return
+        if snap.t < self._newest - RESTART_BACK_S:
+            self._start()
+            self._newest = -math.inf
+        self._newest = max(self._newest, snap.t)
         self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
         self.rows += 1
 
@@ -85,14 +127,14 @@ class EstimateCsvWriter:
         """Close the CSV; with the estimator's ``counters``, write beside it (``OUT.counters.json``)
         what it skipped, by sensor and reason, and how often it started over; with the estimation
         loop's, what it dropped as late and decimated under load."""
-        if not self._f.closed:
-            self._f.close()
+        super().close()
         if counters is not None:
             self.counters_path.write_text(
                 json.dumps(
                     {
                         "estimator": self.estimator,
                         "estimates": self.rows,
+                        "segments": [p.name for p in self.paths],
                         "updates": counters.updates,
                         "skipped": counters.rejected,
                         "diverged": counters.diverged,
