@@ -108,8 +108,12 @@ class SimBridge:
             {n: 1.0 / unasked_rate for n in [*self.sim.sensors.rates, *DERIVED_FROM]} if unasked_rate else {}
         )
         self._last_out: dict[str, float] = {}
-        #: protocol messages asked for at an interval: msg id -> [interval, next due] [s]
+        #: messages sent on a schedule of their own: msg id -> [interval, next due] [s]: the
+        #: position estimate (at its default rate until asked) and protocol messages asked for
         self._periodic: dict[int, list[float]] = {}
+        if "gps" in self.sim.sensors.rates:
+            rate = unasked_rate or self.sim.sensors.rates["gps"]
+            self._periodic[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] = [1.0 / rate, 0.0]
         self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid)
         self.udp_to = udp_to
         self.pty = pty
@@ -259,15 +263,25 @@ class SimBridge:
         return mavlink.MAV_RESULT_ACCEPTED
 
     def _protocol_interval(self, msgid: int, interval_us: float) -> int:
-        """A message the vehicle sends on request (HOME_POSITION, EXTENDED_SYS_STATE, ...), now
-        also every ``interval_us`` (-1: never again; 0: its default, once a second)."""
-        if self.protocol.message(msgid) is None:
-            return mavlink.MAV_RESULT_UNSUPPORTED
+        """A message on a schedule of its own (the position estimate; HOME_POSITION,
+        EXTENDED_SYS_STATE, ... sent on request), now every ``interval_us`` (-1: never again; 0:
+        its default: the position at the fix's rate, the others once a second)."""
+        position = msgid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT and "gps" in self.sim.sensors.rates
+        if not (position or msgid in self.protocol.ON_REQUEST):
+            return mavlink.MAV_RESULT_UNSUPPORTED  # (asked without making a frame: its sequence number)
         if interval_us < 0:
             self._periodic.pop(msgid, None)
         else:
-            self._periodic[msgid] = [interval_us * 1e-6 if interval_us > 0 else 1.0, self.sim.t]
+            default = 1.0
+            if msgid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+                default = 1.0 / self.scenario.sensors.rates["gps"]
+            self._periodic[msgid] = [interval_us * 1e-6 if interval_us > 0 else default, self.sim.t]
         return mavlink.MAV_RESULT_ACCEPTED
+
+    def _periodic_frame(self, msgid: int) -> bytes | None:
+        if msgid == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            return self._global_position() if "gps" in self.sim.sensors.rates else None
+        return self.protocol.message(msgid)
 
     def _on_command_long(self, m) -> None:
         self.protocol.command(m, self._message_interval)
@@ -297,6 +311,9 @@ class SimBridge:
                     self._every.pop(name, None)
             if m.start_stop and m.req_message_rate > 0:
                 self.sim.sensors.set_rate(stream, float(m.req_message_rate))
+        position = (mavlink.MAV_DATA_STREAM_POSITION, mavlink.MAV_DATA_STREAM_ALL)
+        if m.req_stream_id in position and m.start_stop and m.req_message_rate > 0:
+            self._protocol_interval(mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 1e6 / m.req_message_rate)
 
     def _on_manual_control(self, m) -> None:
         if m.target not in (0, self.encoder.packer.sysid):
@@ -342,7 +359,7 @@ class SimBridge:
             for msgid, due in self._periodic.items():
                 if sim.t >= due[1]:
                     due[1] += max(due[0], sim.dt)
-                    frame = self.protocol.message(msgid)
+                    frame = self._periodic_frame(msgid)
                     if frame is not None:
                         self._send(frame)
             for s in samples:
@@ -351,7 +368,7 @@ class SimBridge:
                         self._send(fr)
                 for name, sensor in DERIVED_FROM.items():
                     if sensor == s.sensor and self._due(name, s.t):
-                        self._send(self._derived(name, s))
+                        self._send(self.encoder.battery_status(*s.values))
                 if self.board_encoder is not None and self.board is not None:
                     for fr in self.board_encoder.encode(s):
                         self.board.write(fr)
@@ -362,12 +379,10 @@ class SimBridge:
             self._burst_until = time.monotonic() + self.faults.burst_len
             self._next_burst = sim.t + self._rng.expovariate(1.0 / self.faults.burst_every)
 
-    def _derived(self, name: str, s) -> bytes:
-        if name == "BATTERY_STATUS":
-            return self.encoder.battery_status(*s.values)
-        # the autopilot's position estimate: the true state, which the simulator's autopilot flies
-        # on (profile.py), about the GPS model's origin, where it was switched on: home, set with
-        # the first estimate it sends
+    def _global_position(self) -> bytes:
+        """The autopilot's position estimate: the true state, which the simulator's autopilot flies
+        on (profile.py), about the GPS model's origin, where it was switched on: home, set with
+        the first estimate it sends."""
         kin, cfg = self.sim.vehicle.kin, self.sim.sensors.cfg
         lat0, lon0 = cfg.gps_origin
         if self.protocol.home is None:
@@ -375,7 +390,7 @@ class SimBridge:
         n, e, d = (float(v) for v in kin.pos)
         lat = lat0 + n / M_PER_DEG
         lon = lon0 + e / (M_PER_DEG * math.cos(math.radians(lat0)))
-        return self.encoder.global_position(s.t, lat, lon, cfg.ground_alt - d, -d, kin.vel)
+        return self.encoder.global_position(self.sim.t, lat, lon, cfg.ground_alt - d, -d, kin.vel)
 
     def _due(self, key: str, t: float) -> bool:
         """Whether a stream's sample, or a derived message, goes out at ``t`` (:attr:`_every`)."""

@@ -131,10 +131,10 @@ STREAM_OF_MESSAGE: dict[str, tuple[str, ...]] = {
     "SYS_STATUS": ("battery",),
 }
 
-#: What an autopilot sends from its own estimate and battery monitor, sent here with a sensor's
-#: samples (the fix; the battery's voltage and current): message -> that sensor. Asked for, each
-#: goes out at its own rate, at most the sensor's, without changing the sensor's.
-DERIVED_FROM = {"GLOBAL_POSITION_INT": "gps", "BATTERY_STATUS": "battery"}
+#: What an autopilot's battery monitor sends, here with the battery's readings: message -> that
+#: sensor. Asked for, it goes out at its own rate, at most the sensor's, without changing the
+#: sensor's. (The position estimate, GLOBAL_POSITION_INT, has a schedule of its own: bridge.py.)
+DERIVED_FROM = {"BATTERY_STATUS": "battery"}
 
 
 class MavlinkEncoder:

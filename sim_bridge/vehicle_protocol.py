@@ -251,6 +251,15 @@ class VehicleProtocol:
             return self.armed_cmd
         return bool(self.sim.profile(self.sim.t).armed or self.sim.externally_commanded)
 
+    #: the messages :meth:`message` makes (sent on request, or at an interval asked for)
+    ON_REQUEST = frozenset(
+        (
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+            mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+            mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+        )
+    )
+
     def message(self, msgid: int) -> bytes | None:
         """The protocol message with this id, as the vehicle sends it now (None: not one it sends)."""
         if msgid == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:

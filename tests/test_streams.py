@@ -5,7 +5,10 @@ vehicle on real loopback UDP; its link drops a fifth of what it sends, acknowled
 from __future__ import annotations
 
 import asyncio
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -14,7 +17,11 @@ from drivers.mavlink.streams import MIN_RATE, PRIORITY, fit_budget, frame_bytes
 from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.scenario import Scenario
 
-from .conftest import async_test
+from .conftest import async_test, free_udp_port
+from .helpers import running, simulated_vehicle
+
+#: MAVProxy, from the test extras (installed beside this Python by make test)
+MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 #: what the simulated quadcopter sends, as the ground station asks it (message -> its stream)
 ASKED = {"imu": 250.0, "baro": 50.0, "range": 25.0, "gps": 5.0, "attitude": 50.0, "actuators": 50.0, "battery": 5.0}
@@ -183,3 +190,72 @@ async def test_a_restart_is_a_new_segment_not_loss():
             t.cancel()
         await asyncio.gather(*tasks, return_exceptions=True)
         await link.close()
+
+
+#: the simulated quadcopter's messages, as DEFAULT_STREAMS asks for them
+SIM_MESSAGES = ("HIGHRES_IMU", "SCALED_PRESSURE", "DISTANCE_SENSOR", "ATTITUDE", "GPS_RAW_INT",
+                "GLOBAL_POSITION_INT", "SERVO_OUTPUT_RAW", "SYS_STATUS", "BATTERY_STATUS")  # fmt: skip
+
+
+async def _received_rates(link: MavlinkLink, seconds: float) -> dict[str, float]:
+    before = dict(link.counters.by_type)
+    t0 = time.monotonic()
+    await asyncio.sleep(seconds)  # a measurement window, not a wait for an event
+    dt = time.monotonic() - t0
+    return {n: (link.counters.by_type[n] - before.get(n, 0)) / dt for n in SIM_MESSAGES}
+
+
+@pytest.mark.slow
+@async_test(timeout=180)
+async def test_through_a_mavproxy_router_at_twenty_percent_loss_and_after_a_reboot(tmp_path):
+    """The simulator (a fifth of its frames lost) behind a real MAVProxy router, which asks for no
+    streams itself: every stream arrives at its asked rate less the loss, and again after the
+    vehicle is restarted (a new process: its clock, sequence and default rates start over)."""
+    vehicle_port, gcs_port = free_udp_port(), free_udp_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{gcs_port}", ack_timeout=0.5, check_every=2.0)
+    await link.open()
+    mavproxy = [
+        MAVPROXY,
+        f"--master=udpin:127.0.0.1:{vehicle_port}",
+        f"--out=udpout:127.0.0.1:{gcs_port}",
+        "--streamrate=-1",
+        "--non-interactive",
+        f"--state-basedir={tmp_path}",
+        "--default-modules=link",
+    ]
+    sim = ("--loss", "20", "--seed", "3", "--duration", "120")
+    try:
+        with running(mavproxy, stdin=subprocess.DEVNULL):
+            for boot in (1, 2):
+                with simulated_vehicle(vehicle_port, *sim):
+                    v = await _vehicle_asked(link, boot)
+                    assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
+                    got = await _received_rates(link, WINDOW)
+                    for name in SIM_MESSAGES:
+                        low, high = _expected(DEFAULT_STREAMS[name], 0.8)
+                        assert low <= got[name] <= high, (boot, name, got[name], DEFAULT_STREAMS[name])
+    finally:
+        await link.close()
+
+
+WINDOW = 8.0  # [s] the rates are measured over
+
+
+def _expected(asked: float, kept: float) -> tuple[float, float]:
+    """The rates [Hz] a stream asked at ``asked`` arrives at over :data:`WINDOW` when a share
+    ``kept`` of its frames gets through: within 4 sigma of the binomial count, less a tenth for
+    a loaded machine running the simulated world behind the wall clock; at most what was asked."""
+    n = asked * WINDOW
+    low = (kept * n - 4.0 * (n * kept * (1.0 - kept)) ** 0.5) / WINDOW
+    return 0.9 * low, 1.05 * asked
+
+
+async def _vehicle_asked(link: MavlinkLink, boot: int):
+    """The vehicle's streams asked and answered, for the ``boot``-th time."""
+
+    def done() -> bool:
+        v = link.requester.vehicles.get(1)
+        return v is not None and v.requests >= boot and len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS)
+
+    await _until(done, 60, f"the streams asked, boot {boot}")
+    return link.requester.vehicles[1]
