@@ -103,3 +103,15 @@ class Authority:
 
     def holds(self, client_id: int) -> bool:
         return self.holder is not None and self.holder == client_id
+
+    def command_refusal(self, request_refusal: str | None, client_id: int | None) -> str | None:
+        """Why the tab ``client_id`` may not command now (``request_refusal``: what its request
+        says against it, :meth:`refusal`), or None: it may, as the tab holding control."""
+        if request_refusal is not None:
+            return request_refusal
+        if client_id is None or not self.holds(client_id):
+            held = self.holder
+            if held is not None:
+                return f"tab {held} holds control; press Take control first"
+            return "nobody holds control: press Take control first"
+        return None

@@ -139,14 +139,7 @@ class ControlPanel:
     # -- who ---------------------------------------------------------------------------------------
     def _allowed(self, e) -> bool:
         """Whether the tab behind event ``e`` may command now; if not it is told why."""
-        why = self.refusal(e.client_id)
-        if why is None and not self.authority.holds(e.client_id):
-            held = self.authority.holder
-            why = (
-                f"tab {held} holds control; press Take control first"
-                if held is not None
-                else ("nobody holds control: press Take control first")
-            )
+        why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id)
         if why is not None:
             self._tell(e, "Not yours to command", why)
             self._refresh()

@@ -46,6 +46,7 @@ from groundstation.estimation.models.ground import LANDED
 
 from .authority import Authority, is_loopback
 from .control_panel import ControlPanel
+from .vehicle_panel import VehiclePanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
 #: the models the Diagnosis panel offers
@@ -126,6 +127,7 @@ class Dashboard:
         self.declared: list[dict] = []
         #: the airframe file the session's estimator was given (--vehicle): the diagnosis starts from it too
         self.airframe: str | None = None
+        self.vehicle_panel: VehiclePanel | None = None
         #: called with a system id when the user picks another vehicle (:meth:`set_vehicles`)
         self.on_vehicle: Callable[[int], None] | None = None
         self._build()
@@ -337,6 +339,25 @@ class Dashboard:
         self.session = SessionBuffer()
         self._dirty = True
 
+    def add_vehicle_panel(self, link) -> VehiclePanel:
+        """Show the Vehicle panel (mode, arm, takeoff, land, parameters) for the vehicle shown, on
+        ``link`` (a :class:`~drivers.mavlink.link.MavlinkLink`), commanded as the Control panel is."""
+        self.vehicle_panel = VehiclePanel(
+            self.server.gui,
+            link,
+            self.authority,
+            self.client_refusal,
+            lambda: self.shown_vehicle(link),
+            take_button=getattr(self, "control", None) is None,
+        )
+        return self.vehicle_panel
+
+    def shown_vehicle(self, link) -> int | None:
+        """The system id the view shows: the picker's, or the link's first vehicle."""
+        if self.vehicle_choice.visible:
+            return int(self.vehicle_choice.value)
+        return next(iter(link.vehicles), None)
+
     def add_control(self, station):
         """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`),
         commanded only from a tab the :attr:`authority` admits."""
@@ -483,6 +504,8 @@ class Dashboard:
         control = getattr(self, "control", None)
         if control is not None:
             control.update()
+        if self.vehicle_panel is not None:
+            self.vehicle_panel.update()
         replay = getattr(self, "_replay", None)
         if replay is not None and abs(self.position.value - replay.position) > 0.5:
             self.position.value = round(replay.position, 1)  # type: ignore[misc]  # viser's setter is typed apart from its getter
@@ -509,6 +532,8 @@ class Dashboard:
             print(f"dashboard: {line} (the updates go on)", file=sys.stderr, flush=True)
 
     def stop(self) -> None:
+        if self.vehicle_panel is not None:
+            self.vehicle_panel.close()
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
         self.server.stop()

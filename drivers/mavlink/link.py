@@ -136,6 +136,8 @@ class MavlinkLink:
         self._vehicles: dict[int, int] = {}  # sysid -> autopilot compid
         self._address_of: dict[int, tuple] = {}  # udpin: sysid -> the address its heartbeats come from
         self._ground_stations: set[int] = set()  # sysids heard with a ground station's heartbeat
+        #: sysid -> (armed, custom mode) as its last heartbeat says
+        self.vehicle_state: dict[int, tuple[bool, int]] = {}
         self.requester = StreamRequester(
             self.send,
             lambda: self.receiver.counters.by_type,
@@ -320,6 +322,7 @@ class MavlinkLink:
             why = f"vehicle {sysid} restarted (its clock went back): a new flight segment, its streams asked again"
             self._events.publish(LinkEvent(self.state, time.time(), why))
         self._vehicles[sysid] = hdr.srcComponent
+        self.vehicle_state[sysid] = (bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED), int(m.custom_mode))
         self._lost_since_heartbeat[sysid] = False
         self._clock_restarts[sysid] = restarts
         if self.streams and (new or again):

@@ -392,6 +392,7 @@ async def run_connect(args) -> int:
             dash.add_control(station)
             print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
     if dash is not None:
+        dash.add_vehicle_panel(link)
         tasks.append(supervisor.start("dashboard", dash.run))
     try:
         if args.duration:

@@ -1,0 +1,209 @@
+"""The dashboard's Vehicle panel: what a user opens MAVProxy for, in the browser.
+
+For the vehicle the dashboard shows (its picker, or the link's only vehicle): its flight mode
+and armed state as its heartbeat says; mode change, ARM and TAKEOFF (each asking to be pressed
+again within :data:`~web.control_panel.CONFIRM_S` seconds, as the Control panel's ARM does),
+DISARM and LAND, each a COMMAND_LONG sent until acknowledged (:mod:`drivers.mavlink.commands`);
+and one parameter at a time: Get reads it from the vehicle, Set writes it and waits for the
+vehicle's echo (:class:`~drivers.mavlink.params.ParamClient`). The result, or why not, in one
+line under the buttons.
+
+Behind the dashboard's :class:`~web.authority.Authority`, as the Control panel: only the tab
+holding control commands (reading a parameter is open to every tab); any other is told why.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+from drivers.mavlink.commands import COPTER_MODES, CommandError, run_command
+from drivers.mavlink.params import ParamClient, ParamError
+
+from .authority import Authority
+from .control_panel import CONFIRM_S
+
+#: the modes offered (ArduCopter's that a ground station switches to)
+MODES = ("STABILIZE", "ALT_HOLD", "LOITER", "POSHOLD", "GUIDED", "AUTO", "RTL", "LAND")
+
+
+class VehiclePanel:
+    def __init__(
+        self,
+        gui,
+        link,
+        authority: Authority,
+        refusal: Callable[[int | None], str | None],
+        sysid: Callable[[], int | None],
+        *,
+        take_button: bool = True,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """``link``: the :class:`~drivers.mavlink.link.MavlinkLink`; ``sysid()``: the vehicle shown
+        (None: none heard yet); ``take_button``: offer Take control here (the Control panel has its
+        own when it is there)."""
+        self.link, self.authority, self.refusal, self.sysid, self.clock = link, authority, refusal, sysid, clock
+        self.message = ""
+        self.busy = False
+        self._pending: tuple[str, int, float] | None = None  # (action, client id, first press)
+        self._params: dict[int, ParamClient] = {}
+        with gui.add_folder("Vehicle"):
+            self.status_md = gui.add_markdown(self._status())
+            self.take = gui.add_button("Take control", visible=take_button)
+            self.mode = gui.add_dropdown("mode", options=MODES, initial_value="LOITER")
+            self.set_mode = gui.add_button("Set mode")
+            self.arm = gui.add_button("ARM", color="red")
+            self.disarm = gui.add_button("DISARM")
+            self.altitude = gui.add_slider("takeoff [m]", min=1.0, max=30.0, step=0.5, initial_value=3.0)
+            self.takeoff = gui.add_button("TAKEOFF", color="red")
+            self.land = gui.add_button("LAND")
+            self.param_name = gui.add_text("parameter", initial_value="")
+            self.param_value = gui.add_number("value", initial_value=0.0)
+            self.param_get = gui.add_button("Get")
+            self.param_set = gui.add_button("Set")
+
+        # async callbacks: viser runs them on the event loop, where the link lives
+        @self.take.on_click
+        async def _(e) -> None:
+            why = self.refusal(e.client_id)
+            self.message = self.authority.take(e.client_id) if why is None else f"tab {e.client_id}: {why}"
+            self._refresh()
+
+        @self.set_mode.on_click
+        async def _(e) -> None:
+            if self._allowed(e):
+                await self._command("mode", str(self.mode.value))
+
+        @self.arm.on_click
+        async def _(e) -> None:
+            if self._allowed(e) and self._confirmed("arm", e.client_id):
+                await self._command("arm")
+
+        @self.takeoff.on_click
+        async def _(e) -> None:
+            if self._allowed(e) and self._confirmed("takeoff", e.client_id):
+                await self._command("takeoff", float(self.altitude.value))
+
+        @self.disarm.on_click
+        async def _(e) -> None:
+            if self._allowed(e):
+                await self._command("disarm")
+
+        @self.land.on_click
+        async def _(e) -> None:
+            if self._allowed(e):
+                await self._command("land")
+
+        @self.param_get.on_click
+        async def _(_e) -> None:
+            await self._param(None)
+
+        @self.param_set.on_click
+        async def _(e) -> None:
+            if self._allowed(e):
+                await self._param(float(self.param_value.value))
+
+    # -- who ---------------------------------------------------------------------------------------
+    def _allowed(self, e) -> bool:
+        why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id)
+        if why is None:
+            return True
+        self.message = f"tab {e.client_id}: {why}"
+        if e.client is not None:
+            e.client.add_notification("Not yours to command", why, auto_close_seconds=6.0, color="yellow")
+        self._refresh()
+        return False
+
+    def _confirmed(self, action: str, client_id: int) -> bool:
+        """The second press of ``action`` by the same tab within :data:`CONFIRM_S` s."""
+        now, pending = self.clock(), self._pending
+        if pending is not None and pending[:2] == (action, client_id) and now - pending[2] <= CONFIRM_S:
+            self._pending = None
+            return True
+        self._pending = (action, client_id, now)
+        self.message = f"press {action.upper()} again within {CONFIRM_S:g} s to {action}"
+        self._refresh()
+        return False
+
+    # -- what it does --------------------------------------------------------------------------------
+    def _vehicle(self) -> tuple[int, int] | None:
+        sysid = self.sysid()
+        if sysid is None or sysid not in self.link.vehicles:
+            self.message = "no vehicle heard yet"
+            self._refresh()
+            return None
+        return sysid, self.link.vehicles[sysid]
+
+    async def _command(self, what: str, arg: float | str | None = None) -> None:
+        target = self._vehicle()
+        if target is None or self.busy:
+            return
+        self.busy = True
+        self.message = f"{what}{f' {arg}' if arg is not None else ''}: sent to vehicle {target[0]}…"
+        self._refresh()
+        try:
+            self.message = await run_command(self.link, *target, what, arg)
+        except CommandError as err:
+            self.message = str(err)
+        finally:
+            self.busy = False
+        self._refresh()
+
+    async def _param(self, value: float | None) -> None:
+        """Get (``value`` None) or set the named parameter, as the vehicle confirms it."""
+        target = self._vehicle()
+        name = str(self.param_name.value).strip().upper()
+        if target is None or self.busy:
+            return
+        if not name or len(name) > 16:
+            self.message = "parameter: a name of 1-16 characters"
+            self._refresh()
+            return
+        if value is not None and not math.isfinite(value):
+            self.message = f"parameter {name}: {value} is not a number to set"
+            self._refresh()
+            return
+        client = self._params.get(target[0])
+        if client is None:
+            client = self._params[target[0]] = ParamClient(self.link, *target)
+        self.busy = True
+        try:
+            if value is None:
+                got = await client.get(name)
+                self.param_value.value = got
+                self.message = f"{name} = {got:g} (vehicle {target[0]})"
+            else:
+                got = await client.set(name, value)
+                self.message = f"{name} set to {got:g}, confirmed by vehicle {target[0]}"
+        except ParamError as err:
+            self.message = str(err)
+        finally:
+            self.busy = False
+        self._refresh()
+
+    # -- pushing -------------------------------------------------------------------------------------
+    def _status(self) -> str:
+        sysid = self.sysid()
+        state = self.link.vehicle_state.get(sysid) if sysid is not None else None
+        if state is None:
+            head = "no vehicle heard yet" if sysid is None else f"vehicle {sysid}"
+        else:
+            armed, mode = state
+            head = f"vehicle {sysid}: **{'ARMED' if armed else 'disarmed'}** · {COPTER_MODES.get(mode, mode)}"
+        held = self.authority.holder
+        who = f"control held by tab {held}" if held is not None else "nobody holds control"
+        return f"{head} · {who}" + (f"\n\n{self.message}" if self.message else "")
+
+    def _refresh(self) -> None:
+        self.status_md.content = self._status()
+
+    def update(self) -> None:
+        """Called at the dashboard's panel rate."""
+        if self._pending is not None and self.clock() - self._pending[2] > CONFIRM_S:
+            self._pending = None
+        self._refresh()
+
+    def close(self) -> None:
+        for client in self._params.values():
+            client.close()
