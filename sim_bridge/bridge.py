@@ -301,6 +301,9 @@ class SimBridge:
     def _on_ping(self, m) -> None:
         self.protocol.on_ping(m)
 
+    def _on_file_transfer_protocol(self, m) -> None:
+        self.protocol.on_file_transfer(m)
+
     def _on_request_data_stream(self, m) -> None:
         groups = DATA_STREAM_GROUPS.values() if m.req_stream_id == mavlink.MAV_DATA_STREAM_ALL else ()
         streams = [n for g in groups for n in g] or DATA_STREAM_GROUPS.get(m.req_stream_id, ())

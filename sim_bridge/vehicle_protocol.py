@@ -11,7 +11,7 @@ its version, ping and the mission (:mod:`.mission`).
   takeoff (refused unless armed), land, DO_SET_MODE (ArduCopter's mode numbers), message interval
   (the streams, :mod:`.mavlink_out`), REQUEST_MESSAGE and REQUEST_AUTOPILOT_CAPABILITIES
   (AUTOPILOT_VERSION, HOME_POSITION); anything else UNSUPPORTED.
-* **PING** answered to its sender.
+* **PING** answered to its sender; **MAVFTP** refused (no files: :meth:`VehicleProtocol.on_file_transfer`).
 
 On the guided flight (``flight="guided"``, :class:`~sim_bridge.profile.GuidedProfile`) the
 commands fly the vehicle, as on ArduCopter SITL: it waits on the ground until armed; takeoff
@@ -41,6 +41,10 @@ ACCEPTED_MODES = {
 }
 MODE_GUIDED, MODE_LAND, MODE_LOITER = MODE_NUMBERS["GUIDED"], MODE_NUMBERS["LAND"], MODE_NUMBERS["LOITER"]
 MODE_AUTO, MODE_RTL = MODE_NUMBERS["AUTO"], MODE_NUMBERS["RTL"]
+#: MAVFTP (https://mavlink.io/en/services/ftp.html): opcodes and error codes used here
+FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS, FTP_ACK, FTP_NAK = 1, 2, 128, 129
+FTP_OPENS = frozenset((3, 4, 6, 11))  # ListDirectory, OpenFileRO, CreateFile, OpenFileWO
+FTP_ERR_UNKNOWN_COMMAND, FTP_ERR_FILE_NOT_FOUND = 7, 10
 TAKEOFF_DEFAULT = 2.5  # [m] a takeoff without an altitude climbs this high (as MAVSDK's default)
 FORCE_DISARM = 21196  # ArduPilot's magic number for a disarm in flight
 FIRMWARE_VERSION = (4 << 24) | (5 << 16) | (0 << 8) | 255  # reported as 4.5.0 (official)
@@ -316,6 +320,32 @@ class VehicleProtocol:
         elif g is not None and g.flying and self.on_ground:
             landed = mavlink.MAV_LANDED_STATE_TAKEOFF
         return self.packer.pack("EXTENDED_SYS_STATE", vtol_state=0, landed_state=landed)
+
+    def on_file_transfer(self, m) -> None:
+        """MAVFTP: no file system here. Opening or listing anything is answered NAK FileNotFound
+        (so a ground station fetching ``@PARAM/param.pck`` turns to the parameter protocol at
+        once instead of after its timeouts), ending sessions ACK, anything else NAK UnknownCommand."""
+        if getattr(m, "target_system", 0) not in (0, self.sysid):
+            return
+        req = bytes(m.payload)
+        seq, session, opcode = int.from_bytes(req[0:2], "little"), req[2], req[3]
+        if opcode in (FTP_TERMINATE_SESSION, FTP_RESET_SESSIONS):
+            reply, data = FTP_ACK, b""
+        else:
+            error = FTP_ERR_FILE_NOT_FOUND if opcode in FTP_OPENS else FTP_ERR_UNKNOWN_COMMAND
+            reply, data = FTP_NAK, bytes((error,))
+        header = ((seq + 1) & 0xFFFF).to_bytes(2, "little") + bytes((session, reply, len(data), opcode, 0, 0))
+        payload = header + bytes(4) + data  # offset 0
+        src_sys, src_comp = _sender(m)
+        self.send(
+            self.packer.pack(
+                "FILE_TRANSFER_PROTOCOL",
+                target_network=0,
+                target_system=src_sys,
+                target_component=src_comp,
+                payload=list(payload.ljust(251, b"\0")),
+            )
+        )
 
     def on_ping(self, m) -> None:
         if m.target_system == 0:  # a request (a reply names its target)
