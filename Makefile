@@ -39,9 +39,9 @@ lint: setup
 check: lint
 	$(PYTEST) -m "not slow"
 
-# everything, as CI runs it
+# everything, as CI runs it (the slowest tests listed at the end: what keeps the loop long)
 test: setup browser lint
-	$(PYTEST)
+	$(PYTEST) --durations=15
 
 bench: setup
 	$(BIN)/python bench/sim_speed.py

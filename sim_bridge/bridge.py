@@ -369,9 +369,8 @@ class SimBridge:
                 if self._due(s.sensor, s.t):
                     for fr in enc.encode(s):
                         self._send(fr)
-                for name, sensor in DERIVED_FROM.items():
-                    if sensor == s.sensor and self._due(name, s.t):
-                        self._send(self.encoder.battery_status(*s.values))
+                if s.sensor == "battery" and self._due("BATTERY_STATUS", s.t):
+                    self._send(enc.battery_status(*s.values))
                 if self.board_encoder is not None and self.board is not None:
                     for fr in self.board_encoder.encode(s):
                         self.board.write(fr)

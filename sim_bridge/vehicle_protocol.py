@@ -297,7 +297,7 @@ class VehicleProtocol:
         )
 
     def home_position(self) -> bytes:
-        lat, lon, alt = self.home or (0.0, 0.0, 0.0)
+        lat, lon, alt = self._home_or_origin()
         return self.packer.pack(
             "HOME_POSITION",
             latitude=int(round(lat * 1e7)),
