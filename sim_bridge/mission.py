@@ -91,6 +91,7 @@ class Mission:
         self.current = 1  # the item AUTO flies next (0 is home)
         self.reached: list[int] = []
         self.errors = 0  # uploads that failed (timeouts, items out of order)
+        self.download_result: int | None = None  # the ground station's MISSION_ACK after a download
         self._upload: dict | None = None  # an upload in progress
         self._item_started: float | None = None  # when the current item was begun (None: not yet)
 
@@ -181,7 +182,8 @@ class Mission:
             self._announce()
 
     def _on_mission_ack(self, m, now: float) -> None:
-        """The ground station's end of a download: nothing to do."""
+        """The ground station's end of a download: its verdict kept (:attr:`download_result`)."""
+        self.download_result = int(m.type)
 
     def resume(self) -> None:
         """AUTO entered again: begin the current item afresh."""

@@ -68,6 +68,8 @@ def test_an_upload_is_asked_item_by_item_acknowledged_and_read_back_in_both_form
     assert old.get_type() == "MISSION_ITEM" and abs(old.x - PLAN[2].x / 1e7) < 1e-6
     (bad,) = v.gets(mavlink.MAVLink_mission_request_int_message(1, 1, 9, 0))
     assert bad.get_type() == "MISSION_ACK" and bad.type == mavlink.MAV_MISSION_INVALID_SEQUENCE
+    assert v.gets(mavlink.MAVLink_mission_ack_message(1, 1, mavlink.MAV_MISSION_ACCEPTED, 0)) == []
+    assert v.mission.download_result == mavlink.MAV_MISSION_ACCEPTED  # the download's end, as the GCS saw it
 
 
 def test_a_lost_item_is_asked_again_and_an_item_ahead_of_its_turn_is_not_taken():
