@@ -131,6 +131,7 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
     """Two simulated vehicles (system ids 1 and 2, each its own socket) write to one ``udpin``
     port: each is asked for its streams, and a request for one never reaches the other."""
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
+    second = link.measurements(sysid=2)  # one vehicle's own stream
     await link.open()
     port = link.transport.local_address[1]
     bridges = [SimBridge(Scenario("quad", seed=7 + k), udp_to=("127.0.0.1", port), sysid=k) for k in (1, 2)]
@@ -147,6 +148,8 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
             assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
             assert len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS)
             assert br.received["COMMAND_LONG"] > 0 and br.addressed_elsewhere == 0  # its own, none of the other's
+        got = second.get_nowait()
+        assert len(got) > 10 and {m.source for m in got} == {"mav/2.1"}
     finally:
         for br in bridges:
             br.close()

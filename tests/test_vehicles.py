@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from groundstation.app.outputs import VehicleOutputs, beside, system_id
-from groundstation.core.measurement import Kind, Measurement
+from groundstation.app.outputs import VehicleOutputs, beside
+from groundstation.core.measurement import Kind, Measurement, source_system
 from web.dashboard import Dashboard
 
 from .conftest import free_udp_port
@@ -100,5 +100,5 @@ def test_the_dashboard_offers_each_vehicle_and_shows_the_one_picked():
 
 
 def test_system_ids_and_the_files_beside():
-    assert system_id("mav/2.1") == 2 and system_id("replay/17.1") == 17 and system_id("board") is None
+    assert source_system("mav/2.1") == 2 and source_system("replay/17.1") == 17 and source_system("board") is None
     assert beside(Path("out/est.csv"), 3) == Path("out/est.sys3.csv") and beside(None, 3) is None

@@ -159,9 +159,13 @@ class MavlinkLink:
     def counters(self) -> LinkCounters:
         return self.receiver.counters
 
-    def measurements(self, maxlen: int | None = None) -> Subscription[Measurement]:
-        """An ``async for`` stream of measurements (subscribe before data flows)."""
-        return self._measurements.subscribe(maxlen)
+    def measurements(self, maxlen: int | None = None, *, sysid: int | None = None) -> Subscription[Measurement]:
+        """An ``async for`` stream of measurements (subscribe before data flows); with ``sysid``,
+        one vehicle's alone (as MAVSDK gives each system its own telemetry)."""
+        if sysid is None:
+            return self._measurements.subscribe(maxlen)
+        prefix = f"{self.name}/{sysid}."  # the decoder's source names: link/system.component
+        return self._measurements.subscribe(maxlen, accept=lambda m: m.source.startswith(prefix))
 
     def events(self) -> Subscription[LinkEvent]:
         """An ``async for`` stream of link state changes."""

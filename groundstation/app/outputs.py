@@ -12,11 +12,11 @@ its own port, a ground station on the link) go to the first vehicle's.
 from __future__ import annotations
 
 import argparse
-import re
 from collections.abc import Callable
 from pathlib import Path
 
 from groundstation.core.counts import counted
+from groundstation.core.measurement import source_system
 from groundstation.estimation.export import EstimateCsvWriter, MeasurementCsvWriter
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.noise import load_noise
@@ -24,14 +24,6 @@ from groundstation.estimation.registry import build_estimator
 from groundstation.estimation.vehicles import declared_effects
 
 from .console import StatusLine
-
-_MAVLINK_SOURCE = re.compile(r"/(\d+)\.(\d+)$")
-
-
-def system_id(source: str) -> int | None:
-    """The MAVLink system id a measurement's source names (``mav/2.1`` -> 2); None for another source."""
-    m = _MAVLINK_SOURCE.search(source)
-    return int(m.group(1)) if m else None
 
 
 def beside(path: Path | None, sysid: int) -> Path | None:
@@ -180,7 +172,7 @@ class VehicleOutputs:
         out = self._route.get(source)
         if out is not None:
             return out
-        sysid = system_id(source)
+        sysid = source_system(source)
         if sysid is not None and self.is_vehicle(sysid):
             out = self.by_id.get(sysid) or self._new(sysid)
             self._route[source] = out

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import asyncio
 from collections import deque
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncIterator, Callable, Iterable
 from typing import Generic, TypeVar
 
 T = TypeVar("T")
@@ -27,8 +27,12 @@ class Subscription(Generic[T]):
     wait, so there they lose items too, counted in ``dropped``.
     """
 
-    def __init__(self, owner: Broadcast[T], maxlen: int, lossy: bool) -> None:
+    def __init__(
+        self, owner: Broadcast[T], maxlen: int, lossy: bool, accept: Callable[[T], bool] | None = None
+    ) -> None:
+        """``accept``: the items this subscriber wants (None: all)."""
         self._owner = owner
+        self._accept = accept
         self._buf: deque = deque(maxlen=maxlen)
         self._maxlen = maxlen
         self._event = asyncio.Event()
@@ -42,6 +46,8 @@ class Subscription(Generic[T]):
         return len(self._buf)
 
     def _push(self, item) -> None:
+        if self._accept is not None and not self._accept(item):
+            return
         buf = self._buf
         if len(buf) == buf.maxlen:
             self.dropped += 1
@@ -49,6 +55,10 @@ class Subscription(Generic[T]):
         self._event.set()
 
     def _push_many(self, items: list) -> None:
+        if self._accept is not None:
+            items = [x for x in items if self._accept(x)]
+            if not items:
+                return
         buf = self._buf
         over = len(buf) + len(items) - self._maxlen
         if over > 0:
@@ -113,8 +123,11 @@ class Broadcast(Generic[T]):
         self._subs: set[Subscription[T]] = set()
         self.closed = False
 
-    def subscribe(self, maxlen: int | None = None, *, lossy: bool = False) -> Subscription[T]:
-        s: Subscription[T] = Subscription(self, maxlen or self.maxlen, lossy)
+    def subscribe(
+        self, maxlen: int | None = None, *, lossy: bool = False, accept: Callable[[T], bool] | None = None
+    ) -> Subscription[T]:
+        """A new subscriber; ``accept``: the items it wants (None: all)."""
+        s: Subscription[T] = Subscription(self, maxlen or self.maxlen, lossy, accept)
         if self.closed:
             s._closed = True
         self._subs.add(s)

@@ -24,6 +24,7 @@ Conventions
 from __future__ import annotations
 
 import enum
+import re
 from typing import NamedTuple
 
 import numpy as np
@@ -130,3 +131,13 @@ class Measurement(NamedTuple):
         names = KIND_COMPONENTS.get(self.kind) or tuple(str(i) for i in range(len(self.value)))
         parts = ", ".join(f"{n}={v:.6g}" for n, v in zip(names, self.value))
         return f"t={self.t:.6f} {self.kind.value}[{self.instance}] {parts} ({self.source})"
+
+
+_MAVLINK_SOURCE = re.compile(r"/(\d+)\.(\d+)$")
+
+
+def source_system(source: str) -> int | None:
+    """The MAVLink system id a measurement's source names (``mav/2.1``: system 2, component 1, as
+    the MAVLink decoder names them); None for a source of no system (a sensor board, a log)."""
+    m = _MAVLINK_SOURCE.search(source)
+    return int(m.group(1)) if m else None
