@@ -277,11 +277,18 @@ def test_sim_lists_its_effects():
         (["--effect", "accel_bias:z=lots"], "not a number"),
         (["--undeclared", "sensor_delay:sensor=radar"], "sensor must be one of"),
         (["--vehicle", "blimp"], "invalid choice"),
+        (["--vehicle", "heli3dof", "--flight", "guided"], "flies no guided flight"),
     ],
 )
 def test_sim_bad_arguments_are_one_line(tmp_path, args, text):
     r = run("sim", "--fast", "--log", str(tmp_path / "x.tlog"), *args)
     assert r.returncode == 2 and "Traceback" not in r.stderr and text in r.stderr
+
+
+@pytest.mark.parametrize("rate", ["-5", "nan"])
+def test_a_real_time_sims_bad_stream_rate_is_one_line(rate):
+    r = run("sim", "--udp", "none", "--duration", "1", "--unasked-rate", rate)
+    assert_one_line_error(r, "--unasked-rate")
 
 
 @pytest.mark.slow

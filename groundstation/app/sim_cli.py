@@ -6,6 +6,7 @@ import asyncio
 import csv
 import datetime as _dt
 import json
+import math
 from pathlib import Path
 
 from drivers.board import BoardLink
@@ -143,6 +144,13 @@ def _udp(text: str):
     return host or "127.0.0.1", int(port)
 
 
+def _unasked_rate(hz: float) -> float | None:
+    """The bridge's ``unasked_rate``: None for 0 (every stream at its sensor's rate from the start)."""
+    if not (math.isfinite(hz) and hz >= 0.0):
+        raise ValueError(f"--unasked-rate {hz}: a rate in Hz, 0 or more")
+    return hz if hz > 0 else None
+
+
 def _sysid(n: int) -> int:
     if not 1 <= n <= 255:
         raise ValueError(f"--sysid {n}: a MAVLink system id is 1-255")
@@ -161,7 +169,7 @@ async def _run_realtime(args, scenario: Scenario) -> int:
         faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
         sysid=_sysid(args.sysid),
         signing_key=key_of(args),
-        unasked_rate=args.unasked_rate if args.unasked_rate > 0 else None,
+        unasked_rate=_unasked_rate(args.unasked_rate),
     )
     truth_file = None
     if args.truth:
