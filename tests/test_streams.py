@@ -43,22 +43,42 @@ def _settled(link: MavlinkLink, bridge: SimBridge) -> bool:
     return answered and bridge.sim.sensors.rates == ASKED
 
 
-def _start(bridge: SimBridge) -> asyncio.Task:
-    return asyncio.get_running_loop().create_task(bridge.run())
+class _OnLink:
+    """Simulated vehicles writing to an open link's port, each running as a task; on exit every one
+    is stopped and the link closed, also when the test fails."""
+
+    def __init__(self, link: MavlinkLink) -> None:
+        self.link, self.bridges, self.tasks = link, [], []
+
+    @property
+    def port(self) -> int:
+        return self.link.transport.local_address[1]
+
+    async def start(self, seed: int, **options) -> SimBridge:
+        br = SimBridge(Scenario("quad", seed=seed), udp_to=("127.0.0.1", self.port), **options)
+        self.bridges.append(br)
+        await br.open()
+        self.tasks.append(asyncio.get_running_loop().create_task(br.run()))
+        return br
+
+    async def __aenter__(self) -> _OnLink:
+        await self.link.open()
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        for br in self.bridges:
+            br.close()
+        for t in self.tasks:
+            t.cancel()
+        await asyncio.gather(*self.tasks, return_exceptions=True)
+        await self.link.close()
 
 
 @async_test(timeout=90)
 async def test_every_stream_converges_at_twenty_percent_loss_and_again_after_a_restart():
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
-    await link.open()
-    port = link.transport.local_address[1]
-    bridges: list[SimBridge] = []
-    tasks: list[asyncio.Task] = []
-    try:
-        a = SimBridge(Scenario("quad", seed=4), udp_to=("127.0.0.1", port), faults=LinkFaults(loss=0.2))
-        bridges.append(a)
-        await a.open()
-        tasks.append(_start(a))
+    async with _OnLink(link) as on:
+        a = await on.start(4, faults=LinkFaults(loss=0.2))
         await _until(lambda: _settled(link, a), 30, f"the streams asked ({a.sim.sensors.rates})")
         v = link.requester.vehicles[1]
         assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
@@ -68,23 +88,13 @@ async def test_every_stream_converges_at_twenty_percent_loss_and_again_after_a_r
         # the vehicle restarts after 2 s up: a new process at its default rates, its clock from zero
         await _until(lambda: a.sim.t > 2.0, 10, "2 s of uptime")
         a.close()
-        b = SimBridge(Scenario("quad", seed=5), udp_to=("127.0.0.1", port))
-        bridges.append(b)
-        await b.open()
-        tasks.append(_start(b))
+        b = await on.start(5)
         assert b.sim.sensors.rates["imu"] == 500.0
         # the restart is seen at the vehicle's next heartbeat after its clock went back; the streams
         # arriving short (its default rates) may be asked again before it
         await _until(
             lambda: v.requests == 2 and _settled(link, b), 30, f"asked again after the restart ({b.sim.sensors.rates})"
         )
-    finally:
-        for br in bridges:
-            br.close()
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        await link.close()
 
 
 @async_test(timeout=60)
@@ -92,20 +102,12 @@ async def test_a_short_stream_is_asked_again():
     """The vehicle forgets one stream's rate (a parameter reset): the link sees it arrive short of
     the rate asked and asks again."""
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=0.5)
-    await link.open()
-    br = SimBridge(Scenario("quad", seed=6), udp_to=("127.0.0.1", link.transport.local_address[1]))
-    await br.open()
-    task = _start(br)
-    try:
+    async with _OnLink(link) as on:
+        br = await on.start(6)
         await _until(lambda: _settled(link, br), 20, "the streams asked")
         br.sim.sensors.set_rate("baro", 5.0)  # a tenth of what was asked
         await _until(lambda: br.sim.sensors.rates["baro"] == 50.0, 10, "the baro asked again")
         assert link.requester.vehicles[1].reasked.get("SCALED_PRESSURE") == 1
-    finally:
-        br.close()
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await link.close()
 
 
 def test_a_57600_baud_radio_gets_the_estimators_streams_first():
@@ -132,14 +134,8 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
     port: each is asked for its streams, and a request for one never reaches the other."""
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
     second = link.measurements(sysid=2)  # one vehicle's own stream
-    await link.open()
-    port = link.transport.local_address[1]
-    bridges = [SimBridge(Scenario("quad", seed=7 + k), udp_to=("127.0.0.1", port), sysid=k) for k in (1, 2)]
-    tasks = []
-    try:
-        for br in bridges:
-            await br.open()
-            tasks.append(_start(br))
+    async with _OnLink(link) as on:
+        bridges = [await on.start(7 + k, sysid=k) for k in (1, 2)]
         for k, br in zip((1, 2), bridges, strict=True):
             await _until(lambda br=br: br.sim.sensors.rates == ASKED, 30, f"vehicle {k}'s streams asked")
         assert set(link.vehicles) == {1, 2}
@@ -150,13 +146,6 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
             assert br.received["COMMAND_LONG"] > 0 and br.addressed_elsewhere == 0  # its own, none of the other's
         got = second.get_nowait()
         assert len(got) > 10 and {m.source for m in got} == {"mav/2.1"}
-    finally:
-        for br in bridges:
-            br.close()
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        await link.close()
 
 
 @async_test(timeout=60)
@@ -165,34 +154,17 @@ async def test_a_restart_is_a_new_segment_not_loss():
     counts a restart and no lost frames, says so on its event stream, and asks again."""
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
     events = link.events()
-    await link.open()
-    port = link.transport.local_address[1]
-    bridges: list[SimBridge] = []
-    tasks: list[asyncio.Task] = []
-    try:
-        a = SimBridge(Scenario("quad", seed=8), udp_to=("127.0.0.1", port))
-        bridges.append(a)
-        await a.open()
-        tasks.append(_start(a))
+    async with _OnLink(link) as on:
+        a = await on.start(8)
         await _until(lambda: _settled(link, a) and a.sim.t > 3.0, 30, "streams asked and 3 s up")
         a.close()
-        b = SimBridge(Scenario("quad", seed=8), udp_to=("127.0.0.1", port))
-        bridges.append(b)
-        await b.open()
-        tasks.append(_start(b))
+        b = await on.start(8)
         v = link.requester.vehicles[1]
         await _until(lambda: v.requests == 2 and _settled(link, b), 30, "asked again after the restart")
         c = link.counters
         assert c.restarts == 1 and c.seq_lost == 0, (c.restarts, c.seq_lost)
         said = [e.reason for e in events.get_nowait()]
         assert any("vehicle 1 restarted" in r for r in said), said
-    finally:
-        for br in bridges:
-            br.close()
-        for t in tasks:
-            t.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-        await link.close()
 
 
 #: the simulated quadcopter's messages, as DEFAULT_STREAMS asks for them
@@ -216,7 +188,6 @@ async def test_through_a_mavproxy_router_at_twenty_percent_loss_and_after_a_rebo
     vehicle is restarted (a new process: its clock, sequence and default rates start over)."""
     vehicle_port, gcs_port = free_udp_port(), free_udp_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{gcs_port}", ack_timeout=0.5, check_every=2.0)
-    await link.open()
     mavproxy = [
         MAVPROXY,
         f"--master=udpin:127.0.0.1:{vehicle_port}",
@@ -227,7 +198,7 @@ async def test_through_a_mavproxy_router_at_twenty_percent_loss_and_after_a_rebo
         "--default-modules=link",
     ]
     sim = ("--loss", "20", "--seed", "3", "--duration", "120")
-    try:
+    async with _OnLink(link):
         with running(mavproxy, stdin=subprocess.DEVNULL):
             for boot in (1, 2):
                 with simulated_vehicle(vehicle_port, *sim):
@@ -237,8 +208,6 @@ async def test_through_a_mavproxy_router_at_twenty_percent_loss_and_after_a_rebo
                     for name in SIM_MESSAGES:
                         low, high = _expected(DEFAULT_STREAMS[name], 0.8)
                         assert low <= got[name] <= high, (boot, name, got[name], DEFAULT_STREAMS[name])
-    finally:
-        await link.close()
 
 
 WINDOW = 8.0  # [s] the rates are measured over
