@@ -63,16 +63,7 @@ class _Session:
 
     async def settled(self, probe: ViserProbe, text: str) -> None:
         """Until the panel's status says ``text`` (the callbacks run as viser receives them)."""
-        status = gui_id(self.panel.status_md)
-
-        async def shown():
-            async for _, messages in probe.frames():
-                for m in messages:
-                    if m["type"] == "GuiUpdateMessage" and m.get("uuid") == status:
-                        if text in m["updates"].get("_markdown", ""):
-                            return
-
-        await asyncio.wait_for(shown(), 10.0)
+        await probe.until_markdown(gui_id(self.panel.status_md), text)
 
 
 @async_test(timeout=60)

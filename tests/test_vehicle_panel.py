@@ -41,18 +41,9 @@ class _Session:
     async def press(self, probe: ViserProbe, handle, **updates) -> None:
         await probe.set_gui(gui_id(handle), **(updates or {"value": True}))
 
-    async def said(self, probe: ViserProbe, text: str, timeout: float = 10.0) -> None:
+    async def said(self, probe: ViserProbe, text: str) -> None:
         """Until the panel's status says ``text``."""
-        status = gui_id(self.panel.status_md)
-
-        async def shown():
-            async for _, messages in probe.frames():
-                for m in messages:
-                    if m["type"] == "GuiUpdateMessage" and m.get("uuid") == status:
-                        if text in m["updates"].get("_markdown", ""):
-                            return
-
-        await asyncio.wait_for(shown(), timeout)
+        await probe.until_markdown(gui_id(self.panel.status_md), text)
 
 
 @async_test(timeout=90)

@@ -15,6 +15,7 @@ count the tab as connected, :meth:`ViserProbe.announce_camera`).
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import AsyncIterator
 
@@ -105,6 +106,19 @@ class ViserProbe:
             self.frames_received += 1
             self.bytes_received += len(raw)
             yield t, self.decode(raw)
+
+    async def until_markdown(self, handle_id: str, text: str, timeout: float = 10.0) -> None:
+        """Until a markdown element's content, as sent to this tab, says ``text`` (TimeoutError
+        after ``timeout`` s)."""
+
+        async def shown() -> None:
+            async for _, messages in self.frames():
+                for m in messages:
+                    if m["type"] == "GuiUpdateMessage" and m.get("uuid") == handle_id:
+                        if text in m["updates"].get("_markdown", ""):
+                            return
+
+        await asyncio.wait_for(shown(), timeout)
 
 
 def gui_id(handle) -> str:
