@@ -202,8 +202,11 @@ class VehicleProtocol:
 
     def set_mode(self, mode: int) -> int:
         """Change the flight mode; on the guided flight it acts: LAND comes down where it is, RTL
-        over home first, AUTO flies the mission from its current item, GUIDED holds where it is."""
+        over home first, AUTO flies the mission from its current item (refused without one past
+        home, as ArduCopter refuses it), GUIDED holds where it is."""
         g = self.guided
+        if g is not None and mode == MODE_AUTO and len(self.mission.items) < 2:
+            return mavlink.MAV_RESULT_DENIED
         if g is not None and mode != self.mode:
             t = self.sim.t
             if mode == MODE_LAND:

@@ -121,3 +121,17 @@ def test_auto_takes_off_flies_to_the_waypoint_and_lands():
     assert abs(pos[0] - 4.0) < 0.05 and abs(pos[1]) < 0.05  # where the landing was: the waypoint
     reached = [m.seq for m in v.sent if m.get_type() == "MISSION_ITEM_REACHED"]
     assert reached == [1, 2, 3]
+
+
+def test_auto_without_a_mission_is_refused_on_the_guided_flight():
+    """As ArduCopter: AUTO needs a mission past home (item 0); with one uploaded it is taken."""
+    from sim_bridge.scenario import Scenario
+    from sim_bridge.simulator import Simulator
+    from sim_bridge.vehicle_protocol import MODE_AUTO, MODE_GUIDED, VehicleProtocol
+
+    v = _Vehicle()
+    protocol = VehicleProtocol(Simulator(Scenario("quad", flight="guided")), FramePacker(1, 1), v._send, 1)
+    assert protocol.set_mode(MODE_AUTO) == mavlink.MAV_RESULT_DENIED and protocol.mode == MODE_GUIDED
+    protocol.mission = v.mission
+    _upload(v)
+    assert protocol.set_mode(MODE_AUTO) == mavlink.MAV_RESULT_ACCEPTED and protocol.mode == MODE_AUTO
