@@ -240,7 +240,7 @@ def test_diagnose_command_writes_the_reports(tmp_path):
     run_fast(Scenario.from_args("quad", 14, 40.0, ["range_tilt"], ["baro_thrust:k=2.5"]), log, tmp_path / "q.csv")
     out = tmp_path / "rep"
     r = subprocess.run(
-        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out)],
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out), "--jobs", "2"],
         capture_output=True,
         text=True,
         timeout=300,
@@ -529,7 +529,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert used[-1][1] == pytest.approx(425.2, abs=1.0)  # the battery failsafe onward is cut
     su = setup(ms, model_name="quad_thrust", vehicle="apm2_sonar")
     base = run_model(su.model, su.prep, su.make)
-    ctx = base.estimator.filter.ctx
+    ctx = base.ctx
     assert isinstance(ctx, ThrustContext) and any(53.5 <= t <= 56.0 for t in ctx.range_spurious)  # spin-up echoes
     wanted = ("thrust_voltage", "baro_bias_drift", "baro_ground_effect")
     cands = [c for c in su.spec.catalogue(su.prep.kinds) if c.name in wanted]
@@ -777,7 +777,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     def highest():
         run = run_model(su.model, su.prep, su.make)
         k = (run.t > spin) & (run.t < spin + 0.8)
-        return float(run.x[k, 0].max()), len(run.estimator.filter.ctx.range_spurious)
+        return float(run.x[k, 0].max()), len(run.ctx.range_spurious)
 
     z, skipped = highest()
     assert z < 0.15 and skipped == 6, (z, skipped)  # the model floats within 0.1 m at spin-up

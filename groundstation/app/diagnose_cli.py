@@ -4,6 +4,7 @@ the effects found translated into autopilot parameters; ``groundstation triage L
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import time
@@ -12,6 +13,7 @@ from pathlib import Path
 from groundstation.diagnosis import pipeline
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.diagnosis.triage import triage
+from groundstation.diagnosis.trials import available_cores
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.vehicles import declared_beside, declared_effects
 
@@ -42,6 +44,24 @@ def add_parser(sub) -> None:
         action="store_true",
         help="keep an effect even when its fix makes the error against truth worse (default: rejected)",
     )
+    d.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=available_cores(),
+        help="processes the candidates' filter runs are spread over (default: every core, here "
+        f"{available_cores()}; the findings do not depend on it)",
+    )
+
+
+def positive_int(text: str) -> int:
+    """A count of 1 or more, for argparse (its one-line error otherwise)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of 1 or more, got {text!r}")
+    return n
 
 
 def add_triage_parser(sub) -> None:
@@ -124,5 +144,6 @@ def cmd_diagnose(args) -> int:
         veto_with_truth=not args.no_truth_veto,
         progress=bar,
         say=say,
+        workers=args.jobs,
     )
     return 0

@@ -220,10 +220,12 @@ def diagnose(
     truth: Truth | None = None,
     progress: Callable[[str], None] | None = None,
     veto_with_truth: bool = True,
+    workers: int = 1,
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
-    :data:`VETO_FACTOR`); it never ranks or sizes an effect."""
+    :data:`VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the processes the
+    candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number)."""
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle)
     prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
@@ -249,14 +251,16 @@ def diagnose(
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
-        scored = rank(cands, model, base, prep, make, stream, progress=lambda s: say(f"trying {s}"))
+        scored = rank(cands, model, base, prep, make, stream, lambda s: say(f"trying {s}"), workers=workers)
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
         best: Scored | None = None
         for s in (s for s in scored if s.accepted):
             veto = _contradicted(truth, base, s) if veto_with_truth and truth is not None else None
             if veto is None:
                 say(f"holding out {_label(s)}")
-                ho = holdout.check(s.candidate, s.model, s.run, s.params, model, base, prep, make, stream, s.profile)
+                ho = holdout.check(
+                    s.candidate, s.model, s.run, s.params, model, base, prep, make, stream, s.profile, workers=workers
+                )
                 held[id(s)] = ho
                 if ho.holds:
                     best = s
@@ -316,7 +320,7 @@ def diagnose(
     # outside the catalogue: after it, so a physical effect the catalogue names comes first (scored
     # beside it, a regression over a hundred columns found the battery current on the range where a
     # delay of 60 ms was)
-    rival = _rival_discovery(base, model, prep, make, stream, findings1, tried, rejected)
+    rival = _rival_discovery(base, model, prep, make, stream, findings1, tried, rejected, workers=workers)
     if rival is not None:
         d, found = rival
         say(f"added the discovered {d.expression} on the {d.sensor}")
@@ -373,6 +377,8 @@ def _rival_discovery(
     findings: list[Finding],
     tried: set,
     rejected: list[Effect] | None = None,
+    *,
+    workers: int = 1,
 ) -> tuple[Discovery, Effect] | None:
     """The strongest discovery that holds (:func:`_add_discovery`) on a sensor whose residuals fail,
     with its effect; one tried before (same sensor and correlate) is not tried again. A failed one
@@ -385,7 +391,7 @@ def _rival_discovery(
         if d is None or (sensor, d.expression) in tried:
             continue
         tried.add((sensor, d.expression))
-        found = _add_discovery(d, model, base, prep, make, stream)
+        found = _add_discovery(d, model, base, prep, make, stream, workers=workers)
         if "reason" in found.evidence:
             if rejected is not None:
                 rejected.append(found)
@@ -395,7 +401,7 @@ def _rival_discovery(
     return best
 
 
-def _add_discovery(d: Discovery, model, base: Run, prep, make, stream) -> Effect:
+def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, workers: int = 1) -> Effect:
     """The discovered correlate added to the model as a regressor on its sensor, ``y = h(x) + k s(t)``
     (``s`` the signal as the run before it saw it), claimed on the catalogue's terms: strong evidence
     (Delta BIC), k at least 3 sigma from zero, and a gain on held-out blocks (:mod:`.holdout`). The
@@ -425,7 +431,16 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream) -> Effect
     n = max(base.sensors[d.sensor].t.size, 1)
     dbic = -2.0 * (run.loglik - base.loglik) + math.log(n)
     ho = holdout.check(
-        cand, aug, run, {k: v for k, v in params.items() if k != "expression"}, model, base, prep, make, stream
+        cand,
+        aug,
+        run,
+        {k: v for k, v in params.items() if k != "expression"},
+        model,
+        base,
+        prep,
+        make,
+        stream,
+        workers=workers,
     )
     evidence = {"delta_bic": round(dbic, 1), "sensor": d.sensor, "r2": round(d.r2, 3), **ho.as_dict()}
     if dbic >= STRONG:

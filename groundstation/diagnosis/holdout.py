@@ -47,6 +47,7 @@ from groundstation.estimation.models.ground import LANDED
 
 from .catalogue import SENSOR_KINDS
 from .run import SETTLE_S, Prepared, Run, run_model
+from .trials import fork_map, portable
 
 #: time blocks of the scored window
 BLOCKS = 3
@@ -194,6 +195,27 @@ def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> f
     return float(np.std(d) * math.sqrt(len(d))) if len(d) > 1 else 0.0
 
 
+def _held_out(
+    aug: LinearModel, n0: int, block: tuple[float, float], prep: Prepared, make, ms: list
+) -> Run | str | None:
+    """The augmented model fitted without ``block``'s sensor updates, its added states (from ``n0``
+    on) carried back to the log's start and fixed there, and run again: the run scored on the block
+    (without its model: it may have crossed processes); the reason when that fails; None when
+    nothing was left to fit on."""
+    lo, hi = block
+    train = run_model(_blinded(aug, n0, lo, hi, set().union(*SENSOR_KINDS.values())), prep, make, measurements=ms)
+    if not len(train.t):
+        return None
+    a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
+    theta = expm(-a_ee * (train.t[-1] - prep.t0)) @ train.x[-1, n0:]
+    if not np.all(np.isfinite(theta)):
+        return "its parameters ran away when fitted without a block"
+    try:
+        return portable(run_model(_fixed(aug, n0, theta), prep, make, measurements=ms))
+    except np.linalg.LinAlgError:
+        return "its filter diverged with the parameters fitted without a block"
+
+
 def check(
     cand,
     aug: LinearModel,
@@ -205,44 +227,42 @@ def check(
     make,
     ms: list,
     profile: dict[float, Run] | None = None,
+    *,
+    workers: int = 1,
 ) -> Holdout:
     """The candidate's out-of-sample evidence (module docstring); ``profile``: a grid candidate's
-    runs by grid value."""
+    runs by grid value. A fitted effect's blocks are fitted on up to ``workers`` processes."""
     z, reason = sizes(params, bool(cand.delays))
     h = Holdout(z=z, reason=reason)
     if reason is not None:
         return h
     if aug.f is not None:  # a rebuilt nonlinear model: size only
         return h
-    sensor_kinds = set().union(*SENSOR_KINDS.values())
     per_block: list[dict[str, float]] = []
     held_runs: list[tuple[Run, float, float]] = []
-    for lo, hi in blocks(prep):
-        if cand.delays and profile:
+    if cand.delays and profile:
+        for lo, hi in blocks(prep):
             others = [(a, b) for a, b in blocks(prep) if (a, b) != (lo, hi)]
             best = max(profile, key=lambda d: sum(sum(window_loglik(profile[d], a, b).values()) for a, b in others))
             per_block.append(_gains(profile[best], base, lo, hi))
             held_runs.append((profile[best], lo, hi))
-        elif aug.n == base_model.n:  # nothing fitted (a changed measurement function)
+    elif aug.n == base_model.n:  # nothing fitted (a changed measurement function)
+        for lo, hi in blocks(prep):
             per_block.append(_gains(run, base, lo, hi))
             held_runs.append((run, lo, hi))
-        else:
-            n0 = base_model.n
-            train = run_model(_blinded(aug, n0, lo, hi, sensor_kinds), prep, make, measurements=ms)
-            if not len(train.t):
-                continue
-            a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
-            theta = expm(-a_ee * (train.t[-1] - prep.t0)) @ train.x[-1, n0:]
-            if not np.all(np.isfinite(theta)):
-                h.reason = "its parameters ran away when fitted without a block"
+    else:
+        n0 = base_model.n
+
+        def held_out(block: tuple[float, float]) -> Run | str | None:
+            return _held_out(aug, n0, block, prep, make, ms)
+
+        for (lo, hi), held in zip(blocks(prep), fork_map(held_out, blocks(prep), workers)):
+            if isinstance(held, str):
+                h.reason = held
                 return h
-            try:
-                held = run_model(_fixed(aug, n0, theta), prep, make, measurements=ms)
-            except np.linalg.LinAlgError:
-                h.reason = "its filter diverged with the parameters fitted without a block"
-                return h
-            per_block.append(_gains(held, base, lo, hi))
-            held_runs.append((held, lo, hi))
+            if held is not None:
+                per_block.append(_gains(held, base, lo, hi))
+                held_runs.append((held, lo, hi))
     h.gain_by_block = [sum(g.values()) for g in per_block]
     for g in per_block:
         for s, v in g.items():

@@ -47,6 +47,7 @@ def run(
     veto_with_truth: bool = True,
     progress: Callable[[str], None] | None = None,
     say: Callable[[str], None] = _quiet,
+    workers: int = 1,
 ) -> LogDiagnosis:
     """Diagnose ``path`` into the folder ``out`` (which must be writable). Raises the readers' and
     the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed."""
@@ -77,6 +78,7 @@ def run(
         truth=truth_from(ms, path, truth_csv),
         progress=progress,
         veto_with_truth=veto_with_truth,
+        workers=workers,
     )
     suggestions = []
     if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters

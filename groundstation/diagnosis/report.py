@@ -74,7 +74,7 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
             "ljung_box_p": float(ljung_box(e)),
             "failed": [f.test for f in findings if f.sensor == s and not f.passed],
         }
-        ctx = run.estimator.filter.ctx
+        ctx = run.ctx
         spurious = ctx.range_spurious if isinstance(ctx, ThrustContext) and s == "range" else ()
         if spurious:  # thrust.LIFTOFF_REACH
             out["sensors"][s]["skipped_spurious"] = len(spurious)

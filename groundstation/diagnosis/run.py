@@ -206,7 +206,7 @@ class Run:
     P: np.ndarray
     loglik: float  # over the scored window, all sensors but LANDED
     n_scored: int  # innovations in it
-    estimator: KalmanEstimator
+    ctx: Context  # the filter's context at the end of the log
     loglik_by: dict[str, float] = field(default_factory=dict)  # the same, per sensor
     inflation: dict[str, float] = field(default_factory=dict)  # n / n_eff of each sensor's innovations
 
@@ -265,9 +265,8 @@ def run_model(
             ll_by[s] = float(np.sum(tr.loglik[scored]))
             inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
             n_sc += int(scored.sum())
-    return Run(
-        model, sensors, np.array(ts), np.array(xs), np.array(Ps), sum(ll_by.values()), n_sc, est, ll_by, inflation
-    )
+    x, P = np.array(xs), np.array(Ps)
+    return Run(model, sensors, np.array(ts), x, P, sum(ll_by.values()), n_sc, est.filter.ctx, ll_by, inflation)
 
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------

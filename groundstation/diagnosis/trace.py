@@ -10,7 +10,8 @@ evidence. Because the likelihood is the filter's own (its gains, its S), an
 effect is credited with exactly what the filter could not already absorb: the
 generalized-likelihood-ratio idea of Willsky and Jones (1976), with the
 effect's parameters estimated as states instead of a separate GLR search.
-Delays are profiled: one run per delay on a grid, the best one kept.
+Delays are profiled: one run per delay on a grid, the best one kept. The runs of
+one ranking are independent of one another and run on every core given (:mod:`.trials`).
 
 The likelihood is the filter's, which assumes white innovations. Measured ones
 rarely are, even after the fix, and then each innovation carries less than one
@@ -41,8 +42,9 @@ import numpy as np
 
 from groundstation.estimation.models.base import LinearModel
 
-from .catalogue import SENSOR_KINDS, Candidate, shift
-from .run import SETTLE_S, Prepared, Run, run_model
+from .catalogue import Candidate
+from .run import SETTLE_S, Prepared, Run
+from .trials import SIGNATURE, Trials, delayed, first_keys, refine
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -135,59 +137,22 @@ def smallest_claimed(s: Scored) -> dict[str, float]:
     }
 
 
-#: parabolic steps the profile over a delay takes after its grid
-PROFILE_STEPS = 3
-
-
-def profile_steps(at: Callable[[float], float], tried: dict) -> None:
-    """Refine a profile likelihood sampled on a grid (``tried``: value -> (run, ...), ``at(v)`` adds
-    one): up to PROFILE_STEPS times, the vertex of the parabola through the best point and its
-    neighbours. At the grid's first point (no delay) the parabola through the first three points,
-    or, when its vertex lies below the first, once a point a quarter of the way to the second: a range
-    delay of 0.015 s was else never located, the grid's 0 being closer than its 0.04 (on the
-    standard flight 0.02 s scores Delta BIC -205), and the curvature there, which
-    :func:`profile_sigma` reads, was the grid's, not the likelihood's near zero."""
-    closer = False
-    for _ in range(PROFILE_STEPS):
-        ds = sorted(tried)
-        if len(ds) < 3:
-            return
-        i = max(range(len(ds)), key=lambda j: tried[ds[j]][0].loglik)
-        if i == len(ds) - 1:
-            return
-        x0, x1, x2 = ds[max(i - 1, 0) : max(i - 1, 0) + 3]
-        y0, y1, y2 = (tried[x][0].loglik for x in (x0, x1, x2))
-        den = (x1 - x0) * (y1 - y2) - (x1 - x2) * (y1 - y0)
-        v = x1 - 0.5 * ((x1 - x0) ** 2 * (y1 - y2) - (x1 - x2) ** 2 * (y1 - y0)) / den if den != 0 else math.nan
-        lo, hi = (x0, x2) if i > 0 else (x0, x1)
-        if not lo < v < hi:
-            if i > 0 or closer:
-                return
-            v, closer = x0 + 0.25 * (x1 - x0), True  # the edge: look closer to it, once
-        if round(float(v), 4) in tried:
-            return
-        at(v)
-
-
-def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms) -> Scored | None:
+def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int, ms) -> Scored | None:
+    """Candidate ``i`` of ``trials`` scored against the base run: a grid candidate (a delay) at its
+    profile's best value, a shaped one at its best shape."""
     n = max(base.n_scored, 1)
     if cand.delays:
-        kinds = SENSOR_KINDS.get(cand.sensor or "", set())
-        tried: dict[float, tuple] = {}
-
-        def at(d: float):
-            d = round(float(d), 4)
-            if d not in tried:
-                shifted = cand.reshape(ms, d) if cand.reshape else shift(ms, kinds, d)
-                tried[d] = (run_model(model, prep, make, measurements=shifted), shifted)
-            return tried[d][0].loglik
-
-        for d in cand.delays:
-            at(d)
-        profile_steps(at, tried)
-        d = max(tried, key=lambda x: tried[x][0].loglik)
-        r, shifted = tried[d]
-        sd = profile_sigma({x: v[0].loglik for x, v in tried.items()}, d, cand.delays[1] - cand.delays[0])
+        lik: dict[float, float] = {}
+        for d in first_keys(cand):
+            r = trials.run(i, d)
+            assert r is not None  # a delayed stream does not change the model
+            lik[float(d)] = r.loglik  # type: ignore[arg-type]
+        refine(cand, lik, lambda d: trials.run(i, d), {})
+        d = max(lik, key=lambda x: lik[x])
+        r = trials.run(i, d)
+        assert r is not None
+        shifted = delayed(cand, ms, d)
+        sd = profile_sigma(lik, d, cand.delays[1] - cand.delays[0])
         if d >= max(cand.delays) - 1e-9:
             # the likelihood still rises at the end of the range: no delay has been
             # located, something else is being fitted; not a finding
@@ -203,29 +168,23 @@ def score(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, 
         if math.isfinite(sd):  # a flat profile has none (and JSON no infinity)
             p[f"sigma_{'tc' if cand.reshape else 'seconds'}"] = sd
         out = scored(cand, model, r, base, n, p, shifted)
-        out.profile = {x: v[0] for x, v in tried.items()}
+        out.profile = {x: trials.run(i, x) for x in lik}
         return out
     if cand.augment is None:
         return None
     best: tuple | None = None
     for shape in cand.shapes or (None,):
-        aug = cand.augment(model) if shape is None else cand.augment(model, shape)
-        try:
-            r = run_model(aug, prep, make, measurements=ms)
-        except np.linalg.LinAlgError:
-            # the augmented filter ran away (its innovation covariance went singular): not a finding,
-            # and not the end of the diagnosis
-            continue
-        if best is None or r.loglik > best[1].loglik:
-            best = (aug, r, shape)
+        r = trials.run(i, shape)
+        if r is not None and (best is None or r.loglik > best[0].loglik):
+            best = (r, shape)
     if best is None:
         return Scored(cand, model, base, math.inf, {"note": "the filter diverged"}, ms)
-    aug, r, shape = best
+    r, shape = best
     params = cand.params(r) if cand.params else {}
     if shape is not None:
         params[cand.shape_name] = shape
         cand = replace(cand, k=cand.k + 1, augment=_with_shape(cand.augment, shape), shapes=())
-    return scored(cand, aug, r, base, n, params, ms)
+    return scored(cand, r.model, r, base, n, params, ms)
 
 
 def _with_shape(augment: Callable[..., LinearModel], shape: float) -> Callable[[LinearModel], LinearModel]:
@@ -237,25 +196,20 @@ def _with_shape(augment: Callable[..., LinearModel], shape: float) -> Callable[[
     return at
 
 
-#: the size an input effect is made to act at for its signature (the filter is linear in it: any small one)
-SIGNATURE_SIZE = 0.01
-
-
-def signature_support(cand: Candidate, model: LinearModel, base: Run, prep: Prepared, make, ms, sensor: str) -> int:
+def signature_support(pert: Run | None, base: Run, prep: Prepared, sensor: str) -> int:
     """The updates of ``sensor`` an effect on the input acts on: the participation ratio
 
         n_sig = (sum_k w_k)^2 / sum_k w_k^2,   w_k = (nu_k(delta) - nu_k)^2 / S_k
 
-    of its signature, nu(delta) the base filter's innovations with the effect acting at a small
-    size (``cand.perturb``): the effect seen through the filter's own gains, as Willsky and Jones's
-    GLR sees it. An effect spread evenly over the flight counts every update; the accelerometer's
-    scale acts only where the vertical acceleration changes. On the standard flight, its
-    signature sits on about 150 of 1270 range updates: the steps and the descent. Spread over all
-    1270, a scale error of 0.01 (Delta BIC -22, estimated 0.0125 +- 0.0021) gained 0.012 per update
-    and was not material."""
-    if cand.perturb is None:
+    of its signature ``pert``, the base filter's innovations nu(delta) with the effect acting at a
+    small size (``cand.perturb``, the candidate's :data:`.trials.SIGNATURE` trial): the effect
+    seen through the filter's own gains, as Willsky and Jones's GLR sees it. An effect spread
+    evenly over the flight counts every update; the accelerometer's scale acts only where the
+    vertical acceleration changes. On the standard flight, its signature sits on about 150 of
+    1270 range updates: the steps and the descent. Spread over all 1270, a scale error of 0.01
+    (Delta BIC -22, estimated 0.0125 +- 0.0021) gained 0.012 per update and was not material."""
+    if pert is None:
         return base.n_scored
-    pert = run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
     a, b = base.sensors.get(sensor), pert.sensors.get(sensor)
     if a is None or b is None:
         return base.n_scored
@@ -276,15 +230,24 @@ def rank(
     make,
     ms,
     progress: Callable[[str], None] | None = None,
+    *,
+    workers: int = 1,
 ) -> list[Scored]:
-    out = []
-    for c in cands:
+    """The candidates scored and sorted by Delta BIC, each with its gain per supported update;
+    their filter runs on ``workers`` processes (:mod:`.trials`: the same scores on any number)."""
+    trials = Trials(cands, model, prep, make, ms, workers=workers)
+    if trials.workers > 1:
+        if progress:
+            progress(f"{len(cands)} candidates on {trials.workers} cores")
+        trials.compute_all()
+    out: list[tuple[int, Scored]] = []
+    for i, c in enumerate(cands):
         if progress:
             progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
-        s = score(c, model, base, prep, make, ms)
+        s = score(c, model, base, trials, i, ms)
         if s is not None:
-            out.append(s)
-    for s in out:
+            out.append((i, s))
+    for i, s in out:
         sensor = s.candidate.sensor
         if sensor is None:
             # an effect on the input (the accelerometer's scale, the thrust) acts on every sensor
@@ -299,8 +262,9 @@ def rank(
         if s.candidate.support:
             n = min(n, max(s.candidate.support(s.run, prep.t0 + SETTLE_S), MIN_SUPPORT))
         if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
-            n = min(n, max(signature_support(s.candidate, model, base, prep, make, ms, sensor), MIN_SUPPORT))
+            n = min(n, max(signature_support(trials.run(i, SIGNATURE), base, prep, sensor), MIN_SUPPORT))
         s.support = n
         s.gain_per_update = (s.run.loglik - base.loglik) / max(n, 1)
-    out.sort(key=lambda s: s.delta_bic)
-    return out
+    ranked = [s for _, s in out]
+    ranked.sort(key=lambda s: s.delta_bic)
+    return ranked

@@ -1,0 +1,227 @@
+"""A candidate's filter runs ("trials"), and the cores they run on.
+
+Scoring a candidate of the catalogue costs full filter runs over the log: one per shape the
+likelihood chooses among (a ground effect's fall-off height), one per delay of its grid and of
+the grid's refinement, and for an effect on the input one more with the effect acting at a small
+size (its signature). Trials of one ranking do not depend on one another (a profile's refinement
+only on its own grid's), so :class:`Trials` runs them on every core it is given: a pool of
+forked processes that inherit the log, the model and the candidates (closures, which no pickle
+carries), each sending back its :class:`.Run` without the model (rebuilt here, it is cheap) and
+with the estimator's final context only. With one worker everything runs here, in order. Either
+way each trial's run is the same, number for number: the ranking does not depend on the cores.
+
+Forking is safe where nothing else runs threads of its own (the command line): the library's
+default is one worker, and the command line asks for more.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import os
+from collections.abc import Callable, Hashable, Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from typing import TypeVar
+
+import numpy as np
+
+from groundstation.core.measurement import Measurement
+from groundstation.estimation.models.base import LinearModel
+
+from .catalogue import SENSOR_KINDS, Candidate, shift
+from .run import Prepared, Run, run_model
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: the key of an input effect's signature trial (the effect acting at :data:`SIGNATURE_SIZE`)
+SIGNATURE = "signature"
+#: the size an input effect is made to act at for its signature (the filter is linear in it: any small one)
+SIGNATURE_SIZE = 0.01
+
+
+def available_cores() -> int:
+    """The cores this process may run on (a container's or a ``taskset``'s share, not the machine's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def first_keys(cand: Candidate) -> list[Hashable]:
+    """The trials a candidate needs whatever its runs show: its grid or its shapes (``None``: its
+    one augmented model), and its signature."""
+    keys: list[Hashable] = []
+    if cand.delays:
+        keys += [round(float(d), 4) for d in cand.delays]
+    elif cand.augment is not None:
+        keys += list(cand.shapes or (None,))
+    if cand.perturb is not None:
+        keys.append(SIGNATURE)
+    return keys
+
+
+def delayed(cand: Candidate, ms: list[Measurement], d: float) -> list[Measurement]:
+    """The stream a grid candidate is run on at grid value ``d``: its sensor's readings taken as of
+    ``t - d``, or the candidate's own reshaping (an actuator lag)."""
+    return cand.reshape(ms, d) if cand.reshape else shift(ms, SENSOR_KINDS.get(cand.sensor or "", set()), d)
+
+
+def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearModel:
+    """The model a trial runs: the base model for a delay and the signature, else the augmented one."""
+    if key == SIGNATURE or cand.delays or cand.augment is None:
+        return model
+    return cand.augment(model) if key is None else cand.augment(model, key)
+
+
+def trial(cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms) -> Run | None:
+    """One trial's run; None when the augmented filter ran away (its innovation covariance went
+    singular): not a finding, and not the end of the diagnosis."""
+    if key == SIGNATURE:
+        assert cand.perturb is not None
+        return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
+    if cand.delays:
+        return run_model(model, prep, make, measurements=delayed(cand, ms, float(key)))  # type: ignore[arg-type]
+    try:
+        return run_model(trial_model(cand, key, model), prep, make, measurements=ms)
+    except np.linalg.LinAlgError:
+        return None
+
+
+#: the function the pool being forked maps (its workers inherit it: closures travel no other way)
+_WORK: Callable | None = None
+
+
+def _call(item):
+    assert _WORK is not None, "a pool's worker runs only what it was forked with"
+    return _WORK(item)
+
+
+def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
+    """``[fn(x) for x in items]`` on up to ``workers`` forked processes (here, with one); ``fn``
+    may be a closure over anything, its results must pickle (a :class:`.Run` through
+    :func:`portable`)."""
+    items = list(items)
+    n = min(workers, len(items))
+    if n <= 1:
+        return [fn(x) for x in items]
+    global _WORK
+    _WORK = fn
+    try:
+        # a fork pool starts all its workers at the first task, within this block: all inherit fn
+        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork")) as pool:
+            return list(pool.map(_call, items))
+    finally:
+        _WORK = None
+
+
+def portable(r: Run | None) -> Run | None:
+    """A run as it can travel between processes: without its model (closures; the receiver
+    rebuilds it)."""
+    return None if r is None else replace(r, model=None)  # type: ignore[arg-type]
+
+
+def refine(cand: Candidate, lik: dict[float, float], run: Callable[[float], Run | None], runs: dict) -> None:
+    """A grid candidate's profile refined (:func:`.trace.profile_steps`) from its grid's
+    log-likelihoods ``lik``; the new runs go to ``runs`` and their likelihoods to ``lik``."""
+
+    def at(d: float) -> float:
+        d = round(float(d), 4)
+        if d not in lik:
+            r = run(d)
+            assert r is not None  # a delayed stream does not change the model
+            runs[d], lik[d] = r, r.loglik
+        return lik[d]
+
+    profile_steps(at, lik)
+
+
+#: parabolic steps the profile over a delay takes after its grid
+PROFILE_STEPS = 3
+
+
+def profile_steps(at: Callable[[float], float], lik: dict[float, float]) -> None:
+    """Refine a profile likelihood sampled on a grid (``lik``: value -> log-likelihood, ``at(v)``
+    adds one): up to PROFILE_STEPS times, the vertex of the parabola through the best point and its
+    neighbours. At the grid's first point (no delay) the parabola through the first three points,
+    or, when its vertex lies below the first, once a point a quarter of the way to the second: a range
+    delay of 0.015 s was else never located, the grid's 0 being closer than its 0.04 (on the
+    standard flight 0.02 s scores Delta BIC -205), and the curvature there, which
+    :func:`profile_sigma` reads, was the grid's, not the likelihood's near zero."""
+    closer = False
+    for _ in range(PROFILE_STEPS):
+        ds = sorted(lik)
+        if len(ds) < 3:
+            return
+        i = max(range(len(ds)), key=lambda j: lik[ds[j]])
+        if i == len(ds) - 1:
+            return
+        x0, x1, x2 = ds[max(i - 1, 0) : max(i - 1, 0) + 3]
+        y0, y1, y2 = (lik[x] for x in (x0, x1, x2))
+        den = (x1 - x0) * (y1 - y2) - (x1 - x2) * (y1 - y0)
+        v = x1 - 0.5 * ((x1 - x0) ** 2 * (y1 - y2) - (x1 - x2) ** 2 * (y1 - y0)) / den if den != 0 else math.nan
+        lo, hi = (x0, x2) if i > 0 else (x0, x1)
+        if not lo < v < hi:
+            if i > 0 or closer:
+                return
+            v, closer = x0 + 0.25 * (x1 - x0), True  # the edge: look closer to it, once
+        if round(float(v), 4) in lik:
+            return
+        at(v)
+
+
+class Trials:
+    """One ranking's trials: ``runs[i][key]`` the run of candidate ``i`` at ``key``
+    (:func:`first_keys`), computed on ``workers`` processes (one: here)."""
+
+    def __init__(
+        self,
+        cands: list[Candidate],
+        model: LinearModel,
+        prep: Prepared,
+        make,
+        ms: list[Measurement],
+        *,
+        workers: int = 1,
+    ) -> None:
+        self.cands, self.model, self.prep, self.make, self.ms = cands, model, prep, make, ms
+        self.workers = max(1, workers)
+        self.runs: list[dict[Hashable, Run | None]] = [{} for _ in cands]
+
+    def run(self, i: int, key: Hashable) -> Run | None:
+        """Candidate ``i``'s run at ``key``: computed once, here when no pool computed it before."""
+        runs = self.runs[i]
+        if key not in runs:
+            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms)
+        return runs[key]
+
+    def compute_all(self) -> None:
+        """Every candidate's first trials and its grid's refinement, on the pool (nothing with one
+        worker: :meth:`run` computes each when asked)."""
+        if self.workers == 1:
+            return
+        tasks = [(i, k) for i, c in enumerate(self.cands) for k in first_keys(c)]
+        for (i, key), r in zip(tasks, fork_map(self._portable_trial, tasks, self.workers)):
+            self.runs[i][key] = self._attach(i, key, r)
+        grids = [
+            (i, {d: r.loglik for d, r in self.runs[i].items() if isinstance(d, float) and r is not None})
+            for i, c in enumerate(self.cands)
+            if c.delays
+        ]
+        for (i, _), new in zip(grids, fork_map(self._portable_refinement, grids, self.workers)):
+            for d, r in new.items():
+                self.runs[i][d] = self._attach(i, d, r)
+
+    def _portable_trial(self, task: tuple[int, Hashable]) -> Run | None:
+        i, key = task
+        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms))
+
+    def _portable_refinement(self, grid: tuple[int, dict[float, float]]) -> dict[float, Run | None]:
+        i, lik = grid
+        runs: dict[float, Run | None] = {}
+        refine(self.cands[i], dict(lik), lambda d: self.run(i, d), runs)
+        return {d: portable(r) for d, r in runs.items()}
+
+    def _attach(self, i: int, key: Hashable, r: Run | None) -> Run | None:
+        return None if r is None else replace(r, model=trial_model(self.cands[i], key, self.model))

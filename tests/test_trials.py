@@ -1,0 +1,97 @@
+"""The candidates' filter runs spread over forked processes score exactly as they do one after
+another: the ranking, the held-out evidence and a diverging candidate, on a simulated flight with
+a baro effect and a late range sensor."""
+
+import subprocess
+import sys
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from drivers.replay import Replay
+from groundstation.diagnosis import holdout
+from groundstation.diagnosis.catalogue import Candidate
+from groundstation.diagnosis.models import setup
+from groundstation.diagnosis.run import run_model
+from groundstation.diagnosis.trace import rank
+from groundstation.diagnosis.trials import fork_map
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    log = tmp_path_factory.mktemp("trials") / "f.tlog"
+    hidden = ["baro_thrust:k=2.5", "sensor_delay:sensor=range,seconds=0.06"]
+    sc = Scenario.from_args("quad", 31, 25.0, ["range_tilt"], hidden)
+    run_fast(sc, log, log.with_suffix(".csv"))
+    su = setup(list(Replay(log).iter_measurements()), model_name="altitude")
+    return su, run_model(su.model, su.prep, su.make)
+
+
+def blind_range(model):
+    """A range row of zeros with no noise: its innovation covariance is singular (the filter diverges)."""
+    meas = dict(model.measurements)
+    meas["range"] = replace(meas["range"], row=lambda ctx: np.zeros((1, model.n)), R=np.zeros((1, 1)))
+    return replace(model, measurements=meas)
+
+
+def summary(scored):
+    return [(s.name, s.candidate.sensor, s.delta_bic, s.params, s.support, s.gain_per_update) for s in scored]
+
+
+def test_two_workers_rank_the_catalogue_exactly_as_one(flight):
+    su, base = flight
+    cands = su.spec.catalogue(su.prep.kinds) + [Candidate("blind", 0, set(), "range", blind_range, None)]
+    one = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements)
+    seen: list[str] = []
+    two = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements, seen.append, workers=2)
+    assert seen[0] == f"{len(cands)} candidates on 2 cores"
+    assert summary(two) == summary(one)
+    # what was found is what the flight has: the baro's thrust term and the range 60 ms late
+    by_name = {(s.name, s.candidate.sensor): s for s in two}
+    assert by_name[("sensor_delay", "range")].params["seconds"] == pytest.approx(0.06, abs=0.015)
+    assert by_name[("baro_thrust", "baro")].accepted
+    # each run came back whole: its trajectory, its context and its model rebuilt
+    for a, b in zip(one, two):
+        assert np.array_equal(a.run.x, b.run.x) and a.run.model.states == b.run.model.states
+        assert type(a.run.ctx) is type(b.run.ctx)
+        assert sorted(a.profile) == sorted(b.profile)
+    blind = by_name[("blind", "range")]
+    assert blind.delta_bic == float("inf") and blind.params == {"note": "the filter diverged"}
+
+
+def test_two_workers_hold_out_the_blocks_exactly_as_one(flight):
+    su, base = flight
+    cand = next(c for c in su.spec.catalogue(su.prep.kinds) if c.name == "baro_thrust")
+    (s,) = rank([cand], su.model, base, su.prep, su.make, su.prep.measurements)
+    args = (s.candidate, s.model, s.run, s.params, su.model, base, su.prep, su.make, su.prep.measurements)
+    one, two = holdout.check(*args), holdout.check(*args, workers=2)
+    assert two.as_dict() == one.as_dict()
+    assert len(two.gain_by_block) == holdout.BLOCKS and two.holds, two.reason
+
+
+def test_a_worker_that_fails_fails_the_call_with_its_error():
+    """An exception in a forked worker reaches the caller as itself, not as a hang or a lost result."""
+
+    def boom(x):
+        if x == 3:
+            raise ValueError(f"item {x} is bad")
+        return x * x
+
+    assert fork_map(lambda x: x * x, range(5), 2) == [0, 1, 4, 9, 16]
+    with pytest.raises(ValueError, match="item 3 is bad"):
+        fork_map(boom, range(5), 2)
+
+
+@pytest.mark.parametrize("jobs", ["0", "-2", "two"])
+def test_diagnose_with_no_cores_to_run_on_is_one_line(tmp_path, jobs):
+    log = tmp_path / "f.tlog"
+    log.write_bytes(b"")
+    r = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--jobs", jobs], capture_output=True, text=True
+    )
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    last = r.stderr.strip().splitlines()[-1]
+    assert last.endswith(f"argument --jobs: expected a whole number of 1 or more, got {jobs!r}")
