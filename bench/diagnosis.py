@@ -3,6 +3,7 @@
     python bench/diagnosis.py [--seeds 5] [--effects baro_thrust,sensor_delay] [--jobs 2] [--seconds 60]
                               [--airframe sim_quad] [--baro-flight standard]
     python bench/diagnosis.py --foreign     # the foreign flights' table (bench/foreign.py)
+    python bench/diagnosis.py --speed       # every core against one (bench/diagnosis_speed.py)
 
 For every run: a simulated flight (vehicle alternating quad / coax, the seed
 changing the flight), the effect acting but not declared, then ``diagnose``
@@ -289,7 +290,17 @@ def main() -> int:
         action="store_true",
         help="the foreign flights' table instead (bench/foreign.py: another generator's flights, with truth)",
     )
+    ap.add_argument(
+        "--speed",
+        action="store_true",
+        help="diagnose on every core against one, on the same logs (bench/diagnosis_speed.py)",
+    )
     args = ap.parse_args()
+    if args.speed:
+        import diagnosis_speed  # bench/diagnosis_speed.py, beside this file
+
+        sys.argv = [sys.argv[0]]
+        return diagnosis_speed.main()
     if args.foreign:
         import foreign  # bench/foreign.py, beside this file
 

@@ -833,3 +833,25 @@ def test_the_throttle_is_held_at_its_intervals_mean_and_a_jump_where_it_shows():
     assert all(np.isnan(m.value[4]) for m in out if m.kind is Kind.ACTUATOR)
     assert [float(m.value[0]) for m in out if m.kind is Kind.THROTTLE] == [0.0, 1.0, 1.0]
     assert out[5].kind is Kind.RANGE and [m.t for m in out] == [m.t for m in ms + [gap] + stand_in]
+
+
+def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
+    """A correlate that explains nothing through the filter is turned away, and the report's
+    rejected table says what the regression had fitted (the page failed on it with a KeyError)."""
+    from groundstation.diagnosis.discover import Discovery
+    from groundstation.diagnosis.engine import _add_discovery
+    from groundstation.diagnosis.models import setup
+    from groundstation.diagnosis.report import _evidence_html
+    from groundstation.diagnosis.run import run_model
+
+    log = tmp_path / "d.tlog"
+    run_fast(Scenario.from_args("quad", 5, 20.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
+    su = setup(list(Replay(log).iter_measurements()), model_name="altitude")
+    base = run_model(su.model, su.prep, su.make)
+    t = base.sensors["baro"].t
+    noise = np.random.default_rng(3).normal(size=t.size)  # a signal with nothing of the baro's error in it
+    d = Discovery("baro", "noise", 0.01, 0.02, [("noise", 0.01), ("time", -0.002)], keep_t=t, signal=noise)
+    found = _add_discovery(d, su.model, base, su.prep, su.make, su.prep.measurements)
+    assert "reason" in found.evidence and found.evidence["terms"][1] == {"regressor": "time", "coefficient": -0.002}
+    page = _evidence_html("discovered", found.evidence)
+    assert "2% of the innovations&#x27; variance: 0.01 noise + -0.002 time" in page and "not claimed" in page

@@ -442,7 +442,14 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
         stream,
         workers=workers,
     )
-    evidence = {"delta_bic": round(dbic, 1), "sensor": d.sensor, "r2": round(d.r2, 3), **ho.as_dict()}
+    evidence = {
+        "delta_bic": round(dbic, 1),
+        "sensor": d.sensor,
+        "r2": round(d.r2, 3),
+        # the regression's terms, as the report gives a claimed discovery's (report.as_json)
+        "terms": [{"regressor": a, "coefficient": b} for a, b in d.terms],
+        **ho.as_dict(),
+    }
     if dbic >= STRONG:
         return Effect("discovered", params, {**evidence, "reason": f"Delta BIC {dbic:+.1f} is not strong evidence"})
     if not ho.holds:

@@ -445,10 +445,8 @@ def _evidence_html(name: str, ev: dict) -> str:
     if "note" in ev:
         lines.append(ev["note"])
     if "r2" in ev:  # discovered: the sparse regression's fit to the raw innovations (discover.py)
-        lines.append(
-            f"{ev['r2']:.0%} of the innovations' variance: "
-            + " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev["terms"])
-        )
+        terms = " + ".join(f"{t['coefficient']:.3g} {t['regressor']}" for t in ev.get("terms", ()))
+        lines.append(f"{ev['r2']:.0%} of the innovations' variance" + (f": {terms}" if terms else ""))
         lb = ev.get("ljung_box_p", {})
         if lb and None not in lb.values():
             lines.append(f"Ljung-Box p {lb['innovations']:.2g}, without the fit {lb['without_the_fit']:.2g}")
