@@ -95,3 +95,28 @@ def test_diagnose_with_no_cores_to_run_on_is_one_line(tmp_path, jobs):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     last = r.stderr.strip().splitlines()[-1]
     assert last.endswith(f"argument --jobs: expected a whole number of 1 or more, got {jobs!r}")
+
+
+def test_a_prepared_log_leaves_out_the_readings_no_estimator_takes_and_counts_them(flight):
+    """Checked once when the log is prepared, not on each run: a NaN and an impossible pressure are
+    left out, counted by kind and problem, and the runs on what is left are what the estimator's
+    own check gives."""
+    from groundstation.core.measurement import Kind
+    from groundstation.diagnosis.run import add_signal_rules, prepare
+
+    su, base = flight
+    ms = list(su.prep.measurements)
+    baro = [i for i, m in enumerate(ms) if m.kind is Kind.BARO_PRESSURE]
+    ms[baro[100]] = ms[baro[100]]._replace(value=np.array([np.nan]))
+    ms[baro[200]] = ms[baro[200]]._replace(value=np.array([3.0e6]))
+    prep = prepare(ms)
+    assert prep.unusable == {"baro_pressure_not_finite": 1, "baro_pressure_implausible": 1}
+    assert len(prep.measurements) == len(prepare(su.prep.measurements).measurements) - 2
+    checked_here = run_model(su.model, prep, su.make)
+    est = su.make(su.model)  # the same readings, each checked by the estimator itself
+    add_signal_rules(est)
+    for m in ms:
+        est.handle(m)
+    bad = {k: v for k, v in est.counters.skipped.items() if k.endswith(("_not_finite", "_implausible"))}
+    assert bad == prep.unusable
+    np.testing.assert_array_equal(checked_here.sensors["baro"].nu, est.filter.log.arrays("baro")["nu"])

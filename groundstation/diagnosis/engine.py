@@ -119,6 +119,8 @@ class Diagnosis:
     detectable: list[dict] = field(default_factory=list)
     #: each sensor's noise as the log shows it, beside the model's (noise_match.py)
     noise: list[NoiseLevel] = field(default_factory=list)
+    #: readings no estimator takes (not finite, out of the sensor's range), by ``<kind>_<problem>``
+    unusable: dict[str, int] = field(default_factory=dict)
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -365,6 +367,7 @@ def diagnose(
         su.airframe,
         _detectable(scored, added, rejected),
         noise,
+        prep.unusable,
     )
 
 

@@ -12,6 +12,8 @@ report.json::
      "unobservable": {name: why}, "ranking": [[[candidate, delta_bic], ...] per iteration],
      "detectable": [{"name", "size": {param: value}, "delta_bic"}, ...],   # each candidate not found: the
                                          # size this log would claim it at about half the time (trace.py)
+     "noise": [...],                     # each sensor's noise from the log, beside the model's
+     "unusable_readings": {"<kind>_<problem>": count},   # not finite or out of range: left out
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
@@ -142,6 +144,7 @@ def as_json(d: Diagnosis) -> dict:
         "rejected": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.rejected],
         "unobservable": d.unobservable,
         "noise": [n.as_dict() for n in d.noise],
+        "unusable_readings": d.unusable,
         "detectable": d.detectable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),

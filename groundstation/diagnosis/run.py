@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.validity import reading_problem
 from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
@@ -46,6 +47,8 @@ class Prepared:
     t1: float
     #: the log has a throttle of its own (else THROTTLE is a stand-in derived from vibration or range)
     logged_throttle: bool = False
+    #: readings left out as no estimator takes them (``core.validity``), by ``<kind>_<problem>``
+    unusable: dict[str, int] = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -132,8 +135,19 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
         # first sample on, not from the first 1 Hz HEARTBEAT (before it a coax's four outputs,
         # two of them swash-plate servos at mid-range, averaged to a 0.25 throttle on the ground)
         out.insert(0, status._replace(t=out[0].t))
-    kinds = {m.kind for m in out}
-    return Prepared(out, truth, kinds, out[0].t if out else 0.0, out[-1].t if out else 0.0, logged_throttle)
+    # checked once here, not on each of the dozens of runs (what the estimator would skip, it never sees)
+    unusable: dict[str, int] = {}
+    usable = []
+    for m in out:
+        bad = reading_problem(m)
+        if bad is None:
+            usable.append(m)
+        else:
+            key = f"{m.kind.value}_{bad}"
+            unusable[key] = unusable.get(key, 0) + 1
+    kinds = {m.kind for m in usable}
+    t0, t1 = (usable[0].t, usable[-1].t) if usable else (0.0, 0.0)
+    return Prepared(usable, truth, kinds, t0, t1, logged_throttle, unusable)
 
 
 def motors_from_vibration(vib: list[tuple[float, float]]) -> list[Measurement]:
@@ -238,7 +252,7 @@ def run_model(
     ts, xs, Ps = [], [], []
     sig: dict[str, dict[str, list]] = {}
     for m in ms:
-        rec = est.handle(m)
+        rec = est.handle(m, checked=True)  # prepare() checked every reading
         if rec is None:
             continue
         f = est.filter

@@ -25,6 +25,7 @@ from dataclasses import replace
 from typing import TypeVar
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from groundstation.core.measurement import Measurement
 from groundstation.estimation.models.base import LinearModel
@@ -109,8 +110,14 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
     global _WORK
     _WORK = fn
     try:
-        # a fork pool starts all its workers at the first task, within this block: all inherit fn
-        with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork")) as pool:
+        # a fork pool starts all its workers at the first task, within this block: all inherit fn,
+        # and one BLAS thread. OpenBLAS's pool does not survive a fork: in the children every call
+        # on the filters' 5x5 matrices paid for it, and a run took 4-18 s instead of 1.2 s (the
+        # 23-minute dronekit tlog)
+        with (
+            threadpool_limits(limits=1, user_api="blas"),
+            ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork")) as pool,
+        ):
             return list(pool.map(_call, items))
     finally:
         _WORK = None
