@@ -41,6 +41,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -333,7 +334,8 @@ def main() -> int:
         flush=True,
     )
     rows = []
-    with ProcessPoolExecutor(args.jobs) as ex:
+    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/trials.py)
+    with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(args.jobs) as ex:
         for r in ex.map(one, jobs):
             rows.append(r)
             est = f"{r['est']:.4g}" if r["est"] is not None else "-"

@@ -29,6 +29,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -196,7 +197,8 @@ def main() -> int:
         print(f"no foreign flights at {a.data} (set GROUNDSTATION_DATA)")
         return 1
     names = a.flights.split(",") if a.flights else flights(a.data)
-    with ProcessPoolExecutor(a.jobs) as pool:
+    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/trials.py)
+    with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(evaluate, names, [a.data] * len(names)))
     print(f"{'flight':24s} {'suite':5s} {'hidden':28s} {'claimed':44s} {'before':>7s} {'after':>7s} {'ref':>7s}  bar")
     for r in rows:

@@ -67,3 +67,28 @@ def test_replayed_the_height_beats_the_raw_range_and_the_take_off_is_consistent(
     lo, hi = chi2.ppf([0.025, 0.975], dof) / dof
     nees = float(np.mean(nz**2))
     assert lo <= nees <= hi, (nees, lo, hi, dof)
+
+
+def test_replayed_a_throttle_cut_in_the_air_is_a_fall_not_a_landing():
+    """The generator ends its outdoor flights with the motors cut at several metres and a fall, braked
+    just above the ground. Motors stopped is not landed while nothing holds the vehicle up (the
+    accelerometer's upward specific force below g/2): held at vz = 0 there, the estimate stood still
+    while the vehicle fell, and was 1.7 m off; falling with it, it stays within the GPS's metre."""
+    tlog = foreign_file("clean_gps_s2.tlog")
+    truth = np.genfromtxt(tlog.with_name("clean_gps_s2_truth.csv"), delimiter=",", names=True)
+    cut = (truth["throttle"] < 0.05) & (truth["z"] > 0.5)
+    assert cut.any(), "the flight has its throttle cut in the air"
+    ms, _, _ = load_measurements(tlog)
+    loop = EstimationLoop([build_estimator("altitude")])
+    sub = loop.snapshots.subscribe()
+    for m in ms:
+        loop.push(m)
+    snaps = sub.get_nowait()
+    t = np.array([s.t for s in snaps])
+    z = np.array([s.x[0] for s in snaps])
+    # the outdoor scoring: estimate and truth zeroed on the ground before take-off
+    g, gt = (t > 0.5) & (t < 1.8), (truth["t"] > 0.5) & (truth["t"] < 1.8)
+    e = (z - z[g].mean()) - (np.interp(t, truth["t"], truth["z"]) - truth["z"][gt].mean())
+    fall = (t > truth["t"][cut][0] - 0.5) & (t < truth["t"][cut][-1] + 2.5)  # the cut, the fall, the braking
+    assert np.abs(e[fall]).max() < 0.3, np.abs(e[fall]).max()
+    assert bench_foreign.height_error(t, z, truth, "gps") < 0.1

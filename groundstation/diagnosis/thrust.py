@@ -71,6 +71,7 @@ from groundstation.estimation.routing import (
     read_angular_rate,
     read_attitude,
     read_quaternion,
+    read_specific_force,
     read_throttle,
     read_vehicle_status,
     throttle_at_reading,
@@ -388,6 +389,7 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
         model,
         inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
         context={
+            Kind.ACCEL: read_specific_force,
             Kind.ATTITUDE: read_attitude,
             Kind.ATTITUDE_QUATERNION: read_quaternion,
             Kind.ANGULAR_RATE: read_angular_rate,

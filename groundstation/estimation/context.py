@@ -74,6 +74,8 @@ class Context:
     vibration: float | None = None  #: (|f| - f_lp)^2 low-passed: the rotors' vibration
     vibration_t: float | None = None
     f_z: float | None = None  #: the latest body-z specific force [m/s^2] (the attitude model's mounting term)
+    #: the latest specific force along the world's up [m/s^2]: g held up at rest, 0 falling freely
+    f_up: float | None = None
 
     # -- the barometer's and GPS's zeros against the estimate --------------------------------------
     zeros: dict[str, Zero] = field(default_factory=dict)

@@ -62,6 +62,15 @@ def read_quaternion(m: Measurement, ctx: Context) -> None:
     ctx.attitude_t = m.t
 
 
+def read_specific_force(m: Measurement, ctx: Context) -> None:
+    """The accelerometer's specific force along the world's up, -(A_IB f)_down (coaxial doc. eq.
+    3.10's rows): what holds the body up, the ground or the rotors (``models.ground.landed``)."""
+    if m.instance == 0:
+        fx, fy, fz = m.value.tolist()
+        a, b, c = ctx.down_row
+        ctx.f_up = -(a * fx + b * fy + c * fz)
+
+
 def read_throttle(m: Measurement, ctx: Context) -> None:
     """THROTTLE and ACTUATOR records alike: the log's one throttle source (:func:`collective`)."""
     tau = collective(m, ctx)
@@ -144,6 +153,7 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
         model or altitude_model(),
         inputs={Kind.ACCEL: vertical_acceleration},
         context={
+            Kind.ACCEL: read_specific_force,
             Kind.ATTITUDE: read_attitude,
             Kind.ATTITUDE_QUATERNION: read_quaternion,
             Kind.ANGULAR_RATE: read_angular_rate,

@@ -40,6 +40,7 @@ from dataclasses import replace
 import numpy as np
 
 from groundstation.core.measurement import Kind
+from groundstation.core.units import G
 
 from ..context import Context
 from .base import LinearModel, MeasurementModel, state_row
@@ -60,12 +61,22 @@ H_LANDED = 0.5
 TAU_STOPPED = 0.05
 
 
+#: [m/s^2] a body is held up (by the ground, with the motors stopped) while the specific force along
+#: the world's up exceeds half of g: at rest it is g, falling with the motors stopped about 0. The
+#: motors are cut in the air too: another generator's flights end in a throttle cut at 15 m and a
+#: fall at up to 2 g (a specific force of -11 m/s^2), which the ground's vz = 0 held at zero speed,
+#: and the estimate rose 5 m while the vehicle fell; half of g is the midpoint, not a fitted value
+F_HELD_UP = G / 2
+
+
 def landed(ctx: Context) -> bool:
-    """The vehicle stands on the ground: the motors stopped, or the throttle below ground idle with
-    the estimated height (the state vector's first element, ``x``, kept in the context) within
-    :data:`H_LANDED`."""
+    """The vehicle stands on the ground: held up (:data:`F_HELD_UP`, where the accelerometer is
+    read) with the motors stopped, or with the throttle below ground idle and the estimated height
+    (the state vector's first element, ``x``, kept in the context) within :data:`H_LANDED`."""
     tau = ctx.tau
     if tau >= TAU_GROUND:
+        return False
+    if ctx.f_up is not None and ctx.f_up < F_HELD_UP:
         return False
     if tau < TAU_STOPPED:
         return True
