@@ -30,7 +30,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
 
-from .run import THROTTLE_TCS, in_time_order
+from .run import in_time_order
 
 
 @dataclass
@@ -192,18 +192,6 @@ def scale_accelerometer(ms: list[Measurement], s: float) -> list[Measurement]:
     return [m._replace(value=m.value * (1.0 + s)) if m.kind is Kind.ACCEL else m for m in ms]
 
 
-def baro_thrust(model: LinearModel, tc: float = 0.5) -> LinearModel:
-    """Rotor wash on the static port: y_baro = z + k LPF_tc(throttle), a first-order low-pass of time
-    constant ``tc`` [s] (the wake settling), one of :data:`.run.THROTTLE_TCS`, which the
-    likelihood chooses among as it does a ground effect's fall-off height. Fixed at 0.5 s, the
-    simulator's default, another generator's 0.25 s wash read k = 2.53 m for 2.02."""
-
-    def regressor(ctx: Context) -> float:
-        return ctx.throttle_lps.get(tc, 0.0)
-
-    return with_regressor(model, "baro", "k_thrust", regressor, 10.0**2)
-
-
 def _temperature(ctx: Context) -> float:
     t0 = ctx.temperature_0
     return ctx.temperature - t0 if t0 is not None and ctx.temperature is not None else 0.0
@@ -265,10 +253,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     1,
                     set(),
                     "baro",
-                    baro_thrust,
+                    lambda m: with_regressor(m, "baro", "k_thrust", lambda c: c.throttle_lp or 0.0, 10.0**2),
                     state_param("k", "k_thrust"),
-                    shapes=THROTTLE_TCS,
-                    shape_name="tc",
                 )
             )
         cands.append(
@@ -337,7 +323,6 @@ UNITS = {
     ("baro_bias_drift", "rate"): "m/s",
     ("baro_thermal", "k"): "m/K",
     ("baro_thrust", "k"): "m per unit throttle",
-    ("baro_thrust", "tc"): "s",
     ("baro_ground_effect", "A"): "m",
     ("baro_ground_effect", "h0"): "m",
     ("range_offset", "o"): "m",

@@ -285,10 +285,7 @@ def run_model(
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------
 VIBRATION_TC = 0.3  # s: low-pass of the accelerometer's high-frequency energy (motors running)
-THROTTLE_TC = 0.5  # s: the low-passed throttle recorded beside each innovation (a signal to regress on)
-#: s: the rotor wash's time constants the baro's thrust regressor is tried at (catalogue.baro_thrust:
-#: the likelihood picks one); a rotor's wake settles in a tenth of a second to a couple of seconds
-THROTTLE_TCS = (0.1, 0.25, 0.5, 1.0, 2.0)
+THROTTLE_TC = 0.5  # s: rotor-wash time constant of the baro's thrust regressor
 
 
 def add_signal_rules(est: KalmanEstimator) -> None:
@@ -321,14 +318,6 @@ def add_signal_rules(est: KalmanEstimator) -> None:
             return
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
-        t_last, lps = ctx.throttle_lps_t, ctx.throttle_lps
-        for tc in THROTTLE_TCS:
-            old = lps.get(tc)
-            if old is None or t_last is None:
-                lps[tc] = tau
-            elif m.t > t_last:
-                lps[tc] = old + (tau - old) * (1.0 - math.exp(-(m.t - t_last) / tc))
-        ctx.throttle_lps_t = m.t
 
     def temperature(m, ctx):
         if m.instance == 0:
