@@ -44,7 +44,7 @@ from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import Candidate
 from .run import SETTLE_S, Prepared, Run
-from .trials import SIGNATURE, Trials, delayed, first_keys, refine
+from .trials import SIGNATURE, Trials, delayed, refine
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -143,10 +143,10 @@ def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int
     n = max(base.n_scored, 1)
     if cand.delays:
         lik: dict[float, float] = {}
-        for d in first_keys(cand):
+        for d in (round(float(x), 4) for x in cand.delays):  # the grid, keyed as trials.first_keys keys it
             r = trials.run(i, d)
             assert r is not None  # a delayed stream does not change the model
-            lik[float(d)] = r.loglik  # type: ignore[arg-type]
+            lik[d] = r.loglik
         refine(cand, lik, lambda d: trials.run(i, d), {})
         d = max(lik, key=lambda x: lik[x])
         r = trials.run(i, d)

@@ -130,7 +130,7 @@ def portable(r: Run | None) -> Run | None:
 
 
 def refine(cand: Candidate, lik: dict[float, float], run: Callable[[float], Run | None], runs: dict) -> None:
-    """A grid candidate's profile refined (:func:`.trace.profile_steps`) from its grid's
+    """A grid candidate's profile refined (:func:`profile_steps`) from its grid's
     log-likelihoods ``lik``; the new runs go to ``runs`` and their likelihoods to ``lik``."""
 
     def at(d: float) -> float:
