@@ -38,21 +38,26 @@ def test_the_diagnosis_meets_its_bar_on_a_foreign_flight(flight):
         assert baro["sigma_data"] < 0.5 * baro["sigma_model"], r["noise"]
 
 
-def test_replayed_the_height_beats_the_raw_range_and_the_take_off_is_consistent():
-    """The live estimator over a clean indoor flight: its height error below the range sensor's own,
-    and through the take-off (1 s before to 5 s after) the normalised error squared inside its 95 %
-    band: the generator's vehicle leaves the ground at 0.5 m/s between two IMU samples."""
-    tlog = foreign_file("clean_s1.tlog")
-    truth = np.genfromtxt(tlog.with_name("clean_s1_truth.csv"), delimiter=",", names=True)
+def replayed(flight: str):
+    """The live altitude estimator over a foreign flight: its measurements, the truth table, and the
+    estimate's times, heights and height sigmas."""
+    tlog = foreign_file(f"{flight}.tlog")
+    truth = np.genfromtxt(tlog.with_name(f"{flight}_truth.csv"), delimiter=",", names=True)
     ms, _, _ = load_measurements(tlog)
     loop = EstimationLoop([build_estimator("altitude")])
     sub = loop.snapshots.subscribe()
     for m in ms:
         loop.push(m)
     snaps = sub.get_nowait()
-    t = np.array([s.t for s in snaps])
-    z = np.array([s.x[0] for s in snaps])
-    sz = np.array([s.sigma[0] for s in snaps])
+    t, z, sz = (np.array(v) for v in zip(*((s.t, s.x[0], s.sigma[0]) for s in snaps)))
+    return ms, truth, t, z, sz
+
+
+def test_replayed_the_height_beats_the_raw_range_and_the_take_off_is_consistent():
+    """The live estimator over a clean indoor flight: its height error below the range sensor's own,
+    and through the take-off (1 s before to 5 s after) the normalised error squared inside its 95 %
+    band: the generator's vehicle leaves the ground at 0.5 m/s between two IMU samples."""
+    ms, truth, t, z, sz = replayed("clean_s1")
     err = bench_foreign.height_error(t, z, truth, "range")
     rt = np.array([m.t for m in ms if m.kind is Kind.RANGE])
     rv = np.array([m.value[0] for m in ms if m.kind is Kind.RANGE])
@@ -74,20 +79,12 @@ def test_replayed_a_throttle_cut_in_the_air_is_a_fall_not_a_landing():
     just above the ground. Motors stopped is not landed while nothing holds the vehicle up (the
     accelerometer's upward specific force below g/2): held at vz = 0 there, the estimate stood still
     while the vehicle fell, and was 1.7 m off; falling with it, it stays within the GPS's metre."""
-    tlog = foreign_file("clean_gps_s2.tlog")
-    truth = np.genfromtxt(tlog.with_name("clean_gps_s2_truth.csv"), delimiter=",", names=True)
+    _, truth, t, z, _ = replayed("clean_gps_s2")
     cut = (truth["throttle"] < 0.05) & (truth["z"] > 0.5)
     assert cut.any(), "the flight has its throttle cut in the air"
-    ms, _, _ = load_measurements(tlog)
-    loop = EstimationLoop([build_estimator("altitude")])
-    sub = loop.snapshots.subscribe()
-    for m in ms:
-        loop.push(m)
-    snaps = sub.get_nowait()
-    t = np.array([s.t for s in snaps])
-    z = np.array([s.x[0] for s in snaps])
     # the outdoor scoring: estimate and truth zeroed on the ground before take-off
-    g, gt = (t > 0.5) & (t < 1.8), (truth["t"] > 0.5) & (truth["t"] < 1.8)
+    a, b = bench_foreign.GROUND
+    g, gt = (t > a) & (t < b), (truth["t"] > a) & (truth["t"] < b)
     e = (z - z[g].mean()) - (np.interp(t, truth["t"], truth["z"]) - truth["z"][gt].mean())
     fall = (t > truth["t"][cut][0] - 0.5) & (t < truth["t"][cut][-1] + 2.5)  # the cut, the fall, the braking
     assert np.abs(e[fall]).max() < 0.3, np.abs(e[fall]).max()

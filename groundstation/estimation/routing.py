@@ -143,9 +143,9 @@ def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     z axis (and of a bias along it) is vertical."""
     if m.instance != 0:
         return None
-    fx, fy, fz = m.value.tolist()
-    a, b, c = ctx.down_row
-    return np.array([-(a * fx + b * fy + c * fz) - G, c])
+    read_specific_force(m, ctx)  # f_up, which models.ground.landed reads too: computed once
+    assert ctx.f_up is not None
+    return np.array([ctx.f_up - G, ctx.down_row[2]])
 
 
 def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
@@ -153,7 +153,6 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
         model or altitude_model(),
         inputs={Kind.ACCEL: vertical_acceleration},
         context={
-            Kind.ACCEL: read_specific_force,
             Kind.ATTITUDE: read_attitude,
             Kind.ATTITUDE_QUATERNION: read_quaternion,
             Kind.ANGULAR_RATE: read_angular_rate,
