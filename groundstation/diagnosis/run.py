@@ -335,7 +335,7 @@ def add_signal_rules(est: KalmanEstimator) -> None:
         # the accelerometer's deviation from its own low-passed value: rotors turning
         if m.instance != 0:
             return
-        f = float(np.linalg.norm(m.value))
+        f = math.sqrt(sum(v * v for v in m.value.tolist()))
         lowpass(ctx, "f_lp", f, m.t, 1.0)
         lowpass(ctx, "vibration", (f - ctx.f_lp) ** 2, m.t, VIBRATION_TC)
 

@@ -133,6 +133,8 @@ class KalmanEstimator:
             # stamped a fraction of a microsecond before it)
             m = m._replace(t=f.t)
         rec = self._handle(m)
+        if k not in self.inputs and k not in self._by_kind:
+            return None  # a context rule (and an impulse on P): the state was not touched
         # the sums propagate any NaN or infinity; P only where an update touched it
         if not math.isfinite(float(f.kf.x.sum())) or (rec is not None and not math.isfinite(float(f.kf.P.sum()))):
             # whatever got it there (a model's own arithmetic), the estimate is no estimate: start over

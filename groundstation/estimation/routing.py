@@ -126,12 +126,13 @@ def collective(m: Measurement, ctx: Context) -> float | None:
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100 (up to
     0.1 m/s^2 of thrust at alpha = 22), and an actuator lag was fitted over both streams."""
     if m.kind is Kind.ACTUATOR:
-        v = m.value[: motor_outputs(ctx)]
-        v = v[np.isfinite(v)]  # the motors' outputs, then the unused among them (not servos' in their place)
-        if not len(v):
+        # the motors' outputs, then the unused among them (not servos' in their place); in plain
+        # floats: a handful of numbers, read at the outputs' full rate
+        v = [x for x in m.value[: motor_outputs(ctx)].tolist() if math.isfinite(x)]
+        if not v:
             return None
         ctx.throttle_from_outputs = True
-        return float(np.mean(v))
+        return sum(v) / len(v)
     if ctx.throttle_from_outputs or not len(m.value) or not math.isfinite(m.value[0]):
         return None
     return float(m.value[0])
