@@ -234,24 +234,31 @@ class ModelFilter:
         kf.P = I_KH @ kf.P @ I_KH.T + K @ R @ K.T
         kf.y, kf.S, kf.K = y, S, K
 
-    def _update_scalar(self, z: float, h: np.ndarray, r: float) -> None:
-        """filterpy's ``KalmanFilter.update`` for one scalar reading, written out with S a number
-        (its 1x1 inverse, the priors' copies and the likelihood's reset cost three times the
-        arithmetic at a range sensor's or a baro's rate): y = z - H x, S = H P H^T + R,
-        K = P H^T / S, x = x + K y, and P by the same Joseph form,
-        P = (I - K H) P (I - K H)^T + K R K^T."""
+    def _update_written_out(self, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> float:
+        """filterpy's ``KalmanFilter.update``, written out: y = z - H x, S = H P H^T + R,
+        K = P H^T S^-1, x = x + K y, and P by the same Joseph form,
+        P = (I - K H) P (I - K H)^T + K R K^T. Without its copies of the priors and of z and its
+        likelihood's reset, which cost twice the arithmetic at an IMU's rate; for one scalar
+        reading (a range sensor, a baro) S is a number and needs no inverse. Returns the NIS,
+        y^T S^-1 y."""
         kf = self.kf
         P = kf.P
-        Ph = P @ h
-        s = float(h @ Ph) + r
-        if s == 0.0:  # as filterpy's inverse of S would: a filter run away is the caller's to catch
-            raise np.linalg.LinAlgError("singular innovation covariance")
-        K = Ph / s
-        y = z - float(h @ kf.x)
-        kf.x = kf.x + K * y
-        I_KH = self._eye - np.outer(K, h)
-        kf.P = I_KH @ P @ I_KH.T + r * np.outer(K, K)
-        kf.y, kf.S, kf.K = np.array([y]), np.array([[s]]), K[:, None]
+        PHt = P @ H.T
+        S = H @ PHt + R
+        if S.shape == (1, 1):
+            s = float(S[0, 0])
+            if s == 0.0:  # as filterpy's inverse of S would: a filter run away is the caller's to catch
+                raise np.linalg.LinAlgError("singular innovation covariance")
+            SI = np.array([[1.0 / s]])
+        else:
+            SI = np.linalg.inv(S)
+        K = PHt @ SI
+        y = z - H @ kf.x
+        kf.x = kf.x + K @ y
+        I_KH = self._eye - K @ H
+        kf.P = I_KH @ P @ I_KH.T + K @ R @ K.T
+        kf.y, kf.S, kf.K = y, S, K
+        return float(y @ SI @ y)
 
     def update(self, mm: MeasurementModel, z: np.ndarray, R: np.ndarray | None = None) -> InnovationRecord:
         """One measurement update with ``mm``'s H and offset, and its R unless ``R`` is given
@@ -263,15 +270,13 @@ class ModelFilter:
         if mm.offset is not None:
             z = z - mm.offset(self.ctx)
         z = np.atleast_1d(z).astype(float)
-        if mm.corrects is not None:
-            self._update_only(mm, z, H, R)
-        elif H.shape[0] == 1:
-            self._update_scalar(float(z[0]), H[0], float(np.asarray(R).reshape(-1)[0]))
+        if mm.corrects is None:
+            nis = self._update_written_out(z, H, np.atleast_2d(R).astype(float))
         else:
-            kf.update(z, R=R, H=H)
-        nu = np.atleast_1d(kf.y).astype(float).copy()
-        S = np.atleast_2d(kf.S).astype(float).copy()
-        nis = float(nu[0] ** 2 / S[0, 0]) if len(nu) == 1 else float(nu @ np.linalg.solve(S, nu))
+            self._update_only(mm, z, H, np.atleast_2d(R))
+            nis = float(kf.y @ np.linalg.solve(kf.S, kf.y))
+        nu = np.atleast_1d(kf.y).astype(float)
+        S = np.atleast_2d(kf.S).astype(float)
         rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
         self.log.append(rec)
         self.updates += 1
