@@ -74,30 +74,32 @@ def test_the_excursion_test_finds_a_two_second_transient_and_says_when_and_what_
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "undeclared,name,param,value,bar,flight",
+    "undeclared,name,expect,bar,flight",
     [
         # bar: the largest height error after / before. The baro's effects fly the high flight, whose
         # climb above the range sensor's 4 m leaves the height to the baro; on the standard flight the
-        # range carries it throughout and a baro effect moves it by a few tenths of a millimetre
-        (["baro_thrust:k=3.0"], "baro_thrust", "k", 3.0, 0.5, "high"),
-        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 0.5, "high"),
-        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", "A", -1.5, 1.05, "standard"),
+        # range carries it throughout and a baro effect moves it by a few tenths of a millimetre. The
+        # rotor wash's time constant is not the simulator's default 0.5 s; the likelihood reads it to
+        # about 25 % (1 sigma) here: 0.16 s and the true 0.2 s differ by 0.7 in log-likelihood
+        (["baro_thrust:k=3.0,tc=0.2"], "baro_thrust", {"k": (3.0, 0.15), "tc": (0.2, 0.3)}, 0.5, "high"),
+        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", {"A": (-1.5, 0.15)}, 0.5, "high"),
+        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", {"A": (-1.5, 0.15)}, 1.05, "standard"),
         # s g is a bias on the vertical (b_acc takes it): what is left, s a, is a few hundredths of a
         # m/s^2, and s is read to +-0.002 (1 sigma): 0.02 is found, but 15 % of it is 1.5 sigma
-        (["accel_scale:s=0.04"], "accel_scale", "s", 0.04, 0.8, "standard"),
-        (["sensor_delay:sensor=range,seconds=0.06"], "sensor_delay", "seconds", 0.06, 0.2, "standard"),
-        ([], "range_tilt", None, None, 0.2, "standard"),  # range_tilt left undeclared (it is always physical)
+        (["accel_scale:s=0.04"], "accel_scale", {"s": (0.04, 0.15)}, 0.8, "standard"),
+        (["sensor_delay:sensor=range,seconds=0.06"], "sensor_delay", {"seconds": (0.06, 0.15)}, 0.2, "standard"),
+        ([], "range_tilt", {}, 0.2, "standard"),  # range_tilt left undeclared (it is always physical)
     ],
 )
-def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undeclared, name, param, value, bar, flight):
+def test_an_undeclared_effect_is_found_first_with_its_parameter(tmp_path, undeclared, name, expect, bar, flight):
     declared = () if name == "range_tilt" else ("range_tilt",)
     d, (before, after) = run_case(
         tmp_path, undeclared, declared=declared, flight=flight, seed=8 if flight == "high" else 11
     )
     assert d.effects and d.effects[0].name == name, [e.name for e in d.effects]
     assert "alternative" not in d.effects[0].evidence, d.effects[0].evidence  # told from the rest
-    if param is not None:
-        assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
+    for param, (value, rel) in expect.items():
+        assert d.effects[0].params[param] == pytest.approx(value, rel=rel), d.effects[0].params
     assert after < bar * before, (before, after)
     sensor = d.effects[0].evidence["sensor"] or "range"
     nis = [f for f in d.findings_after if f.sensor == sensor and f.test == "NIS mean"][0]

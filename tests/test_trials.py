@@ -10,12 +10,14 @@ import numpy as np
 import pytest
 
 from drivers.replay import Replay
+from groundstation.core.measurement import Kind
 from groundstation.diagnosis import holdout
-from groundstation.diagnosis.catalogue import Candidate
+from groundstation.diagnosis.catalogue import Candidate, altitude_catalogue, with_throttle_stand_in
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.run import run_model
 from groundstation.diagnosis.trace import rank
-from groundstation.diagnosis.trials import fork_map
+from groundstation.diagnosis.trials import fork_map, log_profile
+from groundstation.estimation.models.altitude import altitude_model
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
@@ -120,3 +122,42 @@ def test_a_prepared_log_leaves_out_the_readings_no_estimator_takes_and_counts_th
     bad = {k: v for k, v in est.counters.skipped.items() if k.endswith(("_not_finite", "_implausible"))}
     assert bad == prep.unusable
     np.testing.assert_array_equal(checked_here.sensors["baro"].nu, est.filter.log.arrays("baro")["nu"])
+
+
+class Scored:
+    """What log_profile reads of a run: its log-likelihood."""
+
+    def __init__(self, loglik: float) -> None:
+        self.loglik = loglik
+
+
+@pytest.mark.parametrize("peak", [0.37, 0.12, 4.0])
+def test_a_time_constant_is_read_off_its_log_likelihood_profile_between_and_beyond_its_grid(peak):
+    """A likelihood peaked at ``peak`` in log(tc), as a rotor wash's is: found to within 3 % from the
+    grid (0.15, 0.5, 1.5), inside it, below its first value and carried beyond its last."""
+    tried = []
+
+    def run_at(tc):
+        tried.append(tc)
+        return Scored(-200.0 * (np.log(tc) - np.log(peak)) ** 2)
+
+    tc, r = log_profile(run_at, (0.15, 0.5, 1.5))
+    assert tc == pytest.approx(peak, rel=0.03), tried
+    assert r.loglik == max(-200.0 * (np.log(t) - np.log(peak)) ** 2 for t in tried)
+    assert len(tried) <= 8, tried  # a handful of runs, not a fine grid
+
+
+def test_a_diverged_run_in_a_profile_is_the_worst_there_is_not_an_error():
+    tc, r = log_profile(lambda t: None if t > 1.0 else Scored(-((t - 0.6) ** 2)), (0.15, 0.5, 1.5))
+    assert r is not None and 0.45 < tc < 0.8
+
+
+def test_a_throttle_stand_in_holds_the_rotor_wash_at_its_default_time_constant():
+    """Motors on or off from vibration (a Crazyflie log) have no time course a wash's time constant
+    could be read from: the catalogue then offers baro_thrust at 0.5 s alone."""
+    kinds = {Kind.BARO_PRESSURE, Kind.RANGE, Kind.ACCEL, Kind.ATTITUDE, Kind.THROTTLE}
+    full = {c.name: c for c in altitude_catalogue(kinds)}
+    held = {c.name: c for c in with_throttle_stand_in(altitude_catalogue(kinds))}
+    assert full["baro_thrust"].refine_shape and len(full["baro_thrust"].shapes) >= 3
+    assert held["baro_thrust"].shapes == () and not held["baro_thrust"].refine_shape
+    assert held["baro_thrust"].augment(altitude_model()).options["throttle_tcs"] == (0.5,)

@@ -285,12 +285,14 @@ def run_model(
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------
 VIBRATION_TC = 0.3  # s: low-pass of the accelerometer's high-frequency energy (motors running)
-THROTTLE_TC = 0.5  # s: rotor-wash time constant of the baro's thrust regressor
+THROTTLE_TC = 0.5  # s: the low-passed throttle recorded beside each innovation (a signal to regress on)
 
 
 def add_signal_rules(est: KalmanEstimator) -> None:
     """Context rules that keep the regression signals current (chained after the estimator's own)."""
     own = dict(est.context)
+    #: the rotor wash's time constants the model's regressors read (catalogue.baro_thrust)
+    tcs = tuple(est.model.options.get("throttle_tcs", ()))
 
     def chain(kind, fn):
         prev = own.get(kind)
@@ -318,6 +320,15 @@ def add_signal_rules(est: KalmanEstimator) -> None:
             return
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
+        if tcs:
+            t_last, lps = ctx.throttle_lps_t, ctx.throttle_lps
+            for tc in tcs:
+                old = lps.get(tc)
+                if old is None or t_last is None:
+                    lps[tc] = tau
+                elif m.t > t_last:
+                    lps[tc] = old + (tau - old) * (1.0 - math.exp(-(m.t - t_last) / tc))
+            ctx.throttle_lps_t = m.t
 
     def temperature(m, ctx):
         if m.instance == 0:

@@ -44,7 +44,7 @@ from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import Candidate
 from .run import SETTLE_S, Prepared, Run
-from .trials import SIGNATURE, Trials, delayed, refine
+from .trials import SIGNATURE, Trials, delayed, log_profile, refine
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -177,17 +177,24 @@ def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int
         r = trials.run(i, shape)
         if r is not None and (best is None or r.loglik > best[0].loglik):
             best = (r, shape)
+    if best is not None and cand.refine_shape and best[0].loglik > base.loglik:
+        # refined where the effect gains anything at all: the runs a refinement costs are spent on a
+        # candidate that could be claimed, not on every flight's every ranking
+        shape, r = log_profile(lambda x: trials.run(i, x), cand.shapes)
+        assert r is not None  # the best of finite likelihoods
+        best = (r, shape)
     if best is None:
         return Scored(cand, model, base, math.inf, {"note": "the filter diverged"}, ms)
     r, shape = best
     params = cand.params(r) if cand.params else {}
     if shape is not None:
         params[cand.shape_name] = shape
-        cand = replace(cand, k=cand.k + 1, augment=_with_shape(cand.augment, shape), shapes=())
+        unshaped = cand.augment if cand.refine_shape else None
+        cand = replace(cand, k=cand.k + 1, augment=with_shape(cand.augment, shape), shapes=(), unshaped=unshaped)
     return scored(cand, r.model, r, base, n, params, ms)
 
 
-def _with_shape(augment: Callable[..., LinearModel], shape: float) -> Callable[[LinearModel], LinearModel]:
+def with_shape(augment: Callable[..., LinearModel], shape: float) -> Callable[[LinearModel], LinearModel]:
     """A shaped candidate's ``augment`` at the shape the likelihood chose."""
 
     def at(model: LinearModel) -> LinearModel:

@@ -178,6 +178,46 @@ def profile_steps(at: Callable[[float], float], lik: dict[float, float]) -> None
         at(v)
 
 
+#: the steps a log profile is carried beyond its shapes while the likelihood still rises there
+LOG_PROFILE_EXTEND = 2
+
+
+def log_profile(
+    run_at: Callable[[float], Run | None], shapes: Iterable[float], known: dict[float, Run] | None = None
+) -> tuple[float, Run | None]:
+    """A continuous shape's best value (a time constant) and its run: the profile likelihood over the
+    shape's logarithm, sampled at ``shapes``, carried outward while the best is at an end (up to
+    :data:`LOG_PROFILE_EXTEND` steps of the end's spacing), and refined by :func:`profile_steps`.
+    ``run_at(shape)`` runs the model at a shape (None: its filter diverged, the worst there is);
+    ``known``: runs already made, by shape."""
+    known = known or {}
+    shape_of: dict[float, float] = {}
+    runs: dict[float, Run | None] = {}
+    lik: dict[float, float] = {}
+
+    def at(v: float) -> float:
+        v = round(float(v), 4)
+        if v not in lik:
+            shape = shape_of.setdefault(v, round(math.exp(v), 4))
+            r = known[shape] if shape in known else run_at(shape)
+            runs[v], lik[v] = r, (r.loglik if r is not None else -math.inf)
+        return lik[v]
+
+    for s in shapes:
+        shape_of[round(math.log(s), 4)] = s
+        at(math.log(s))
+    for _ in range(LOG_PROFILE_EXTEND):
+        vs = sorted(lik)
+        best = max(vs, key=lambda x: lik[x])
+        if len(vs) < 2 or vs[0] < best < vs[-1]:
+            break
+        step = vs[-1] - vs[-2] if best == vs[-1] else vs[0] - vs[1]
+        at(best + step)
+    profile_steps(at, lik)
+    v = max(lik, key=lambda x: lik[x])
+    return shape_of[v], runs[v]
+
+
 class Trials:
     """One ranking's trials: ``runs[i][key]`` the run of candidate ``i`` at ``key``
     (:func:`first_keys`), computed on ``workers`` processes (one: here)."""

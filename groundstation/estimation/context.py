@@ -69,6 +69,10 @@ class Context:
     current: float | None = None  #: battery [A]
     throttle_lp: float | None = None  #: the throttle low-passed (rotor wash)
     throttle_lp_t: float | None = None
+    #: the throttle low-passed at each rotor-wash time constant [s] the model asks for (its
+    #: ``options["throttle_tcs"]``, :func:`groundstation.diagnosis.catalogue.baro_thrust`) -> value
+    throttle_lps: dict[float, float] = field(default_factory=dict)
+    throttle_lps_t: float | None = None
     f_lp: float | None = None  #: |f| low-passed over 1 s
     f_lp_t: float | None = None
     vibration: float | None = None  #: (|f| - f_lp)^2 low-passed: the rotors' vibration
@@ -105,12 +109,14 @@ class Context:
         new = object.__new__(type(self))
         new.__dict__.update(self.__dict__)
         new.zeros = dict(self.zeros)
+        new.throttle_lps = dict(self.throttle_lps)
         return new
 
     def set_to(self, snapshot: Context) -> None:
         """Back to a snapshot taken with :meth:`copy`, in place (whoever holds this context keeps it)."""
         self.__dict__.update(snapshot.__dict__)
         self.zeros = dict(snapshot.zeros)
+        self.throttle_lps = dict(snapshot.throttle_lps)
 
     @property
     def tau(self) -> float:
