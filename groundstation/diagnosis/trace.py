@@ -177,9 +177,10 @@ def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int
         r = trials.run(i, shape)
         if r is not None and (best is None or r.loglik > best[0].loglik):
             best = (r, shape)
-    if best is not None and cand.refine_shape and best[0].loglik > base.loglik:
-        # refined where the effect gains anything at all: the runs a refinement costs are spent on a
-        # candidate that could be claimed, not on every flight's every ranking
+    if best is not None and cand.refine_shape and 2.0 * (best[0].loglik - base.loglik) > (cand.k + 1) * math.log(n):
+        # refined where the shapes already find the effect worth its parameters (Delta BIC < 0): the
+        # five runs a refinement costs are spent on an effect being sized, not on every ranking of
+        # every flight without it
         shape, r = log_profile(lambda x: trials.run(i, x), cand.shapes)
         assert r is not None  # the best of finite likelihoods
         best = (r, shape)
