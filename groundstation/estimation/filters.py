@@ -230,7 +230,7 @@ class ModelFilter:
             return
         K[idx] = PHt[idx] @ np.linalg.inv(S)
         kf.x = kf.x + K @ y
-        I_KH = np.eye(len(kf.x)) - K @ H
+        I_KH = self._eye - K @ H
         kf.P = I_KH @ kf.P @ I_KH.T + K @ R @ K.T
         kf.y, kf.S, kf.K = y, S, K
 
@@ -271,12 +271,13 @@ class ModelFilter:
             z = z - mm.offset(self.ctx)
         z = np.atleast_1d(z).astype(float)
         if mm.corrects is None:
-            nis = self._update_written_out(z, H, np.atleast_2d(R).astype(float))
+            nis = self._update_written_out(z, H, np.atleast_2d(R).astype(float, copy=False))
         else:
             self._update_only(mm, z, H, np.atleast_2d(R))
             nis = float(kf.y @ np.linalg.solve(kf.S, kf.y))
-        nu = np.atleast_1d(kf.y).astype(float)
-        S = np.atleast_2d(kf.S).astype(float)
+        # each update makes its own y and S (nothing writes into them after): kept as they are
+        nu = np.atleast_1d(kf.y).astype(float, copy=False)
+        S = np.atleast_2d(kf.S).astype(float, copy=False)
         rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
         self.log.append(rec)
         self.updates += 1
