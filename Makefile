@@ -3,8 +3,9 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
-# every core; a hung test fails with its stack after 20 minutes instead of stalling CI
-PYTEST  := $(BIN)/python -m pytest -q -n auto --timeout 1200
+# every core, each handed one test at a time (the long ones come first: tests/conftest.py); a hung
+# test fails with its stack after 20 minutes instead of stalling CI
+PYTEST  := $(BIN)/python -m pytest -q -n auto --maxschedchunk 1 --timeout 1200
 
 .PHONY: demo test check lint setup browser bench clean
 

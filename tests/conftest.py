@@ -52,3 +52,10 @@ def async_test(timeout: float = 20.0):
         return wrapper
 
     return deco
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long tests first: on several workers (``-n``), handed out one at a time
+    (``--maxschedchunk 1``), the short ones then fill the gaps, and no worker is left finishing a
+    long test alone at the end. The order is the same on every worker, as xdist requires."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

@@ -6,10 +6,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from .conftest import free_udp_port
 from .helpers import simulated_vehicle
 
 
+@pytest.mark.slow
 def test_commands_and_their_one_line_results():
     port = free_udp_port()
     gs = [sys.executable, "-m", "groundstation", "command", f"udpin:127.0.0.1:{port}"]

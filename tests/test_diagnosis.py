@@ -80,9 +80,9 @@ def test_the_excursion_test_finds_a_two_second_transient_and_says_when_and_what_
         # climb above the range sensor's 4 m leaves the height to the baro; on the standard flight the
         # range carries it throughout and a baro effect moves it by a few tenths of a millimetre. The
         # rotor wash's time constant is not the simulator's default 0.5 s; the likelihood reads it to
-        # about 25 % (1 sigma) here: 0.16 s and the true 0.2 s differ by 0.7 in log-likelihood
+        # about 25 % (1 sigma) here: 0.16 s and the true 0.2 s differ by 0.7 in log-likelihood. Every
+        # baro effect on the high flight, and every seed, is the sweep's (bench/diagnosis.py)
         (["baro_thrust:k=3.0,tc=0.2"], "baro_thrust", {"k": (3.0, 0.15), "tc": (0.2, 0.3)}, 0.5, "high"),
-        (["baro_ground_effect:A=-1.5"], "baro_ground_effect", {"A": (-1.5, 0.15)}, 0.5, "high"),
         (["baro_ground_effect:A=-1.5"], "baro_ground_effect", {"A": (-1.5, 0.15)}, 1.05, "standard"),
         # s g is a bias on the vertical (b_acc takes it): what is left, s a, is a few hundredths of a
         # m/s^2, and s is read to +-0.002 (1 sigma): 0.02 is found, but 15 % of it is 1.5 sigma
@@ -208,7 +208,7 @@ def test_a_drift_the_log_barely_tells_from_a_thermal_error_is_reported_with_its_
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("k, seed, vehicle", [(0.2, 8, "quad"), (0.1, 1001, "coax")])
+@pytest.mark.parametrize("k, seed, vehicle", [(0.2, 8, "quad")])
 def test_an_effect_outside_the_catalogue_is_named_by_the_regression_with_its_size(tmp_path, k, seed, vehicle):
     """The baro reading high by k vz^2 (static-port airflow, ``baro_airflow``: in the simulator, not in
     the diagnosis' catalogue). No candidate fits it by strong evidence; the sparse regression names the
@@ -367,16 +367,16 @@ def test_the_simulated_quads_vehicle_file_is_its_airframe():
     "undeclared, name, param, value, seed",
     [
         ("actuator_lag:tc=0.1", "actuator_lag", "tc", 0.1, 1004),
-        ("thrust_voltage:n=1.5", "thrust_voltage", "n", 1.5, 1005),
     ],
 )
 def test_with_the_airframe_known_thrust_effects_are_sized_within_15_percent(
     tmp_path, undeclared, name, param, value, seed
 ):
-    """The airframe's thrust curve from its vehicle file (as from a thrust stand): the lag and the voltage
-    exponent within 15 %. With beta held near 0 instead (no vehicle file: alpha 19.8 for the simulator's 22)
-    these read 0.083-0.085 s and 1.12-1.15 over the sweep's seeds, 15-26 % low: each effect was sized against
-    a throttle that buys 10 % too little thrust."""
+    """The airframe's thrust curve from its vehicle file (as from a thrust stand): the lag within 15 %
+    (the voltage exponent is sized so beside a lag in the two-effect test below; every seed of both is
+    ``bench/diagnosis.py --airframe sim_quad``). With beta held near 0 instead (no vehicle file: alpha
+    19.8 for the simulator's 22) the lag and the exponent read 0.083-0.085 s and 1.12-1.15 over the
+    sweep's seeds, 15-26 % low: each effect was sized against a throttle that buys 10 % too little thrust."""
     log = tmp_path / "t.tlog"
     run_fast(
         Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"),

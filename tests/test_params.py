@@ -63,6 +63,7 @@ def test_a_file_that_is_not_parameters_is_a_one_line_error(tmp_path):
     assert load(mp) == {"SIM_ALPHA": 22.5, "SIM_DRAG": 0.3}
 
 
+@pytest.mark.slow
 def test_param_command_fetches_to_a_file_and_loads_it_back(tmp_path):
     """``groundstation param`` against ``groundstation sim`` (two processes on loopback, both
     stopped by the test)."""

@@ -86,6 +86,7 @@ def test_a_key_from_a_file(tmp_path):
         signing_key(str(bad))
 
 
+@pytest.mark.slow
 def test_the_commands_take_a_key_and_say_when_frames_are_refused():
     """``groundstation sim --signing`` and ``param --signing``: the right passphrase reads a
     parameter, another says its frames were refused by signing (processes, stopped by the test)."""

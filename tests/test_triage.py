@@ -194,6 +194,7 @@ def _gs(*args, timeout=600):
     )
 
 
+@pytest.mark.slow
 def test_diagnose_of_a_crash_fits_only_the_flight_before_it(tmp_path):
     """mechanical_fail.log through ``diagnose`` (the thrust model: it has no IMU): the crash and the
     flip open the report and its conclusion, the fit ends where the first of them (the fence
@@ -216,6 +217,7 @@ def test_diagnose_of_a_crash_fits_only_the_flight_before_it(tmp_path):
         assert any(s["effect"] == e["name"] for s in j["parameters"]), e["name"]
 
 
+@pytest.mark.slow
 def test_a_ulog_replays_evaluates_and_diagnoses(tmp_path):
     """PX4/pyulog's sample_px4_events.ulg (PX4 SITL, 31 s, baro and GPS): the live path replays it,
     ``evaluate`` scores the estimators on it, ``diagnose`` runs the loop and writes PX4's parameter

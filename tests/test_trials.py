@@ -43,6 +43,7 @@ def summary(scored):
     return [(s.name, s.candidate.sensor, s.delta_bic, s.params, s.support, s.gain_per_update) for s in scored]
 
 
+@pytest.mark.slow
 def test_two_workers_rank_the_catalogue_exactly_as_one(flight):
     su, base = flight
     cands = su.spec.catalogue(su.prep.kinds) + [Candidate("blind", 0, set(), "range", blind_range, None)]

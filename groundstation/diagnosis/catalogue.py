@@ -43,7 +43,8 @@ class Candidate:
     augment: Callable[..., LinearModel] | None = None
     params: Callable[..., dict] | None = None  # (run) -> {name: value}
     delays: tuple[float, ...] = ()  # sensor_delay: the grid
-    #: (measurements, grid value) -> measurements; default: the sensor's readings shifted by the delay
+    #: (measurements, grid value) -> measurements, at 0 the measurements themselves (the base run is
+    #: that trial); default: the sensor's readings shifted by the delay
     reshape: Callable | None = None
     #: (its run, scored from) -> the updates it can act on, for the materiality per update (trace.MATERIAL);
     #: default: its sensor's, or all. An effect that acts in part of a flight only (rotor ground

@@ -201,9 +201,12 @@ def _held_out(
     """The augmented model fitted without ``block``'s sensor updates, its added states (from ``n0``
     on) carried back to the log's start and fixed there, and run again: the run scored on the block
     (without its model: it may have crossed processes); the reason when that fails; None when
-    nothing was left to fit on."""
+    nothing was left to fit on. Each run stops where nothing after it counts, the filter being
+    causal: the fit of the last block at its start (blind from there on, the added states only
+    follow their own dynamics, which the carrying back undoes), the scored run at the block's end."""
     lo, hi = block
-    train = run_model(_blinded(aug, n0, lo, hi, set().union(*SENSOR_KINDS.values())), prep, make, measurements=ms)
+    fit_on = ms if hi <= prep.t1 else [m for m in ms if m.t < lo]
+    train = run_model(_blinded(aug, n0, lo, hi, set().union(*SENSOR_KINDS.values())), prep, make, measurements=fit_on)
     if not len(train.t):
         return None
     a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
@@ -211,7 +214,7 @@ def _held_out(
     if not np.all(np.isfinite(theta)):
         return "its parameters ran away when fitted without a block"
     try:
-        return portable(run_model(_fixed(aug, n0, theta), prep, make, measurements=ms))
+        return portable(run_model(_fixed(aug, n0, theta), prep, make, measurements=[m for m in ms if m.t < hi]))
     except np.linalg.LinAlgError:
         return "its filter diverged with the parameters fitted without a block"
 

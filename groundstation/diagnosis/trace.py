@@ -44,7 +44,7 @@ from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import Candidate
 from .run import SETTLE_S, Prepared, Run
-from .trials import SIGNATURE, Trials, delayed, log_profile, refine
+from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -142,12 +142,14 @@ def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int
     profile's best value, a shaped one at its best shape."""
     n = max(base.n_scored, 1)
     if cand.delays:
-        lik: dict[float, float] = {}
-        for d in (round(float(x), 4) for x in cand.delays):  # the grid, keyed as trials.first_keys keys it
-            r = trials.run(i, d)
+
+        def at(d: float) -> float:
+            r = trials.run(i, d)  # keyed as trials.first_keys keys it
             assert r is not None  # a delayed stream does not change the model
-            lik[d] = r.loglik
-        refine(cand, lik, lambda d: trials.run(i, d), {})
+            return r.loglik
+
+        lik = scan_grid(cand.delays, at, cand.k * math.log(n))
+        refine(cand, lik, lambda d: trials.run(i, d), {}, trials.floor(i))
         d = max(lik, key=lambda x: lik[x])
         r = trials.run(i, d)
         assert r is not None
@@ -243,7 +245,7 @@ def rank(
 ) -> list[Scored]:
     """The candidates scored and sorted by Delta BIC, each with its gain per supported update;
     their filter runs on ``workers`` processes (:mod:`.trials`: the same scores on any number)."""
-    trials = Trials(cands, model, prep, make, ms, workers=workers)
+    trials = Trials(cands, model, prep, make, ms, workers=workers, base=base)
     if trials.workers > 1:
         if progress:
             progress(f"{len(cands)} candidates on {trials.workers} cores")
