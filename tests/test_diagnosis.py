@@ -363,46 +363,12 @@ def test_the_simulated_quads_vehicle_file_is_its_airframe():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "undeclared, name, param, value, seed",
-    [
-        ("actuator_lag:tc=0.1", "actuator_lag", "tc", 0.1, 1004),
-    ],
-)
-def test_with_the_airframe_known_thrust_effects_are_sized_within_15_percent(
-    tmp_path, undeclared, name, param, value, seed
-):
-    """The airframe's thrust curve from its vehicle file (as from a thrust stand): the lag within 15 %
-    (the voltage exponent is sized so beside a lag in the two-effect test below; every seed of both is
-    ``bench/diagnosis.py --airframe sim_quad``). With beta held near 0 instead (no vehicle file: alpha
-    19.8 for the simulator's 22) the lag and the exponent read 0.083-0.085 s and 1.12-1.15 over the
-    sweep's seeds, 15-26 % low: each effect was sized against a throttle that buys 10 % too little thrust."""
-    log = tmp_path / "t.tlog"
-    run_fast(
-        Scenario.from_args("quad", seed, 60.0, ["range_tilt"], [undeclared], flight="thrust_test"),
-        log,
-        log.with_suffix(".csv"),
-    )
-    ms = list(Replay(log).iter_measurements())
-    d = diagnose(
-        ms,
-        model_name="quad_thrust",
-        declared=declared_effects(log.with_suffix(".declared.json")),
-        truth=truth_from(ms, log, None),
-        veto_with_truth=False,
-        vehicle="sim_quad",
-    )
-    assert [e.name for e in d.effects][:1] == [name], [e.name for e in d.effects]
-    assert d.effects[0].params[param] == pytest.approx(value, rel=0.15)
-
-
-@pytest.mark.slow
 def test_ground_effect_below_one_rotor_radius_is_held_at_its_h_equals_r_value(tmp_path):
     """Seed 1063 hovers at 0.17 m with rotors of R = 0.25 m, below the h >= R where Cheeseman and Bennett's
     (R/4h)^2 holds (the simulator holds it at h = R there). Carried on as 1/h^2, the model's term put 14 %
     on the thrust for 6.7 %: R read 0.226 m (10 % low), the range's NIS 1.15 and Ljung-Box p 0.000 after
-    the fix. Held at h = R, R reads 0.257 m and the NIS 1.00. With the airframe's G_acc at 0.00005 (session
-    22) Cheeseman and Bennett's first order, 0.4 % of the thrust short at h = R, read R 0.269 m and the NIS
+    the fix. Held at h = R, R reads 0.257 m and the NIS 1.00. With the airframe's G_acc at 0.00005
+    Cheeseman and Bennett's first order, 0.4 % of the thrust short at h = R, read R 0.269 m and the NIS
     1.12; the exact 1 / (1 - (R/4h)^2), linearised about R's estimate, reads 0.252 m (0.251 m with 0.0001)."""
     from scipy.stats import chi2
 
@@ -466,7 +432,11 @@ def test_two_thrust_effects_at_once_are_both_found_and_sized_jointly(tmp_path):
     (engine._joint_params), 1.65, and the first value in the evidence. The lag, profiled with n in the
     model, reads 0.110 s. The slant range comes third (the flight does not declare it). Should the
     touchdown's "the thrust lifts the vehicle" leave the voltage's factor out, the model falls through
-    the ground after the landing (1.2 m), and the veto by truth rejects the slant (height error 26 mm)."""
+    the ground after the landing (1.2 m), and the veto by truth rejects the slant (height error 26 mm).
+    The airframe's thrust curve comes from its vehicle file (as from a thrust stand): with beta held near 0
+    instead (no vehicle file: alpha 19.8 for the simulator's 22) a lone lag and a lone exponent read
+    0.083-0.085 s and 1.12-1.15 over the sweep's seeds (``bench/diagnosis.py --airframe sim_quad``),
+    15-26 % low: each effect was sized against a throttle that buys 10 % too little thrust."""
     log = tmp_path / "two.tlog"
     run_fast(
         Scenario.from_args(
