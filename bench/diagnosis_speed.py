@@ -1,17 +1,21 @@
-"""``diagnose`` on every core against one, on the same logs in the same run: time, the ratio, the
-multiple of real time, and whether the findings are the same.
+"""``diagnose`` with the trials that cannot change a finding left out, on one core and on every core,
+against every trial on one, on the same logs in the same run: time, the ratios, the multiple of
+real time, and whether the findings are the same.
 
     python bench/diagnosis_speed.py [--jobs N] [--only NAME ...]
     python bench/diagnosis.py --speed
 
-The baseline is ``diagnose --jobs 1``: every candidate's filter runs one after another, as the
-diagnosis ran before it spread them over the cores (``groundstation/diagnosis/trials.py``). Each
-run is the command line in a fresh process, as a user runs it (the reading of the log included).
-The findings compared: the effects added with their parameters, the rejected ones with their
-reasons, and each iteration's ranking (report.json). Logs: a 60 s simulated quadcopter flight with
-a late range sensor and rotor wash on the baro (written here), a foreign flight
-(``../shared/data/foreign``), a Crazyflie log and a 23-minute ArduPilot tlog
-(``../shared/data/real``); one that is not there is listed as skipped.
+The baseline is ``diagnose --jobs 1`` with every grid value and every refinement run
+(GROUNDSTATION_EXHAUSTIVE_GRID=1: the trials as made before ``trials.scan_grid`` and the
+parabola's gate left out the runs that cannot change a finding), one after another, as the
+diagnosis ran before it spread them over the cores (``groundstation/diagnosis/trials.py``). Then
+the same with the scan and the gate, on one core and on every core. Each run is the command line
+in a fresh process, as a user runs it (the reading of the log included). The findings compared:
+the effects added with their parameters, the rejected ones with their reasons, and each
+iteration's claims (the candidates of its ranking at Delta BIC < -10, with it) in report.json.
+Logs: a 60 s simulated quadcopter flight with a late range sensor and rotor wash on the baro
+(written here), a foreign flight (``../shared/data/foreign``), a Crazyflie log and a 23-minute
+ArduPilot tlog (``../shared/data/real``); one that is not there is listed as skipped.
 """
 
 from __future__ import annotations
@@ -53,13 +57,15 @@ def simulated(folder: Path) -> Path:
     return log
 
 
-def diagnose(log: Path, out: Path, jobs: int) -> tuple[float, dict]:
+def diagnose(log: Path, out: Path, jobs: int, exhaustive: bool = False) -> tuple[float, dict]:
+    env = {**os.environ, "GROUNDSTATION_EXHAUSTIVE_GRID": "1" if exhaustive else "0"}
     t0 = time.perf_counter()
     r = subprocess.run(
         [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out), "--jobs", str(jobs)],
         capture_output=True,
         text=True,
         cwd=ROOT,
+        env=env,
     )
     wall = time.perf_counter() - t0
     if r.returncode != 0:
@@ -72,7 +78,7 @@ def findings(j: dict) -> tuple:
     return (
         [(e["name"], e["params"]) for e in j.get("effects", [])],
         [(e["name"], e.get("evidence", {}).get("reason")) for e in j.get("rejected", [])],
-        j.get("ranking"),
+        [[(label, dbic) for label, dbic in r if dbic < -10.0] for r in j.get("ranking") or []],
     )
 
 
@@ -89,18 +95,25 @@ def main() -> int:
                 continue
             log = simulated(folder) if path is None else path
             if not log.exists():
-                rows.append(f"| {name} | skipped: {log} is not there | | | | | |")
+                rows.append(f"| {name} | skipped: {log} is not there | | | | | | |")
                 continue
+            t0, j0 = diagnose(log, folder / f"{len(rows)}-0", 1, exhaustive=True)
             t1, j1 = diagnose(log, folder / f"{len(rows)}-1", 1)
             tn, jn = diagnose(log, folder / f"{len(rows)}-n", args.jobs)
             seconds = sum(s["t_end"] - s["t_start"] for s in j1.get("segments_used") or [])  # what was fitted
-            same = "same" if findings(j1) == findings(jn) else "**differ**"
-            one, new = (f"{t:.1f} ({seconds / t:.1f}x)" for t in (t1, tn))
-            rows.append(f"| {name} | {seconds:.0f} | {one} | {new} | {t1 / tn:.2f} | {same} |")
+            same = "same" if findings(j0) == findings(j1) == findings(jn) else "**differ**"
+            old, one, new = (f"{t:.1f} ({seconds / t:.1f}x)" for t in (t0, t1, tn))
+            rows.append(f"| {name} | {seconds:.0f} | {old} | {one} | {new} | {t0 / t1:.2f} | {t0 / tn:.2f} | {same} |")
             print(rows[-1], flush=True)
-    print(f"\ndiagnose --jobs {args.jobs} against --jobs 1 (the baseline), on {available_cores()} cores")
-    print("| log | fitted [s] | --jobs 1 [s] (x real time) | new [s] (x real time) | ratio | findings |")
-    print("|---|---|---|---|---|---|")
+    print(
+        f"\ndiagnose with the scan and the gate, on 1 and {args.jobs} processes, against every grid run on one"
+        f" (the baseline), on {available_cores()} cores"
+    )
+    print(
+        "| log | fitted [s] | baseline [s] (x real time) | --jobs 1 [s] | "
+        f"--jobs {args.jobs} [s] | ratio, 1 | ratio, {args.jobs} | findings |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
 

@@ -11,7 +11,7 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis import holdout
+from groundstation.diagnosis import holdout, trials
 from groundstation.diagnosis.catalogue import Candidate, altitude_catalogue, with_throttle_stand_in
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.run import run_model
@@ -63,6 +63,34 @@ def test_two_workers_rank_the_catalogue_exactly_as_one(flight):
         assert sorted(a.profile) == sorted(b.profile)
     blind = by_name[("blind", "range")]
     assert blind.delta_bic == float("inf") and blind.params == {"note": "the filter diverged"}
+
+
+@pytest.mark.slow
+def test_the_grids_scan_and_gate_rank_the_catalogue_as_every_grid_run_does(flight, monkeypatch):
+    """trials.scan_grid and refine's gate leave out runs that cannot change a finding: the same
+    candidates claimed, at the same Delta BIC and parameters, in the same order, as with every grid
+    value and every refinement run (the diagnosis as it was made before them), in fewer runs."""
+    su, base = flight
+    cands = su.spec.catalogue(su.prep.kinds)
+    counted = {"runs": 0}
+    real_trial = trials.trial
+
+    def trial(*args):
+        counted["runs"] += 1
+        return real_trial(*args)
+
+    monkeypatch.setattr(trials, "trial", trial)
+    runs = {}
+    ranked = {}
+    for exhaustive in (True, False):
+        monkeypatch.setattr(trials, "EXHAUSTIVE", exhaustive)
+        counted["runs"] = 0
+        ranked[exhaustive] = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements)
+        runs[exhaustive] = counted["runs"]
+    claimed = {k: [x for x in summary(v) if x[2] < -10.0] for k, v in ranked.items()}
+    assert claimed[False] == claimed[True] and claimed[True], claimed
+    assert [s.name for s in ranked[False] if s.accepted] == [s.name for s in ranked[True] if s.accepted]
+    assert runs[False] < runs[True], runs
 
 
 def test_two_workers_hold_out_the_blocks_exactly_as_one(flight):

@@ -36,6 +36,11 @@ from .run import Prepared, Run, run_model
 T = TypeVar("T")
 R = TypeVar("R")
 
+#: every grid value and every refinement run, as the trials were made before :func:`scan_grid` and
+#: :func:`refine`'s gate: the baseline ``bench/diagnosis_speed.py`` measures the diagnosis against
+#: (GROUNDSTATION_EXHAUSTIVE_GRID=1 in its environment); the findings are the same
+EXHAUSTIVE = os.environ.get("GROUNDSTATION_EXHAUSTIVE_GRID") == "1"
+
 #: the key of an input effect's signature trial (the effect acting at :data:`SIGNATURE_SIZE`)
 SIGNATURE = "signature"
 #: the size an input effect is made to act at for its signature (the filter is linear in it: any small one)
@@ -136,7 +141,7 @@ def refine(
     log-likelihoods ``lik``; the new runs go to ``runs`` and their likelihoods to ``lik``. Not
     refined where even the parabola through its best grid value and their neighbours peaks below
     ``floor`` (:func:`parabola_peak`): a profile that no refinement brings near a claim."""
-    if parabola_peak(lik) < floor:
+    if not EXHAUSTIVE and parabola_peak(lik) < floor:
         return
 
     def at(d: float) -> float:
@@ -165,7 +170,7 @@ def scan_grid(grid: Iterable[float], at: Callable[[float], float], drop: float) 
         prev = lik[max(lik)] if lik else -math.inf
         lik[v] = at(v)
         falls = falls + 1 if lik[v] < prev else 0
-        if falls >= SCAN_DECLINES and lik[v] < max(lik.values()) - drop:
+        if not EXHAUSTIVE and falls >= SCAN_DECLINES and lik[v] < max(lik.values()) - drop:
             break
     return lik
 
