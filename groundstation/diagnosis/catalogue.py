@@ -31,6 +31,7 @@ from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
 
 from .run import THROTTLE_TC, in_time_order
+from .signature import Column
 
 
 @dataclass
@@ -67,6 +68,15 @@ class Candidate:
     #: once such a shape is chosen (``augment`` then binds it): the augment that takes it, for
     #: the shape to be chosen again with every effect found after it in the model (engine.joint_shapes)
     unshaped: Callable[..., LinearModel] | None = None
+    #: the effect's unknown constants as they act on the base model, linearly
+    #: (``columns(model)``, or ``columns(model, shape)`` with shapes; in the order of the states
+    #: ``augment`` appends): the two-stage filter (:mod:`.signature`) then scores it through the base
+    #: run's gains, without a run of its own
+    columns: Callable[..., list[Column]] | None = None
+    #: for an effect not linear in its parameters (a delay, a changed measurement function): the
+    #: columns of a linear stand-in at least as flexible near zero, whose two-stage gain bounds the
+    #: effect's; where even that is not worth the effect's parameters, its own runs are not made
+    screen: Callable[[LinearModel], list[Column]] | None = None
 
 
 def with_regressor(
@@ -149,9 +159,21 @@ def baro_bias_drift(model: LinearModel) -> LinearModel:
         A_extra=lambda u: A_extra,
         Qc_extra=[0.0, 0.0],
         x0_extra=[0.0, 0.0],
-        P0_extra=[1e-4, 0.2**2],
+        P0_extra=list(DRIFT_PRIORS),
         measurements=meas,
     )
+
+
+#: the drift's priors: its starting error [m^2] and its rate [(m/s)^2], as :func:`baro_bias_drift` sets them
+DRIFT_PRIORS = (1e-4, 0.2**2)
+
+
+def baro_bias_drift_columns(model: LinearModel) -> list[Column]:
+    """:func:`baro_bias_drift`'s b and rate as the baro's regressors: b(t) = b0 + rate (t - t_start)."""
+    return [
+        Column("b_baro", DRIFT_PRIORS[0], "baro", of_time=lambda t, t0: np.ones_like(t)),
+        Column("baro_rate", DRIFT_PRIORS[1], "baro", of_time=lambda t, t0: t - t0),
+    ]
 
 
 def range_tilt(model: LinearModel) -> LinearModel:
@@ -169,7 +191,28 @@ def range_tilt(model: LinearModel) -> LinearModel:
     return replace(model, measurements=meas)
 
 
+def range_tilt_screen(model: LinearModel) -> list[Column]:
+    """The slant as a regressor on the range of free size: (1 / (cos(roll) cos(pitch)) - 1) z, z the
+    estimate before the update; the slant itself is this at size 1."""
+    iz = model.index("z")
+    return [Column("slant", 1.0, "range", lambda ctx, x: float(x[iz]) * (slant(ctx) - 1.0), exact=False)]
+
+
+def delay_screen(sensor: str) -> Callable[[LinearModel], list[Column]]:
+    """A delay d as a regressor on the sensor to first order: y(t) = z(t - d) ~ z(t) - d vz(t)."""
+
+    def columns(model: LinearModel) -> list[Column]:
+        iv = model.index("vz")
+        return [Column("delay", 1.0, sensor, lambda ctx, x: -float(x[iv]), exact=False)]
+
+    return columns
+
+
 G = 9.80665
+
+
+#: the accelerometer scale's prior variance
+SCALE_PRIOR = 0.05**2
 
 
 def accel_scale(model: LinearModel) -> LinearModel:
@@ -184,8 +227,14 @@ def accel_scale(model: LinearModel) -> LinearModel:
         return c
 
     return model.augmented(
-        states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0], P0_extra=[0.05**2]
+        states=["accel_scale"], coupling=coupling, Qc_extra=[0.0], x0_extra=[0.0], P0_extra=[SCALE_PRIOR]
     )
+
+
+def accel_scale_columns(model: LinearModel) -> list[Column]:
+    """:func:`accel_scale`'s c on the vertical acceleration input: -c (gamma_meas + g)."""
+    i = model.inputs.index("gamma_z")
+    return [Column("accel_scale", SCALE_PRIOR, input=i, factor=lambda u: -(float(u[i]) + G))]
 
 
 def _scale_param(run) -> dict:
@@ -212,12 +261,26 @@ def baro_thrust(model: LinearModel, tc: float = THROTTLE_TC) -> LinearModel:
     true model. The model asks the filter for that low-pass (``options["throttle_tcs"]``,
     :func:`.run.add_signal_rules`)."""
 
+    out = with_regressor(model, "baro", "k_thrust", _wash(tc), WASH_PRIOR)
+    out.options["throttle_tcs"] = (*out.options.get("throttle_tcs", ()), tc)
+    return out
+
+
+#: [m^2 per unit throttle squared] the wash coefficient's prior
+WASH_PRIOR = 10.0**2
+
+
+def _wash(tc: float) -> Callable[[Context], float]:
     def regressor(ctx: Context) -> float:
         return ctx.throttle_lps.get(tc, 0.0)
 
-    out = with_regressor(model, "baro", "k_thrust", regressor, 10.0**2)
-    out.options["throttle_tcs"] = (*out.options.get("throttle_tcs", ()), tc)
-    return out
+    return regressor
+
+
+def baro_thrust_columns(model: LinearModel, tc: float = THROTTLE_TC) -> list[Column]:
+    """:func:`baro_thrust`'s k at time constant ``tc`` as the baro's regressor."""
+    wash = _wash(tc)
+    return [Column("k_thrust", WASH_PRIOR, "baro", lambda ctx, x: wash(ctx), throttle_tc=tc)]
 
 
 def with_throttle_stand_in(cands: list[Candidate]) -> list[Candidate]:
@@ -253,8 +316,29 @@ def _ground(h0: float) -> Callable[[Context], float]:
     return regressor
 
 
+#: [m^2] the ground effect's size, prior
+GROUND_PRIOR = 3.0**2
+
+
 def _ground_effect(model: LinearModel, h0: float = 0.5) -> LinearModel:
-    return with_regressor(model, "baro", "A_ground", _ground(h0), 3.0**2)
+    return with_regressor(model, "baro", "A_ground", _ground(h0), GROUND_PRIOR)
+
+
+def _ground_effect_columns(model: LinearModel, h0: float = 0.5) -> list[Column]:
+    g = _ground(h0)
+    return [Column("A_ground", GROUND_PRIOR, "baro", lambda ctx, x: g(ctx), exact=False)]  # reads the estimate
+
+
+#: the temperature coefficient's prior [(m/K)^2]
+THERMAL_PRIOR = 1.0
+
+
+def _thermal(model: LinearModel) -> LinearModel:
+    return with_regressor(model, "baro", "k_thermal", _temperature, THERMAL_PRIOR)
+
+
+def _thermal_columns(model: LinearModel) -> list[Column]:
+    return [Column("k_thermal", THERMAL_PRIOR, "baro", lambda ctx, x: _temperature(ctx))]
 
 
 def altitude_catalogue(kinds: set) -> list[Candidate]:
@@ -263,14 +347,51 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
     has_baro = bool(kinds & baro_kinds)
     has_throttle = bool(kinds & {Kind.THROTTLE, Kind.ACTUATOR})
     cands = [
-        Candidate("range_tilt", 0, {Kind.RANGE, Kind.ATTITUDE}, "range", range_tilt, lambda run: {}),
-        Candidate("accel_scale", 1, {Kind.ACCEL}, None, accel_scale, _scale_param, perturb=scale_accelerometer),
-        Candidate("sensor_delay", 1, {Kind.RANGE}, "range", None, None, delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2)),
+        Candidate(
+            "range_tilt", 0, {Kind.RANGE, Kind.ATTITUDE}, "range", range_tilt, lambda run: {}, screen=range_tilt_screen
+        ),
+        Candidate(
+            "accel_scale",
+            1,
+            {Kind.ACCEL},
+            None,
+            accel_scale,
+            _scale_param,
+            perturb=scale_accelerometer,
+            columns=accel_scale_columns,
+        ),
+        Candidate(
+            "sensor_delay",
+            1,
+            {Kind.RANGE},
+            "range",
+            None,
+            None,
+            delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2),
+            screen=delay_screen("range"),
+        ),
     ]
     if has_baro and kinds & BARO_REFERENCES:
         cands += [
-            Candidate("baro_bias_drift", 2, set(), "baro", baro_bias_drift, state_param("rate", "baro_rate")),
-            Candidate("sensor_delay", 1, set(), "baro", None, None, delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3)),
+            Candidate(
+                "baro_bias_drift",
+                2,
+                set(),
+                "baro",
+                baro_bias_drift,
+                state_param("rate", "baro_rate"),
+                columns=baro_bias_drift_columns,
+            ),
+            Candidate(
+                "sensor_delay",
+                1,
+                set(),
+                "baro",
+                None,
+                None,
+                delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3),
+                screen=delay_screen("baro"),
+            ),
         ]
         if Kind.TEMPERATURE in kinds:
             cands.append(
@@ -279,8 +400,9 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     1,
                     {Kind.TEMPERATURE},
                     "baro",
-                    lambda m: with_regressor(m, "baro", "k_thermal", _temperature, 1.0),
+                    _thermal,
                     state_param("k", "k_thermal"),
+                    columns=_thermal_columns,
                 )
             )
         if has_throttle:
@@ -295,6 +417,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     shapes=WASH_TCS,
                     shape_name="tc",
                     refine_shape=True,
+                    columns=baro_thrust_columns,
                 )
             )
         cands.append(
@@ -307,6 +430,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 state_param("A", "A_ground"),
                 shapes=GROUND_HEIGHTS,
                 shape_name="h0",
+                columns=_ground_effect_columns,
             )
         )
     return [c for c in cands if c.needs <= kinds]

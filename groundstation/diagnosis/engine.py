@@ -29,10 +29,11 @@ from . import holdout
 from .catalogue import Candidate, state_param, unobservable_in, with_regressor, with_throttle_stand_in
 from .detect import Finding, detect
 from .discover import Discovery, discover
+from .gains import CatalogueColumns
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
 from .run import Prepared, Run, run_model
-from .trace import STRONG, Scored, rank, smallest_claimed, with_shape
+from .trace import BY_RUNS, STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
 
 #: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,
@@ -287,15 +288,18 @@ def diagnose(
     say("matching the sensors' noise to the log")
     model, noise = match_noise(model, prep, make)
     model0 = model  # what the effects are added to
+    cands = [c for c in catalogue(prep.kinds) if c.name not in names]
+    if not prep.logged_throttle:
+        cands = with_throttle_stand_in(cands)
+    # every candidate's columns, which each run that may start a ranking is probed with (a linear
+    # model's: a nonlinear one is run candidate by candidate)
+    columns = CatalogueColumns.of(cands, model) if model.f is None and not BY_RUNS else None
     say("running the model (before)")
-    base = run_model(model, prep, make)
+    base = run_model(model, prep, make, probes=columns.probes() if columns is not None else None)
     # before: the model as the log's noise has it, the GPS's slow error included; the effects are
     # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
     _, _, first = match_gps_slow(model, prep, make, base=base)
     findings0 = sensor_findings(first)
-    cands = [c for c in catalogue(prep.kinds) if c.name not in names]
-    if not prep.logged_throttle:
-        cands = with_throttle_stand_in(cands)
     stream = prep.measurements
     effects: list[Effect] = []
     rejected: list[Effect] = []
@@ -309,7 +313,18 @@ def diagnose(
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
-        scored = rank(cands, model, base, prep, make, stream, lambda s: say(f"trying {s}"), workers=workers)
+        scored = rank(
+            cands,
+            model,
+            base,
+            prep,
+            make,
+            stream,
+            lambda s: say(f"trying {s}"),
+            workers=workers,
+            columns=columns,
+            exact_gains=su.spec.exact_gains,
+        )
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
         best: Scored | None = None
         for s in (s for s in scored if s.accepted):
@@ -317,7 +332,18 @@ def diagnose(
             if veto is None:
                 say(f"holding out {_label(s)}")
                 ho = holdout.check(
-                    s.candidate, s.model, s.run, s.params, model, base, prep, make, stream, s.profile, workers=workers
+                    s.candidate,
+                    s.model,
+                    s.run,
+                    s.params,
+                    model,
+                    base,
+                    prep,
+                    make,
+                    stream,
+                    s.profile,
+                    workers=workers,
+                    fit=s.fit,
                 )
                 held[id(s)] = ho
                 if ho.holds:
@@ -340,6 +366,10 @@ def diagnose(
             cands = [c for c in cands if not (c.name == s.name and c.sensor == s.candidate.sensor)]
         if best is None:
             break
+        if best.run.taped is None and columns is not None:
+            # scored through the base filter's gains: the effect's own run, which the next ranking starts from
+            say(f"running the model with {_label(best)}")
+            realise(best, base, prep, make, columns.probes())
         runner_up = next(iter(scored[scored.index(best) + 1 :]), None)  # the next one down, not a rejected one
         effects.append(
             Effect(

@@ -46,7 +46,9 @@ from groundstation.estimation.models.base import LinearModel, MeasurementModel
 from groundstation.estimation.models.ground import LANDED
 
 from .catalogue import SENSOR_KINDS
+from .gains import Fit
 from .run import SETTLE_S, Prepared, Run, run_model
+from .signature import fitted_without, loglik
 from .trials import fork_map, portable
 
 #: time blocks of the scored window
@@ -219,6 +221,34 @@ def _held_out(
         return "its filter diverged with the parameters fitted without a block"
 
 
+def two_stage_blocks(f: Fit, prep: Prepared) -> tuple[list[dict[str, float]], dict[str, float]]:
+    """The held-out gains of a candidate the two-stage filter fitted (:mod:`.signature`): for each
+    block, theta fitted on every sensor update outside it (the base filter saw them all), then the
+    block's innovations with theta fixed there, ``nu - G theta`` at the base filter's S, against
+    the base's. Per block the gain by sensor; and each sensor's standard error of its summed gain
+    (the per-update differences' spread)."""
+    sig = f.sig
+    G = sig.G[:, f.J]
+    per_block: list[dict[str, float]] = []
+    diffs: dict[str, list[np.ndarray]] = {}
+    for lo, hi in blocks(prep):
+        inside = (sig.t >= lo) & (sig.t < hi)
+        theta = fitted_without(sig, f.J, f.prior, sig.informs & ~inside)
+        d = loglik(sig.nu - G @ theta, sig.S) - loglik(sig.nu, sig.S)
+        k = inside & sig.informs
+        gains = {}
+        for s in np.unique(sig.sensor[k]):
+            ds = d[k & (sig.sensor == s)]
+            gains[str(s)] = float(ds.sum())
+            diffs.setdefault(str(s), []).append(ds)
+        per_block.append(gains)
+    se = {}
+    for s, parts in diffs.items():
+        d = np.concatenate(parts)
+        se[s] = float(np.std(d) * math.sqrt(len(d))) if len(d) > 1 else 0.0
+    return per_block, se
+
+
 def check(
     cand,
     aug: LinearModel,
@@ -232,9 +262,13 @@ def check(
     profile: dict[float, Run] | None = None,
     *,
     workers: int = 1,
+    fit: Fit | None = None,
 ) -> Holdout:
     """The candidate's out-of-sample evidence (module docstring); ``profile``: a grid candidate's
-    runs by grid value. A fitted effect's blocks are fitted on up to ``workers`` processes."""
+    runs by grid value; ``fit``: the two-stage filter's fit of a linear candidate, whose held-out
+    blocks are then sums over the others (:func:`two_stage_blocks`), exactly what fitted runs give
+    where the filter's gains do not depend on the data. Otherwise a fitted effect's blocks are
+    fitted on up to ``workers`` processes."""
     z, reason = sizes(params, bool(cand.delays))
     h = Holdout(z=z, reason=reason)
     if reason is not None:
@@ -243,7 +277,10 @@ def check(
         return h
     per_block: list[dict[str, float]] = []
     held_runs: list[tuple[Run, float, float]] = []
-    if cand.delays and profile:
+    se: dict[str, float] | None = None
+    if fit is not None and fit.exact:
+        per_block, se = two_stage_blocks(fit, prep)
+    elif cand.delays and profile:
         for lo, hi in blocks(prep):
             others = [(a, b) for a, b in blocks(prep) if (a, b) != (lo, hi)]
             best = max(profile, key=lambda d: sum(sum(window_loglik(profile[d], a, b).values()) for a, b in others))
@@ -278,7 +315,12 @@ def check(
         worse = {
             s: v
             for s, v in h.gain_by_sensor.items()
-            if v < -max(SENSOR_TOLERANCE, SENSOR_SE * paired_se(held_runs, base, s), SENSOR_SHARE * h.gain)
+            if v
+            < -max(
+                SENSOR_TOLERANCE,
+                SENSOR_SE * (se.get(s, 0.0) if se is not None else paired_se(held_runs, base, s)),
+                SENSOR_SHARE * h.gain,
+            )
         }
         if worse:
             s = min(worse, key=lambda k: worse[k])

@@ -70,6 +70,9 @@ class DiagnosisSpec:
     needs_why: str  #: the one line said when it has not
     needs_any: bool = False
     needs_height: bool = True  #: a range sensor or a barometer to diagnose against
+    #: its filter's gains do not depend on the data (no rule reads the estimate), so the two-stage
+    #: filter's score of a linear candidate is its augmented run's (trace.rank)
+    exact_gains: bool = True
 
 
 @dataclass
@@ -101,7 +104,7 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
         # a logged throttle only: a stand-in derived from the range or the vibration would feed
         # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
         # "throttle" pattern in the range innovations)
-        model = on_ground(model, consider=True)
+        model = on_ground(model, reset=True)
     if prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         if Kind.RANGE in prep.kinds:
             model = baro_zero(model)
@@ -192,6 +195,8 @@ DIAGNOSABLE: dict[str, DiagnosisSpec] = {
         "the thrust model takes the throttle as its input and this log has none (no THROTTLE, "
         "SERVO_OUTPUT_RAW or RCOU)",
         needs_any=True,
+        # the ground contact and the range's spurious echoes are read against the estimate
+        exact_gains=False,
     ),
     "attitude": DiagnosisSpec(
         MODELS["attitude"],

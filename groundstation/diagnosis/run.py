@@ -25,6 +25,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.validity import reading_problem
 from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.filters import GainTape
 from groundstation.estimation.models.base import LinearModel
 
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
@@ -34,6 +35,8 @@ from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.routing import collective, set_throttle
 from groundstation.estimation.whiteness import effective_size
+
+from .signature import Probes
 
 
 @dataclass
@@ -212,6 +215,27 @@ class SensorTrace:
 
 
 @dataclass
+class Taped:
+    """What the two-stage filter (:mod:`.signature`) reads of a run: every step's gains, and per
+    innovation record (every update, in order) its time, sensor, innovation and variance (scalar
+    readings; NaN for a vector one), the probed regressors' values, and which record each row of
+    the run's ``x`` follows (``x_record``)."""
+
+    tape: GainTape
+    t: np.ndarray
+    sensor: np.ndarray
+    nu: np.ndarray
+    S: np.ndarray
+    probes: Probes | None
+    x_record: np.ndarray
+
+    @property
+    def scalar(self) -> bool:
+        """Every reading is a scalar (the two-stage filter is written for those)."""
+        return bool(np.all(np.isfinite(self.S)))
+
+
+@dataclass
 class Run:
     model: LinearModel
     sensors: dict[str, SensorTrace]
@@ -223,6 +247,8 @@ class Run:
     ctx: Context  # the filter's context at the end of the log
     loglik_by: dict[str, float] = field(default_factory=dict)  # the same, per sensor
     inflation: dict[str, float] = field(default_factory=dict)  # n / n_eff of each sensor's innovations
+    #: with ``taped``: the run's gains and innovations record by record (signature.py)
+    taped: Taped | None = None
 
     def final(self, state: str) -> tuple[float, float]:
         i = self.model.index(state)
@@ -243,13 +269,20 @@ def run_model(
     *,
     measurements: list[Measurement] | None = None,
     score_from: float = SETTLE_S,
+    taped: bool = False,
+    probes: Probes | None = None,
 ) -> Run:
-    """The model over the prepared log; the likelihood scored from ``score_from`` s in."""
+    """The model over the prepared log; the likelihood scored from ``score_from`` s in. ``taped``:
+    with its gains recorded (:class:`.Run`'s ``tape``); ``probes``: regressors evaluated at each
+    update of their sensor (:mod:`.signature`)."""
     est = make_estimator(model)
-    add_signal_rules(est)
+    add_signal_rules(est, probes.throttle_tcs if probes is not None else ())
+    taped = taped or probes is not None
+    if taped:
+        est.filter.tape = GainTape()
     kinds = est.kinds
     ms = [m for m in (prep.measurements if measurements is None else measurements) if m.kind in kinds]
-    ts, xs, Ps = [], [], []
+    ts, xs, Ps, x_record = [], [], [], []
     sig: dict[str, dict[str, list]] = {}
     for m in ms:
         rec = est.handle(m, checked=True)  # prepare() checked every reading
@@ -259,8 +292,12 @@ def run_model(
         ts.append(rec.t)
         xs.append(f.kf.x.copy())
         Ps.append(f.kf.P.copy())
+        if taped:
+            x_record.append(len(f.log.records) - 1)
         d = sig.setdefault(rec.sensor, {k: [] for k in SIGNALS})
         ctx = f.ctx
+        if probes is not None:
+            probes.record(rec.sensor, ctx, f.kf.x - rec.K @ rec.nu)
         for k in SIGNALS:
             value = getattr(ctx, k)
             d[k].append(math.nan if value is None else value)
@@ -280,7 +317,32 @@ def run_model(
             inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
             n_sc += int(scored.sum())
     x, P = np.array(xs), np.array(Ps)
-    return Run(model, sensors, np.array(ts), x, P, sum(ll_by.values()), n_sc, est.filter.ctx, ll_by, inflation)
+    tape = est.filter.tape
+    recorded = None
+    if tape is not None:
+        rs = log.records
+        recorded = Taped(
+            tape,
+            np.array([r.t for r in rs]),
+            np.array([r.sensor for r in rs]),
+            np.array([float(r.nu[0]) if r.nu.size == 1 else math.nan for r in rs]),
+            np.array([float(r.S[0, 0]) if r.S.size == 1 else math.nan for r in rs]),
+            probes,
+            np.array(x_record, dtype=int),
+        )
+    return Run(
+        model,
+        sensors,
+        np.array(ts),
+        x,
+        P,
+        sum(ll_by.values()),
+        n_sc,
+        est.filter.ctx,
+        ll_by,
+        inflation,
+        recorded,
+    )
 
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------
@@ -288,11 +350,12 @@ VIBRATION_TC = 0.3  # s: low-pass of the accelerometer's high-frequency energy (
 THROTTLE_TC = 0.5  # s: the low-passed throttle recorded beside each innovation (a signal to regress on)
 
 
-def add_signal_rules(est: KalmanEstimator) -> None:
-    """Context rules that keep the regression signals current (chained after the estimator's own)."""
+def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ()) -> None:
+    """Context rules that keep the regression signals current (chained after the estimator's own);
+    ``throttle_tcs``: rotor-wash low-passes to keep besides the model's own."""
     own = dict(est.context)
-    #: the rotor wash's time constants the model's regressors read (catalogue.baro_thrust)
-    tcs = tuple(est.model.options.get("throttle_tcs", ()))
+    #: the rotor wash's time constants the model's (and the probes') regressors read (catalogue.baro_thrust)
+    tcs = tuple(dict.fromkeys((*est.model.options.get("throttle_tcs", ()), *throttle_tcs)))  # each once
 
     def chain(kind, fn):
         prev = own.get(kind)

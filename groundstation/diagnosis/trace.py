@@ -35,6 +35,7 @@ A large f says: weigh this effect's Delta BIC with care.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -43,8 +44,13 @@ import numpy as np
 from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import Candidate
-from .run import SETTLE_S, Prepared, Run
+from .gains import SCREEN_SHARE, CatalogueColumns, Fit, best_shape, fit, participation, run_signatures, virtual_run
+from .run import SETTLE_S, Prepared, Run, run_model
 from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
+
+#: every candidate scored by its own filter runs, none through the base filter's gains (the path
+#: ``bench/diagnosis_speed.py`` measures the two-stage filter against; GROUNDSTATION_TRACE=runs)
+BY_RUNS = os.environ.get("GROUNDSTATION_TRACE") == "runs"
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -74,6 +80,10 @@ class Scored:
     profile: dict = field(default_factory=dict)
     n: int = 1  # the innovations its Delta BIC counts
     delta_bic_effective: float = math.nan
+    #: scored by the two-stage filter through the base run's gains (its run is that filter's)
+    fit: Fit | None = None
+    #: only its linear stand-in was scored (``Candidate.screen``), and it could not be claimed
+    screened: bool = False
 
     @property
     def name(self) -> str:
@@ -81,7 +91,7 @@ class Scored:
 
     @property
     def accepted(self) -> bool:
-        return self.delta_bic < STRONG and self.gain_per_update >= MATERIAL
+        return not self.screened and self.delta_bic < STRONG and self.gain_per_update >= MATERIAL
 
 
 def delta_bic_effective(aug: Run, base: Run, k: int, n: int) -> float:
@@ -242,21 +252,77 @@ def rank(
     progress: Callable[[str], None] | None = None,
     *,
     workers: int = 1,
+    columns: CatalogueColumns | None = None,
+    exact_gains: bool = True,
 ) -> list[Scored]:
-    """The candidates scored and sorted by Delta BIC, each with its gain per supported update;
-    their filter runs on ``workers`` processes (:mod:`.trials`: the same scores on any number)."""
-    trials = Trials(cands, model, prep, make, ms, workers=workers, base=base)
-    if trials.workers > 1:
-        if progress:
-            progress(f"{len(cands)} candidates on {trials.workers} cores")
-        trials.compute_all()
+    """The candidates scored and sorted by Delta BIC, each with its gain per supported update.
+
+    With ``columns`` (the catalogue's, which ``base`` was probed with) the candidates that act
+    linearly are scored by the two-stage filter through ``base``'s gains (:mod:`.gains`), and an
+    effect that does not is run only where its linear stand-in could be claimed; ``exact_gains``:
+    the model's gains do not depend on the data (else a two-stage score that could be claimed is
+    run too). The rest, and everything without ``columns`` or with ``GROUNDSTATION_TRACE=runs``,
+    is run: each candidate's filter runs on ``workers`` processes (:mod:`.trials`: the same scores
+    on any number)."""
+    sig = None
+    if columns is not None and not BY_RUNS:
+        sig = run_signatures(base, model.n, columns.extra())
+    t_score = prep.t0 + SETTLE_S
+    n = max(base.n_scored, 1)
     out: list[tuple[int, Scored]] = []
+    to_run: list[tuple[int, Candidate]] = []
+    shaped: dict[int, float] = {}  # a candidate run at the shape the two-stage filter chose for it
     for i, c in enumerate(cands):
-        if progress:
-            progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
-        s = score(c, model, base, trials, i, ms)
-        if s is not None:
-            out.append((i, s))
+        if sig is None or columns is None:
+            to_run.append((i, c))
+            continue
+        shapes = columns.by_candidate.get(id(c))
+        if shapes is not None:
+            s = _two_stage_score(c, shapes, model, base, sig, t_score, n, ms)
+            columns_exact = exact_gains and all(col.exact for cols in shapes.values() for col in cols)
+            if s.delta_bic < STRONG and not columns_exact:
+                # claimable by a score the augmented filter only approaches: its own runs, every shape
+                to_run.append((i, c))
+            elif s.delta_bic < STRONG and not (s.fit is not None and s.fit.exact):
+                # claimable at a shape between the grid's: its run there
+                to_run.append((i, s.candidate))
+                shaped[i] = s.params[c.shape_name]
+            else:
+                out.append((i, s))
+        elif id(c) in columns.screens:
+            bound = _screened(c, columns.screens[id(c)], model, base, sig, t_score, n, ms)
+            if bound is None:
+                to_run.append((i, c))
+            else:
+                out.append((i, bound))
+        else:
+            to_run.append((i, c))
+    if to_run:
+        trials = Trials(
+            [c for _, c in to_run],
+            model,
+            prep,
+            make,
+            ms,
+            workers=workers,
+            base=base,
+            probes=columns.probes() if columns is not None and sig is not None else None,
+        )
+        if trials.workers > 1:
+            if progress:
+                progress(f"{len(to_run)} candidates on {trials.workers} cores")
+            trials.compute_all()
+        for j, (i, c) in enumerate(to_run):
+            if progress:
+                progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
+            r = score(c, model, base, trials, j, ms)
+            if r is not None:
+                if i in shaped:
+                    r.params[c.shape_name] = shaped[i]
+                out.append((i, r))
+    else:
+        trials = None
+    out.sort(key=lambda p: p[0])
     for i, s in out:
         sensor = s.candidate.sensor
         if sensor is None:
@@ -268,13 +334,77 @@ def rank(
             gains = {k: s.run.loglik_by.get(k, 0.0) - v for k, v in base.loglik_by.items()}
             sensor = max(gains, key=lambda k: gains[k]) if gains else None
         tr = base.sensors.get(sensor) if sensor else None
-        n = int((tr.t >= prep.t0 + SETTLE_S).sum()) if tr is not None else base.n_scored
+        m = int((tr.t >= t_score).sum()) if tr is not None else base.n_scored
         if s.candidate.support:
-            n = min(n, max(s.candidate.support(s.run, prep.t0 + SETTLE_S), MIN_SUPPORT))
+            m = min(m, max(s.candidate.support(s.run, t_score), MIN_SUPPORT))
         if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
-            n = min(n, max(signature_support(trials.run(i, SIGNATURE), base, prep, sensor), MIN_SUPPORT))
-        s.support = n
-        s.gain_per_update = (s.run.loglik - base.loglik) / max(n, 1)
+            if s.fit is not None:
+                k = s.fit.sig.informs & (s.fit.sig.t >= t_score) & (s.fit.sig.sensor == sensor)
+                support = participation(s.fit.sig.G[k][:, s.fit.J].sum(axis=1), s.fit.sig.S[k])
+            else:
+                assert trials is not None
+                j = next(j for j, (q, _) in enumerate(to_run) if q == i)
+                support = signature_support(trials.run(j, SIGNATURE), base, prep, sensor)
+            m = min(m, max(support, MIN_SUPPORT))
+        s.support = m
+        s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
     ranked = [s for _, s in out]
     ranked.sort(key=lambda s: s.delta_bic)
     return ranked
+
+
+def realise(s: Scored, base: Run, prep: Prepared, make, probes) -> None:
+    """``s``, scored by the two-stage filter, with the augmented model's own run instead (taped, with
+    ``probes``: it starts the next ranking), its parameters and Delta BIC read from that run."""
+    shape = s.params.get(s.candidate.shape_name)
+    r = run_model(s.model, prep, make, measurements=s.measurements or None, probes=probes)
+    params = s.candidate.params(r) if s.candidate.params else {}
+    if shape is not None:
+        params[s.candidate.shape_name] = shape
+    again = scored(s.candidate, s.model, r, base, s.n, params, s.measurements)
+    s.run, s.params, s.delta_bic, s.delta_bic_effective = r, params, again.delta_bic, again.delta_bic_effective
+
+
+def _two_stage_score(
+    c: Candidate, shapes: dict, model: LinearModel, base: Run, sig, t_score: float, n: int, ms
+) -> Scored:
+    """A linear candidate scored by the two-stage filter at its best shape (:func:`.gains.best_shape`):
+    its run that filter's; the candidate as it is then added (its shape bound, as :func:`score` binds it)."""
+    fits = {shape: fit(sig, cols, shape) for shape, cols in shapes.items()}
+    f, shape = best_shape(fits, t_score, c.refine_shape)
+    assert c.augment is not None
+    aug = c.augment(model) if f.shape is None else c.augment(model, f.shape)
+    r = virtual_run(aug, base, sig, f.J, f.ts, t_score)
+    params = c.params(r) if c.params else {}
+    cand = c
+    if shape is not None:
+        params[c.shape_name] = shape
+        unshaped = c.augment if c.refine_shape else None
+        cand = replace(
+            c, k=c.k + 1, augment=with_shape(c.augment, shape), shapes=(), refine_shape=False, unshaped=unshaped
+        )
+        if shape != f.shape:  # a refined shape between the grid's: its run is the augmented model's there
+            f = replace(f, exact=False)
+            aug = cand.augment(model)  # type: ignore[misc]
+            r.model = aug
+    out = scored(cand, aug, r, base, n, params, ms)
+    out.fit = f
+    return out
+
+
+def _screened(c: Candidate, columns, model: LinearModel, base: Run, sig, t_score: float, n: int, ms) -> Scored | None:
+    """A nonlinear candidate's linear stand-in (``Candidate.screen``) through the base run's gains: None
+    when its best fit could be claimed (:data:`.gains.SCREEN_SHARE` of a claim's need), so the
+    candidate's own runs are made; else the candidate scored by that bound, not to be claimed."""
+    f = fit(sig, columns)
+    g = f.best_fit_gain(t_score)
+    tr = base.sensors.get(c.sensor or "")
+    support = int((tr.t >= t_score).sum()) if tr is not None else n
+    need = max((c.k * math.log(n) - STRONG) / 2.0, MATERIAL * support)
+    if g >= SCREEN_SHARE * need:
+        return None
+    theta, sd = float(f.ts.theta[-1][0]), float(math.sqrt(f.ts.Sigma[-1][0, 0]))
+    params: dict = {"note": "its first-order form through the base filter's gains could not be claimed"}
+    if c.delays:
+        params = {"sensor": c.sensor, "seconds": round(theta, 4), "sigma_seconds": sd, **params}
+    return Scored(c, model, base, -2.0 * g + c.k * math.log(n), params, ms, n=n, fit=f, screened=True)

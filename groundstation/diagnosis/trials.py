@@ -32,6 +32,7 @@ from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import SENSOR_KINDS, Candidate, shift
 from .run import Prepared, Run, run_model
+from .signature import Probes
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -81,16 +82,21 @@ def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearMod
     return cand.augment(model) if key is None else cand.augment(model, key)
 
 
-def trial(cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms) -> Run | None:
+def trial(
+    cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms, probes: Probes | None = None
+) -> Run | None:
     """One trial's run; None when the augmented filter ran away (its innovation covariance went
-    singular): not a finding, and not the end of the diagnosis."""
+    singular): not a finding, and not the end of the diagnosis. ``probes``: a run that may become the
+    next ranking's base is taped with them (:mod:`.signature`)."""
     if key == SIGNATURE:
         assert cand.perturb is not None
         return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
+    fresh = probes.fresh() if probes is not None else None
     if cand.delays:
-        return run_model(model, prep, make, measurements=delayed(cand, ms, float(key)))  # type: ignore[arg-type]
+        d = float(key)  # type: ignore[arg-type]
+        return run_model(model, prep, make, measurements=delayed(cand, ms, d), probes=fresh)
     try:
-        return run_model(trial_model(cand, key, model), prep, make, measurements=ms)
+        return run_model(trial_model(cand, key, model), prep, make, measurements=ms, probes=fresh)
     except np.linalg.LinAlgError:
         return None
 
@@ -129,9 +135,14 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
 
 
 def portable(r: Run | None) -> Run | None:
-    """A run as it can travel between processes: without its model (closures; the receiver
-    rebuilds it)."""
-    return None if r is None else replace(r, model=None)  # type: ignore[arg-type]
+    """A run as it can travel between processes: without its model and its probes' columns
+    (closures; the receiver gives them back, :meth:`Trials._attach`)."""
+    if r is None:
+        return None
+    taped = r.taped
+    if taped is not None and taped.probes is not None:
+        taped = replace(taped, probes=taped.probes.detached())
+    return replace(r, model=None, taped=taped)  # type: ignore[arg-type]
 
 
 def refine(
@@ -287,10 +298,12 @@ class Trials:
         *,
         workers: int = 1,
         base: Run | None = None,
+        probes: Probes | None = None,
     ) -> None:
         self.cands, self.model, self.prep, self.make, self.ms = cands, model, prep, make, ms
         self.workers = max(1, workers)
         self.base = base
+        self.probes = probes
         self.runs: list[dict[Hashable, Run | None]] = [
             {0.0: base} if base is not None and 0.0 in c.delays else {} for c in cands
         ]
@@ -307,7 +320,7 @@ class Trials:
         """Candidate ``i``'s run at ``key``: computed once, here when no pool computed it before."""
         runs = self.runs[i]
         if key not in runs:
-            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms)
+            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.probes)
         return runs[key]
 
     def compute_all(self) -> None:
@@ -329,7 +342,7 @@ class Trials:
 
     def _portable_trial(self, task: tuple[int, Hashable]) -> Run | None:
         i, key = task
-        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms))
+        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.probes))
 
     def _portable_refinement(self, grid: tuple[int, dict[float, float]]) -> dict[float, Run | None]:
         i, lik = grid
@@ -338,4 +351,9 @@ class Trials:
         return {d: portable(r) for d, r in runs.items()}
 
     def _attach(self, i: int, key: Hashable, r: Run | None) -> Run | None:
-        return None if r is None else replace(r, model=trial_model(self.cands[i], key, self.model))
+        if r is None:
+            return None
+        taped = r.taped
+        if taped is not None and taped.probes is not None and self.probes is not None:
+            taped = replace(taped, probes=taped.probes.attached(self.probes.columns))
+        return replace(r, model=trial_model(self.cands[i], key, self.model), taped=taped)

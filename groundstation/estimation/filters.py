@@ -35,6 +35,24 @@ class InnovationRecord:
 
 
 @dataclass
+class GainTape:
+    """Every step of a run as the filter took it, in order: a prediction as ``(Phi, G, u)``
+    (x <- Phi x + G u), a measurement update as ``(sensor, H, K, reset, record)`` (``reset``: the
+    states a reset update set, else None; ``record``: its index in the innovation log), and a
+    restart of the filter (a clock jump, a divergence) as None. The arrays are the filter's own,
+    shared, not copied (each step makes new ones). The diagnosis runs every candidate effect
+    through these gains at once (:mod:`groundstation.diagnosis.signature`)."""
+
+    ops: list = field(default_factory=list)
+    starts: list[float] = field(default_factory=list)  #: when the filter started, and started over [s]
+
+    def restart(self, t0: float) -> None:
+        if self.starts:
+            self.ops.append(None)
+        self.starts.append(t0)
+
+
+@dataclass
 class InnovationLog:
     """Every update's innovation, per sensor, as arrays on demand."""
 
@@ -75,6 +93,8 @@ class ModelFilter:
         u0 = np.zeros(len(model.inputs))
         self._nonlinear = model.f is not None
         self._u_dependent = self._nonlinear or not np.array_equal(model.A(u0), model.A(u0 + 1.0))
+        #: with a list here, every step's gains go to it (:class:`GainTape`)
+        self.tape: GainTape | None = None
         self.reset(t0)
 
     def reset(self, t0: float) -> None:
@@ -87,6 +107,8 @@ class ModelFilter:
         self.u = np.zeros(len(m.inputs))
         self._pending_k = 0  # step length (1e-7 s units) of the covariance steps not yet applied
         self._pending_n = 0
+        if self.tape is not None:
+            self.tape.restart(t0)
 
     # filterpy's symbols, as properties
     @property
@@ -146,6 +168,8 @@ class ModelFilter:
         """The extended filter's step: linearised at the estimate, x_dot ~ f(x^, u) + F (x - x^)
         with F = df/dx, and that held over dt exactly as a linear model is:
         x <- x^ + Gamma f(x^, u),  Gamma = int_0^dt e^{F s} ds;  P <- Phi P Phi^T + Q_k."""
+        if self.tape is not None:
+            raise ValueError(f"{self.model.name}: a gain tape needs a linear model (its steps' Phi)")
         m, kf = self.model, self.kf
         f, jacobian = m.f, m.jacobian
         assert f is not None and jacobian is not None  # a nonlinear model has both (LinearModel)
@@ -173,6 +197,8 @@ class ModelFilter:
         # times the arithmetic at 1 kHz.)
         kf = self.kf
         kf.x = Phi @ kf.x + G @ self.u
+        if self.tape is not None:
+            self.tape.ops.append((Phi, G, self.u))
         k = int(dt * 1e7 + 0.5)
         if self._u_dependent:
             kf.P = Phi @ kf.P @ Phi.T + Qk
@@ -279,6 +305,8 @@ class ModelFilter:
         nu = np.atleast_1d(kf.y).astype(float, copy=False)
         S = np.atleast_2d(kf.S).astype(float, copy=False)
         rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
+        if self.tape is not None:
+            self.tape.ops.append((mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log.records)))
         self.log.append(rec)
         self.updates += 1
         return rec

@@ -96,21 +96,28 @@ SIGMA_LIFTOFF = 1.0
 RANGE_QUIET = 0.3
 
 
-def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False) -> LinearModel:
+def on_ground(model: LinearModel, *, height: bool = True, reset: bool = False) -> LinearModel:
     """``model`` with the landed constraints (module docstring); ``height=False`` leaves out z = 0
     (the thrust model has its own ground contact, :func:`groundstation.estimation.models.contact.ground_contact`).
 
-    ``consider=True``: the constraints correct z and vz only (a Schmidt update); the other states
-    keep what the sensors told them. The altitude diagnosis sets it: it estimates constants over
-    the whole log, and "landed" begins with a touchdown the model lacks (the throttle cut while the
-    vehicle still sinks, the ground's impulse). As full updates, vz = 0 there was explained through
-    the correlations: an accel_scale of 0.02, read 0.0195 at 50 s on a simulated quadcopter
-    (seed 1041), fell to 0.0165 over the landing; the final estimates of six flights at 0.02 and
-    0.04 were 10-17 % low, and 1-7 % with the Schmidt update. The live filter keeps full updates:
-    on the pad, vz = 0 is what teaches it the accelerometer's bias before take-off."""
+    ``reset=True``: each constraint *sets* its state (vz, or z) to the ground's value with the
+    constraint's variance, uncorrelated with the rest, and the other states keep what the sensors
+    told them (``MeasurementModel.reset``). The altitude diagnosis sets it: it estimates constants
+    over the whole log, and "landed" begins with a touchdown the model lacks (the throttle cut while
+    the vehicle still sinks, the ground's impulse). As full updates, vz = 0 there was explained
+    through the correlations: an accel_scale of 0.02, read 0.0195 at 50 s on a simulated quadcopter
+    (seed 1041), fell to 0.0165 over the landing; the final estimates of six flights at 0.02 and 0.04
+    were 10-17 % low. As repeated Schmidt updates of z and vz (the other states left alone, the
+    information piling up at 50 Hz) the ground's hold depended on how uncertain the rest was, so an
+    effect's state changed what the ground did: on another generator's flight with a rotor wash
+    of 2.02 m per unit throttle, the wash read 2.21 (1.99 as resets, at the same 0.15 s time
+    constant) and an accelerometer scale the flight does not have gained 67 in log-likelihood (as
+    resets it loses 4.5). As resets the ground does the same whatever the model's effects are, and the
+    diagnosis's two-stage filter (:mod:`groundstation.diagnosis.signature`) is exact through it. The
+    live filter keeps full updates: on the pad, vz = 0 is what teaches it the accelerometer's bias
+    before take-off."""
     iz, iv = model.index("z"), model.index("vz")
     meas = dict(model.measurements)
-    corrects = (iz, iv) if consider else None
 
     def still(m, ctx):
         return np.array([0.0]) if landed(ctx) else None
@@ -137,7 +144,8 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
             state_row(model.n, iv),
             np.array([[SIGMA_STILL**2]]),
             untimed=True,
-            corrects=corrects,
+            corrects=(iv,) if reset else None,
+            reset=reset,
         )
         if height and "range" in meas:
             meas[f"on_ground_{kind.value}"] = MeasurementModel(
@@ -147,7 +155,8 @@ def on_ground(model: LinearModel, *, height: bool = True, consider: bool = False
                 state_row(model.n, iz),
                 np.array([[SIGMA_ON_GROUND**2]]),
                 untimed=True,
-                corrects=corrects,
+                corrects=(iz,) if reset else None,
+                reset=reset,
             )
     if height and "range" in meas:
         rng = meas["range"]

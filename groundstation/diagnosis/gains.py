@@ -1,0 +1,197 @@
+"""The catalogue through the base filter's gains: each candidate scored by the two-stage filter.
+
+:mod:`.signature` gives, from one taped run of the base model, every linear candidate's augmented
+filter as sums over time. This module turns that into what the trace and the hold-out read: a
+candidate's run (:func:`virtual_run`, a :class:`.Run` like any other: innovations per sensor, its
+likelihood, the estimate with the effect's states appended), its best shape (a wash's time
+constant profiled over a grid of them, all in the same pass), and for an effect not linear in its
+parameters, whether its linear stand-in (``Candidate.screen``) could be claimed at all, which
+decides whether its own runs are made.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from groundstation.estimation.models.base import LinearModel
+from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.whiteness import effective_size
+
+from .catalogue import Candidate
+from .run import SETTLE_S, Run, SensorTrace
+from .signature import Column, Probes, Signatures, TwoStage, loglik, signatures, two_stage
+
+#: [s] the rotor wash's time constants profiled at once (a candidate with ``refine_shape``): from a
+#: twentieth of a second to four, each 1.5 times the one before; the profile's parabola through the
+#: best and its neighbours (in log tau) places the shape between them
+WASH_GRID = tuple(round(0.05 * 1.5**k, 4) for k in range(12))
+#: a stand-in's gain (its best fit's) counted at this share of what a claim needs before the effect's
+#: own runs are made: it is linear in the effect only to first order
+SCREEN_SHARE = 0.5
+
+
+def grid(c: Candidate) -> tuple:
+    """The shapes a candidate's columns are probed at (``(None,)``: it has none)."""
+    if c.refine_shape:
+        return WASH_GRID
+    return c.shapes or (None,)
+
+
+@dataclass
+class CatalogueColumns:
+    """The columns of every candidate of a catalogue (each shape of it, its screen), built once for
+    the model they act on: what a run that may become a ranking's base is probed with."""
+
+    by_candidate: dict[int, dict] = field(default_factory=dict)  # id(candidate) -> {shape: [Column]}
+    screens: dict[int, list[Column]] = field(default_factory=dict)  # id(candidate) -> its screen's columns
+
+    @classmethod
+    def of(cls, cands: Sequence[Candidate], model: LinearModel) -> CatalogueColumns:
+        out = cls()
+        for c in cands:
+            out.add(c, model)
+        return out
+
+    def add(self, c: Candidate, model: LinearModel) -> None:
+        if c.columns is not None and id(c) not in self.by_candidate:
+            self.by_candidate[id(c)] = {s: (c.columns(model) if s is None else c.columns(model, s)) for s in grid(c)}
+        if c.screen is not None and id(c) not in self.screens:
+            self.screens[id(c)] = c.screen(model)
+
+    def all(self) -> list[Column]:
+        out = [col for shapes in self.by_candidate.values() for cols in shapes.values() for col in cols]
+        return out + [col for cols in self.screens.values() for col in cols]
+
+    def probes(self) -> Probes:
+        return Probes([c for c in self.all() if c.regressor is not None])
+
+    def extra(self) -> list[Column]:
+        """The columns read off a run afterwards (of time, on the input)."""
+        return [c for c in self.all() if c.regressor is None]
+
+
+def run_signatures(run: Run, n: int, columns: Sequence[Column]) -> Signatures | None:
+    """The columns' signatures through ``run``'s gains (``run`` taped, with the probes of the
+    regressor columns); None where the two-stage filter does not apply (no tape, a vector reading)."""
+    tp = run.taped
+    if tp is None or not tp.scalar:
+        return None
+    informs = tp.sensor != LANDED
+    return signatures(tp.tape, n, tp.t, tp.sensor, tp.nu, tp.S, informs, tp.probes, columns)
+
+
+def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict[str, float], dict[str, float], int]:
+    """Each real sensor's innovation log-likelihood from ``t_score`` on, its innovations' colour
+    (n / n_eff) and the count of updates scored: what :func:`.run.run_model` scores."""
+    ll_by, inflation, n = {}, {}, 0
+    for s, tr in sensors.items():
+        scored = tr.t >= t_score
+        if scored.any() and s != LANDED:
+            ll_by[s] = float(np.sum(tr.loglik[scored]))
+            inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
+            n += int(scored.sum())
+    return ll_by, inflation, n
+
+
+def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], ts: TwoStage, t_score: float) -> Run:
+    """The augmented model's run as the two-stage filter gives it (:mod:`.signature`): the base run's
+    readings with the augmented innovations, and its estimate ``x + Delta theta`` with theta's
+    states appended (their covariance, and the cross terms, as the augmented filter has them)."""
+    assert base.taped is not None
+    rows = base.taped.x_record
+    D = sig.Delta[rows][:, :, list(J)]  # (N, n, p)
+    th, Sg = ts.theta[rows], ts.Sigma[rows]
+    x = np.concatenate([base.x + np.einsum("kij,kj->ki", D, th), th], axis=1)
+    DS = np.einsum("kij,kjl->kil", D, Sg)
+    top = base.P + np.einsum("kil,kml->kim", DS, D)
+    P = np.concatenate(
+        [np.concatenate([top, DS], axis=2), np.concatenate([np.transpose(DS, (0, 2, 1)), Sg], axis=2)], axis=1
+    )
+    sensors = {}
+    for s, tr in base.sensors.items():
+        idx = np.flatnonzero(sig.sensor == s)
+        if s == LANDED or len(idx) != len(tr.t):
+            sensors[s] = tr
+            continue
+        nu, S = ts.nu[idx], ts.S[idx]
+        sensors[s] = SensorTrace(tr.t, nu[:, None], S[:, None, None], nu * nu / S, tr.z, tr.signals)
+    ll_by, inflation, n = sensor_scores(sensors, t_score)
+    return Run(aug, sensors, base.t, x, P, sum(ll_by.values()), n, base.ctx, ll_by, inflation)
+
+
+@dataclass
+class Fit:
+    """A candidate fitted by the two-stage filter: its columns in the signatures, their priors, the
+    shape, the filter, and whether it is exact (no regressor reads the estimate)."""
+
+    sig: Signatures
+    J: list[int]
+    prior: np.ndarray
+    shape: float | None
+    ts: TwoStage
+    exact: bool
+
+    def gain(self, t_score: float) -> float:
+        """The augmented filter's log-likelihood gain over the base's from ``t_score`` on."""
+        k = self.sig.informs & (self.sig.t >= t_score)
+        return float(np.sum(loglik(self.ts.nu[k], self.ts.S[k]) - loglik(self.sig.nu[k], self.sig.S[k])))
+
+    def best_fit_gain(self, t_score: float) -> float:
+        """The gain at theta's best value for the whole log, fixed (the generalised likelihood ratio:
+        no prior, no learning): at least the gain at any other fixed theta, which bounds a stand-in's."""
+        k = self.sig.informs & (self.sig.t >= t_score)
+        G = self.sig.G[:, self.J]
+        w = np.where(self.sig.informs, 1.0 / self.sig.S, 0.0)
+        A = (G * w[:, None]).T @ G
+        b = (G * w[:, None]).T @ self.sig.nu
+        theta = np.linalg.lstsq(A, b, rcond=None)[0]
+        nu = self.sig.nu - G @ theta
+        return float(np.sum(loglik(nu[k], self.sig.S[k]) - loglik(self.sig.nu[k], self.sig.S[k])))
+
+
+def fit(sig: Signatures, columns: Sequence[Column], shape: float | None = None) -> Fit:
+    J = sig.where(columns)
+    prior = np.array([c.prior for c in columns], dtype=float)
+    return Fit(sig, J, prior, shape, two_stage(sig, J, prior), all(c.exact for c in columns))
+
+
+def best_shape(fits: dict, t_score: float, log_refine: bool) -> tuple[Fit, float | None]:
+    """The shape whose fit gains most, and with ``log_refine`` (a continuous shape on a log grid) the
+    vertex of the parabola through it and its neighbours in log(shape) where that lies between
+    them: the value a run is then made at."""
+    gains = {s: f.gain(t_score) for s, f in fits.items()}
+    best = max(gains, key=lambda s: gains[s])
+    if not log_refine or best is None:
+        return fits[best], best
+    shapes = sorted(gains)
+    i = shapes.index(best)
+    if i == 0 or i == len(shapes) - 1:
+        return fits[best], best
+    x = np.log(shapes[i - 1 : i + 2])
+    y = np.array([gains[s] for s in shapes[i - 1 : i + 2]])
+    a, b, _ = np.polyfit(x - x[1], y, 2)
+    if a >= 0:
+        return fits[best], best
+    v = x[1] - b / (2 * a)
+    return fits[best], round(float(math.exp(min(max(v, x[0]), x[2]))), 4)
+
+
+def materially_worth(gain: float, k: int, n: int, support: int, strong: float, material: float) -> bool:
+    """A gain a claim could be made on: Delta BIC below ``strong`` and ``material`` per update."""
+    return -2.0 * gain + k * math.log(max(n, 1)) < strong and gain >= material * max(support, 1)
+
+
+def participation(G: np.ndarray, S: np.ndarray) -> int:
+    """(sum w)^2 / sum w^2 of w = G^2 / S: over how many updates a signature spreads
+    (:func:`.trace.signature_support`, from the signature itself instead of a run at a small size)."""
+    w = G * G / S
+    sq = float(np.sum(w * w))
+    return int(round(float(np.sum(w)) ** 2 / sq)) if sq > 0 else len(w)
+
+
+def scored_window(sig: Signatures, t0: float) -> np.ndarray:
+    return sig.informs & (sig.t >= t0 + SETTLE_S)
