@@ -22,7 +22,7 @@ from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import effective_size
 
 from .catalogue import Candidate
-from .run import SETTLE_S, Run, SensorTrace
+from .run import SETTLE_S, Prepared, Run, SensorTrace, run_model
 from .signature import Column, Probes, Signatures, TwoStage, loglik, signatures, two_stage
 
 #: [s] the rotor wash's time constants profiled at once (a candidate with ``refine_shape``): from a
@@ -195,3 +195,17 @@ def participation(G: np.ndarray, S: np.ndarray) -> int:
 
 def scored_window(sig: Signatures, t0: float) -> np.ndarray:
     return sig.informs & (sig.t >= t0 + SETTLE_S)
+
+
+def profile_shape(c: Candidate, without: LinearModel, prep: Prepared, make, ms) -> float | None:
+    """A continuous shape's best value (a wash's time constant, :data:`WASH_GRID`) for candidate ``c``
+    added to ``without`` (a model with every other effect), by the two-stage filter through one taped
+    run of ``without``; None where that filter does not apply."""
+    assert c.columns is not None
+    shapes = {s: c.columns(without, s) for s in WASH_GRID}
+    r = run_model(without, prep, make, measurements=ms, probes=Probes([col for cs in shapes.values() for col in cs]))
+    sig = run_signatures(r, without.n, [])
+    if sig is None:
+        return None
+    fits = {s: fit(sig, cols, s) for s, cols in shapes.items()}
+    return best_shape(fits, prep.t0 + SETTLE_S, True)[1]

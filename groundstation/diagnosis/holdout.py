@@ -132,7 +132,7 @@ def sizes(params: dict, delay: bool) -> tuple[dict[str, float], str | None]:
     return z, None
 
 
-def _fixed(model: LinearModel, n0: int, theta_start: np.ndarray) -> LinearModel:
+def fixed(model: LinearModel, n0: int, theta_start: np.ndarray) -> LinearModel:
     """``model`` with its states from ``n0`` on fixed at ``theta_start`` (at the log's start)."""
     x0 = model.x0.astype(float).copy()
     x0[n0:] = theta_start
@@ -197,6 +197,13 @@ def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> f
     return float(np.std(d) * math.sqrt(len(d))) if len(d) > 1 else 0.0
 
 
+def carried_back(model: LinearModel, n0: int, run: Run, t0: float) -> np.ndarray:
+    """The added states' (from ``n0`` on) estimate at the end of ``run``, carried back to ``t0``
+    through their own dynamics (``expm(-A_ee T)``: they are not driven by the model's own states)."""
+    a_ee = model.A(np.zeros(len(model.inputs)))[n0:, n0:]
+    return expm(-a_ee * (run.t[-1] - t0)) @ run.x[-1, n0:]
+
+
 def _held_out(
     aug: LinearModel, n0: int, block: tuple[float, float], prep: Prepared, make, ms: list
 ) -> Run | str | None:
@@ -211,12 +218,11 @@ def _held_out(
     train = run_model(_blinded(aug, n0, lo, hi, set().union(*SENSOR_KINDS.values())), prep, make, measurements=fit_on)
     if not len(train.t):
         return None
-    a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
-    theta = expm(-a_ee * (train.t[-1] - prep.t0)) @ train.x[-1, n0:]
+    theta = carried_back(aug, n0, train, prep.t0)
     if not np.all(np.isfinite(theta)):
         return "its parameters ran away when fitted without a block"
     try:
-        return portable(run_model(_fixed(aug, n0, theta), prep, make, measurements=[m for m in ms if m.t < hi]))
+        return portable(run_model(fixed(aug, n0, theta), prep, make, measurements=[m for m in ms if m.t < hi]))
     except np.linalg.LinAlgError:
         return "its filter diverged with the parameters fitted without a block"
 
