@@ -131,7 +131,7 @@ def reference_error(ms: list[Measurement], meta: dict, truth: np.ndarray) -> flo
     effect cannot be taken out of the altitude model's measurements."""
     fixed = without_effects(ms, meta["effects"], truth)
     su = setup(fixed if fixed is not None else ms)
-    model, _ = match_noise(su.model, su.prep, su.make)
+    model, _, _ = match_noise(su.model, su.prep, su.make)
     run = run_model(model, su.prep, su.make)
     return height_error(run.t, run.x[:, model.index("z")], truth, meta["suite"])
 

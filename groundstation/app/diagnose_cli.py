@@ -75,8 +75,8 @@ def add_triage_parser(sub) -> None:
 def cmd_triage(args) -> int:
     if not args.file.exists():
         raise OSError(f"{args.file}: cannot read: no such file")
-    log = load_log(args.file)
-    tr = triage(log.tables, log.measurements)
+    log = load_log(args.file, imu_columns=True)
+    tr = triage(log.tables, log.measurements, log.imu)
     if args.json:
         print(json.dumps({"source": str(args.file), "clock": tr.clock, "findings": tr.as_json()}, indent=2))
         return 0

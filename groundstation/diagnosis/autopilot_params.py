@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 
 from .engine import Diagnosis
@@ -193,21 +194,24 @@ NOTCH_PROMINENCE = 50.0
 NOTCH_MIN_HZ = 20.0  # below: the airframe's own motion, not the rotors
 
 
-def notch_from_imu(ms: list[Measurement]) -> tuple[float, float, float, str] | None:
+def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tuple[float, float, float, str] | None:
     """The IMU's vibration peak in flight, for a harmonic notch: (frequency [Hz], its prominence
     over the spectrum's median, the median throttle there, the sensor it stands out on), or None
     when the IMU is too slow to show rotor harmonics (below 200 Hz) or no peak stands out. Welch's
     PSD per axis, summed, of the gyro and of the accelerometer (a rotor harmonic shows on both,
-    more or less), over the samples with the throttle above idle."""
+    more or less), over the samples with the throttle above idle. ``imu``: the raw IMU as columns
+    (else read from ``ms``)."""
     from scipy.signal import welch  # SciPy's Welch estimate: the standard spectrum of a long record
 
+    if imu is None:
+        _, imu = ImuColumns.split(m for m in ms if m.kind in IMU_KINDS)
     thr = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE]
     best: tuple[float, float, float, str] | None = None
     for kind in (Kind.GYRO, Kind.ACCEL):
-        sensor = [m for m in ms if m.kind is kind and m.instance == 0]
-        if len(sensor) < 2048:
+        sensor = imu.get(kind, 0)
+        if sensor is None or len(sensor) < 2048:
             continue
-        t = np.array([m.t for m in sensor])
+        t = sensor.t
         rate = (len(t) - 1) / max(t[-1] - t[0], 1e-9)
         if rate < 200.0:
             continue
@@ -219,7 +223,7 @@ def notch_from_imu(ms: list[Measurement]) -> tuple[float, float, float, str] | N
             hover = float(np.median(u[flying])) if flying.any() else math.nan
         if flying.sum() < 2048:
             continue
-        x = np.array([m.value for m in sensor])[flying]
+        x = sensor.value[flying]
         f, pxx = welch(x - x.mean(axis=0), fs=rate, nperseg=1024, axis=0)
         psd = pxx.sum(axis=1)
         band = (f >= NOTCH_MIN_HZ) & (f <= 0.45 * rate)
@@ -232,11 +236,11 @@ def notch_from_imu(ms: list[Measurement]) -> tuple[float, float, float, str] | N
     return best
 
 
-def suggest_notch(ms: list[Measurement], autopilot: str = "") -> list[ParamSuggestion]:
+def suggest_notch(ms: list[Measurement], autopilot: str = "", imu: ImuColumns | None = None) -> list[ParamSuggestion]:
     """A throttle-referenced harmonic notch on the gyro's rotor peak (ArduPilot INS_HNTCH_*, mode 1:
     the frequency scales with the square root of the throttle from INS_HNTCH_REF; PX4's static
     notch IMU_GYRO_NF0_*), bandwidth half the frequency as ArduPilot's guide advises."""
-    peak = notch_from_imu(ms)
+    peak = notch_from_imu(ms, imu)
     if peak is None:
         return []
     freq, prominence, hover, sensor = peak

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
@@ -297,25 +298,31 @@ def diagnose(
     progress: Callable[[str], None] | None = None,
     veto_with_truth: bool = True,
     workers: int = 1,
+    imu: ImuColumns | None = None,
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the processes the
-    candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number)."""
-    su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle)
+    candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number).
+    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it."""
+    su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu)
     prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
-    say("matching the sensors' noise to the log")
-    model, noise = match_noise(model, prep, make)
-    model0 = model  # what the effects are added to
     cands = [c for c in catalogue(prep.kinds) if c.name not in names]
     if not prep.logged_throttle:
         cands = with_throttle_stand_in(cands)
     # every candidate's columns, which each run that may start a ranking is probed with (a linear
     # model's: a nonlinear one is run candidate by candidate)
     columns = CatalogueColumns.of(cands, model) if model.f is None and not BY_RUNS else None
+
+    def probes() -> Probes | None:
+        return columns.probes() if columns is not None else None
+
+    say("matching the sensors' noise to the log")
+    model, noise, matched = match_noise(model, prep, make, probes())
+    model0 = model  # what the effects are added to
     say("running the model (before)")
-    base = run_model(model, prep, make, probes=columns.probes() if columns is not None else None)
+    base = matched if matched is not None else run_model(model, prep, make, probes=probes())
     # before: the model as the log's noise has it, the GPS's slow error included; the effects are
     # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
     _, _, first = match_gps_slow(model, prep, make, base=base)
@@ -330,10 +337,6 @@ def diagnose(
     held: dict[int, holdout.Holdout] = {}
     discoveries: list[Discovery] = []
     tried: set[tuple[str, str]] = set()  # (sensor, expression) of the discoveries tried
-
-    def probes() -> Probes | None:
-        return columns.probes() if columns is not None else None
-
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
@@ -394,7 +397,7 @@ def diagnose(
         # it beats by 208 in Delta BIC)
         findings = sensor_findings(base)
         rival = (
-            _rival_discovery(base, model, prep, make, stream, findings, set(), workers=workers, probes=probes())
+            _rival_discovery(base, model, prep, make, stream, findings, set(), workers=workers)
             if not Diagnosis.passes(findings)
             else None
         )
@@ -406,19 +409,19 @@ def diagnose(
             say(f"added the discovered {d.expression} on the {d.sensor} ({found.evidence['delta_bic']:.0f})")
             tried.add((d.sensor, d.expression))
             discoveries.append(d)
-            added.append(found.evidence.pop("candidate"))
+            added.append(found.evidence["candidate"])
             labels.append("discovered")
-            model, base = found.evidence.pop("model"), found.evidence.pop("run")
+            model, base = _taken(found, prep, make, stream, probes())
             effects.append(found)
             if Diagnosis.passes(sensor_findings(base)):
                 break
             continue
         if best is None:
             break
-        if best.run.taped is None and columns is not None:
+        if best.run.through_gains:
             # scored through the base filter's gains: the effect's own run, which the next ranking starts from
             say(f"running the model with {_label(best)}")
-            realise(best, base, prep, make, columns.probes())
+            realise(best, base, prep, make, probes())
         runner_up = next(iter(scored[scored.index(best) + 1 :]), None)  # the next one down, not a rejected one
         effects.append(
             Effect(
@@ -464,8 +467,7 @@ def diagnose(
         say(f"added the discovered {d.expression} on the {d.sensor}")
         discoveries.append(d)
         effects.append(found)
-        found.evidence.pop("candidate")
-        model, base = found.evidence.pop("model"), found.evidence.pop("run")
+        model, base = _taken(found, prep, make, stream, None)
         findings1 = sensor_findings(base)
     say("giving the GPS the slow error the log shows")
     model, slow, base = match_gps_slow(model, prep, make, stream, base=base)
@@ -528,12 +530,10 @@ def _rival_discovery(
     rejected: list[Effect] | None = None,
     *,
     workers: int = 1,
-    probes: Probes | None = None,
 ) -> tuple[Discovery, Effect] | None:
     """The strongest discovery that holds (:func:`_add_discovery`) on a sensor whose residuals fail,
     with its effect; one tried before (same sensor and correlate) is not tried again. A failed one
-    goes to ``rejected`` when given. ``probes``: the claimed one's run is taped with them (it may
-    start a ranking)."""
+    goes to ``rejected`` when given."""
     best: tuple[Discovery, Effect] | None = None
     if model.f is not None:  # a nonlinear model is rebuilt from its options: no regressor to add
         return None
@@ -544,7 +544,7 @@ def _rival_discovery(
         if d is None or (sensor, d.expression) in tried:
             continue
         tried.add((sensor, d.expression))
-        found = _add_discovery(d, model, base, prep, make, stream, workers=workers, probes=probes)
+        found = _add_discovery(d, model, base, prep, make, stream, workers=workers)
         if "reason" in found.evidence:
             if rejected is not None:
                 rejected.append(found)
@@ -601,9 +601,7 @@ def settled_signal(d: Discovery, base: Run, model: LinearModel, nu_sd: float) ->
     return sig
 
 
-def _add_discovery(
-    d: Discovery, model, base: Run, prep, make, stream, *, workers: int = 1, probes: Probes | None = None
-) -> Effect:
+def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, workers: int = 1) -> Effect:
     """The discovered correlate added to the model as a regressor on its sensor, ``y = h(x) + k s(t)``
     (``s`` the signal as the run before it saw it), claimed on the catalogue's terms: strong evidence
     (Delta BIC), k at least 3 sigma from zero, and a gain on held-out blocks (:mod:`.holdout`). The
@@ -666,11 +664,19 @@ def _add_discovery(
         return Effect("discovered", params, {**evidence, "reason": f"Delta BIC {dbic:+.1f} is not strong evidence"})
     if not ho.holds:
         return Effect("discovered", params, {**evidence, "reason": ho.reason})
-    if run.taped is None and f is not None:
-        # the filter itself, claimed (taped: a ranking may start from it)
-        run = run_model(aug, prep, make, measurements=stream, taped=True, probes=probes)
-        params.update(state_param("k", "k_discovered")(run))
     return Effect("discovered", params, {**evidence, "model": aug, "run": run, "candidate": cand})
+
+
+def _taken(found: Effect, prep: Prepared, make, stream, probes: Probes | None) -> tuple[LinearModel, Run]:
+    """A claimed discovery's model and run, taken out of its evidence: the filter's own run where it
+    was scored through the base run's gains (taped, with ``probes``: a ranking may start from it),
+    its coefficient read from that run."""
+    model, run = found.evidence.pop("model"), found.evidence.pop("run")
+    found.evidence.pop("candidate", None)
+    if run.through_gains or (probes is not None and run.taped is None):
+        run = run_model(model, prep, make, measurements=stream, taped=True, probes=probes)
+        found.params.update(state_param("k", "k_discovered")(run))
+    return model, run
 
 
 def _detectable(scored: list[Scored], added: list[Candidate], rejected: list[Effect]) -> list[dict]:

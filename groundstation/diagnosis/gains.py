@@ -120,7 +120,7 @@ def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], 
         nu, S = ts.nu[idx], ts.S[idx]
         sensors[s] = SensorTrace(tr.t, nu[:, None], S[:, None, None], nu * nu / S, tr.z, tr.signals)
     ll_by, inflation, n = sensor_scores(sensors, t_score)
-    return Run(aug, sensors, base.t, x, P, sum(ll_by.values()), n, base.ctx, ll_by, inflation)
+    return Run(aug, sensors, base.t, x, P, sum(ll_by.values()), n, base.ctx, ll_by, inflation, through_gains=True)
 
 
 @dataclass

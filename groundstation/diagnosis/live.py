@@ -12,16 +12,16 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 
+from groundstation.core.imu import block_mean, starts_block
 from groundstation.core.measurement import Kind, Measurement
 
 from .engine import diagnose
 from .report import as_json, conclusion, format_params
-from .run import block_mean, starts_block
 
 
 class SessionBuffer:
     """The latest measurements, bounded by count, the IMU already averaged over ``imu_dt`` blocks
-    exactly as :func:`.run.prepare` averages a log's (:func:`.run.block_mean`), so a live
+    exactly as :func:`.run.prepare` averages a log's (:mod:`groundstation.core.imu`), so a live
     diagnosis sees the same input as one of the recorded session, at a fifth of the memory."""
 
     def __init__(self, maxlen: int = 300_000, imu_dt: float = 0.01) -> None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.altitude import altitude_model
@@ -62,7 +63,8 @@ class Base:
 class DiagnosisSpec:
     model: ModelSpec  #: the registry's entry
     help: str  #: what the model can find, for ``diagnose --help``
-    base: Callable[[list[Measurement], set, str | None], Base]  #: (measurements, declared names, vehicle)
+    #: (measurements, declared names, vehicle, the raw IMU as columns or None)
+    base: Callable[[list[Measurement], set, str | None, ImuColumns | None], Base]
     make: Callable[[LinearModel], KalmanEstimator]  #: the estimator the loop runs each candidate model in
     catalogue: Callable[[set[Kind]], list[Candidate]]  #: the candidates, given the log's kinds
     unobservable: dict[str, str]  #: effects it cannot show, and why
@@ -113,16 +115,18 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
     return model
 
 
-def _altitude(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
-    prep = prepare(ms)
+def _altitude(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
+    prep = prepare(ms, imu=imu)
     return Base(prep, altitude_base(prep, names, vehicle))
 
 
-def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
+def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
     window = main_flight(ms)
     if window is not None:
         ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
-    prep = prepare(interval_means(ms))  # the throttle between its records (outputs.py)
+        if imu is not None:
+            imu = imu.masked(lambda s: (s.t >= window[0]) & (s.t <= window[1] + 5.0))
+    prep = prepare(interval_means(ms), imu=imu)  # the throttle between its records (outputs.py)
     params = vehicle_config(vehicle, "quad_thrust")
     if "range_limits" in params:
         params["range_limits"] = tuple(params["range_limits"])
@@ -144,8 +148,8 @@ def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None) -> Base
     return Base(prep, thrust_model(range_tilt="range_tilt" in names, **params), airframe)
 
 
-def _attitude(ms: list[Measurement], names: set, vehicle: str | None) -> Base:
-    prep = prepare(ms)
+def _attitude(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
+    prep = prepare(ms, imu=imu)
     model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
     if {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
         prep = with_vertical_velocity(prep, names, vehicle)
@@ -219,6 +223,7 @@ def setup(
     model_name: str = "altitude",
     declared: Sequence[dict] = (),
     vehicle: str | None = None,
+    imu: ImuColumns | None = None,
 ) -> Setup:
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
     cannot feed it)."""
@@ -226,7 +231,7 @@ def setup(
     if spec is None:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use {', '.join(DIAGNOSABLE)})")
     names = {e.get("name") for e in declared}
-    base = spec.base(ms, names, vehicle)
+    base = spec.base(ms, names, vehicle, imu)
     prep = base.prep
     has = bool(spec.needs & prep.kinds) if spec.needs_any else spec.needs <= prep.kinds
     if not has:

@@ -34,6 +34,7 @@ import numpy as np
 from groundstation.estimation.models.base import LinearModel
 
 from .run import SETTLE_S, Prepared, Run, run_model
+from .signature import Probes
 
 #: scalar sensors whose R is matched (the pseudo-sensor and vector sensors keep theirs)
 MATCHED = ("range", "baro", "gps")
@@ -156,14 +157,20 @@ def match_gps_slow(
     return (model if math.isclose(best, now) else with_gps_slow(model, best)), level, runs[best]
 
 
-def match_noise(model: LinearModel, prep: Prepared, make) -> tuple[LinearModel, list[NoiseLevel]]:
-    """The model with each matched sensor's R from the data, and the levels found."""
+def match_noise(
+    model: LinearModel, prep: Prepared, make, probes: Probes | None = None
+) -> tuple[LinearModel, list[NoiseLevel], Run | None]:
+    """The model with each matched sensor's R from the data, the levels found, and the model's run
+    when the last iteration changed nothing (that run is the model's own; else None). ``probes``:
+    the runs are taped with them, so that run can start a ranking."""
     original = {s: r for s in MATCHED if (r := sensor_r(model, s)) is not None}
     if not original:
-        return model, []
+        return model, [], None
     pairs: dict[str, int] = {}
+    last: Run | None = None
     for _ in range(ITERATIONS):
-        run = run_model(model, prep, make)
+        run = run_model(model, prep, make, probes=probes.fresh() if probes is not None else None)
+        last = run
         changed = False
         for s in original:
             R = sensor_r(model, s)
@@ -179,9 +186,10 @@ def match_noise(model: LinearModel, prep: Prepared, make) -> tuple[LinearModel, 
                 model, changed = with_r(model, s, r_new), True
         if not changed:
             break
+        last = None  # the model moved on from the run
     levels = [
         NoiseLevel(s, math.sqrt(sensor_r(model, s) or 0.0), math.sqrt(original[s]), pairs[s])
         for s in original
         if s in pairs
     ]
-    return model, levels
+    return model, levels, last

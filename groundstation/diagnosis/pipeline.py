@@ -18,7 +18,7 @@ from . import report
 from .autopilot_params import suggest, suggest_notch, write_param_file
 from .engine import diagnose, truth_from
 from .report import triage_headline
-from .triage import Triage, triage, usable
+from .triage import Triage, triage, usable, usable_imu
 
 #: the least of a log the fit is run on, after the triage's cuts [s]
 MIN_FIT_SECONDS = 10.0
@@ -51,13 +51,14 @@ def run(
 ) -> LogDiagnosis:
     """Diagnose ``path`` into the folder ``out`` (which must be writable). Raises the readers' and
     the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed."""
-    log = load_log(path)
+    log = load_log(path, imu_columns=True)
     ms_all = log.measurements
     duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
     say(f"diagnosing {path}: {log.description}")
-    tr = triage(log.tables, ms_all)
+    tr = triage(log.tables, ms_all, log.imu)
     say(tr.summary())
     ms, used, cut = usable(ms_all, tr)
+    imu = usable_imu(log.imu, tr) if log.imu is not None else None
     if cut:
         spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
         say(f"fitting the model to {spans}: {len(cut)} stretch(es) cut (report.json: segments_cut)")
@@ -79,10 +80,13 @@ def run(
         progress=progress,
         veto_with_truth=veto_with_truth,
         workers=workers,
+        imu=imu,
     )
     suggestions = []
     if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
-        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(ms, log.tables.autopilot)
+        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(
+            ms, log.tables.autopilot, imu
+        )
     j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
     files = []
     for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from groundstation.core.imu import IMU_KINDS, ImuColumns, block_means
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.validity import reading_problem
 from groundstation.estimation.context import Context
@@ -79,55 +80,27 @@ def in_time_order(m: Measurement) -> tuple[float, int]:
     return m.t, m.kind not in CONTEXT_KINDS
 
 
-def block_mean(first: Measurement, t_last: float, values: list) -> Measurement:
-    """The mean of an IMU block, stamped where it starts to act. An IMU sample stands for the
-    interval that ends at its stamp (an integrating IMU's delta-velocity; the simulator's specific
-    force over its last step), so held from one sample period before the first stamp, the mean
-    acts over the very interval it averages. (Stamped at the first sample, the range readings
-    of simulated flights looked 2-3 ms early against the height.) It carries its sample count: a
-    model whose R is one sample's variance (``MeasurementModel.per_sample``) divides it by that."""
-    period = (t_last - first.t) / (len(values) - 1) if len(values) > 1 else 0.0
-    return first._replace(t=first.t - period, value=np.mean(values, axis=0), samples=len(values))
-
-
-def starts_block(t_first: float, t: float, block_dt: float) -> bool:
-    """Whether an IMU sample at ``t`` starts a new block after the one opened at ``t_first``. With a
-    microsecond's slack: from a log's microsecond stamps, a 500 Hz sample 10 ms after a block's
-    first can read 0.00999999 s after it; without the slack such blocks take a sixth sample (12 ms)
-    and move the grid (1301 of 1740 blocks on a 20 s simulated flight)."""
-    return t - t_first >= block_dt - 1e-6
-
-
-def prepare(ms: list[Measurement], input_dt: float = 0.01) -> Prepared:
+def prepare(ms: list[Measurement], input_dt: float = 0.01, imu: ImuColumns | None = None) -> Prepared:
+    """``ms`` made ready for repeated runs: sorted, truth set aside, the IMU's readings (in ``ms``, or
+    given as columns in ``imu``) averaged over ``input_dt`` blocks (:func:`.core.imu.block_means`),
+    the ones no estimator takes counted and left out. Only the first IMU's blocks are kept: every
+    model reads instance 0."""
     truth = [m for m in ms if m.kind is Kind.TRUTH_POSE]
-    rest = sorted((m for m in ms if m.kind is not Kind.TRUTH_POSE), key=in_time_order)
-    out: list[Measurement] = []
-    #: the IMU's kinds, block-averaged (the gyro is the attitude model's input)
-    blocks: dict[Kind, list] = {Kind.ACCEL: [], Kind.GYRO: []}
-    first: dict[Kind, Measurement] = {}
-    last: dict[Kind, float] = {}
+    rest = [m for m in ms if m.kind is not Kind.TRUTH_POSE]
+    if any(m.kind in IMU_KINDS for m in rest):
+        rest, more = ImuColumns.split(rest)
+        imu = more if imu is None else ImuColumns({**imu.series, **more.series})
+    rest.sort(key=in_time_order)
+    out: list[Measurement] = list(rest)
     vib: list[tuple[float, float]] = []  # (t, spread of |f| within the block)
-
-    def close_block(kind):
-        block = blocks[kind]
-        out.append(block_mean(first[kind], last[kind], block))
-        if kind is Kind.ACCEL and len(block) > 2:
-            vib.append((first[kind].t, float(np.std(np.linalg.norm(block, axis=1)))))
-        blocks[kind] = []
-
-    for m in rest:
-        if m.kind in blocks and m.instance == 0:
-            if blocks[m.kind] and starts_block(first[m.kind].t, m.t, input_dt):
-                close_block(m.kind)
-            if not blocks[m.kind]:
-                first[m.kind] = m
-            blocks[m.kind].append(m.value)
-            last[m.kind] = m.t
+    for kind in IMU_KINDS:
+        s = imu.get(kind, 0) if imu is not None else None
+        if s is None:
             continue
-        out.append(m)
-    for kind in blocks:
-        if blocks[kind]:
-            close_block(kind)
+        b = block_means(s, kind, 0, input_dt)
+        out += b.records
+        if kind is Kind.ACCEL:
+            vib = list(zip(b.spread_t.tolist(), b.spread.tolist()))
     logged_throttle = any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest)
     if not logged_throttle:
         out += motors_from_vibration(vib) or airborne_from_range(rest)
@@ -249,6 +222,8 @@ class Run:
     inflation: dict[str, float] = field(default_factory=dict)  # n / n_eff of each sensor's innovations
     #: with ``taped``: the run's gains and innovations record by record (signature.py)
     taped: Taped | None = None
+    #: the two-stage filter's account of an augmented model's run (gains.virtual_run), not a run of it
+    through_gains: bool = False
 
     def final(self, state: str) -> tuple[float, float]:
         i = self.model.index(state)

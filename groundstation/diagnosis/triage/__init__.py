@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.logs.tables import LogTables
+from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 
 from .config import check_config
@@ -60,8 +61,12 @@ class Triage:
         return "\n".join([head] + (lines or [empty]))
 
 
-def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
+def triage(tables: LogTables, ms: list[Measurement], imu: ImuColumns | None = None) -> Triage:
+    """The log's findings, worst first; ``imu``: its raw IMU as columns (else read from ``ms``)."""
     start = time.monotonic()
+    counted = len(imu) if imu is not None else 0  # (in ``ms`` they are counted with it)
+    if imu is None:
+        _, imu = ImuColumns.split(m for m in ms if m.kind in IMU_KINDS)
     t0, t1 = tables.span
     if ms and tables.clock == "vehicle":
         t0, t1 = min(t0, ms[0].t) if tables.tables else ms[0].t, max(t1, ms[-1].t) if tables.tables else ms[-1].t
@@ -72,16 +77,15 @@ def triage(tables: LogTables, ms: list[Measurement]) -> Triage:
     found += check_gaps(tables)
     found += check_battery(tables, t1)
     found += check_gps(tables)
-    imu = [m for m in ms if m.kind in (Kind.ACCEL, Kind.GYRO)]
     if tables.clock == "recording":  # the raw IMU on the tables' clock: its receive times
-        imu = [m._replace(t=m.t_rx - tables.origin) for m in imu]
+        imu = imu.on_receive_clock(tables.origin)
     found += check_vibration(tables, imu)
     found += check_imu_mismatch(tables, imu)
     found += check_motors(tables, until=crashed)
     found += check_ekf(tables)
     found += check_config(tables, t0)
     found.sort(key=lambda f: f.rank)
-    records = len(ms) + sum(len(tb) for tb in tables.tables.values())
+    records = len(ms) + counted + sum(len(tb) for tb in tables.tables.values())
     return Triage(found, tables.clock, (t0, t1), time.monotonic() - start, tables.origin, records)
 
 
@@ -89,23 +93,32 @@ def _time_of(m: Measurement, tr: Triage) -> float:
     return m.t_rx - tr.origin if tr.clock == "recording" else m.t
 
 
-def usable(ms: list[Measurement], tr: Triage) -> tuple[list[Measurement], list[tuple[float, float]], list[dict]]:
-    """The measurements outside every stretch the triage cuts, the stretches used [(t0, t1)], and
-    what was cut and why ([{name, t_start, t_end, why}]), all on the triage's clock."""
+def _merged_cuts(tr: Triage) -> tuple[list, list[list[float]]]:
+    """The stretches the triage cuts, sorted, and merged where they overlap."""
     cuts = sorted(((f.t_start, f.t_end, f) for f in tr.cut), key=lambda c: (c[0], c[1]))
-    merged: list[list] = []
+    merged: list[list[float]] = []
     for a, b, _ in cuts:
         if merged and a <= merged[-1][1]:
             merged[-1][1] = max(merged[-1][1], b)
         else:
             merged.append([a, b])
-    if not merged or not ms:
-        return ms, [tr.span] if ms else [], []
+    return cuts, merged
+
+
+def _inside(t: np.ndarray, merged: list[list[float]]) -> np.ndarray:
     starts = np.array([a for a, _ in merged])
     ends = np.array([b for _, b in merged])
-    t = np.array([_time_of(m, tr) for m in ms])
     k = np.searchsorted(starts, t, side="right") - 1
-    inside = (k >= 0) & (t <= ends[np.clip(k, 0, None)])
+    return (k >= 0) & (t <= ends[np.clip(k, 0, None)])
+
+
+def usable(ms: list[Measurement], tr: Triage) -> tuple[list[Measurement], list[tuple[float, float]], list[dict]]:
+    """The measurements outside every stretch the triage cuts, the stretches used [(t0, t1)], and
+    what was cut and why ([{name, t_start, t_end, why}]), all on the triage's clock."""
+    cuts, merged = _merged_cuts(tr)
+    if not merged or not ms:
+        return ms, [tr.span] if ms else [], []
+    inside = _inside(np.array([_time_of(m, tr) for m in ms]), merged)
     kept = [m for m, cut in zip(ms, inside) if not cut]
     used, lo = [], tr.span[0]
     for a, b in merged:
@@ -118,4 +131,12 @@ def usable(ms: list[Measurement], tr: Triage) -> tuple[list[Measurement], list[t
     return kept, [(round(a, 3), round(b, 3)) for a, b in used], why
 
 
-__all__ = ["SEVERITIES", "Triage", "TriageFinding", "triage", "usable"]
+def usable_imu(imu: ImuColumns, tr: Triage) -> ImuColumns:
+    """The raw IMU outside every stretch the triage cuts (:func:`usable`'s, for the columns)."""
+    _, merged = _merged_cuts(tr)
+    if not merged:
+        return imu
+    return imu.masked(lambda s: ~_inside(s.t_rx - tr.origin if tr.clock == "recording" else s.t, merged))
+
+
+__all__ = ["SEVERITIES", "Triage", "TriageFinding", "triage", "usable", "usable_imu"]

@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 
 from drivers.logs.tables import LogTables
-from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.imu import ImuColumns, ImuSeries
+from groundstation.core.measurement import Kind
 
 from .finding import DOCS, PX4_DOCS, TriageFinding, runs
 
@@ -56,7 +57,7 @@ def _vibe_tables(tables: LogTables):
         yield tb.t, lvl, clip, name
 
 
-def check_vibration(tables: LogTables, ms: list[Measurement]) -> list[TriageFinding]:
+def check_vibration(tables: LogTables, imu: ImuColumns) -> list[TriageFinding]:
     docs = PX4_DOCS if tables.autopilot == "px4" else DOCS
     out: list[TriageFinding] = []
     found = False
@@ -66,7 +67,7 @@ def check_vibration(tables: LogTables, ms: list[Measurement]) -> list[TriageFind
         if clip is not None:
             out += _clipping(t, clip, src, docs)
     if not found:
-        out += _raw(ms, docs)
+        out += _raw(imu.get(Kind.ACCEL, 0), docs)
     return out
 
 
@@ -116,12 +117,11 @@ def _clipping(t: np.ndarray, clip: np.ndarray, src: str, docs: dict) -> list[Tri
     ]
 
 
-def _raw(ms: list[Measurement], docs: dict) -> list[TriageFinding]:
-    acc = [m for m in ms if m.kind is Kind.ACCEL and m.instance == 0]
-    if len(acc) < 100:
+def _raw(acc: ImuSeries | None, docs: dict) -> list[TriageFinding]:
+    if acc is None or len(acc) < 100:
         return []
-    t = np.array([m.t for m in acc])
-    a = np.array([m.value for m in acc])
+    t = acc.t
+    a = acc.value
     rate = (len(t) - 1) / max(t[-1] - t[0], 1e-9)
     if rate < 4 * RAW_VIBE_HIGHPASS_HZ:
         return []
@@ -161,12 +161,9 @@ def _raw(ms: list[Measurement], docs: dict) -> list[TriageFinding]:
     return out
 
 
-def check_imu_mismatch(tables: LogTables, ms: list[Measurement]) -> list[TriageFinding]:
+def check_imu_mismatch(tables: LogTables, imu: ImuColumns) -> list[TriageFinding]:
     """Two IMUs that disagree: 1 s means compared (vibration and timing jitter average out)."""
-    by: dict[tuple[Kind, int], list[Measurement]] = {}
-    for m in ms:
-        if m.kind in (Kind.ACCEL, Kind.GYRO):
-            by.setdefault((m.kind, m.instance), []).append(m)
+    by = imu.series
     out = []
     for kind, limit, unit, scale in (
         (Kind.ACCEL, ACCEL_MISMATCH, "m/s^2", 1.0),
@@ -176,8 +173,10 @@ def check_imu_mismatch(tables: LogTables, ms: list[Measurement]) -> list[TriageF
         if len(insts) < 2:
             continue
         a, b = by[(kind, insts[0])], by[(kind, insts[1])]
-        ta, va = np.array([m.t for m in a]), np.array([m.value for m in a])
-        tb, vb = np.array([m.t for m in b]), np.array([m.value for m in b])
+        if not len(a) or not len(b):
+            continue
+        ta, va = a.t, a.value
+        tb, vb = b.t, b.value
         lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
         if hi - lo < 2.0:
             continue
