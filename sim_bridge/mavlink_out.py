@@ -302,7 +302,7 @@ class MavlinkEncoder:
                 onboard_control_sensors_health=bits | mavlink.MAV_SYS_STATUS_GEOFENCE,
                 voltage_battery=int(round(v * 1000)),
                 current_battery=int(round(i * 100)),
-                battery_remaining=int(round(soc * 100)),
+                battery_remaining=percent(soc),
             )
         ]
 
@@ -317,5 +317,10 @@ class MavlinkEncoder:
             current_battery=int(round(i * 100)),
             current_consumed=-1,
             energy_consumed=-1,
-            battery_remaining=int(round(soc * 100)),
+            battery_remaining=percent(soc),
         )
+
+
+def percent(soc: float) -> int:
+    """A state of charge as MAVLink's battery_remaining: a whole percent, 0 to 100."""
+    return min(100, max(0, int(round(soc * 100))))

@@ -97,6 +97,25 @@ def test_quad_battery_sags_with_current():
     assert v.voltage == pytest.approx(v0 - v.p.r_int * (v.p.i_idle + v.p.i_max * 0.25) + 0.0, abs=0.01)
 
 
+def test_a_drained_pack_stays_empty_and_is_sent_as_zero_percent():
+    """Flown past its capacity (a one-hour flight on a 2.2 Ah pack), the state of charge stops at 0
+    and SYS_STATUS says 0 %: negative, it overflowed MAVLink's int8 and the simulator stopped."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+    from sim_bridge.mavlink_out import MavlinkEncoder
+    from sim_bridge.simulator import Sample
+
+    v = Quad(QuadParams(capacity_ah=1e-4))
+    for _ in range(2000):
+        v.step(1e-3, QuadCommand(throttle=0.6))
+    assert v.soc == 0.0 and v.voltage > 0.0
+    enc = MavlinkEncoder("quad")
+    frames = enc.encode(Sample(2.0, "battery", (v.voltage, v.current, v.soc)))
+    frames.append(enc.battery_status(v.voltage, v.current, v.soc))
+    msgs = mavlink.MAVLink(None).parse_buffer(b"".join(frames))
+    assert msgs and [m.battery_remaining for m in msgs] == [0, 0]
+
+
 def test_3dof_holds_elevation_at_V_s0():
     p = Heli3dofParams()
     assert p.V_s0 == pytest.approx(8.0, abs=0.01)

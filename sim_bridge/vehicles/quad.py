@@ -167,7 +167,7 @@ class Quad(Vehicle):
         self.w = (dphi - st * dpsi, ct * sf * dpsi + cf * dtheta, cf * ct * dpsi - sf * dtheta)
         # battery
         self.current = p.i_idle + p.i_max * tau * tau
-        self.soc -= self.current * dt / (3600.0 * p.capacity_ah)
+        self.soc = max(0.0, self.soc - self.current * dt / (3600.0 * p.capacity_ah))  # an empty pack stays empty
         self.voltage = self.open_circuit_voltage() - p.r_int * self.current
         # thrust (document eq. 2) along the body's -z axis: third column of A_IB (eq. 3.10)
         a_t = max(0.0, p.alpha * tau + p.beta) * self.thrust_factor
