@@ -3,9 +3,9 @@
 An IMU at 1 kHz is nine tenths of a log's readings. As :class:`~.measurement.Measurement` records
 (a tuple and an array each) a 10-minute flight's 1.2 million of them took about 600 MB and most
 of the time it took to read, triage and prepare the log; the estimators of a diagnosis take them
-averaged over 10 ms blocks anyway. :class:`ImuColumns` keeps them as float64 arrays (24 bytes a
-sample and its time, not some 500) for whatever reads the raw samples (the triage's vibration and clipping, the notch's spectrum) and for
-the block means (:func:`block_means`).
+averaged over 10 ms blocks anyway. :class:`ImuColumns` keeps them as float64 arrays (some 50 bytes
+a sample with its times, not 500) for whatever reads the raw samples (the triage's vibration and
+clipping, the notch's spectrum) and for the block means (:func:`block_means`).
 """
 
 from __future__ import annotations
@@ -190,7 +190,8 @@ def block_mean(first: Measurement, t_last: float, values: list) -> Measurement:
 
 def starts_block(t_first: float, t: float, block_dt: float) -> bool:
     """Whether an IMU sample at ``t`` starts a new block after the one opened at ``t_first``
-    (:func:`block_starts`, for a stream). With a microsecond's slack: from a log's microsecond stamps, a 500 Hz sample 10 ms after a block's
-    first can read 0.00999999 s after it; without the slack such blocks take a sixth sample (12 ms)
-    and move the grid (1301 of 1740 blocks on a 20 s simulated flight)."""
+    (:func:`block_starts`, for a stream). With a microsecond's slack: from a log's microsecond
+    stamps, a 500 Hz sample 10 ms after a block's first can read 0.00999999 s after it; without the
+    slack such blocks take a sixth sample (12 ms) and move the grid (1301 of 1740 blocks on a 20 s
+    simulated flight)."""
     return t - t_first >= block_dt - 1e-6

@@ -22,7 +22,7 @@ import numpy as np
 
 from drivers.logs.tables import LogTables
 from groundstation.core.imu import IMU_KINDS, ImuColumns
-from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.measurement import Measurement
 
 from .config import check_config
 from .ekf import check_ekf
