@@ -1,27 +1,28 @@
-"""``diagnose`` with the trials that cannot change a finding left out, on one core and on every core,
-against every trial on one, on the same logs in the same run: time, the ratios, the multiple of
-real time, and whether the findings are the same.
+"""``diagnose`` through the base filter's gains against a filter run per candidate, on the same logs in
+the same run: time, peak memory, the ratio, the multiple of real time, and whether the findings
+are the same.
 
-    python bench/diagnosis_speed.py [--jobs N] [--only NAME ...]
+    python bench/diagnosis_speed.py [--jobs N] [--only NAME ...] [--minutes 10]
     python bench/diagnosis.py --speed
 
-The baseline is ``diagnose --jobs 1`` with every grid value and every refinement run
-(GROUNDSTATION_EXHAUSTIVE_GRID=1: the trials as made before ``trials.scan_grid`` and the
-parabola's gate left out the runs that cannot change a finding), one after another, as the
-diagnosis ran before it spread them over the cores (``groundstation/diagnosis/trials.py``). Then
-the same with the scan and the gate, on one core and on every core. Each run is the command line
-in a fresh process, as a user runs it (the reading of the log included). The findings compared:
-the effects added with their parameters, the rejected ones with their reasons, and each
-iteration's claims (the candidates of its ranking at Delta BIC < -10, with it) in report.json.
-Logs: a 60 s simulated quadcopter flight with a late range sensor and rotor wash on the baro
-(written here), a foreign flight (``../shared/data/foreign``), a Crazyflie log and a 23-minute
-ArduPilot tlog (``../shared/data/real``); one that is not there is listed as skipped.
+The baseline is ``diagnose --jobs 1`` with GROUNDSTATION_TRACE=runs: every candidate scored by
+filter runs of its own, every value of a delay's grid and every refinement run, one after another
+(``groundstation/diagnosis/trials.py``), as the diagnosis ran before the two-stage filter
+(``groundstation/diagnosis/signature.py``). Then the default path on one core and on every core.
+Each run is the command line in a fresh process, as a user runs it (reading the log included),
+its peak memory that process's. The findings compared (:func:`same_findings`): the effects added,
+in order, with their parameters (within 5 % or half a standard error), and the candidates turned
+away. Logs: a 60 s simulated quadcopter flight with a late range sensor and rotor wash on the
+baro, and a 10-minute one with a 1 kHz IMU, baro, range and GPS (both written here); a foreign
+flight (``../shared/data/foreign``), a Crazyflie log and a 23-minute ArduPilot tlog
+(``../shared/data/real``); one that is not there is listed as skipped.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -36,56 +37,97 @@ from groundstation.diagnosis.trials import available_cores  # noqa: E402
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA") or ROOT.parent / "shared" / "data")
 
-#: (name, the log: None for the simulated flight written here)
-LOGS = [
-    ("sim quad 60 s", None),
+#: (name, the log: a str names one written here)
+LOGS: list[tuple[str, Path | str]] = [
+    ("sim quad 60 s", "sim60"),
+    ("sim quad 10 min, 1 kHz IMU", "sim600"),
     ("foreign baro_thermal_s1", DATA / "foreign" / "baro_thermal_s1.tlog"),
     ("crazyflie 0425-traj4", DATA / "real" / "crazyflie_util" / "0425-traj4"),
     ("dronekit tlog 23 min", DATA / "real" / "mavlink_tlog" / "dronekit_flight_replay_flight.tlog"),
 ]
 
 
-def simulated(folder: Path) -> Path:
+def simulated(folder: Path, which: str, minutes: float) -> Path:
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
 
-    log = folder / "sim.tlog"
-    sc = Scenario.from_args(
-        "quad", 7, 60.0, ["range_tilt"], ["sensor_delay:sensor=range,seconds=0.06", "baro_thrust:k=2.5"]
-    )
+    log = folder / f"{which}.tlog"
+    if which == "sim60":
+        sc = Scenario.from_args(
+            "quad", 7, 60.0, ["range_tilt"], ["sensor_delay:sensor=range,seconds=0.06", "baro_thrust:k=2.5"]
+        )
+    else:
+        spec = folder / "long.json"
+        spec.write_text(
+            json.dumps(
+                {
+                    "vehicle": "quad",
+                    "seed": 3,
+                    "duration": minutes * 60.0,
+                    "sensors": {"rates": {"imu": 1000, "baro": 50, "range": 20}},
+                }
+            )
+        )
+        sc = Scenario.load(spec)
     run_fast(sc, log, log.with_suffix(".csv"))
     return log
 
 
-def diagnose(log: Path, out: Path, jobs: int, exhaustive: bool = False) -> tuple[float, dict]:
-    env = {**os.environ, "GROUNDSTATION_EXHAUSTIVE_GRID": "1" if exhaustive else "0"}
+#: runs the command line and reports its peak resident memory (this wrapper's only child)
+_MEASURED = (
+    "import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(r.returncode)"
+)
+
+
+def diagnose(log: Path, out: Path, jobs: int, by_runs: bool = False) -> tuple[float, float, dict]:
+    """(wall seconds, peak memory [MB], report.json) of ``diagnose`` in a fresh process."""
+    env = {**os.environ, "GROUNDSTATION_TRACE": "runs" if by_runs else "gains"}
+    cmd = [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out), "--jobs", str(jobs)]
     t0 = time.perf_counter()
-    r = subprocess.run(
-        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out", str(out), "--jobs", str(jobs)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env=env,
-    )
+    r = subprocess.run([sys.executable, "-c", _MEASURED, *cmd], capture_output=True, text=True, cwd=ROOT, env=env)
     wall = time.perf_counter() - t0
     if r.returncode != 0:
-        raise RuntimeError(f"{log}: diagnose failed: {r.stderr.strip().splitlines()[-1:]}")
-    return wall, json.loads((out / "report.json").read_text())
+        raise RuntimeError(f"{log}: diagnose failed: {r.stderr.strip().splitlines()[-2:]}")
+    peak_mb = float(r.stderr.strip().splitlines()[-1]) / 1024.0
+    return wall, peak_mb, json.loads((out / "report.json").read_text())
 
 
-def findings(j: dict) -> tuple:
-    """What a diagnosis concluded, without the report's own timings."""
-    return (
-        [(e["name"], e["params"]) for e in j.get("effects", [])],
-        [(e["name"], e.get("evidence", {}).get("reason")) for e in j.get("rejected", [])],
-        [[(label, dbic) for label, dbic in r if dbic < -10.0] for r in j.get("ranking") or []],
-    )
+def _close(a, b, sigma) -> bool:
+    if isinstance(a, str) or isinstance(b, str):
+        return a == b
+    if not (isinstance(a, (int, float)) and isinstance(b, (int, float))):
+        return a == b
+    tol = max(0.05 * max(abs(a), abs(b)), 0.5 * sigma if sigma and math.isfinite(sigma) else 0.0, 1e-4)
+    return abs(a - b) <= tol
+
+
+def same_findings(a: dict, b: dict) -> tuple[bool, str]:
+    """Whether two report.json say the same: the effects added in the same order with the same
+    parameters (each within 5 % or half its standard error), and the same candidates turned away.
+    The second item says what differs."""
+    ea, eb = a.get("effects", []), b.get("effects", [])
+    if [e["name"] for e in ea] != [e["name"] for e in eb]:
+        return False, f"effects {[e['name'] for e in ea]} vs {[e['name'] for e in eb]}"
+    for x, y in zip(ea, eb):
+        for k, v in x["params"].items():
+            if k.startswith("sigma_") or k not in y["params"]:
+                continue
+            sigma = x["params"].get(f"sigma_{k}")
+            if not _close(v, y["params"][k], sigma):
+                return False, f"{x['name']} {k}: {v} vs {y['params'][k]}"
+    ra = sorted(e["name"] for e in a.get("rejected", []))
+    rb = sorted(e["name"] for e in b.get("rejected", []))
+    if ra != rb:
+        return False, f"rejected {ra} vs {rb}"
+    return True, "same"
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--jobs", type=int, default=available_cores(), help="the processes of the new path")
     ap.add_argument("--only", nargs="*", help="these logs only (names as printed)")
+    ap.add_argument("--minutes", type=float, default=10.0, help="the long simulated flight's length")
     args = ap.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as d:
@@ -93,27 +135,33 @@ def main() -> int:
         for name, path in LOGS:
             if args.only and name not in args.only:
                 continue
-            log = simulated(folder) if path is None else path
+            log = simulated(folder, path, args.minutes) if isinstance(path, str) else path
             if not log.exists():
                 rows.append(f"| {name} | skipped: {log} is not there | | | | | | |")
                 continue
-            t0, j0 = diagnose(log, folder / f"{len(rows)}-0", 1, exhaustive=True)
-            t1, j1 = diagnose(log, folder / f"{len(rows)}-1", 1)
-            tn, jn = diagnose(log, folder / f"{len(rows)}-n", args.jobs)
+            size = sum(p.stat().st_size for p in ([log] if log.is_file() else log.rglob("*") if log.is_dir() else []))
+            t0, m0, j0 = diagnose(log, folder / f"{len(rows)}-0", 1, by_runs=True)
+            t1, m1, j1 = diagnose(log, folder / f"{len(rows)}-1", 1)
+            tn, mn, jn = diagnose(log, folder / f"{len(rows)}-n", args.jobs)
             seconds = sum(s["t_end"] - s["t_start"] for s in j1.get("segments_used") or [])  # what was fitted
-            same = "same" if findings(j0) == findings(j1) == findings(jn) else "**differ**"
+            same1, why1 = same_findings(j0, j1)
+            samen, whyn = same_findings(j0, jn)
+            verdict = "same" if same1 and samen else f"**differ**: {why1 if not same1 else whyn}"
             old, one, new = (f"{t:.1f} ({seconds / t:.1f}x)" for t in (t0, t1, tn))
-            rows.append(f"| {name} | {seconds:.0f} | {old} | {one} | {new} | {t0 / t1:.2f} | {t0 / tn:.2f} | {same} |")
+            rows.append(
+                f"| {name} | {seconds:.0f} | {size / 1e6:.1f} | {old} | {one} | {new} | {t0 / t1:.1f} | "
+                f"{t0 / tn:.1f} | {m0:.0f} / {mn:.0f} | {verdict} |"
+            )
             print(rows[-1], flush=True)
     print(
-        f"\ndiagnose with the scan and the gate, on 1 and {args.jobs} processes, against every grid run on one"
+        f"\ndiagnose through the gains on 1 and {args.jobs} processes, against a run per candidate on one"
         f" (the baseline), on {available_cores()} cores"
     )
     print(
-        "| log | fitted [s] | baseline [s] (x real time) | --jobs 1 [s] | "
-        f"--jobs {args.jobs} [s] | ratio, 1 | ratio, {args.jobs} | findings |"
+        "| log | fitted [s] | log [MB] | baseline [s] (x real time) | --jobs 1 [s] | "
+        f"--jobs {args.jobs} [s] | ratio, 1 | ratio, {args.jobs} | peak memory, baseline / new [MB] | findings |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
 

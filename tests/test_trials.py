@@ -83,7 +83,7 @@ def test_the_grids_scan_and_gate_rank_the_catalogue_as_every_grid_run_does(fligh
     runs = {}
     ranked = {}
     for exhaustive in (True, False):
-        monkeypatch.setattr(trials, "EXHAUSTIVE", exhaustive)
+        monkeypatch.setattr(trials, "BY_RUNS", exhaustive)
         counted["runs"] = 0
         ranked[exhaustive] = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements)
         runs[exhaustive] = counted["runs"]

@@ -26,7 +26,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 
-from . import holdout
+from . import holdout, trials
 from .catalogue import Candidate, state_param, unobservable_in, with_regressor, with_throttle_stand_in
 from .detect import Finding, detect
 from .discover import Discovery, discover, library
@@ -35,7 +35,7 @@ from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
 from .run import SETTLE_S, Prepared, Run, run_model
 from .signature import Column, Probes
-from .trace import BY_RUNS, STRONG, Scored, rank, realise, smallest_claimed, with_shape
+from .trace import STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
 
 #: a discovered correlate is added in the catalogue's place when the log prefers it by this much more
@@ -258,7 +258,7 @@ def joint_shapes(
             return m
 
         s0 = float(e.params[c.shape_name])
-        if c.columns is not None and not BY_RUNS:
+        if c.columns is not None and not trials.BY_RUNS:
             # the others as they are, the shape profiled through their run's gains (gains.profile_shape)
             shape = profile_shape(c, build(None), prep, make, stream)
             if shape is None or abs(math.log(shape / s0)) < SAME_SHAPE:
@@ -313,7 +313,7 @@ def diagnose(
         cands = with_throttle_stand_in(cands)
     # every candidate's columns, which each run that may start a ranking is probed with (a linear
     # model's: a nonlinear one is run candidate by candidate)
-    columns = CatalogueColumns.of(cands, model) if model.f is None and not BY_RUNS else None
+    columns = CatalogueColumns.of(cands, model) if model.f is None and not trials.BY_RUNS else None
 
     def probes() -> Probes | None:
         return columns.probes() if columns is not None else None
@@ -609,7 +609,7 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
     by the caller); a discovery that fails comes back as a rejected effect with the reason."""
     t_sig = np.asarray(d.keep_t)
     nu_sd = float(np.std(base.sensors[d.sensor].nu[:, 0])) or 1.0
-    sig = np.asarray(d.signal) if BY_RUNS else settled_signal(d, base, model, nu_sd)
+    sig = np.asarray(d.signal) if trials.BY_RUNS else settled_signal(d, base, model, nu_sd)
     spread = float(np.std(sig)) or 1.0
 
     def regressor(ctx, t_sig=t_sig, sig=sig):
@@ -625,7 +625,7 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
     # through the base run's gains where the two-stage filter applies (the regressor is a function of
     # time alone, so it is exact there): the effect's own run only once it is claimed
     column = discovered_column(d.sensor, t_sig, sig, nu_sd)
-    sig_d = None if BY_RUNS else run_signatures(base, model.n, [column])
+    sig_d = None if trials.BY_RUNS else run_signatures(base, model.n, [column])
     f = fit(sig_d, [column]) if sig_d is not None else None
     try:
         if f is not None:

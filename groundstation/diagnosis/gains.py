@@ -105,9 +105,22 @@ def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], 
     rows = base.taped.x_record
     D = sig.Delta[rows][:, :, list(J)]  # (N, n, p)
     th, Sg = ts.theta[rows], ts.Sigma[rows]
-    x = np.concatenate([base.x + np.einsum("kij,kj->ki", D, th), th], axis=1)
+    x_own = base.x + np.einsum("kij,kj->ki", D, th)
     DS = np.einsum("kij,kjl->kil", D, Sg)
     top = base.P + np.einsum("kil,kml->kim", DS, D)
+    # the effect's states at each time from their values at the filter's start (a drift's error grows
+    # with its rate: b(t) = b0 + rate (t - t_start)); constants stay as they are
+    n0 = base.x.shape[1]
+    a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
+    if np.any(a_ee):
+        if np.any(a_ee @ a_ee):
+            raise ValueError(f"{aug.name}: the two-stage filter carries an effect's own dynamics only when nilpotent")
+        tau = sig.t[rows] - sig.t_start[rows]
+        Psi = np.eye(len(J))[None] + a_ee[None] * tau[:, None, None]
+        th = np.einsum("kij,kj->ki", Psi, th)
+        DS = np.einsum("kil,kml->kim", DS, Psi)
+        Sg = np.einsum("kij,kjl,kml->kim", Psi, Sg, Psi)
+    x = np.concatenate([x_own, th], axis=1)
     P = np.concatenate(
         [np.concatenate([top, DS], axis=2), np.concatenate([np.transpose(DS, (0, 2, 1)), Sg], axis=2)], axis=1
     )

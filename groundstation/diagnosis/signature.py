@@ -111,7 +111,8 @@ class Signatures:
     ``G`` the innovation's sensitivity (records, P) and ``Delta`` the estimate's after the update
     (records, n, P); with the records' own base innovations ``nu`` and ``S`` (scalar sensors),
     times, sensors, and which records tell theta anything (``informs``: a sensor's, not a
-    constraint's). ``segment``: the filter's start each record belongs to (a restart forgets theta)."""
+    constraint's). ``segment``: the filter's start each record belongs to (a restart forgets theta),
+    and ``t_start`` its time. theta is each column's value at that start."""
 
     columns: list[Column]
     G: np.ndarray
@@ -122,6 +123,7 @@ class Signatures:
     S: np.ndarray
     informs: np.ndarray
     segment: np.ndarray
+    t_start: np.ndarray  #: the time its filter started (its segment's)
 
     def where(self, columns: Sequence[Column]) -> list[int]:
         """The indices of ``columns`` (by identity)."""
@@ -205,7 +207,7 @@ def signatures(
         else:
             D = D - K @ g
         D_out[rec] = D
-    return Signatures(columns, G_out, D_out, t, sensor, nu, S, informs, segment)
+    return Signatures(columns, G_out, D_out, t, sensor, nu, S, informs, segment, t_start)
 
 
 @dataclass

@@ -35,7 +35,6 @@ A large f says: weigh this effect's Delta BIC with care.
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
@@ -43,14 +42,11 @@ import numpy as np
 
 from groundstation.estimation.models.base import LinearModel
 
+from . import trials
 from .catalogue import Candidate
 from .gains import SCREEN_SHARE, CatalogueColumns, Fit, best_shape, fit, participation, run_signatures, virtual_run
 from .run import SETTLE_S, Prepared, Run, run_model
 from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
-
-#: every candidate scored by its own filter runs, none through the base filter's gains (the path
-#: ``bench/diagnosis_speed.py`` measures the two-stage filter against; GROUNDSTATION_TRACE=runs)
-BY_RUNS = os.environ.get("GROUNDSTATION_TRACE") == "runs"
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -263,15 +259,15 @@ def rank(
     the model's gains do not depend on the data (else a two-stage score that could be claimed is
     run too). The rest, and everything without ``columns`` or with ``GROUNDSTATION_TRACE=runs``,
     is run: each candidate's filter runs on ``workers`` processes (:mod:`.trials`: the same scores
-    on any number)."""
+    on any number). ``trials.BY_RUNS`` runs every candidate."""
     sig = None
-    if columns is not None and not BY_RUNS:
+    if columns is not None and not trials.BY_RUNS:
         sig = run_signatures(base, model.n, columns.extra())
     t_score = prep.t0 + SETTLE_S
     n = max(base.n_scored, 1)
     out: list[tuple[int, Scored]] = []
     to_run: list[tuple[int, Candidate]] = []
-    shaped: dict[int, float] = {}  # a candidate run at the shape the two-stage filter chose for it
+    shaped: dict[int, tuple[float, Fit]] = {}  # a candidate run at the shape the two-stage filter chose for it
     for i, c in enumerate(cands):
         if sig is None or columns is None:
             to_run.append((i, c))
@@ -283,10 +279,11 @@ def rank(
             if s.delta_bic < STRONG and not columns_exact:
                 # claimable by a score the augmented filter only approaches: its own runs, every shape
                 to_run.append((i, c))
-            elif s.delta_bic < STRONG and not (s.fit is not None and s.fit.exact):
-                # claimable at a shape between the grid's: its run there
+            elif s.delta_bic < STRONG and s.fit is not None and s.params.get(c.shape_name) != s.fit.shape:
+                # claimable at a shape between the grid's: its run there (held out through the gains at
+                # the grid's nearest shape)
                 to_run.append((i, s.candidate))
-                shaped[i] = s.params[c.shape_name]
+                shaped[i] = (s.params[c.shape_name], s.fit)
             else:
                 out.append((i, s))
         elif id(c) in columns.screens:
@@ -298,7 +295,7 @@ def rank(
         else:
             to_run.append((i, c))
     if to_run:
-        trials = Trials(
+        made = Trials(
             [c for _, c in to_run],
             model,
             prep,
@@ -308,20 +305,20 @@ def rank(
             base=base,
             probes=columns.probes() if columns is not None and sig is not None else None,
         )
-        if trials.workers > 1:
+        if made.workers > 1:
             if progress:
-                progress(f"{len(to_run)} candidates on {trials.workers} cores")
-            trials.compute_all()
+                progress(f"{len(to_run)} candidates on {made.workers} cores")
+            made.compute_all()
         for j, (i, c) in enumerate(to_run):
             if progress:
                 progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
-            r = score(c, model, base, trials, j, ms)
+            r = score(c, model, base, made, j, ms)
             if r is not None:
                 if i in shaped:
-                    r.params[c.shape_name] = shaped[i]
+                    r.params[c.shape_name], r.fit = shaped[i]
                 out.append((i, r))
     else:
-        trials = None
+        made = None
     out.sort(key=lambda p: p[0])
     for i, s in out:
         sensor = s.candidate.sensor
@@ -342,9 +339,9 @@ def rank(
                 k = s.fit.sig.informs & (s.fit.sig.t >= t_score) & (s.fit.sig.sensor == sensor)
                 support = participation(s.fit.sig.G[k][:, s.fit.J].sum(axis=1), s.fit.sig.S[k])
             else:
-                assert trials is not None
+                assert made is not None
                 j = next(j for j, (q, _) in enumerate(to_run) if q == i)
-                support = signature_support(trials.run(j, SIGNATURE), base, prep, sensor)
+                support = signature_support(made.run(j, SIGNATURE), base, prep, sensor)
             m = min(m, max(support, MIN_SUPPORT))
         s.support = m
         s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
@@ -384,7 +381,6 @@ def _two_stage_score(
             c, k=c.k + 1, augment=with_shape(c.augment, shape), shapes=(), refine_shape=False, unshaped=unshaped
         )
         if shape != f.shape:  # a refined shape between the grid's: its run is the augmented model's there
-            f = replace(f, exact=False)
             aug = cand.augment(model)  # type: ignore[misc]
             r.model = aug
     out = scored(cand, aug, r, base, n, params, ms)

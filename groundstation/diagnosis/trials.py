@@ -37,10 +37,11 @@ from .signature import Probes
 T = TypeVar("T")
 R = TypeVar("R")
 
-#: every grid value and every refinement run, as the trials were made before :func:`scan_grid` and
-#: :func:`refine`'s gate: the baseline ``bench/diagnosis_speed.py`` measures the diagnosis against
-#: (GROUNDSTATION_EXHAUSTIVE_GRID=1 in its environment); the findings are the same
-EXHAUSTIVE = os.environ.get("GROUNDSTATION_EXHAUSTIVE_GRID") == "1"
+#: every candidate scored by filter runs of its own, every grid value and every refinement run (no
+#: two-stage filter through the base run's gains, no :func:`scan_grid` stop, no :func:`refine`
+#: gate): the path ``bench/diagnosis_speed.py`` measures the diagnosis against, and the tests
+#: compare its findings with. GROUNDSTATION_TRACE=runs in the environment
+BY_RUNS = os.environ.get("GROUNDSTATION_TRACE") == "runs"
 
 #: the key of an input effect's signature trial (the effect acting at :data:`SIGNATURE_SIZE`)
 SIGNATURE = "signature"
@@ -152,7 +153,7 @@ def refine(
     log-likelihoods ``lik``; the new runs go to ``runs`` and their likelihoods to ``lik``. Not
     refined where even the parabola through its best grid value and their neighbours peaks below
     ``floor`` (:func:`parabola_peak`): a profile that no refinement brings near a claim."""
-    if not EXHAUSTIVE and parabola_peak(lik) < floor:
+    if not BY_RUNS and parabola_peak(lik) < floor:
         return
 
     def at(d: float) -> float:
@@ -181,7 +182,7 @@ def scan_grid(grid: Iterable[float], at: Callable[[float], float], drop: float) 
         prev = lik[max(lik)] if lik else -math.inf
         lik[v] = at(v)
         falls = falls + 1 if lik[v] < prev else 0
-        if not EXHAUSTIVE and falls >= SCAN_DECLINES and lik[v] < max(lik.values()) - drop:
+        if not BY_RUNS and falls >= SCAN_DECLINES and lik[v] < max(lik.values()) - drop:
             break
     return lik
 
