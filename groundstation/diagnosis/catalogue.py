@@ -30,7 +30,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
 
-from .run import THROTTLE_TC, in_time_order
+from .run import THROTTLE_TC, Run, in_time_order
 from .signature import Column
 
 
@@ -73,10 +73,11 @@ class Candidate:
     #: ``augment`` appends): the two-stage filter (:mod:`.signature`) then scores it through the base
     #: run's gains, without a run of its own
     columns: Callable[..., list[Column]] | None = None
-    #: for an effect not linear in its parameters (a delay, a changed measurement function): the
-    #: columns of a linear stand-in at least as flexible near zero, whose two-stage gain bounds the
-    #: effect's; where even that is not worth the effect's parameters, its own runs are not made
-    screen: Callable[[LinearModel], list[Column]] | None = None
+    #: for an effect not linear in its parameters (a delay, a changed measurement function): linear
+    #: stand-ins, each a list of columns, whose two-stage gains at their best fit bound the effect's;
+    #: where none could be claimed, its own runs are not made. ``screen(model, None)``: those the run
+    #: must probe; ``screen(model, run)``: those read off the base run itself
+    screen: Callable[[LinearModel, Run | None], list[list[Column]]] | None = None
 
 
 def with_regressor(
@@ -191,19 +192,35 @@ def range_tilt(model: LinearModel) -> LinearModel:
     return replace(model, measurements=meas)
 
 
-def range_tilt_screen(model: LinearModel) -> list[Column]:
+def range_tilt_screen(model: LinearModel, run: Run | None) -> list[list[Column]]:
     """The slant as a regressor on the range of free size: (1 / (cos(roll) cos(pitch)) - 1) z, z the
-    estimate before the update; the slant itself is this at size 1."""
+    estimate before the update; the slant itself is this at size 1 (probed: it reads the tilt)."""
+    if run is not None:
+        return []
     iz = model.index("z")
-    return [Column("slant", 1.0, "range", lambda ctx, x: float(x[iz]) * (slant(ctx) - 1.0), exact=False)]
+    return [[Column("slant", 1.0, "range", lambda ctx, x: float(x[iz]) * (slant(ctx) - 1.0), exact=False)]]
 
 
-def delay_screen(sensor: str) -> Callable[[LinearModel], list[Column]]:
-    """A delay d as a regressor on the sensor to first order: y(t) = z(t - d) ~ z(t) - d vz(t)."""
+def delay_screen(sensor: str, delays: tuple[float, ...]) -> Callable[[LinearModel, Run | None], list[list[Column]]]:
+    """A delay d of the sensor's readings, y(t) = z(t - d): to first order -d vz(t) (its size the delay,
+    probed: it reads the estimate's vz), and at each value of the grid the base run's own height
+    then against now, z(t - d) - z(t), of free size (a late, slow baro's 0.25 s is far from first
+    order: a flight with it read Delta BIC -2 to first order, and -76 through its own runs)."""
 
-    def columns(model: LinearModel) -> list[Column]:
-        iv = model.index("vz")
-        return [Column("delay", 1.0, sensor, lambda ctx, x: -float(x[iv]), exact=False)]
+    def columns(model: LinearModel, run: Run | None) -> list[list[Column]]:
+        iz, iv = model.index("z"), model.index("vz")
+        if run is None:
+            return [[Column("delay", 1.0, sensor, lambda ctx, x: -float(x[iv]), exact=False)]]
+        t_run, z_run = run.t, run.x[:, iz]
+        out = []
+        for d in delays:
+            if d > 0:
+
+                def lagged(t: np.ndarray, t0: np.ndarray, d: float = d) -> np.ndarray:
+                    return np.interp(t - d, t_run, z_run) - np.interp(t, t_run, z_run)
+
+                out.append([Column(f"lag {d:g} s", 1.0, sensor, of_time=lagged, exact=False)])
+        return out
 
     return columns
 
@@ -341,6 +358,11 @@ def _thermal_columns(model: LinearModel) -> list[Column]:
     return [Column("k_thermal", THERMAL_PRIOR, "baro", lambda ctx, x: _temperature(ctx))]
 
 
+#: [s] the delays a range sensor's and a baro's profiles are scanned over
+RANGE_DELAYS = (0.0, 0.04, 0.08, 0.12, 0.16, 0.2)
+BARO_DELAYS = (0.0, 0.06, 0.12, 0.18, 0.24, 0.3)
+
+
 def altitude_catalogue(kinds: set) -> list[Candidate]:
     """The candidates the altitude filter can show, given the log's kinds."""
     baro_kinds = {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}
@@ -367,8 +389,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
             "range",
             None,
             None,
-            delays=(0.0, 0.04, 0.08, 0.12, 0.16, 0.2),
-            screen=delay_screen("range"),
+            delays=RANGE_DELAYS,
+            screen=delay_screen("range", RANGE_DELAYS),
         ),
     ]
     if has_baro and kinds & BARO_REFERENCES:
@@ -389,8 +411,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 "baro",
                 None,
                 None,
-                delays=(0.0, 0.06, 0.12, 0.18, 0.24, 0.3),
-                screen=delay_screen("baro"),
+                delays=BARO_DELAYS,
+                screen=delay_screen("baro", BARO_DELAYS),
             ),
         ]
         if Kind.TEMPERATURE in kinds:

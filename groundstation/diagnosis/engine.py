@@ -33,7 +33,7 @@ from .discover import Discovery, discover, library
 from .gains import CatalogueColumns, fit, profile_shape, run_signatures, virtual_run
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
-from .run import SETTLE_S, Prepared, Run, run_model
+from .run import SETTLE_S, Prepared, Run, hold_zeros, run_model
 from .signature import Column, Probes
 from .trace import STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
@@ -319,7 +319,11 @@ def diagnose(
         return columns.probes() if columns is not None else None
 
     say("matching the sensors' noise to the log")
-    model, noise, matched = match_noise(model, prep, make, probes())
+    first_run = run_model(model, prep, make)
+    hold_zeros(prep, first_run)  # the absolute sensors' zeros, the same for every model from here on
+    model, noise, matched = match_noise(model, prep, make, probes(), first=first_run)
+    if matched is first_run:  # taken with the zeros still open: its readings differ from the runs after it
+        matched = None
     model0 = model  # what the effects are added to
     say("running the model (before)")
     base = matched if matched is not None else run_model(model, prep, make, probes=probes())

@@ -47,7 +47,7 @@ class CatalogueColumns:
     the model they act on: what a run that may become a ranking's base is probed with."""
 
     by_candidate: dict[int, dict] = field(default_factory=dict)  # id(candidate) -> {shape: [Column]}
-    screens: dict[int, list[Column]] = field(default_factory=dict)  # id(candidate) -> its screen's columns
+    screens: dict[int, list[list[Column]]] = field(default_factory=dict)  # id(candidate) -> its probed stand-ins
 
     @classmethod
     def of(cls, cands: Sequence[Candidate], model: LinearModel) -> CatalogueColumns:
@@ -60,11 +60,11 @@ class CatalogueColumns:
         if c.columns is not None and id(c) not in self.by_candidate:
             self.by_candidate[id(c)] = {s: (c.columns(model) if s is None else c.columns(model, s)) for s in grid(c)}
         if c.screen is not None and id(c) not in self.screens:
-            self.screens[id(c)] = c.screen(model)
+            self.screens[id(c)] = c.screen(model, None)
 
     def all(self) -> list[Column]:
         out = [col for shapes in self.by_candidate.values() for cols in shapes.values() for col in cols]
-        return out + [col for cols in self.screens.values() for col in cols]
+        return out + [col for stand_ins in self.screens.values() for cols in stand_ins for col in cols]
 
     def probes(self) -> Probes:
         return Probes([c for c in self.all() if c.regressor is not None])

@@ -158,18 +158,22 @@ def match_gps_slow(
 
 
 def match_noise(
-    model: LinearModel, prep: Prepared, make, probes: Probes | None = None
+    model: LinearModel, prep: Prepared, make, probes: Probes | None = None, *, first: Run | None = None
 ) -> tuple[LinearModel, list[NoiseLevel], Run | None]:
     """The model with each matched sensor's R from the data, the levels found, and the model's run
     when the last iteration changed nothing (that run is the model's own; else None). ``probes``:
-    the runs are taped with them, so that run can start a ranking."""
+    the runs are taped with them, so that run can start a ranking; ``first``: the model's run
+    already made (the first iteration's)."""
     original = {s: r for s in MATCHED if (r := sensor_r(model, s)) is not None}
     if not original:
-        return model, [], None
+        return model, [], first
     pairs: dict[str, int] = {}
     last: Run | None = None
-    for _ in range(ITERATIONS):
-        run = run_model(model, prep, make, probes=probes.fresh() if probes is not None else None)
+    for i in range(ITERATIONS):
+        if i == 0 and first is not None:
+            run = first
+        else:
+            run = run_model(model, prep, make, probes=probes.fresh() if probes is not None else None)
         last = run
         changed = False
         for s in original:

@@ -24,7 +24,7 @@ import numpy as np
 from groundstation.core.imu import IMU_KINDS, ImuColumns, block_means
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.validity import reading_problem
-from groundstation.estimation.context import Context
+from groundstation.estimation.context import Context, Zero
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.filters import GainTape
 from groundstation.estimation.models.base import LinearModel
@@ -53,6 +53,11 @@ class Prepared:
     logged_throttle: bool = False
     #: readings left out as no estimator takes them (``core.validity``), by ``<kind>_<problem>``
     unusable: dict[str, int] = field(default_factory=dict)
+    #: the absolute sensors' zeros against the estimate (a baro's, a GPS's: models.base.
+    #: relative_to_estimate), taken once by :func:`hold_zeros` and then the same for every model run
+    #: over the log: a zero taken against each model's own estimate made the candidates' filters
+    #: differ by more than their effects (the two-stage filter, signature.py, holds them fixed too)
+    zeros: dict[str, Zero] = field(default_factory=dict)
 
     @property
     def duration(self) -> float:
@@ -230,6 +235,12 @@ class Run:
         return float(self.x[-1, i]), float(math.sqrt(max(self.P[-1, i, i], 0.0)))
 
 
+def hold_zeros(prep: Prepared, run: Run) -> None:
+    """The zeros ``run`` took (its context's) held for every later run over ``prep``: each still
+    calibrates on the same first readings, and ends on the zero ``run`` took."""
+    prep.zeros = {k: Zero(held=z.ref) for k, z in run.ctx.zeros.items() if z.ref is not None}
+
+
 #: s: the filter settles this long before the likelihood is scored (run_model's score_from)
 SETTLE_S = 5.0
 
@@ -251,6 +262,8 @@ def run_model(
     with its gains recorded (:class:`.Run`'s ``tape``); ``probes``: regressors evaluated at each
     update of their sensor (:mod:`.signature`)."""
     est = make_estimator(model)
+    if prep.zeros:
+        est.filter.ctx.zeros = dict(prep.zeros)
     add_signal_rules(est, probes.throttle_tcs if probes is not None else ())
     taped = taped or probes is not None
     if taped:

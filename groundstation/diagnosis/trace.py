@@ -261,8 +261,11 @@ def rank(
     is run: each candidate's filter runs on ``workers`` processes (:mod:`.trials`: the same scores
     on any number). ``trials.BY_RUNS`` runs every candidate."""
     sig = None
+    # the stand-ins read off the base run itself (a delay's heights then against now)
+    read_off = {id(c): c.screen(model, base) for c in cands if c.screen is not None} if columns is not None else {}
     if columns is not None and not trials.BY_RUNS:
-        sig = run_signatures(base, model.n, columns.extra())
+        extra = columns.extra() + [col for stand_ins in read_off.values() for cols in stand_ins for col in cols]
+        sig = run_signatures(base, model.n, extra)
     t_score = prep.t0 + SETTLE_S
     n = max(base.n_scored, 1)
     out: list[tuple[int, Scored]] = []
@@ -287,7 +290,8 @@ def rank(
             else:
                 out.append((i, s))
         elif id(c) in columns.screens:
-            bound = _screened(c, columns.screens[id(c)], model, base, sig, t_score, n, ms)
+            stand_ins = columns.screens[id(c)] + read_off.get(id(c), [])
+            bound = _screened(c, stand_ins, model, base, sig, t_score, n, ms)
             if bound is None:
                 to_run.append((i, c))
             else:
@@ -388,19 +392,23 @@ def _two_stage_score(
     return out
 
 
-def _screened(c: Candidate, columns, model: LinearModel, base: Run, sig, t_score: float, n: int, ms) -> Scored | None:
-    """A nonlinear candidate's linear stand-in (``Candidate.screen``) through the base run's gains: None
-    when its best fit could be claimed (:data:`.gains.SCREEN_SHARE` of a claim's need), so the
-    candidate's own runs are made; else the candidate scored by that bound, not to be claimed."""
-    f = fit(sig, columns)
-    g = f.best_fit_gain(t_score)
+def _screened(
+    c: Candidate, stand_ins: list, model: LinearModel, base: Run, sig, t_score: float, n: int, ms
+) -> Scored | None:
+    """A nonlinear candidate's linear stand-ins (``Candidate.screen``) through the base run's gains:
+    None when one's best fit could be claimed (:data:`.gains.SCREEN_SHARE` of a claim's need), so the
+    candidate's own runs are made; else the candidate scored by the best of those bounds, not to be
+    claimed (its size and sigma the first stand-in's, a delay's to first order)."""
+    fits = [fit(sig, cols) for cols in stand_ins]
+    g = max(f.best_fit_gain(t_score) for f in fits)
     tr = base.sensors.get(c.sensor or "")
     support = int((tr.t >= t_score).sum()) if tr is not None else n
     need = max((c.k * math.log(n) - STRONG) / 2.0, MATERIAL * support)
     if g >= SCREEN_SHARE * need:
         return None
+    f = fits[0]
     theta, sd = float(f.ts.theta[-1][0]), float(math.sqrt(f.ts.Sigma[-1][0, 0]))
-    params: dict = {"note": "its first-order form through the base filter's gains could not be claimed"}
+    params: dict = {"note": "its linear stand-ins through the base filter's gains could not be claimed"}
     if c.delays:
         params = {"sensor": c.sensor, "seconds": round(theta, 4), "sigma_seconds": sd, **params}
     return Scored(c, model, base, -2.0 * g + c.k * math.log(n), params, ms, n=n, fit=f, screened=True)

@@ -23,11 +23,15 @@ LEVEL = (0.0, 0.0, 1.0)
 
 class Zero(NamedTuple):
     """An absolute sensor's zero against the estimate (:func:`.models.base.relative_to_estimate`):
-    the running sum of reading minus estimate over ``n`` readings, and the zero once fixed."""
+    the running sum of reading minus estimate over ``n`` readings, and the zero once fixed.
+    ``held``: a zero given before the run (taken by an earlier run over the same log), which the
+    calibrating readings then end in instead of their own mean: every run reads the same readings
+    against the same zero."""
 
     total: float = 0.0
     n: int = 0
     ref: float | None = None
+    held: float | None = None
 
 
 @dataclass(eq=False, kw_only=True)

@@ -214,10 +214,10 @@ def relative_to_estimate(value_of: Callable[[Measurement], float], key: str, n_c
         if ref is None:
             total, n = zero.total + v - ctx.z, zero.n + 1
             if n < n_cal:
-                ctx.zeros[key] = Zero(total, n)
+                ctx.zeros[key] = Zero(total, n, None, zero.held)
                 return None
-            ref = total / n
-            ctx.zeros[key] = Zero(total, n, ref)
+            ref = total / n if zero.held is None else zero.held
+            ctx.zeros[key] = Zero(total, n, ref, zero.held)
         return np.array([v - ref])
 
     return extract
