@@ -67,18 +67,21 @@ def reading_problem(m: Measurement) -> str | None:
     v = m.value.tolist()
     if not v:
         return None
-    absent_ok = m.kind in NAN_MEANS_ABSENT
-    present = []
-    for x in v:
-        if x != x:
-            if not absent_ok:
+    if math.isfinite(sum(v)):  # every component finite (a NaN or an infinity carries into the sum)
+        present = v
+    else:
+        absent_ok = m.kind in NAN_MEANS_ABSENT
+        present = []
+        for x in v:
+            if x != x:
+                if not absent_ok:
+                    return "not_finite"
+            elif x in (math.inf, -math.inf):
                 return "not_finite"
-        elif x in (math.inf, -math.inf):
+            else:
+                present.append(x)
+        if not present:
             return "not_finite"
-        else:
-            present.append(x)
-    if not present:
-        return "not_finite"
     limit = ABS_LIMIT.get(m.kind)
     if limit is not None and max(abs(x) for x in present) > limit:
         return "implausible"

@@ -10,6 +10,7 @@ Attributes keep filterpy's (and the textbook's) symbols: ``x, P, F, Q, H, R``.
 
 from __future__ import annotations
 
+from collections.abc import Hashable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -105,7 +106,10 @@ class ModelFilter:
         self.kf = kf
         self.t = t0
         self.u = np.zeros(len(m.inputs))
-        self._pending_k = 0  # step length (1e-7 s units) of the covariance steps not yet applied
+        # the covariance's steps not yet applied: their length (1e-7 s units) and A's key (all equal)
+        self._pending_k = 0
+        self._pending_akey: Hashable = None
+        self._pending_A: np.ndarray | None = None
         self._pending_n = 0
         if self.tape is not None:
             self.tape.restart(t0)
@@ -132,26 +136,38 @@ class ModelFilter:
     def _apply_pending(self) -> None:
         """P = Phi_n P Phi_n^T + Q_n for the n equal steps not yet applied.
 
-        For a time-invariant model n steps of length dt are one step of n dt
-        exactly (Phi(dt)^n = Phi(n dt), and the accumulated Q_k is Q_k(n dt)),
-        so the covariance is propagated only when someone reads it.
+        n steps of length dt with the same A are one step of n dt exactly (Phi(dt)^n = Phi(n dt),
+        and the accumulated Q_k is Q_k(n dt)), so the covariance is propagated only when someone
+        reads it or A changes: a 1 kHz IMU's steps between two 50 Hz attitudes share their A.
         """
         n = self._pending_n
         if n:
             self._pending_n = 0
-            Phi, _, Qk = self._discrete(self._pending_k * n * 1e-7)
+            Phi, _, Qk = self._discrete(self._pending_k * n * 1e-7, self._pending_akey, self._pending_A)
             kf = self.kf
             kf.P = Phi @ kf.P @ Phi.T + Qk
 
-    def _discrete(self, dt: float):
+    def _a_key(self) -> tuple[Hashable, np.ndarray | None]:
+        """The held input's A's key (None for a time-invariant model), and A where computing the key
+        took it (a model without ``A_key``: A's own bytes are the key)."""
+        if not self._u_dependent:
+            return None, None
+        key_of = self.model.A_key
+        if key_of is not None:
+            return key_of(self.u), None
+        A = self.model.A(self.u)
+        return A.tobytes(), A
+
+    def _discrete(self, dt: float, akey: Hashable, A: np.ndarray | None):
+        """(Phi, G, Q_k) over ``dt`` with the A of key ``akey`` (``A`` itself, or the held input's when
+        None), cached on the step's length and that key: a model whose A takes one input of several
+        (the altitude model's cos_tilt) reuses a discretisation while the others change."""
         k = int(dt * 1e7 + 0.5)
-        A = self.model.A(self.u) if self._u_dependent else None
-        # keyed on A itself: a model whose A takes one input of several (the altitude model's
-        # cos_tilt) reuses a discretisation while the others change
-        key = (k, A.tobytes()) if A is not None else k
+        key = (k, akey)
         d = self._cache.get(key)
         if d is None:
-            A = self.model.A(self.u) if A is None else A
+            if A is None:
+                A = self.model.A(self.u)
             if np.abs(A).sum(axis=1).max() * dt < SERIES_LIMIT:
                 # a step not seen before (A changes with the input; a live clock jitters, so each
                 # step has its own dt): a fourth-order series of the same integrals (error
@@ -191,7 +207,8 @@ class ModelFilter:
             self._predict_nonlinear(dt)
             self.t = t
             return
-        Phi, G, Qk = self._discrete(dt)
+        akey, A = self._a_key()
+        Phi, G, Qk = self._discrete(dt, akey, A)
         # x = F x + B u every step; P = F P F^T + Q deferred (see _apply_pending).
         # (filterpy's predict, written out: its copies of the priors cost three
         # times the arithmetic at 1 kHz.)
@@ -200,13 +217,13 @@ class ModelFilter:
         if self.tape is not None:
             self.tape.ops.append((Phi, G, self.u))
         k = int(dt * 1e7 + 0.5)
-        if self._u_dependent:
-            kf.P = Phi @ kf.P @ Phi.T + Qk
-        elif k == self._pending_k:
+        if k == self._pending_k and akey == self._pending_akey:
             self._pending_n += 1
         else:
             self._apply_pending()
-            self._pending_k, self._pending_n = k, 1
+            if A is None and akey is not None:
+                A = self.model.A(self.u)  # the run's A, for its covariance's one step when it ends
+            self._pending_k, self._pending_akey, self._pending_A, self._pending_n = k, akey, A, 1
         self.t = t
 
     def checkpoint(self) -> tuple:

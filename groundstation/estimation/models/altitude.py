@@ -67,8 +67,13 @@ def transition(u) -> np.ndarray:
     """A(u): the document's, with the bias's coupling -cos_tilt; level for ``A(None)`` (the
     closed-form tests). A filter's inputs start at zero, so until the first accelerometer
     sample it predicts no acceleration at all, the bias's share included."""
-    c = 1.0 if u is None or len(u) < 2 else round(float(u[1]) / COS_TILT_STEP) * COS_TILT_STEP
+    c = 1.0 if u is None or len(u) < 2 else tilt_key(u) * COS_TILT_STEP
     return np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -c], [0.0, 0.0, 0.0]])
+
+
+def tilt_key(u) -> int:
+    """A(u)'s key (``LinearModel.A_key``): cos_tilt in steps of :data:`COS_TILT_STEP`."""
+    return round(float(u[1]) / COS_TILT_STEP)
 
 
 def altitude_model(
@@ -138,6 +143,7 @@ def altitude_model(
         P0=np.diag([0.05**2, 0.05**2, P0_bias]),
         measurements=meas,
         doc=__doc__,
+        A_key=tilt_key,
     )
     return with_gps_error(model, *gps_error) if use_gps and gps_error is not None else model
 

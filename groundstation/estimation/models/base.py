@@ -20,7 +20,7 @@ the diagnosis adds effects exactly this way.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -103,6 +103,9 @@ class LinearModel:
     #: per record kind, events the continuous dynamics do not hold (the ground letting go of the
     #: vehicle at lift-off): each adds process noise to named states when it happens
     impulses: dict[Kind, tuple[Impulse, ...]] = field(default_factory=dict)
+    #: a cheap key of ``A(u)``: inputs with the same key give the same A (None: A itself is its key).
+    #: The filter keys its discretisations on it, and holds back the covariance's steps while it stays
+    A_key: Callable[[np.ndarray], Hashable] | None = None
 
     @property
     def n(self) -> int:
@@ -157,6 +160,9 @@ class LinearModel:
         for key, mm in self.measurements.items():
             meas[key] = replace(mm, row=padded(mm.row, k))
         meas.update(measurements or {})
+        # the old A's key still keys the new A where the new states take no input
+        u0 = np.zeros(len(self.inputs))
+        keyed = coupling is None and (A_extra is None or np.array_equal(A_extra(u0), A_extra(u0 + 1.0)))
         return LinearModel(
             name or self.name,
             self.states + list(states),
@@ -171,6 +177,7 @@ class LinearModel:
             list(self.notes),
             options=dict(self.options),
             impulses=dict(self.impulses),
+            A_key=self.A_key if keyed else None,
         )
 
 
