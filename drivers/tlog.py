@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import struct
 import time
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -174,9 +175,11 @@ class TlogIndex:
         except OSError as e:
             raise TlogError(f"{p}: cannot read: {e.strerror or e}") from None
         n = len(data)
-        ts_list: list[int] = []
-        off_list: list[int] = []
-        len_list: list[int] = []
+        # typed arrays, not lists: 8 bytes a record instead of a Python int's 36 (a 1-hour 1 kHz log
+        # has 4 million records)
+        ts_list = array("q")
+        off_list = array("q")
+        len_list = array("q")
         skipped: list[tuple[int, int]] = []
         truncated_at = None
         clock_steps: list[int] = []
@@ -252,8 +255,8 @@ class TlogIndex:
                 truncated_at = pos
         if not ts_list:
             raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
-        t = np.array(ts_list, dtype=np.float64) * 1e-6
-        offsets = np.array(off_list, dtype=np.int64)
+        t = np.frombuffer(ts_list, dtype=np.int64) * 1e-6
+        offsets = np.frombuffer(off_list, dtype=np.int64)
         for step in clock_steps:
             # the recording goes on where it left off: the step itself is not time that passed
             i = int(np.searchsorted(offsets, step))
@@ -264,7 +267,7 @@ class TlogIndex:
             data,
             t,
             offsets,
-            np.array(len_list, dtype=np.int64),
+            np.frombuffer(len_list, dtype=np.int64),
             skipped,
             truncated_at,
             clock_steps,

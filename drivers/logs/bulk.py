@@ -148,7 +148,9 @@ def crc_mcrf4xx_rows(rows: np.ndarray, extra: int | None = None) -> np.ndarray:
 
 
 def _gather(u8: np.ndarray, starts: np.ndarray, width: int) -> np.ndarray:
-    return u8[starts[:, None] + np.arange(width)]
+    """The ``width`` bytes from each of ``starts``, as rows (through a strided view: no index matrix
+    of 8 bytes per byte gathered)."""
+    return np.lib.stride_tricks.sliding_window_view(u8, width)[starts]
 
 
 # ------------------------------------------------------------------ tlog
@@ -162,40 +164,62 @@ def _mav_dtype(cls) -> np.dtype:
     return dt
 
 
+#: frames framed and checked at once: the per-frame index arrays (a dozen of 8 bytes) and the gathered
+#: rows exist for one chunk at a time, not for the whole file (a 1-hour 1 kHz tlog has 4 million frames)
+TLOG_CHUNK = 1 << 16
+
+
 def load_tlog(path: str | Path) -> BulkLog:
     """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`)."""
     ix = TlogIndex.scan(path)
     u8 = np.frombuffer(ix.data, dtype=np.uint8)
-    fo = ix.offset + 8  # frame offsets
+    log = BulkLog(Path(path), {}, skipped=list(ix.skipped), truncated_at=ix.truncated_at)
+    per_type: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {}
+    for i0 in range(0, len(ix.offset), TLOG_CHUNK):
+        _frames(u8, ix.offset[i0 : i0 + TLOG_CHUNK] + 8, i0, log, per_type)
+    for mid, parts in per_type.items():
+        cls = mavlink.mavlink_map[mid]
+        idx = np.concatenate([q[0] for q in parts])
+        pay = np.concatenate([q[1] for q in parts])
+        sysid = np.concatenate([q[2] for q in parts])
+        compid = np.concatenate([q[3] for q in parts])
+        del parts[:]
+        if len(idx) > 1 and not bool((np.diff(idx) > 0).all()):
+            srt = np.argsort(idx, kind="stable")  # back to file order
+            idx, pay, sysid, compid = idx[srt], pay[srt], sysid[srt], compid[srt]
+        fields = pay.view(_mav_dtype(cls)).reshape(-1)  # the rows as records, no copy
+        log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid, compid)
+    return log
+
+
+def _frames(u8: np.ndarray, fo: np.ndarray, i0: int, log: BulkLog, per_type: dict) -> None:
+    """The frames at offsets ``fo`` (numbered from ``i0``): each checked against its CRC and its
+    payload cut out, per (message, version, length), into ``per_type``; the damage counted in ``log``."""
+    last = len(u8) - 1
     magic = u8[fo]
     plen = u8[fo + 1].astype(np.int64)
     v2 = magic == 0xFD
     msgid = np.where(
         v2,
-        u8[np.minimum(fo + 7, len(u8) - 1)].astype(np.int64)
-        | (u8[np.minimum(fo + 8, len(u8) - 1)].astype(np.int64) << 8)
-        | (u8[np.minimum(fo + 9, len(u8) - 1)].astype(np.int64) << 16),
+        u8[np.minimum(fo + 7, last)].astype(np.int64)
+        | (u8[np.minimum(fo + 8, last)].astype(np.int64) << 8)
+        | (u8[np.minimum(fo + 9, last)].astype(np.int64) << 16),
         u8[fo + 5].astype(np.int64),
     )
-    hlen = np.where(v2, 10, 6)
-    sysid = np.where(v2, u8[np.minimum(fo + 5, len(u8) - 1)], u8[fo + 3])
-    compid = np.where(v2, u8[np.minimum(fo + 6, len(u8) - 1)], u8[fo + 4])
-    log = BulkLog(Path(path), {}, skipped=list(ix.skipped), truncated_at=ix.truncated_at)
-
+    sysid = np.where(v2, u8[np.minimum(fo + 5, last)], u8[fo + 3])
+    compid = np.where(v2, u8[np.minimum(fo + 6, last)], u8[fo + 4])
     # One group per (msgid, version, payload length): fixed-width rows.
     key = (msgid << 10) | (v2.astype(np.int64) << 9) | plen
     order = np.argsort(key, kind="stable")
-    ks = key[order]
-    bounds = np.flatnonzero(np.diff(ks)) + 1
-    per_type: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+    bounds = np.flatnonzero(np.diff(key[order])) + 1
     for grp in np.split(order, bounds):
-        mid, L, h = int(msgid[grp[0]]), int(plen[grp[0]]), int(hlen[grp[0]])
+        g0 = int(grp[0])
+        mid, L, h = int(msgid[g0]), int(plen[g0]), 10 if v2[g0] else 6
         cls = mavlink.mavlink_map.get(mid)
         if cls is None:
             log.unknown += len(grp)
             continue
-        starts = fo[grp]
-        rows = _gather(u8, starts + 1, h - 1 + L + 2)  # header after magic, payload, CRC
+        rows = _gather(u8, fo[grp] + 1, h - 1 + L + 2)  # header after magic, payload, CRC
         crc = crc_mcrf4xx_rows(rows[:, : h - 1 + L], cls.crc_extra)
         got = rows[:, h - 1 + L].astype(np.uint16) | (rows[:, h + L].astype(np.uint16) << 8)
         ok = crc == got
@@ -209,16 +233,8 @@ def load_tlog(path: str | Path) -> BulkLog:
             continue
         payload = np.zeros((int(ok.sum()), dt.itemsize), dtype=np.uint8)  # zero-padded (MAVLink 2 trim)
         payload[:, :L] = rows[ok, h - 1 : h - 1 + L]
-        per_type.setdefault(mid, []).append((grp[ok], payload))
-    for mid, parts in per_type.items():
-        cls = mavlink.mavlink_map[mid]
-        idx = np.concatenate([g for g, _ in parts])
-        pay = np.concatenate([p for _, p in parts])
-        srt = np.argsort(idx, kind="stable")  # back to file order
-        idx, pay = idx[srt], pay[srt]
-        fields = np.frombuffer(np.ascontiguousarray(pay).tobytes(), dtype=_mav_dtype(cls))
-        log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid[idx], compid[idx])
-    return log
+        g = grp[ok]
+        per_type.setdefault(mid, []).append((g + i0, payload, sysid[g], compid[g]))
 
 
 # ------------------------------------------------------------------ DataFlash binary

@@ -145,13 +145,15 @@ def tables_from_tlog(path) -> LogTables:
     if hb is not None and hb.sysid is not None:
         gcs = {int(s) for s in np.unique(hb.sysid[hb["type"] == _MAV_TYPE_GCS])}
     out = LogTables(fmt="tlog", clock="recording", origin=t0)
-    for name, m in b.messages.items():
+    for name in list(b.messages):
+        m = b.messages.pop(name)  # each type's rows freed as its table is made
         keep = np.ones(len(m), bool) if m.sysid is None else ~np.isin(m.sysid, list(gcs))
         if not keep.any():
             continue
+        every = bool(keep.all())
         cols: dict[str, np.ndarray] = {}
         for f in m.names:
-            col = m[f][keep]
+            col = m[f] if every else m[f][keep]  # every row kept: the record array's own column, not a copy
             if col.dtype.kind == "S":
                 col = np.array([_text(v) for v in col], dtype=object)
             elif col.ndim > 1:  # an array field (e.g. a name as chars): kept as text

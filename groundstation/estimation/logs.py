@@ -78,6 +78,7 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
     ms, imu = split(rp.iter_measurements())  # a stream: the IMU's records are never all held
     damage = rp.skipped_summary()
     desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
+    del rp  # the file's bytes and index, before the tables read them again
     return LoadedLog(
         ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"), imu
     )
