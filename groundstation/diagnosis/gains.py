@@ -153,15 +153,19 @@ class Fit:
         k = self.sig.informs & (self.sig.t >= t_score)
         return float(np.sum(loglik(self.ts.nu[k], self.ts.S[k]) - loglik(self.sig.nu[k], self.sig.S[k])))
 
-    def best_fit_gain(self, t_score: float) -> float:
+    def best_fit_gain(self, t_score: float, at_least: float | None = None) -> float:
         """The gain at theta's best value for the whole log, fixed (the generalised likelihood ratio:
-        no prior, no learning): at least the gain at any other fixed theta, which bounds a stand-in's."""
+        no prior, no learning): at least the gain at any other fixed theta, which bounds a stand-in's.
+        ``at_least`` (one column): the best over the values theta can physically take, theta >= it
+        (the likelihood is concave in theta, so a best fit below it gives way to it)."""
         k = self.sig.informs & (self.sig.t >= t_score)
         G = self.sig.G[:, self.J]
         w = np.where(self.sig.informs, 1.0 / self.sig.S, 0.0)
         A = (G * w[:, None]).T @ G
         b = (G * w[:, None]).T @ self.sig.nu
         theta = np.linalg.lstsq(A, b, rcond=None)[0]
+        if at_least is not None and len(theta) == 1:
+            theta = np.maximum(theta, at_least)
         nu = self.sig.nu - G @ theta
         return float(np.sum(loglik(nu[k], self.sig.S[k]) - loglik(self.sig.nu[k], self.sig.S[k])))
 

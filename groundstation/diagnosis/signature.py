@@ -67,6 +67,9 @@ class Column:
     throttle_tc: float | None = None
     #: False where the regressor reads the estimate (the augmented filter reads its own)
     exact: bool = True
+    #: the least the constant can physically be (a delay's 0), or None: a stand-in's gain bounds the
+    #: effect only at the values it can take
+    at_least: float | None = None
 
 
 @dataclass

@@ -400,7 +400,7 @@ def _screened(
     candidate's own runs are made; else the candidate scored by the best of those bounds, not to be
     claimed (its size and sigma the first stand-in's, a delay's to first order)."""
     fits = [fit(sig, cols) for cols in stand_ins]
-    g = max(f.best_fit_gain(t_score) for f in fits)
+    g = max(f.best_fit_gain(t_score, cols[0].at_least if len(cols) == 1 else None) for f, cols in zip(fits, stand_ins))
     tr = base.sensors.get(c.sensor or "")
     support = int((tr.t >= t_score).sum()) if tr is not None else n
     need = max((c.k * math.log(n) - STRONG) / 2.0, MATERIAL * support)
