@@ -139,6 +139,12 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
         for k, br in zip((1, 2), bridges, strict=True):
             await _until(lambda br=br: br.sim.sensors.rates == ASKED, 30, f"vehicle {k}'s streams asked")
         assert set(link.vehicles) == {1, 2}
+        for k in (1, 2):
+            # the vehicle applies a rate before its acknowledgement reaches the link: wait for the answers
+            v = link.requester.vehicles[k]
+            await _until(
+                lambda v=v: len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS), 30, f"vehicle {k}'s answers"
+            )
         for k, br in zip((1, 2), bridges, strict=True):
             v = link.requester.vehicles[k]
             assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
