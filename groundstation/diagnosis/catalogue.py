@@ -228,6 +228,13 @@ def delay_screen(sensor: str, delays: tuple[float, ...]) -> Callable[[LinearMode
     return columns
 
 
+def sensor_delay(sensor: str, delays: tuple[float, ...], needs: set | None = None) -> Candidate:
+    """A late ``sensor``: its delay profiled on the grid ``delays``, screened first by its stand-ins."""
+    return Candidate(
+        "sensor_delay", 1, needs or set(), sensor, None, None, delays=delays, screen=delay_screen(sensor, delays)
+    )
+
+
 G = 9.80665
 
 
@@ -385,16 +392,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
             perturb=scale_accelerometer,
             columns=accel_scale_columns,
         ),
-        Candidate(
-            "sensor_delay",
-            1,
-            {Kind.RANGE},
-            "range",
-            None,
-            None,
-            delays=RANGE_DELAYS,
-            screen=delay_screen("range", RANGE_DELAYS),
-        ),
+        sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}),
     ]
     if has_baro and kinds & BARO_REFERENCES:
         cands += [
@@ -407,16 +405,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 state_param("rate", "baro_rate"),
                 columns=baro_bias_drift_columns,
             ),
-            Candidate(
-                "sensor_delay",
-                1,
-                set(),
-                "baro",
-                None,
-                None,
-                delays=BARO_DELAYS,
-                screen=delay_screen("baro", BARO_DELAYS),
-            ),
+            sensor_delay("baro", BARO_DELAYS),
         ]
         if Kind.TEMPERATURE in kinds:
             cands.append(

@@ -79,7 +79,7 @@ from groundstation.estimation.routing import (
 
 from .airframe import thrust_curve
 from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
-from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, delay_screen, state_param
+from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, sensor_delay, state_param
 from .run import SETTLE_S
 
 GE_MIN_H = 0.1  # m: below this the first-order ground-effect term is not used
@@ -581,18 +581,7 @@ def thrust_catalogue(kinds: set) -> list[Candidate]:
     # range reading does not. On underpowered.log, with four effects in, the range innovations still
     # followed the vertical speed 0.3 s earlier (49 % of their variance), and a delayed range scored
     # Delta BIC -970 against the lag's -898 (ArduCopter 3.0 passes its sonar through a 5-sample mode filter)
-    cands.append(
-        Candidate(
-            "sensor_delay",
-            1,
-            {Kind.RANGE},
-            "range",
-            None,
-            None,
-            delays=RANGE_DELAYS,
-            screen=delay_screen("range", RANGE_DELAYS),
-        )
-    )
+    cands.append(sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}))
     return [c for c in cands if c.needs <= kinds]
 
 
