@@ -233,20 +233,25 @@ class Replay:
 
     def skipped_summary(self) -> str:
         """One line on what the file's damage cost (empty if nothing)."""
-        parts = []
-        c = self.receiver.counters
-        if c.crc_errors:
-            parts.append(f"{c.crc_errors} frames with bad CRC skipped")
-        if c.bad_data:
-            parts.append(f"{c.bad_data} garbage stretches skipped")
-        if self.index.skipped:
-            n = sum(b for _, b in self.index.skipped)
-            parts.append(f"{len(self.index.skipped)} corrupt stretches ({n} bytes) resynchronised")
-        if self.index.truncated_at is not None:
-            parts.append(f"truncated last record at byte {self.index.truncated_at} ignored")
-        steps = self.index.clock_steps
-        if steps:
-            parts.append(f"the recorder's clock stepped {len(steps)} time(s) (at byte {steps[0]}): played on as one")
-        if getattr(c, "undecodable", 0):
-            parts.append(f"{c.undecodable} messages that could not be decoded skipped ({c.last_undecodable})")
-        return "; ".join(parts)
+        return damage_summary(self.index, self.receiver.counters)
+
+
+def damage_summary(index: TlogIndex | _MeasurementIndex, c: LinkCounters) -> str:
+    """One line on what a tlog's damage cost, from its index and the receiver's counters (empty if
+    nothing)."""
+    parts = []
+    if c.crc_errors:
+        parts.append(f"{c.crc_errors} frames with bad CRC skipped")
+    if c.bad_data:
+        parts.append(f"{c.bad_data} garbage stretches skipped")
+    if index.skipped:
+        n = sum(b for _, b in index.skipped)
+        parts.append(f"{len(index.skipped)} corrupt stretches ({n} bytes) resynchronised")
+    if index.truncated_at is not None:
+        parts.append(f"truncated last record at byte {index.truncated_at} ignored")
+    steps = index.clock_steps
+    if steps:
+        parts.append(f"the recorder's clock stepped {len(steps)} time(s) (at byte {steps[0]}): played on as one")
+    if c.undecodable:
+        parts.append(f"{c.undecodable} messages that could not be decoded skipped ({c.last_undecodable})")
+    return "; ".join(parts)

@@ -63,6 +63,7 @@ class MessageArrays:
     t: np.ndarray  # tlog: receive time [s, UNIX]; DataFlash: TimeUS/TimeMS [s] or NaN
     sysid: np.ndarray | None = None
     compid: np.ndarray | None = None
+    record: np.ndarray | None = None  # tlog: each message's record number in the file's index
 
     def __len__(self) -> int:
         return len(self.fields)
@@ -169,14 +170,21 @@ def _mav_dtype(cls) -> np.dtype:
 TLOG_CHUNK = 1 << 16
 
 
-def load_tlog(path: str | Path) -> BulkLog:
-    """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`)."""
-    ix = TlogIndex.scan(path)
+def load_tlog(path: str | Path, *, index: TlogIndex | None = None, only: tuple[str, ...] = ()) -> BulkLog:
+    """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`);
+    ``only``: just these types. ``index``: the file's index if it is already scanned."""
+    ix = index if index is not None else TlogIndex.scan(path)
     u8 = np.frombuffer(ix.data, dtype=np.uint8)
     log = BulkLog(Path(path), {}, skipped=list(ix.skipped), truncated_at=ix.truncated_at)
     per_type: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {}
+    wanted = np.array([getattr(mavlink, f"MAVLINK_MSG_ID_{n}") for n in only], dtype=np.int64)
     for i0 in range(0, len(ix.offset), TLOG_CHUNK):
-        _frames(u8, ix.offset[i0 : i0 + TLOG_CHUNK] + 8, i0, log, per_type)
+        fo = ix.offset[i0 : i0 + TLOG_CHUNK] + 8
+        if only:
+            rec = i0 + np.flatnonzero(np.isin(_msgid(u8, fo), wanted))
+            _frames(u8, ix.offset[rec] + 8, rec, log, per_type)
+        else:
+            _frames(u8, fo, i0 + np.arange(len(fo)), log, per_type)
     for mid, parts in per_type.items():
         cls = mavlink.mavlink_map[mid]
         idx = np.concatenate([q[0] for q in parts])
@@ -188,24 +196,32 @@ def load_tlog(path: str | Path) -> BulkLog:
             srt = np.argsort(idx, kind="stable")  # back to file order
             idx, pay, sysid, compid = idx[srt], pay[srt], sysid[srt], compid[srt]
         fields = pay.view(_mav_dtype(cls)).reshape(-1)  # the rows as records, no copy
-        log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid, compid)
+        log.messages[cls.msgname] = MessageArrays(cls.msgname, fields, ix.t[idx], sysid, compid, idx)
     return log
 
 
-def _frames(u8: np.ndarray, fo: np.ndarray, i0: int, log: BulkLog, per_type: dict) -> None:
-    """The frames at offsets ``fo`` (numbered from ``i0``): each checked against its CRC and its
+def _msgid(u8: np.ndarray, fo: np.ndarray) -> np.ndarray:
+    """The message id of the frames at offsets ``fo`` (MAVLink 1 or 2)."""
+    last = len(u8) - 1
+    return np.where(
+        u8[fo] == 0xFD,
+        u8[np.minimum(fo + 7, last)].astype(np.int64)
+        | (u8[np.minimum(fo + 8, last)].astype(np.int64) << 8)
+        | (u8[np.minimum(fo + 9, last)].astype(np.int64) << 16),
+        u8[np.minimum(fo + 5, last)].astype(np.int64),
+    )
+
+
+def _frames(u8: np.ndarray, fo: np.ndarray, rec: np.ndarray, log: BulkLog, per_type: dict) -> None:
+    """The frames at offsets ``fo`` (the index's records ``rec``): each checked against its CRC and its
     payload cut out, per (message, version, length), into ``per_type``; the damage counted in ``log``."""
+    if not len(fo):
+        return
     last = len(u8) - 1
     magic = u8[fo]
     plen = u8[fo + 1].astype(np.int64)
     v2 = magic == 0xFD
-    msgid = np.where(
-        v2,
-        u8[np.minimum(fo + 7, last)].astype(np.int64)
-        | (u8[np.minimum(fo + 8, last)].astype(np.int64) << 8)
-        | (u8[np.minimum(fo + 9, last)].astype(np.int64) << 16),
-        u8[fo + 5].astype(np.int64),
-    )
+    msgid = _msgid(u8, fo)
     sysid = np.where(v2, u8[np.minimum(fo + 5, last)], u8[fo + 3])
     compid = np.where(v2, u8[np.minimum(fo + 6, last)], u8[fo + 4])
     # One group per (msgid, version, payload length): fixed-width rows.
@@ -234,7 +250,7 @@ def _frames(u8: np.ndarray, fo: np.ndarray, i0: int, log: BulkLog, per_type: dic
         payload = np.zeros((int(ok.sum()), dt.itemsize), dtype=np.uint8)  # zero-padded (MAVLink 2 trim)
         payload[:, :L] = rows[ok, h - 1 : h - 1 + L]
         g = grp[ok]
-        per_type.setdefault(mid, []).append((g + i0, payload, sysid[g], compid[g]))
+        per_type.setdefault(mid, []).append((rec[g], payload, sysid[g], compid[g]))
 
 
 # ------------------------------------------------------------------ DataFlash binary

@@ -22,6 +22,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from drivers.tlog import TlogIndex
+
 from .bulk import load_tlog
 
 
@@ -134,11 +136,12 @@ def _text(v) -> str:
 _MAV_TYPE_GCS = 6
 
 
-def tables_from_tlog(path) -> LogTables:
+def tables_from_tlog(path, *, index: TlogIndex | None = None) -> LogTables:
     """A tlog's messages as tables on the recording's clock (seconds since its first record),
     without the ground stations' own (their HEARTBEATs would read as the vehicle's modes).
-    PARAM_VALUE messages give the parameters (the last value of each)."""
-    b = load_tlog(path)
+    PARAM_VALUE messages give the parameters (the last value of each). ``index``: the file's, if
+    already scanned."""
+    b = load_tlog(path, index=index)
     t0 = min((float(m.t.min()) for m in b.messages.values() if len(m)), default=0.0)
     gcs: set[int] = set()
     hb = b.messages.get("HEARTBEAT")

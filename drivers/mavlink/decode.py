@@ -166,6 +166,11 @@ class MavlinkDecoder:
             if handler is not None:
                 self._handlers[cls] = (handler, _time_field(cls), _INSTANCE_BY_NAME.get(cls.msgname, 0))
 
+    @property
+    def waiting(self) -> bool:
+        """Whether untimed measurements wait for their system's clock (:data:`PENDING_S`)."""
+        return bool(self._pending)
+
     # -- dispatch -----------------------------------------------------------
     def decode(self, m, t_rx: float) -> Out:
         """Measurements from a pymavlink message object."""

@@ -121,6 +121,11 @@ class Framer:
             if cls.msgname in FAST_TYPES:
                 self._fast[msgid] = FastSpec(cls)
 
+    @property
+    def pending(self) -> bool:
+        """Whether a partial frame (or bytes that may start one) waits for the next feed."""
+        return bool(self._buf)
+
     def reset(self) -> None:
         """Forget a partial frame (after a seek)."""
         self._buf = b""

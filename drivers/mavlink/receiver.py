@@ -136,6 +136,11 @@ class MavlinkReceiver:
         for key in self.counters.per_source:
             self._last_seq[key] = None
 
+    @property
+    def idle(self) -> bool:
+        """No partial frame waits for more bytes, and no untimed message for its vehicle's clock."""
+        return not self._framer.pending and not self.decoder.waiting
+
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
         self.counters.bytes += len(data)
         self._t_rx = t_rx

@@ -178,7 +178,7 @@ def _blinded(model: LinearModel, n0: int, lo: float, hi: float, kinds: set) -> L
 
 def _gains(run: Run, base: Run, lo: float, hi: float) -> dict[str, float]:
     a, b = window_loglik(run, lo, hi), window_loglik(base, lo, hi)
-    return {s: a.get(s, 0.0) - b.get(s, 0.0) for s in set(a) | set(b)}
+    return {s: a.get(s, 0.0) - b.get(s, 0.0) for s in sorted(set(a) | set(b))}  # sorted: the same report every run
 
 
 def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> float:

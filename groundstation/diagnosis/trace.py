@@ -95,7 +95,7 @@ def delta_bic_effective(aug: Run, base: Run, k: int, n: int) -> float:
     augmented run's innovations (module docstring); reported beside the white-noise one."""
     gain = sum(
         (aug.loglik_by.get(s, 0.0) - base.loglik_by.get(s, 0.0)) / max(aug.inflation.get(s, 1.0), 1.0)
-        for s in set(aug.loglik_by) | set(base.loglik_by)
+        for s in sorted(set(aug.loglik_by) | set(base.loglik_by))  # sorted: the same sum every run
     )
     return -2.0 * gain + k * math.log(n)
 

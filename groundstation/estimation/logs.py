@@ -14,6 +14,7 @@ from drivers.logs.crazyflie import is_crazyflie_log, read_crazyflie
 from drivers.logs.crazyflie import measurements as cf_measurements
 from drivers.logs.dataflash import is_dataflash, read_dataflash
 from drivers.logs.tables import LogTables, tables_from_tlog
+from drivers.logs.tlog_reader import read_tlog
 from drivers.logs.ulog import is_ulog, read_ulog
 from drivers.replay import Replay
 from groundstation.core.counts import counted
@@ -43,7 +44,8 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
     """Any supported log -> its measurements, a description, the vehicle it implies, and (with
     ``tables``) its other records as tables. ``imu_columns``: the raw IMU as columns
     (:class:`~groundstation.core.imu.ImuColumns`) instead of records, a tenth of the memory of a
-    1 kHz log's (a tlog's are never held as records)."""
+    1 kHz log's (a tlog's are never held as records, and its IMU frames are converted as columns:
+    :mod:`drivers.logs.tlog_reader`)."""
 
     def split(ms):
         return ImuColumns.split(ms) if imu_columns else (list(ms), None)
@@ -74,6 +76,11 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
         )
         ms, imu = split(ul.measurements)
         return LoadedLog(ms, desc, None, ul.tables, imu)
+    if imu_columns:
+        tl = read_tlog(path)
+        desc = f"MAVLink tlog, {tl.duration:.1f} s" + (f"; {tl.damage}" if tl.damage else "")
+        tab = tables_from_tlog(path, index=tl.index) if tables else LogTables(fmt="tlog", clock="recording")
+        return LoadedLog(tl.measurements, desc, None, tab, tl.imu)
     rp = Replay(path)
     ms, imu = split(rp.iter_measurements())  # a stream: the IMU's records are never all held
     damage = rp.skipped_summary()
