@@ -170,18 +170,27 @@ def _mav_dtype(cls) -> np.dtype:
 TLOG_CHUNK = 1 << 16
 
 
-def load_tlog(path: str | Path, *, index: TlogIndex | None = None, only: tuple[str, ...] = ()) -> BulkLog:
+def load_tlog(
+    path: str | Path, *, index: TlogIndex | None = None, only: tuple[str, ...] = (), without: tuple[str, ...] = ()
+) -> BulkLog:
     """Every valid message of a tlog as arrays per type (raises :class:`drivers.tlog.TlogError`);
-    ``only``: just these types. ``index``: the file's index if it is already scanned."""
+    ``only``: just these types; ``without``: not these. ``index``: the file's index if it is
+    already scanned."""
     ix = index if index is not None else TlogIndex.scan(path)
     u8 = np.frombuffer(ix.data, dtype=np.uint8)
     log = BulkLog(Path(path), {}, skipped=list(ix.skipped), truncated_at=ix.truncated_at)
     per_type: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {}
-    wanted = np.array([getattr(mavlink, f"MAVLINK_MSG_ID_{n}") for n in only], dtype=np.int64)
+
+    def ids(names: tuple[str, ...]) -> np.ndarray:
+        return np.array([getattr(mavlink, f"MAVLINK_MSG_ID_{n}") for n in names], dtype=np.int64)
+
+    wanted, unwanted = ids(only), ids(without)
     for i0 in range(0, len(ix.offset), TLOG_CHUNK):
         fo = ix.offset[i0 : i0 + TLOG_CHUNK] + 8
-        if only:
-            rec = i0 + np.flatnonzero(np.isin(_msgid(u8, fo), wanted))
+        if only or without:
+            ids_here = _msgid(u8, fo)
+            keep = np.isin(ids_here, wanted) if only else ~np.isin(ids_here, unwanted)
+            rec = i0 + np.flatnonzero(keep)
             _frames(u8, ix.offset[rec] + 8, rec, log, per_type)
         else:
             _frames(u8, fo, i0 + np.arange(len(fo)), log, per_type)

@@ -35,6 +35,10 @@ from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import load_tlog
 
+#: the messages whose accelerometer and gyro readings are the columns (the rest of a HIGHRES_IMU's, its
+#: magnetometer and pressures, only where the receiver reads the frame: see the module docstring)
+IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", "SCALED_IMU", "SCALED_IMU2", "SCALED_IMU3")
+
 #: HIGHRES_IMU's fields_updated bits for the accelerometer and the gyro (MAVLink
 #: HIGHRES_IMU_UPDATED_FLAGS); any other bit set sends the frame through the receiver
 _ACC, _GYRO = 0x7, 0x38
@@ -77,6 +81,8 @@ def _imu_frames(ix: TlogIndex, path: Path) -> _Columns:
     # a frame the receiver would read otherwise: see the module docstring
     ok = (raw != 0) & (raw <= EPOCH_THRESHOLD_US) & (upd != 0) & ((upd & ~(_ACC | _GYRO)) == 0)
     ok &= L <= f.dtype.itemsize
+    if ok.all():  # the usual case: no copy of the rows
+        return _Columns(hr.record, raw.astype(np.float64) * 1e-6, hr.sysid, hr.compid, f)
     sel = np.flatnonzero(ok)
     return _Columns(hr.record[sel], raw[sel].astype(np.float64) * 1e-6, hr.sysid[sel], hr.compid[sel], f[sel])
 

@@ -14,7 +14,7 @@ from drivers.logs.crazyflie import is_crazyflie_log, read_crazyflie
 from drivers.logs.crazyflie import measurements as cf_measurements
 from drivers.logs.dataflash import is_dataflash, read_dataflash
 from drivers.logs.tables import LogTables, tables_from_tlog
-from drivers.logs.tlog_reader import read_tlog
+from drivers.logs.tlog_reader import IMU_MESSAGES, read_tlog
 from drivers.logs.ulog import is_ulog, read_ulog
 from drivers.replay import Replay
 from groundstation.core.counts import counted
@@ -79,7 +79,12 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
     if imu_columns:
         tl = read_tlog(path)
         desc = f"MAVLink tlog, {tl.duration:.1f} s" + (f"; {tl.damage}" if tl.damage else "")
-        tab = tables_from_tlog(path, index=tl.index) if tables else LogTables(fmt="tlog", clock="recording")
+        # without the IMU's own messages: their samples are the columns
+        tab = (
+            tables_from_tlog(path, index=tl.index, without=IMU_MESSAGES)
+            if tables
+            else LogTables(fmt="tlog", clock="recording")
+        )
         return LoadedLog(tl.measurements, desc, None, tab, tl.imu)
     rp = Replay(path)
     ms, imu = split(rp.iter_measurements())  # a stream: the IMU's records are never all held
