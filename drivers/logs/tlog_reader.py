@@ -107,35 +107,32 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
                 rest.append(m)
 
     taken = np.zeros(len(cols.record), dtype=bool)
-    rec = cols.record.tolist()
-    tv, tr = cols.t.tolist(), t_rec[cols.record].tolist()
-    sysids = cols.sysid.tolist()
+    rec = cols.record
+    # the runs of column frames in consecutive records, [first, end) into ``rec``
+    brk = np.flatnonzero(np.diff(rec) != 1) + 1
+    firsts = np.r_[0, brk] if len(rec) else np.zeros(0, dtype=np.int64)
+    ends = np.r_[brk, len(rec)] if len(rec) else firsts
     i = 0  # the next record to read
-    k = 0  # the next column frame
-    n_col = len(rec)
-    while i < len(ix):
-        # the run of column frames from record i on
-        j = k
-        while j < n_col and rec[j] == i + (j - k):
-            j += 1
-        if j > k:
-            if not rx.idle:  # the receiver reads the first of them (it may end the wait)
-                take(i)
-                i, k = i + 1, k + 1
-                continue
-            for q in range(k, j):  # each shown to its vehicle's clock, where it lies in the file
-                clock = clocks.get(sysids[q])
-                if clock is None:
-                    clock = clocks[sysids[q]] = VehicleClock()
-                clock.observe(tv[q], tr[q])
-            taken[k:j] = True
-            i += j - k
-            k = j
-            continue
-        end = rec[k] if k < n_col else len(ix)
-        while i < end:
+    for k, end, r0 in zip(firsts.tolist(), ends.tolist(), rec[firsts].tolist()):
+        while i < r0:
             take(i)
             i += 1
+        while k < end and not rx.idle:  # the receiver reads them (the first may end the wait)
+            take(i)
+            i, k = i + 1, k + 1
+        if k == end:
+            continue
+        # each shown to its vehicle's clock, where it lies in the file
+        for sysid, tv, tr in zip(cols.sysid[k:end].tolist(), cols.t[k:end].tolist(), t_rec[rec[k:end]].tolist()):
+            clock = clocks.get(sysid)
+            if clock is None:
+                clock = clocks[sysid] = VehicleClock()
+            clock.observe(tv, tr)
+        taken[k:end] = True
+        i += end - k
+    while i < len(ix):
+        take(i)
+        i += 1
     return TlogRead(rest, _columns(cols, taken, t_rec, slow_imu, link_name), ix, damage_summary(ix, rx.counters))
 
 
@@ -188,11 +185,13 @@ def _add_columns(
     first: dict[tuple[Kind, int], tuple[int, str]],
 ) -> None:
     """The accelerometer's and gyro's columns of the frames ``taken``, per (kind, instance)."""
-    f = cols.fields[taken]
-    record = cols.record[taken]
+    every = bool(taken.all())  # the usual case: no copy of the rows
+    f = cols.fields if every else cols.fields[taken]
+    record = cols.record if every else cols.record[taken]
     upd = f["fields_updated"].astype(np.int64)
     inst = f["id"].astype(np.int64)
     src = (cols.sysid[taken].astype(np.int64) << 8) | cols.compid[taken]
+    t = cols.t if every else cols.t[taken]
     for kind, bits, names in (
         (Kind.ACCEL, _ACC, ("xacc", "yacc", "zacc")),
         (Kind.GYRO, _GYRO, ("xgyro", "ygyro", "zgyro")),
@@ -202,6 +201,6 @@ def _add_columns(
             sel = has & (inst == i)
             v = np.column_stack([f[n][sel].astype(np.float64) for n in names])
             r = record[sel]
-            parts.setdefault((kind, i), []).append((r, cols.t[taken][sel], t_rec[r], v))
+            parts.setdefault((kind, i), []).append((r, t[sel], t_rec[r], v))
             s0 = int(src[sel][0])
             first[(kind, i)] = (int(r[0]), f"{link_name}/{s0 >> 8}.{s0 & 0xFF}")
