@@ -116,6 +116,31 @@ def test_a_worker_that_fails_fails_the_call_with_its_error():
         fork_map(boom, range(5), 2)
 
 
+def test_a_trial_begun_beside_the_base_run_is_the_rankings_own(flight):
+    """The range's tilt, begun on a forked process before the ranking (``trials.Started``), ranks as
+    the ranking's own run of it; a begun trial the ranking does not ask for is stopped, its process
+    gone; an error in a begun trial reaches the caller as itself."""
+    su, base = flight
+    tilt = next(c for c in su.spec.catalogue(su.prep.kinds) if c.name == "range_tilt")
+    one = rank([tilt], su.model, base, su.prep, su.make, su.prep.measurements)
+    started = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements, None)
+    two = rank([tilt], su.model, base, su.prep, su.make, su.prep.measurements, started=started)
+    assert summary(two) == summary(one)
+    assert np.array_equal(two[0].run.x, one[0].run.x) and two[0].run.model.states == one[0].run.model.states
+
+    unasked = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements, None)
+    ((proc, _),) = unasked._running.values()
+    assert unasked.take([]) == {} and not proc.is_alive() and proc.exitcode is not None
+
+    def no_estimator(model):
+        raise ValueError("no estimator for this model")
+
+    broken = trials.Started([(tilt, None)], su.model, su.prep, no_estimator, su.prep.measurements, None)
+    with pytest.raises(ValueError, match="no estimator for this model"):
+        broken.take([tilt])
+    assert not broken._running
+
+
 @pytest.mark.parametrize("jobs", ["0", "-2", "two"])
 def test_diagnose_with_no_cores_to_run_on_is_one_line(tmp_path, jobs):
     log = tmp_path / "f.tlog"

@@ -186,6 +186,22 @@ def sensor_findings(run: Run) -> list[Finding]:
     return out
 
 
+def _start_trials(
+    cands: list[Candidate], model: LinearModel, prep: Prepared, make, columns: CatalogueColumns | None, workers: int
+) -> trials.Started | None:
+    """With cores to spare, the one trial each of the candidates without columns of their own (those
+    the first ranking runs when their screen could be claimed, and those it always runs), begun
+    beside the base run, one on each core but the one that makes it (:class:`.trials.Started`)."""
+    if workers < 2 or columns is None or trials.BY_RUNS:
+        return None
+    own = [c for c in cands if id(c) not in columns.by_candidate]
+    own.sort(key=lambda c: id(c) in columns.screens)  # those always run first
+    tasks = [(c, keys[0]) for c in own if len(keys := trials.first_keys(c)) == 1 and not c.delays]
+    if not tasks:
+        return None
+    return trials.Started(tasks[: workers - 1], model, prep, make, prep.measurements, columns.probes())
+
+
 def _modelled(run: Run) -> list[Effect]:
     """Effects the base model estimates itself, when the data say they are there (|x| > 3 sigma)."""
     out = []
@@ -325,11 +341,17 @@ def diagnose(
     if matched is first_run:  # taken with the zeros still open: its readings differ from the runs after it
         matched = None
     model0 = model  # what the effects are added to
-    say("running the model (before)")
-    base = matched if matched is not None else run_model(model, prep, make, probes=probes())
-    # before: the model as the log's noise has it, the GPS's slow error included; the effects are
-    # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
-    _, _, first = match_gps_slow(model, prep, make, base=base)
+    started = _start_trials(cands, model, prep, make, columns, workers)
+    try:
+        say("running the model (before)")
+        base = matched if matched is not None else run_model(model, prep, make, probes=probes())
+        # before: the model as the log's noise has it, the GPS's slow error included; the effects are
+        # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
+        _, _, first = match_gps_slow(model, prep, make, base=base)
+    except BaseException:
+        if started is not None:
+            started.close()
+        raise
     findings0 = sensor_findings(first)
     stream = prep.measurements
     effects: list[Effect] = []
@@ -344,18 +366,24 @@ def diagnose(
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
-        scored = rank(
-            cands,
-            model,
-            base,
-            prep,
-            make,
-            stream,
-            lambda s: say(f"trying {s}"),
-            workers=workers,
-            columns=columns,
-            exact_gains=su.spec.exact_gains,
-        )
+        try:
+            scored = rank(
+                cands,
+                model,
+                base,
+                prep,
+                make,
+                stream,
+                lambda s: say(f"trying {s}"),
+                workers=workers,
+                columns=columns,
+                exact_gains=su.spec.exact_gains,
+                started=started,
+            )
+        finally:
+            if started is not None:  # the first ranking's only
+                started.close()
+                started = None
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
         best: Scored | None = None
         for s in (s for s in scored if s.accepted):

@@ -250,6 +250,7 @@ def rank(
     workers: int = 1,
     columns: CatalogueColumns | None = None,
     exact_gains: bool = True,
+    started: trials.Started | None = None,
 ) -> list[Scored]:
     """The candidates scored and sorted by Delta BIC, each with its gain per supported update.
 
@@ -259,7 +260,8 @@ def rank(
     the model's gains do not depend on the data (else a two-stage score that could be claimed is
     run too). The rest, and everything without ``columns`` or with ``GROUNDSTATION_TRACE=runs``,
     is run: each candidate's filter runs on ``workers`` processes (:mod:`.trials`: the same scores
-    on any number). ``trials.BY_RUNS`` runs every candidate."""
+    on any number). ``trials.BY_RUNS`` runs every candidate. ``started``: trials begun beside the base
+    run (:class:`.trials.Started`), taken as made."""
     sig = None
     # the stand-ins read off the base run itself (a delay's heights then against now)
     read_off = {id(c): c.screen(model, base) for c in cands if c.screen is not None} if columns is not None else {}
@@ -309,6 +311,12 @@ def rank(
             base=base,
             probes=columns.probes() if columns is not None and sig is not None else None,
         )
+        if started is not None:
+            begun = started.take([c for _, c in to_run])
+            for j, (_, c) in enumerate(to_run):
+                for key, got in begun.get(id(c), {}).items():
+                    if key not in made.runs[j]:
+                        made.runs[j][key] = made.attach(j, key, got)
         if made.workers > 1:
             if progress:
                 progress(f"{len(to_run)} candidates on {made.workers} cores")

@@ -137,7 +137,7 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
 
 def portable(r: Run | None) -> Run | None:
     """A run as it can travel between processes: without its model and its probes' columns
-    (closures; the receiver gives them back, :meth:`Trials._attach`)."""
+    (closures; the receiver gives them back, :meth:`Trials.attach`)."""
     if r is None:
         return None
     taped = r.taped
@@ -331,7 +331,7 @@ class Trials:
             return
         tasks = [(i, k) for i, c in enumerate(self.cands) for k in first_keys(c) if k not in self.runs[i]]
         for (i, key), r in zip(tasks, fork_map(self._portable_trial, tasks, self.workers)):
-            self.runs[i][key] = self._attach(i, key, r)
+            self.runs[i][key] = self.attach(i, key, r)
         grids = [
             (i, {d: r.loglik for d, r in self.runs[i].items() if isinstance(d, float) and r is not None})
             for i, c in enumerate(self.cands)
@@ -339,7 +339,7 @@ class Trials:
         ]
         for (i, _), new in zip(grids, fork_map(self._portable_refinement, grids, self.workers)):
             for d, r in new.items():
-                self.runs[i][d] = self._attach(i, d, r)
+                self.runs[i][d] = self.attach(i, d, r)
 
     def _portable_trial(self, task: tuple[int, Hashable]) -> Run | None:
         i, key = task
@@ -351,10 +351,87 @@ class Trials:
         refine(self.cands[i], dict(lik), lambda d: self.run(i, d), runs, self.floor(i))
         return {d: portable(r) for d, r in runs.items()}
 
-    def _attach(self, i: int, key: Hashable, r: Run | None) -> Run | None:
+    def attach(self, i: int, key: Hashable, r: Run | None) -> Run | None:
+        """A run that travelled (:func:`portable`) as candidate ``i``'s at ``key``, whole again."""
         if r is None:
             return None
         taped = r.taped
         if taped is not None and taped.probes is not None and self.probes is not None:
             taped = replace(taped, probes=taped.probes.attached(self.probes.columns))
         return replace(r, model=trial_model(self.cands[i], key, self.model), taped=taped)
+
+
+class Started:
+    """First trials begun on forked processes, one each, before the ranking that may ask for them.
+    A candidate without columns of its own (a changed measurement function: the range read along
+    the tilt) is run whenever its screen through the base run's gains could be claimed, and its one
+    trial needs only the model: begun beside the base run on a spare core, it is ready when the
+    ranking asks (:meth:`take`) instead of starting then; one the ranking does not ask for is
+    stopped. The runs are the ranking's own, number for number (:func:`portable`, attached by
+    :class:`Trials`)."""
+
+    def __init__(
+        self,
+        tasks: list[tuple[Candidate, Hashable]],
+        model: LinearModel,
+        prep: Prepared,
+        make,
+        ms: list[Measurement],
+        probes: Probes | None,
+    ) -> None:
+        self._tasks = tasks
+        self._trials = Trials([c for c, _ in tasks], model, prep, make, ms, probes=probes)
+        self._running: dict[int, tuple] = {}  # task -> (process, its pipe's reading end)
+        ctx = multiprocessing.get_context("fork")
+        with threadpool_limits(limits=1, user_api="blas"):  # as fork_map: one BLAS thread in the children
+            for n, (_, key) in enumerate(tasks):
+                recv, send = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=self._work, args=(n, key, send), daemon=True)
+                proc.start()
+                send.close()
+                self._running[n] = (proc, recv)
+
+    def _work(self, n: int, key: Hashable, send) -> None:
+        """In the child: the task's run, sent back (or the error that stopped it)."""
+        try:
+            out: object = self._trials._portable_trial((n, key))
+        except BaseException as e:  # noqa: BLE001 -- carried to the parent, raised there
+            out = e
+        send.send(out)
+        send.close()
+
+    def take(self, cands: list[Candidate]) -> dict[int, dict[Hashable, Run | None]]:
+        """The runs of those of ``cands`` begun here, by ``id(candidate)`` and key, travelled as
+        they are (:func:`portable`); the trials no candidate of ``cands`` needs are stopped first."""
+        wanted = {id(c) for c in cands}
+        for n, (c, _) in enumerate(self._tasks):
+            if id(c) not in wanted and n in self._running:
+                self._stop(n)
+        out: dict[int, dict[Hashable, Run | None]] = {}
+        for n in list(self._running):
+            c, key = self._tasks[n]
+            proc, recv = self._running.pop(n)
+            try:
+                got = recv.recv()
+            except EOFError:
+                raise RuntimeError(f"the forked trial of {c.name} ended without its run") from None
+            finally:
+                recv.close()
+                proc.join()
+            if isinstance(got, BaseException):
+                self.close()
+                raise got
+            out.setdefault(id(c), {})[key] = got
+        return out
+
+    def _stop(self, n: int) -> None:
+        proc, recv = self._running.pop(n)
+        if proc.is_alive():
+            proc.terminate()
+        proc.join()
+        recv.close()
+
+    def close(self) -> None:
+        """Stop whatever still runs (the ranking did not ask, or an error came first)."""
+        for n in list(self._running):
+            self._stop(n)
