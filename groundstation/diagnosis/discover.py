@@ -68,13 +68,20 @@ class Discovery:
 
 def lowpass(t: np.ndarray, x: np.ndarray, tc: float) -> np.ndarray:
     """``x`` sampled at ``t`` through a first-order low-pass of time constant ``tc`` [s], exact for
-    a signal held between samples."""
+    a signal held between samples. (A recursion whose coefficient changes with each step: no
+    ``scipy.signal`` filter takes one; on Python floats, not numpy's scalars, for speed.)"""
     y = np.empty_like(x)
-    acc = x[0]
-    for i in range(len(x)):
+    if not len(x):
+        return y
+    xs, ts = x.tolist(), t.tolist()
+    out = [0.0] * len(xs)
+    acc = xs[0]
+    exp = math.exp
+    for i in range(len(xs)):
         if i:
-            acc += (x[i] - acc) * (1.0 - math.exp(-max(t[i] - t[i - 1], 0.0) / tc))
-        y[i] = acc
+            acc += (xs[i] - acc) * (1.0 - exp(-max(ts[i] - ts[i - 1], 0.0) / tc))
+        out[i] = acc
+    y[:] = out
     return y
 
 
