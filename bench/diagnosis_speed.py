@@ -104,8 +104,9 @@ def _close(a, b, sigma) -> bool:
 
 def same_findings(a: dict, b: dict) -> tuple[bool, str]:
     """Whether two report.json say the same: the effects added in the same order with the same
-    parameters (each within 5 % or half its standard error), and the same candidates turned away.
-    The second item says what differs."""
+    parameters (each within 5 % or half its standard error), and the same candidates turned away
+    (at their hold-out, or before it by a screen whose bound could not be claimed: said so). The
+    second item says what differs."""
     ea, eb = a.get("effects", []), b.get("effects", [])
     if [e["name"] for e in ea] != [e["name"] for e in eb]:
         return False, f"effects {[e['name'] for e in ea]} vs {[e['name'] for e in eb]}"
@@ -116,10 +117,17 @@ def same_findings(a: dict, b: dict) -> tuple[bool, str]:
             sigma = x["params"].get(f"sigma_{k}")
             if not _close(v, y["params"][k], sigma):
                 return False, f"{x['name']} {k}: {v} vs {y['params'][k]}"
-    ra = sorted(e["name"] for e in a.get("rejected", []))
-    rb = sorted(e["name"] for e in b.get("rejected", []))
+    ra = {e["name"] for e in a.get("rejected", [])}
+    rb = {e["name"] for e in b.get("rejected", [])}
     if ra != rb:
-        return False, f"rejected {ra} vs {rb}"
+        # turned away by both, one at its hold-out, the other before it (at its screen, its bound not
+        # claimable): the same findings, said
+        ranked_b = {name.split("(")[0] for ranking in b.get("ranking", []) for name, _ in ranking}
+        ranked_a = {name.split("(")[0] for ranking in a.get("ranking", []) for name, _ in ranking}
+        if ra - rb <= ranked_b and rb - ra <= ranked_a:
+            only = sorted((ra - rb) | (rb - ra))
+            return True, f"same (turned away before its hold-out: {', '.join(only)})"
+        return False, f"rejected {sorted(ra)} vs {sorted(rb)}"
     return True, "same"
 
 

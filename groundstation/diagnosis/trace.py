@@ -318,7 +318,7 @@ def rank(
                     if key not in made.runs[j]:
                         made.runs[j][key] = made.attach(j, key, got)
         if made.workers > 1:
-            if progress:
+            if progress and made.pending():
                 progress(f"{len(to_run)} candidates on {made.workers} cores")
             made.compute_all()
         for j, (i, c) in enumerate(to_run):

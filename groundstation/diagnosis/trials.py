@@ -324,6 +324,10 @@ class Trials:
             runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.probes)
         return runs[key]
 
+    def pending(self) -> int:
+        """The first trials not made yet (begun elsewhere, :class:`Started`, or the base run's zero)."""
+        return sum(k not in self.runs[i] for i, c in enumerate(self.cands) for k in first_keys(c))
+
     def compute_all(self) -> None:
         """Every candidate's first trials and its grid's refinement, on the pool (nothing with one
         worker: :meth:`run` computes each when asked)."""
