@@ -45,7 +45,9 @@ def _mixed_frames():
     the receiver (magnetometer and pressure bits, zero and UNIX times, untimed messages before the
     first time, a second instance, MAVLink 1 SCALED_IMU) among plain accelerometer + gyro frames."""
     a, b = mavlink.MAVLink(None, 1, 1), mavlink.MAVLink(None, 2, 1)
-    frames = [bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(a))]  # untimed, before any time
+    gcs = mavlink.MAVLink(None, 255, 190)  # a ground station's heartbeat, once: it waits for a clock for good
+    frames = [bytes(mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3).pack(gcs))]
+    frames += [bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(a))]  # untimed, before any time
     frames += [bytes(mavlink.MAVLink_vfr_hud_message(0, 0, 0, 50, 1.0, 0.0).pack(a))]
     rnd = random.Random(7)
     for k in range(3000):

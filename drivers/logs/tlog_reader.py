@@ -14,8 +14,8 @@ the replay's, record for record (``tests/test_tlog_reader.py``).
 A HIGHRES_IMU frame goes through the receiver instead where the columns would not say what the
 receiver says: one that carries more than the accelerometer and gyro (``fields_updated``), one
 without a vehicle time (zero, or a UNIX time), one longer than its definition, one whose CRC fails
-(the receiver counts it), and any while the receiver holds a partial frame or untimed messages
-waiting for their clock. The receiver's sequence-loss counters see only the frames it is fed (a
+(the receiver counts it), and any while the receiver holds a partial frame or untimed messages of
+its vehicle waiting for their clock. The receiver's sequence-loss counters see only the frames it is fed (a
 log's loss is the triage's, from the tables).
 """
 
@@ -117,8 +117,8 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
         while i < r0:
             take(i)
             i += 1
-        while k < end and not rx.idle:  # the receiver reads them (the first may end the wait)
-            take(i)
+        while k < end and not rx.idle_for(cols.sysid[k:end].tolist()):
+            take(i)  # the receiver reads it (it may end its vehicle's wait)
             i, k = i + 1, k + 1
         if k == end:
             continue

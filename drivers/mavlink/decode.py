@@ -171,6 +171,10 @@ class MavlinkDecoder:
         """Whether untimed measurements wait for their system's clock (:data:`PENDING_S`)."""
         return bool(self._pending)
 
+    def waiting_for(self, sysid: int) -> bool:
+        """Whether untimed measurements of system ``sysid`` wait for its clock."""
+        return sysid in self._pending
+
     # -- dispatch -----------------------------------------------------------
     def decode(self, m, t_rx: float) -> Out:
         """Measurements from a pymavlink message object."""

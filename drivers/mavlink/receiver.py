@@ -10,7 +10,7 @@ raw-message hook.
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -136,10 +136,13 @@ class MavlinkReceiver:
         for key in self.counters.per_source:
             self._last_seq[key] = None
 
-    @property
-    def idle(self) -> bool:
-        """No partial frame waits for more bytes, and no untimed message for its vehicle's clock."""
-        return not self._framer.pending and not self.decoder.waiting
+    def idle_for(self, sysids: Iterable[int]) -> bool:
+        """No partial frame waits for more bytes, and no untimed message of these systems for its
+        clock: a timed message of theirs would change nothing here but that clock."""
+        if self._framer.pending:
+            return False
+        dec = self.decoder
+        return not dec.waiting or not any(dec.waiting_for(s) for s in set(sysids))
 
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
         self.counters.bytes += len(data)
