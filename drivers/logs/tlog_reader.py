@@ -117,7 +117,7 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
         while i < r0:
             take(i)
             i += 1
-        while k < end and not rx.idle_for(cols.sysid[k:end].tolist()):
+        while k < end and not rx.idle_for(cols.sysid[k:end]):
             take(i)  # the receiver reads it (it may end its vehicle's wait)
             i, k = i + 1, k + 1
         if k == end:

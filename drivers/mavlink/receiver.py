@@ -138,11 +138,12 @@ class MavlinkReceiver:
 
     def idle_for(self, sysids: Iterable[int]) -> bool:
         """No partial frame waits for more bytes, and no untimed message of these systems for its
-        clock: a timed message of theirs would change nothing here but that clock."""
+        clock: a timed message of theirs would change nothing here but that clock. (``sysids`` is
+        read only while some system waits, which is seldom.)"""
         if self._framer.pending:
             return False
         dec = self.decoder
-        return not dec.waiting or not any(dec.waiting_for(s) for s in set(sysids))
+        return not dec.waiting or not any(dec.waiting_for(int(s)) for s in set(sysids))
 
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
         self.counters.bytes += len(data)

@@ -86,14 +86,12 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
             else LogTables(fmt="tlog", clock="recording")
         )
         return LoadedLog(tl.measurements, desc, None, tab, tl.imu)
-    rp = Replay(path)
-    ms, imu = split(rp.iter_measurements())  # a stream: the IMU's records are never all held
+    rp = Replay(path)  # every reading a record, as the live receive path gives them
+    ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()
     desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
     del rp  # the file's bytes and index, before the tables read them again
-    return LoadedLog(
-        ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"), imu
-    )
+    return LoadedLog(ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"))
 
 
 def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
