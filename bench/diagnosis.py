@@ -101,7 +101,8 @@ def flight_for(effect: str, baro_flight: str = "high") -> str:
 
 def one(job: tuple) -> dict:
     from drivers.replay import Replay
-    from groundstation.diagnosis.engine import diagnose, truth_from
+    from groundstation.diagnosis.engine import diagnose
+    from groundstation.estimation.truth import truth_from
     from groundstation.estimation.vehicles import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
@@ -232,9 +233,9 @@ def clean_twin_rmse(
     reach by construction; the share of the effect's own error removed, (before - after) /
     (before - floor), is what the diagnosis controls."""
     from drivers.replay import Replay
-    from groundstation.diagnosis.engine import truth_from
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
+    from groundstation.estimation.truth import truth_from
     from groundstation.estimation.vehicles import declared_effects
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario

@@ -15,8 +15,9 @@ import tempfile
 from pathlib import Path
 
 from drivers.replay import Replay
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.report import as_json, conclusion
+from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 

@@ -9,12 +9,13 @@ import pytest
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis.airframe import thrust_curve
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.live import markdown
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.outputs import interval_means
 from groundstation.diagnosis.report import as_json, conclusion
 from groundstation.diagnosis.thrust import TAU_GROUND, lift_off, main_flight, throttle_series
+from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario

@@ -311,3 +311,29 @@ def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
         assert info.returncode == 0, info.stderr
         seconds = float(info.stdout.split(" records, ")[1].split(" s")[0])
         assert 1.0 < seconds < 4.0, info.stdout
+
+
+def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
+    """``evaluate --truth`` reads a truth CSV by any name (a foreign flight's NAME_truth.csv is found
+    beside its log); a missing or unreadable one is a one-line error."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    log, sidecar = tmp_path / "f.tlog", tmp_path / "f.csv"
+    run_fast(Scenario.from_args("quad", 3, 20.0, [], []), log, sidecar)
+    named = tmp_path / "elsewhere.csv"
+    sidecar.rename(named)
+    r = run("evaluate", str(log))
+    assert r.returncode == 0, r.stderr
+    assert "- (no truth)" in r.stdout
+    r = run("evaluate", str(log), "--truth", str(named))
+    assert r.returncode == 0, r.stderr
+    est = next(ln for ln in r.stdout.splitlines() if ln.startswith("estimate"))
+    assert "(truth: truth file elsewhere.csv)" in est
+    assert 0.0 < float(est.split()[1]) < 0.5  # m
+    assert_one_line_error(run("evaluate", str(log), "--truth", str(tmp_path / "none.csv")), "no such truth file")
+    bad = tmp_path / "bad.csv"
+    bad.write_text("t,h\n0.0,1.0\n0.1,oops\n")
+    assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: not a truth CSV")
+    bad.write_text("time,height\n0.0,1.0\n")
+    assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: no truth in it")

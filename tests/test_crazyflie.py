@@ -90,8 +90,9 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     and its drift in flight (0.09-0.13 m/s), the ToF's mounting offset against Vicon (-3.3 to -4.0 cm),
     and the height error against Vicon before and after. A few minutes: 50 s of 1 kHz IMU, every
     candidate a full filter run."""
-    from groundstation.diagnosis.engine import diagnose, truth_from
+    from groundstation.diagnosis.engine import diagnose
     from groundstation.estimation.logs import load_measurements
+    from groundstation.estimation.truth import truth_from
 
     p = real_file("crazyflie_util/0422-log00")
     ms, _desc, vehicle = load_measurements(p)  # as `groundstation diagnose` reads it
@@ -126,9 +127,10 @@ def test_attitude_diagnosis_rejects_a_mounting_error_that_vicon_contradicts():
     """The attitude model on 0422-log00: a large "IMU mounting error" fits the vibrating
     accelerometer better, and makes roll and pitch worse against Vicon. It is rejected, said
     with its evidence, and what is kept does not worsen the estimate."""
-    from groundstation.diagnosis.engine import diagnose, truth_from
+    from groundstation.diagnosis.engine import diagnose
     from groundstation.diagnosis.report import as_json, conclusion
     from groundstation.estimation.logs import load_measurements
+    from groundstation.estimation.truth import truth_from
 
     p = real_file("crazyflie_util/0422-log00")
     ms, _desc, vehicle = load_measurements(p)
@@ -154,8 +156,9 @@ def test_diagnose_finds_the_tofs_slant_under_tilt_on_0425_traj4():
     error on z (1/cos - 1) has slope 0.95. The diagnosis finds the slant from the log's own gyro tilt
     (derived.with_attitude), keeps it against Vicon, and the height error falls by two thirds
     (3.05 -> 0.96 cm measured; with the accelerometer's tilt it was vetoed, 3.21 -> 7.33 cm)."""
-    from groundstation.diagnosis.engine import diagnose, truth_from
+    from groundstation.diagnosis.engine import diagnose
     from groundstation.estimation.logs import load_measurements
+    from groundstation.estimation.truth import truth_from
 
     p = real_file("crazyflie_util/0425-traj4")
     ms, _desc, vehicle = load_measurements(p)

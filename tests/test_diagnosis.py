@@ -14,7 +14,8 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.diagnosis.detect import detect
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.engine import diagnose
+from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario

@@ -15,9 +15,10 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.models import setup
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
+from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 

@@ -10,11 +10,12 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.diagnosis import holdout, trials
-from groundstation.diagnosis.engine import diagnose, truth_from
+from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.gains import CatalogueColumns, fit, run_signatures, virtual_run
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.run import SETTLE_S, run_model
 from groundstation.estimation.logs import load_log
+from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 

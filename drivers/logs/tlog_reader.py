@@ -52,6 +52,7 @@ class TlogRead:
     imu: ImuColumns
     index: TlogIndex  # the file's bytes and record index (the tables read them again)
     damage: str  # one line, as :meth:`Replay.skipped_summary`, or ''
+    ground_stations: frozenset[int] = frozenset()  #: system ids heard with a ground station's heartbeat
 
     @property
     def duration(self) -> float:
@@ -133,7 +134,8 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
     while i < len(ix):
         take(i)
         i += 1
-    return TlogRead(rest, _columns(cols, taken, t_rec, slow_imu, link_name), ix, damage_summary(ix, rx.counters))
+    imu = _columns(cols, taken, t_rec, slow_imu, link_name)
+    return TlogRead(rest, imu, ix, damage_summary(ix, rx.counters), frozenset(rx.decoder.ground_stations))
 
 
 def _columns(

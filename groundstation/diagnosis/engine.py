@@ -13,11 +13,9 @@ worse is rejected and reported as such, and the next candidate is tried.
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -25,6 +23,7 @@ from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.truth import Truth
 
 from . import holdout, trials
 from .catalogue import Candidate, state_param, unobservable_in, with_regressor, with_throttle_stand_in
@@ -56,47 +55,6 @@ VETO_FLOOR = {"height [m]": 0.01, "roll and pitch [rad]": math.radians(0.5)}
 #: own 10; Kass and Raftery's scale). A baro drift of 0.03 m/s on a flight whose temperature rose almost
 #: in a line was named baro_thermal, Delta BIC -7168.5 against the drift's -7161.9
 CLOSE_CALL = 10.0
-
-
-@dataclass
-class Truth:
-    """Height truth [m, up] and, when the source has it, roll and pitch [rad] (motion capture or
-    the simulator's sidecar): metrics only."""
-
-    t: np.ndarray
-    h: np.ndarray
-    source: str
-    cos_tilt: np.ndarray | None = None  # cos(roll) cos(pitch) of the truth's attitude, when it has one
-    roll: np.ndarray | None = None
-    pitch: np.ndarray | None = None
-
-    def rmse(self, t: np.ndarray, z: np.ndarray, t0: float, t1: float) -> float:
-        k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
-        return float(np.sqrt(np.mean((z[k] - np.interp(t[k], self.t, self.h)) ** 2))) if k.any() else math.nan
-
-    def error(self, run: Run, t0: float, t1: float) -> float:
-        """RMSE against truth of what the run estimates: the height [m], or roll and pitch
-        together [rad] (the attitude model)."""
-        states = run.model.states
-        if "z" in states:
-            return self.rmse(run.t, run.x[:, states.index("z")], t0, t1)
-        if "roll" in states and self.roll is not None and self.pitch is not None:
-            k = (run.t >= max(t0, self.t[0])) & (run.t <= min(t1, self.t[-1]))
-            if not k.any():
-                return math.nan
-            e = np.concatenate(
-                [
-                    run.x[k, 0] - np.interp(run.t[k], self.t, self.roll),
-                    run.x[k, 1] - np.interp(run.t[k], self.t, self.pitch),
-                ]
-            )
-            e = (e + math.pi) % (2 * math.pi) - math.pi
-            return float(np.sqrt(np.mean(e**2)))
-        return math.nan
-
-    @staticmethod
-    def quantity(run: Run) -> str:
-        return "height [m]" if "z" in run.model.states else "roll and pitch [rad]"
 
 
 @dataclass
@@ -135,44 +93,6 @@ class Diagnosis:
     def passes(findings: list[Finding]) -> bool:
         """The residuals pass: NIS in its band and white (the loop's stopping rule)."""
         return all(f.passed for f in findings if f.test in ("NIS mean", "Ljung-Box whiteness"))
-
-
-def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
-    pose = [m for m in ms if m.kind is Kind.TRUTH_POSE]
-    if pose:
-        q = np.array([m.value[3:7] for m in pose])
-        w, x, y, z = q.T
-        # the body z axis's vertical component, R_IB[2, 2] = cos(roll) cos(pitch)
-        c = 1.0 - 2.0 * (x * x + y * y)
-        roll = np.arctan2(2 * (w * x + y * z), c)
-        pitch = np.arcsin(np.clip(2 * (w * y - z * x), -1.0, 1.0))
-        return Truth(
-            np.array([m.t for m in pose]), np.array([-m.value[2] for m in pose]), "motion capture", c, roll, pitch
-        )
-    p = truth_csv
-    if p is None and log is not None:
-        # the simulator's sidecar (NAME.csv) or a truth file beside the log (NAME_truth.csv)
-        p = next((q for q in (log.with_suffix(".csv"), log.with_name(log.stem + "_truth.csv")) if q.exists()), None)
-    if p is not None and p.exists():
-        with open(p) as f:
-            rows = list(csv.DictReader(f))
-        # the height above the floor, up: "h" (the simulator's sidecar) or "z"
-        height = next((k for k in ("h", "z") if rows and k in rows[0]), None)
-        if height is not None and "t" in rows[0]:
-            roll = pitch = c = None
-            if "roll" in rows[0]:
-                roll = np.array([float(r["roll"]) for r in rows])
-                pitch = np.array([float(r["pitch"]) for r in rows])
-                c = np.cos(roll) * np.cos(pitch)
-            return Truth(
-                np.array([float(r["t"]) for r in rows]),
-                np.array([float(r[height]) for r in rows]),
-                f"simulator sidecar {p.name}",
-                c,
-                roll,
-                pitch,
-            )
-    return None
 
 
 def sensor_findings(run: Run) -> list[Finding]:

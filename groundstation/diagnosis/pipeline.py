@@ -13,10 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from groundstation.estimation.logs import load_log
+from groundstation.estimation.truth import truth_from
 
 from . import report
 from .autopilot_params import suggest, suggest_notch, write_param_file
-from .engine import diagnose, truth_from
+from .engine import diagnose
 from .report import triage_headline
 from .triage import Triage, triage, usable, usable_imu
 

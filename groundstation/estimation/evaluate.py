@@ -1,7 +1,7 @@
 """``groundstation evaluate LOG``: how well the estimators do on measured data.
 
 Runs the estimator the log's sensors allow and prints, per sensor: its raw
-error against truth (where the log has truth: motion capture), the estimate's
+error against truth (motion capture in the log, or a truth CSV beside it or named), the estimate's
 RMSE against truth, the innovations' mean NIS, and a whiteness p-value
 (Ljung-Box on the normalised innovations): a small p says the innovations are
 correlated, i.e. the model misses something the diagnosis should find.
@@ -19,10 +19,11 @@ from groundstation.core.atmosphere import altitude_at
 from groundstation.core.counts import counted
 from groundstation.core.measurement import Kind
 
-from .logs import load_measurements
+from .logs import load_blocked, load_measurements
 from .loop import EstimationLoop
 from .models.ground import LANDED
 from .registry import build_estimator
+from .truth import truth_from
 from .vehicles import range_offset, vehicle_effects
 from .whiteness import ljung_box
 
@@ -44,6 +45,7 @@ class Evaluation:
     estimate_rmse: float
     estimates: int
     skipped: dict[str, int] = field(default_factory=dict)  # the estimator's counted skips
+    truth: str = ""  # where the truth came from ('' without one)
 
     def table(self) -> str:
         out = [
@@ -59,40 +61,49 @@ class Evaluation:
             else:
                 out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the vehicle's offset applied)")
         est = f"{self.estimate_rmse:.4f}" if self.estimate_rmse == self.estimate_rmse else "- (no truth)"
-        out.append(f"{'estimate':<10}{'':>7}{est:>24}")
+        out.append(f"{'estimate':<10}{'':>7}{est:>24}" + (f"   (truth: {self.truth})" if self.truth else ""))
         return "\n".join(out)
 
 
 def evaluate(
-    path: Path, model: str = "altitude", *, vehicle: str | None = None, t_window: tuple[float, float] | None = None
+    path: Path,
+    model: str = "altitude",
+    *,
+    vehicle: str | None = None,
+    t_window: tuple[float, float] | None = None,
+    truth_csv: Path | None = None,
 ) -> Evaluation:
-    ms, desc, implied = load_measurements(path)
+    """The model over the whole log (its IMU in blocks, :func:`.logs.load_blocked`, where it has one
+    vehicle), scored against truth: motion capture in the log, ``truth_csv``, or a truth CSV beside
+    the log (``LOG.csv``, ``LOG_truth.csv``; :func:`.truth.truth_from`)."""
+    blocked = load_blocked(path)
+    if blocked is not None:
+        ms, desc, implied = blocked.measurements, blocked.description, blocked.vehicle
+    else:
+        ms, desc, implied = load_measurements(path)
     est = build_estimator(model, vehicle=vehicle or implied)
     offset = range_offset(vehicle_effects(vehicle or implied))
     loop = EstimationLoop([est])
     snaps = loop.snapshots.subscribe()
-    truth_t: list[float] = []
-    truth_z: list[float] = []
     raw: dict[str, list[tuple[float, float]]] = {"range": [], "baro": []}
     for m in ms:
         loop.push(m)
-        if m.kind is Kind.TRUTH_POSE:
-            truth_t.append(m.t)
-            truth_z.append(-m.value[2])
-        elif m.kind is Kind.RANGE:
+        if m.kind is Kind.RANGE:
             raw["range"].append((m.t, float(m.value[0])))
         elif m.kind in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
             h = float(m.value[0]) if m.kind is Kind.BARO_ALTITUDE else float(altitude_at(m.value[0]))
             raw["baro"].append((m.t, h))
     s = snaps.get_nowait()
-    tt, zz = np.array(truth_t), np.array(truth_z)
+    truth = truth_from(ms, path, truth_csv)
+    if truth_csv is not None and truth is None:
+        raise ValueError(f"{truth_csv}: no truth in it (a CSV with columns t and h, or t and z)")
+    tt, zz = (truth.t, truth.h) if truth is not None else (np.zeros(0), np.zeros(0))
     t0, t1 = t_window or ((tt[0], tt[-1]) if len(tt) else (-np.inf, np.inf))
 
     def rmse_vs_truth(t, v):
-        if not len(tt) or not len(t):
+        if truth is None or not len(t):
             return float("nan")
-        k = (t >= t0) & (t <= t1)
-        return float(np.sqrt(np.mean((v[k] - np.interp(t[k], tt, zz)) ** 2))) if k.any() else float("nan")
+        return truth.rmse(np.asarray(t), np.asarray(v), t0, t1)
 
     rows = []
     for sensor in est.filter.log.sensors():
@@ -114,4 +125,6 @@ def evaluate(
             rows.append(SensorRow("range-o", len(r), rmse_vs_truth(r[:, 0], r[:, 1] - offset), math.nan, math.nan))
     st = np.array([x.t for x in s])
     sz = np.array([x.x[0] for x in s])
-    return Evaluation(desc, model, rows, rmse_vs_truth(st, sz), len(s), est.counters.rejected)
+    return Evaluation(
+        desc, model, rows, rmse_vs_truth(st, sz), len(s), est.counters.rejected, truth.source if truth else ""
+    )

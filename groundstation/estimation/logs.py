@@ -8,6 +8,7 @@ events, modes, vibration, motors, the autopilot's own filter, parameters) for th
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from operator import attrgetter
 from pathlib import Path
 
 from drivers.logs.crazyflie import is_crazyflie_log, read_crazyflie
@@ -16,10 +17,11 @@ from drivers.logs.dataflash import is_dataflash, read_dataflash
 from drivers.logs.tables import LogTables, tables_from_tlog
 from drivers.logs.tlog_reader import IMU_MESSAGES, read_tlog
 from drivers.logs.ulog import is_ulog, read_ulog
+from drivers.mavlink.link import GCS_SYSTEM_ID
 from drivers.replay import Replay
 from groundstation.core.counts import counted
-from groundstation.core.imu import ImuColumns
-from groundstation.core.measurement import Measurement
+from groundstation.core.imu import ImuColumns, block_means
+from groundstation.core.measurement import Measurement, source_system
 
 from .derived import with_attitude
 
@@ -38,6 +40,8 @@ class LoadedLog:
     tables: LogTables = field(default_factory=LogTables)
     #: with ``imu_columns``: the raw accelerometer and gyro as columns, not among ``measurements``
     imu: ImuColumns | None = None
+    damage: str = ""  #: a tlog's damage, one line (also in ``description``)
+    ground_stations: frozenset[int] = frozenset()  #: a tlog's system ids of ground stations
 
 
 def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> LoadedLog:
@@ -85,13 +89,15 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
             if tables
             else LogTables(fmt="tlog", clock="recording")
         )
-        return LoadedLog(tl.measurements, desc, None, tab, tl.imu)
+        return LoadedLog(tl.measurements, desc, None, tab, tl.imu, tl.damage, tl.ground_stations)
     rp = Replay(path)  # every reading a record, as the live receive path gives them
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()
     desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
     del rp  # the file's bytes and index, before the tables read them again
-    return LoadedLog(ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"))
+    return LoadedLog(
+        ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"), None, damage
+    )
 
 
 def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
@@ -99,3 +105,45 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
     the vehicle configuration it implies)."""
     log = load_log(path, tables=False)  # the measurements alone: the records' tables are not built
     return log.measurements, log.description, log.vehicle
+
+
+#: [s] the IMU's block for a run over a whole log (the diagnosis's runs take the same)
+IMU_BLOCK_S = 0.01
+
+
+@dataclass
+class BlockedLog:
+    """A log made ready for one estimator run over all of it (:func:`load_blocked`)."""
+
+    measurements: list[Measurement]  #: every reading, the IMU's as block means, in time order
+    readings: int  #: the readings these stand for (each IMU sample one)
+    description: str
+    vehicle: str | None
+    damage: str
+    ground_stations: frozenset[int]
+
+
+def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
+    """Any supported log with its IMU as ``imu_dt`` block means, for a run of an estimator over the
+    whole of it, ten times faster than reading by reading at 1 kHz; None for a log of more than one
+    vehicle (its IMU columns are kept per kind and instance, not per vehicle).
+
+    A block's mean is held as the input over exactly the interval it averages
+    (:func:`~groundstation.core.imu.block_means`), as a live loop under load and the diagnosis's
+    runs take it. For the altitude filter a prediction over the block's mean and ten over its
+    samples differ by the samples' spread times dt^2: well under a millimetre.
+    Readings are in the order of their vehicle time (the order a live loop restores within its
+    reorder window), at equal times in the file's."""
+    log = load_log(path, tables=False, imu_columns=True)
+    imu = log.imu if log.imu is not None else ImuColumns()
+    systems = {source_system(m.source) for m in log.measurements} | {
+        source_system(s.source) for s in imu.series.values()
+    }
+    systems -= {None, GCS_SYSTEM_ID, *log.ground_stations}  # a ground station's own commands are no vehicle's
+    if len(systems) > 1:
+        return None
+    blocks = [m for (kind, inst), s in imu.series.items() for m in block_means(s, kind, inst, imu_dt).records]
+    ms = sorted(log.measurements + blocks, key=attrgetter("t"))
+    return BlockedLog(
+        ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations
+    )
