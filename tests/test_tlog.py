@@ -100,3 +100,23 @@ def test_seek_is_by_time_across_a_recording_gap(tmp_path):
     assert i == 100
     assert idx.seek(101.005) == 101 and idx.seek(0.495) == 50
     assert np.all(np.diff(idx.offset) > 0)
+
+
+def test_a_lone_damaged_timestamp_takes_the_time_before_it(tmp_path):
+    """A bit flipped in one record's timestamp (2^32 us: 72 minutes ahead, within the day a resync
+    trusts) neither stretches the log's duration nor moves seeking; it is counted. A real gap of
+    the recording (the records after it agree with each other) stays a gap."""
+    p = write_tlog(tmp_path / "flip.tlog", imu_frames(100))
+    data = bytearray(p.read_bytes())
+    rec = len(data) // 100
+    data[50 * rec + 3] ^= 0x01  # bit 32 of record 50's big-endian microseconds
+    p.write_bytes(bytes(data))
+    idx = TlogIndex.scan(p)
+    assert len(idx) == 100 and idx.mended_times == 1
+    assert idx.duration == pytest.approx(0.99, abs=1e-5) and idx.t[50] == idx.t[49]
+    assert idx.seek(0.595) == 60  # (ahead, record 50 took every later seek)
+    rp = Replay(p)
+    assert sum(1 for _ in rp.iter_measurements()) == 300
+    assert "1 records with a damaged timestamp given the time of the one before" in rp.skipped_summary()
+    gap = TlogIndex.scan(write_tlog(tmp_path / "gap.tlog", imu_frames(100), gap_after=49, gap=3600.0))
+    assert gap.mended_times == 0 and gap.duration == pytest.approx(3600.99, abs=1e-3)
