@@ -103,3 +103,18 @@ def test_fleet_errors_are_one_line(tmp_path):
     (tmp_path / "empty").mkdir()
     r = _fleet(tmp_path / "empty", "--out", tmp_path / "o")
     assert r.returncode == 2 and "no log in it" in r.stderr
+
+
+def test_a_file_named_as_a_log_that_is_none_is_a_failed_log_not_passed_over(tmp_path):
+    """A garbage ``.tlog`` (a transfer cut to noise) is reported with its error; a text file is no log."""
+    from groundstation.diagnosis import fleet
+
+    a = tmp_path / "archive"
+    (a / "quad-2").mkdir(parents=True)
+    (a / "quad-2" / "junk.tlog").write_bytes(bytes(range(256)) * 40)
+    (a / "quad-2" / "notes.txt").write_text("not a log\n")
+    jobs = fleet.find_logs(a, tmp_path / "out", "altitude")
+    assert [j.rel for j in jobs] == ["quad-2/junk.tlog"]
+    err = fleet.diagnose_one(jobs[0])
+    assert err["error"].startswith("not a log by its content") and err["log"] == "quad-2/junk.tlog"
+    assert json.loads((Path(jobs[0].out) / "error.json").read_text())["error"] == err["error"]

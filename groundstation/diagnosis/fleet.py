@@ -82,12 +82,17 @@ def folder_name(rel: str) -> str:
     return rel.replace(os.sep, "__") + ".diagnosis"
 
 
+#: names a log has: a file so named that no reader takes is reported as a failed log, not passed over
+LOG_SUFFIXES = frozenset({".tlog", ".bin", ".ulg"})
+
+
 def find_logs(archive: Path, out: Path, model: str) -> list[LogJob]:
-    """Every log under ``archive`` (sorted by path; the output folder itself is skipped)."""
+    """Every log under ``archive``, and every file named as one (:data:`LOG_SUFFIXES`), sorted by
+    path; the output folder itself is skipped."""
     jobs = []
     out = out.resolve()
     for p in sorted(archive.rglob("*")):
-        if out in p.resolve().parents or not is_log(p):
+        if out in p.resolve().parents or not (is_log(p) or (p.suffix.lower() in LOG_SUFFIXES and p.is_file())):
             continue
         rel = str(p.relative_to(archive))
         parts = Path(rel).parts
@@ -119,6 +124,8 @@ def diagnose_one(job: LogJob) -> dict:
     (out / "error.json").unlink(missing_ok=True)
     (out / "done.json").unlink(missing_ok=True)
     try:
+        if not is_log(Path(job.path)):
+            raise ValueError("not a log by its content (a MAVLink tlog, DataFlash, ULog or Crazyflie log)")
         r = run(Path(job.path), out, model=job.model)
     except (ValueError, OSError, RuntimeError, ArithmeticError) as e:
         msg = str(e).splitlines()[0] if str(e) else type(e).__name__
