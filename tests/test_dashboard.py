@@ -2,6 +2,7 @@
 
 import asyncio
 import math
+import os
 import re
 import sys
 import time
@@ -235,6 +236,7 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
     estimator was given: its declared slant and its airframe file (sim_quad's constants are the
     thrust model's; the altitude model's diagnosis is the same with or without them)."""
     from drivers.replay import Replay
+    from groundstation.diagnosis.live import DIAGNOSIS_NICE
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
     from web.dashboard import Dashboard
@@ -263,6 +265,10 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
                     break
         assert d.last_diagnosis["vehicle"] == "sim_quad"
         assert d.last_diagnosis["effects"][0]["name"] == "baro_thrust"
+        # the worker yields the CPU to the link and the estimation loop
+        (worker,) = d._pool._processes
+        nice = os.getpriority(os.PRIO_PROCESS, worker) - os.getpriority(os.PRIO_PROCESS, 0)
+        assert nice == min(DIAGNOSIS_NICE, 19 - os.getpriority(os.PRIO_PROCESS, 0))
         assert 3.0 < d.last_diagnosis["effects"][0]["params"]["k"] < 5.0
     finally:
         pusher.cancel()

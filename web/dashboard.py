@@ -27,6 +27,7 @@ import asyncio
 import concurrent.futures
 import math
 import multiprocessing
+import os
 import socket
 import sys
 import time
@@ -40,7 +41,7 @@ from scipy.stats import chi2
 from groundstation.core.counts import counted
 from groundstation.core.frames import quaternion_from_euler, quaternion_from_matrix
 from groundstation.core.measurement import Kind, Measurement
-from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdown
+from groundstation.diagnosis.live import DIAGNOSIS_NICE, SessionBuffer, diagnose_window, markdown
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.models.ground import LANDED
 
@@ -269,7 +270,9 @@ class Dashboard:
         self.diagnosis_md.content = f"Diagnosing the last {seconds:.0f} s ({len(ms)} measurements)…"
         try:
             if self._pool is None:
-                self._pool = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+                self._pool = concurrent.futures.ProcessPoolExecutor(
+                    1, mp_context=multiprocessing.get_context("spawn"), initializer=os.nice, initargs=(DIAGNOSIS_NICE,)
+                )
             j = await asyncio.get_running_loop().run_in_executor(
                 self._pool, diagnose_window, ms, str(self.diagnosis_model.value), self.declared, self.airframe
             )

@@ -18,6 +18,10 @@ from groundstation.core.measurement import Kind, Measurement
 from .engine import diagnose
 from .report import as_json, conclusion, format_params
 
+#: the live diagnosis worker's niceness: it yields the CPU to the link and the estimation loop (on
+#: two cores, a 2 kHz link's p99 socket-to-record went from 5.8 ms to 1.9 ms with a diagnosis beside it)
+DIAGNOSIS_NICE = 10
+
 
 class SessionBuffer:
     """The latest measurements, bounded by count, the IMU already averaged over ``imu_dt`` blocks
