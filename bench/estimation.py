@@ -7,7 +7,8 @@
 2. Whole-recording throughput: a simulated 10-minute flight with a 1 kHz IMU,
    50 Hz barometer and 20 Hz range sensor, read from its tlog and run through
    the altitude filter, as simulated seconds per wall second. Baseline: real
-   time (1x); target >= 20x on one core.
+   time (1x); target >= 20x on one core reading by reading, >= 50x as a replay
+   at max speed takes it (the log as columns, the IMU in 10 ms blocks).
 3. Live latency at 1 kHz input: the simulated vehicle (its own process, as a
    vehicle is its own device) sends over loopback UDP (IMU at 1 kHz), the link
    decodes, the loop runs the filter; for every
@@ -30,6 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from drivers.mavlink.link import MavlinkLink  # noqa: E402
 from drivers.replay import Replay  # noqa: E402
 from groundstation.core.measurement import Kind, Measurement  # noqa: E402
+from groundstation.estimation.logs import load_blocked  # noqa: E402
 from groundstation.estimation.loop import EstimationLoop  # noqa: E402
 from groundstation.estimation.registry import build_estimator  # noqa: E402
 from sim_bridge.fast import run_fast  # noqa: E402
@@ -67,18 +69,30 @@ def updates_per_second(n: int = 20000) -> float:
     return n / (time.perf_counter() - t0)
 
 
-def whole_recording(minutes: float, d: Path) -> tuple[float, int]:
+def whole_recording(minutes: float, d: Path) -> tuple[float, float]:
+    """The recording through the altitude filter, as multiples of real time (best of two each,
+    interleaved): reading by reading through the live receive path, as a paced replay plays it, and
+    as ``replay --speed max`` without a dashboard takes it (:func:`load_blocked`: the log read as
+    columns, the IMU in 10 ms blocks)."""
     sc = scenario(minutes * 60.0, d)
     run_fast(sc, d / "long.tlog")
-    best = 0.0
+    each = blocked = 0.0
     for _ in range(2):
         t0 = time.perf_counter()
         est = build_estimator("altitude", [{"name": "range_tilt"}])
         loop = EstimationLoop([est])
         for m in Replay(d / "long.tlog").iter_measurements():
             loop.push(m)
-        best = max(best, minutes * 60.0 / (time.perf_counter() - t0))
-    return best, est.counters.updates
+        each = max(each, minutes * 60.0 / (time.perf_counter() - t0))
+        t0 = time.perf_counter()
+        log = load_blocked(d / "long.tlog")
+        assert log is not None
+        est = build_estimator("altitude", [{"name": "range_tilt"}])
+        loop = EstimationLoop([est], reorder_s=0.0)  # in time order: nothing to roll back
+        for m in log.measurements:
+            loop.push(m)
+        blocked = max(blocked, minutes * 60.0 / (time.perf_counter() - t0))
+    return each, blocked
 
 
 async def live(seconds: float, d: Path) -> dict:
@@ -162,11 +176,14 @@ def main() -> int:
         ups = updates_per_second()
         print(f"{'measure':<58}{'value':>14}  target")
         print(f"{'altitude filter: range updates (with prediction) per s':<58}{ups:>14,.0f}  -")
-        ratio, n_upd = whole_recording(args.minutes, d)
-        verdict = "met" if ratio >= 20 else "NOT met"
+        each, blocked = whole_recording(args.minutes, d)
         print(
             f"{f'{args.minutes:g}-min recording (1 kHz IMU) -> altitude filter, x real time':<58}"
-            f"{ratio:>13.1f}x  >= 20x {verdict}"
+            f"{each:>13.1f}x  >= 20x {'met' if each >= 20 else 'NOT met'}"
+        )
+        print(
+            f"{'  the same, log as columns, IMU in 10 ms blocks (replay max)':<58}"
+            f"{blocked:>13.1f}x  >= 50x {'met' if blocked >= 50 else 'NOT met'}  ({blocked / each:.1f}x the above)"
         )
         if args.live_seconds > 0:
             r = asyncio.run(live(args.live_seconds, d))

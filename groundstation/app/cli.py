@@ -465,6 +465,7 @@ def _replay_blocked(args) -> int | None:
         None,
         args.vehicle or log.vehicle,
         is_vehicle=lambda sysid: sysid != GCS_SYSTEM_ID and sysid not in log.ground_stations,
+        in_time_order=True,
     )
     print(f"replaying {args.file} at max speed: {log.description}", flush=True)
     for m in log.measurements:

@@ -35,10 +35,19 @@ class Outputs:
     """The estimation loop and the files a command writes, fed measurement by measurement."""
 
     def __init__(
-        self, args, declared_path: Path | None, dashboard=None, vehicle: str | None = None, *, scene: bool = False
+        self,
+        args,
+        declared_path: Path | None,
+        dashboard=None,
+        vehicle: str | None = None,
+        *,
+        scene: bool = False,
+        in_time_order: bool = False,
     ) -> None:
         """``dashboard``: shown there from the start; ``scene``: the session has a dashboard (this
-        vehicle may be shown there later, :meth:`show_on`)."""
+        vehicle may be shown there later, :meth:`show_on`); ``in_time_order``: the measurements come
+        in vehicle-time order (a log made ready, :func:`~groundstation.estimation.logs.load_blocked`):
+        nothing to roll back, so no checkpoints for it."""
         self.declared = declared_effects(declared_path)
         self.model, self.airframe = args.model, vehicle
         self.estimator = build_estimator(args.model, self.declared, load_noise(args.noise), vehicle=vehicle)
@@ -47,7 +56,7 @@ class Outputs:
             # the 3D view needs a horizontal place and its covariance; none of the
             # documents' models has one (see models/horizontal.py)
             estimators.append(build_estimator("horizontal"))
-        self.loop = EstimationLoop(estimators)
+        self.loop = EstimationLoop(estimators, reorder_s=0.0) if in_time_order else EstimationLoop(estimators)
         self.status = StatusLine()
         self.dashboard = None
         self.measurements = MeasurementCsvWriter(args.export_measurements) if args.export_measurements else None
@@ -141,8 +150,10 @@ class VehicleOutputs:
         *,
         is_vehicle: Callable[[int], bool] = lambda sysid: True,
         on_new: Callable[[list[int]], None] | None = None,
+        in_time_order: bool = False,
     ) -> None:
         self.args, self.declared_path, self.dashboard, self.airframe = args, declared_path, dashboard, vehicle
+        self.in_time_order = in_time_order
         self.is_vehicle, self.on_new = is_vehicle, on_new
         self.by_id: dict[int, Outputs] = {}
         self.first: Outputs | None = None
@@ -152,7 +163,9 @@ class VehicleOutputs:
 
     def _new(self, sysid: int | None) -> Outputs:
         if self.first is None:
-            out = self.first = Outputs(self.args, self.declared_path, self.dashboard, self.airframe)
+            out = self.first = Outputs(
+                self.args, self.declared_path, self.dashboard, self.airframe, in_time_order=self.in_time_order
+            )
             self.first_id = self.shown = sysid
         elif self.first_id is None:  # the first outputs had only measurements of no vehicle yet
             out, self.first_id, self.shown = self.first, sysid, sysid
@@ -160,7 +173,14 @@ class VehicleOutputs:
             assert sysid is not None
             args = argparse.Namespace(**vars(self.args))
             args.export, args.export_measurements = beside(args.export, sysid), beside(args.export_measurements, sysid)
-            out = Outputs(args, self.declared_path, None, self.airframe, scene=self.dashboard is not None)
+            out = Outputs(
+                args,
+                self.declared_path,
+                None,
+                self.airframe,
+                scene=self.dashboard is not None,
+                in_time_order=self.in_time_order,
+            )
         if sysid is not None:
             self.by_id[sysid] = out
             if self.on_new is not None and len(self.by_id) > 1:

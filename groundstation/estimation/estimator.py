@@ -185,7 +185,7 @@ class KalmanEstimator:
             if z is None:
                 self.counters.skip(f"{mm.name}_{why or 'not_used'}")  # calibrating, out of range
                 continue
-            if not np.all(np.isfinite(z)):
+            if not np.isfinite(z).all():
                 self.counters.skip(f"{mm.name}_invalid")
                 continue
             rec = f.update(mm, z, R=mm.R / m.samples if mm.per_sample and m.samples > 1 else None)

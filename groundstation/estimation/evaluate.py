@@ -83,7 +83,7 @@ def evaluate(
         ms, desc, implied = load_measurements(path)
     est = build_estimator(model, vehicle=vehicle or implied)
     offset = range_offset(vehicle_effects(vehicle or implied))
-    loop = EstimationLoop([est])
+    loop = EstimationLoop([est], reorder_s=0.0) if blocked is not None else EstimationLoop([est])
     snaps = loop.snapshots.subscribe()
     raw: dict[str, list[tuple[float, float]]] = {"range": [], "baro": []}
     for m in ms:

@@ -288,15 +288,23 @@ class ModelFilter:
         P = kf.P
         PHt = P @ H.T
         S = H @ PHt + R
+        y = z - H @ kf.x
         if S.shape == (1, 1):
             s = float(S[0, 0])
             if s == 0.0:  # as filterpy's inverse of S would: a filter run away is the caller's to catch
                 raise np.linalg.LinAlgError("singular innovation covariance")
-            SI = np.array([[1.0 / s]])
-        else:
-            SI = np.linalg.inv(S)
+            # the same products as the matrix forms, each a single one (an inner dimension of 1):
+            # K = P H^T / S, x + K y, K H and K R K^T as outer products
+            si = 1.0 / s
+            K = PHt * si
+            kf.x = kf.x + K[:, 0] * y[0]
+            I_KH = self._eye - K * H
+            kf.P = I_KH @ P @ I_KH.T + (K * float(R[0, 0])) * K.T
+            kf.y, kf.S, kf.K = y, S, K
+            y0 = float(y[0])
+            return y0 * si * y0
+        SI = np.linalg.inv(S)
         K = PHt @ SI
-        y = z - H @ kf.x
         kf.x = kf.x + K @ y
         I_KH = self._eye - K @ H
         kf.P = I_KH @ P @ I_KH.T + K @ R @ K.T

@@ -180,8 +180,9 @@ class EstimationLoop:
             self._history.popleft()
 
     def _process(self, m: Measurement, publish: bool) -> None:
-        self._checkpoint_if_due(m.t)
-        self._record(m)
+        if self.reorder_s > 0.0:  # (none: a log in time order, where nothing is ever rolled back)
+            self._checkpoint_if_due(m.t)
+            self._record(m)
         self.counters.processed += 1
         for est in self.estimators:
             rec = est.handle(m)
