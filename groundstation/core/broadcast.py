@@ -103,6 +103,8 @@ class Subscription(Generic[T]):
 
     def get_nowait(self) -> list[T]:
         """Everything buffered now (for consumers that poll at their own rate)."""
+        if not self._buf:  # (whoever emptied it set the space: a replay polls after every reading)
+            return []
         items = [x for x in self._buf if x is not _CLOSED]
         if len(items) != len(self._buf):
             self._closed = True

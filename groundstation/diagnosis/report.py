@@ -46,7 +46,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from matplotlib.figure import Figure
 
 from groundstation.estimation.export import EstimateCsvWriter
 from groundstation.estimation.models.ground import LANDED
@@ -367,6 +366,8 @@ def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def _figures(d: Diagnosis) -> str:
+    from matplotlib.figure import Figure  # (here: a second of every command's start-up otherwise)
+
     out = []
     for s in sorted((set(d.before.sensors) & set(d.after.sensors)) - {LANDED}):
         # matplotlib's object API: no pyplot, so no global backend or figure registry to manage
