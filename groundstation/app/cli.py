@@ -453,9 +453,9 @@ def _open_replay(args) -> tuple[Replay, str, str | None]:
 
 
 def _replay_blocked(args) -> int | None:
-    """A replay at max speed with no one to watch it and no reading to export: the log read as columns and
-    its IMU taken in blocks (:func:`~groundstation.estimation.logs.load_blocked`), ten times faster
-    than reading by reading. None where that does not hold (a log of several vehicles)."""
+    """A replay at max speed with no one to watch it and no reading to export: the log read as
+    columns and its IMU taken in blocks (:func:`~groundstation.estimation.logs.load_blocked`), three
+    times faster than reading by reading. None where that does not hold (a log of several vehicles)."""
     log = load_blocked(args.file)
     if log is None:
         return None
