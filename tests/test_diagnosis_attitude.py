@@ -157,12 +157,22 @@ def test_the_attitude_report_gives_the_angle_error_in_degrees(tmp_path):
     assert head[:3] == ["t", "roll", "pitch"] and "b_p" in head
 
 
-def test_attitude_diagnosis_needs_a_raw_imu():
+def test_attitude_diagnosis_needs_a_raw_imu(tmp_path):
     from .conftest import real_file
 
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")  # no IMU in it
     r = subprocess.run(
-        [sys.executable, "-m", "groundstation", "diagnose", str(p), "--model", "attitude"],
+        [
+            sys.executable,
+            "-m",
+            "groundstation",
+            "diagnose",
+            str(p),
+            "--model",
+            "attitude",
+            "--out",
+            str(tmp_path / "d"),
+        ],
         capture_output=True,
         text=True,
     )

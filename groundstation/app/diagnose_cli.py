@@ -111,9 +111,10 @@ class Progress:
             self.open = False
 
 
-def writable_folder(out: Path) -> None:
+def writable_folder(out: Path) -> bool:
     """Make ``out`` and check that files can be written in it, before minutes of analysis: one
-    line of error (OSError, as the command line reports it) if not."""
+    line of error (OSError, as the command line reports it) if not. Returns whether it made it."""
+    made = not out.exists()
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / ".groundstation-write-test"
@@ -121,29 +122,35 @@ def writable_folder(out: Path) -> None:
         probe.unlink()
     except OSError as e:
         raise OSError(f"{out}: cannot write the report there: {e.strerror or e}") from None
+    return made
 
 
 def cmd_diagnose(args) -> int:
     out = args.out or args.file.with_name(args.file.name + ".diagnosis")
     if not args.file.exists():
         raise OSError(f"{args.file}: cannot read: no such file")
-    writable_folder(out)
+    made = writable_folder(out)
     bar = Progress()
 
     def say(line: str) -> None:
         bar.done()  # the bar's line ends before the next line is printed
         print(line, flush=True)
 
-    pipeline.run(
-        args.file,
-        out,
-        model=args.model,
-        declared=declared_effects(args.declared or declared_beside(args.file)),
-        vehicle=args.vehicle,
-        truth_csv=args.truth,
-        veto_with_truth=not args.no_truth_veto,
-        progress=bar,
-        say=say,
-        workers=args.jobs,
-    )
+    try:
+        pipeline.run(
+            args.file,
+            out,
+            model=args.model,
+            declared=declared_effects(args.declared or declared_beside(args.file)),
+            vehicle=args.vehicle,
+            truth_csv=args.truth,
+            veto_with_truth=not args.no_truth_veto,
+            progress=bar,
+            say=say,
+            workers=args.jobs,
+        )
+    except BaseException:
+        if made and not any(out.iterdir()):
+            out.rmdir()  # a log that could not be diagnosed leaves no empty report folder beside it
+        raise
     return 0
