@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import csv
 import re
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 
@@ -76,3 +78,30 @@ def test_a_damaged_log_is_blocked_with_its_damage_named(tmp_path):
     out = _replay(log)
     last = out.strip().splitlines()[-1]
     assert "10 ms blocks" in last and "truncated last record" in last, out
+
+
+def test_ctrl_c_stops_a_batch_replay_with_what_was_estimated_written(tmp_path):
+    """A max-speed replay runs outside an event loop: Ctrl-C stops it at once (inside one, the first
+    SIGINT only marked the run cancelled and was lost), the estimates so far are in the file, and the
+    last line says where it stopped; exit status 130."""
+    sc = Scenario(vehicle="quad", seed=2, duration=120.0)
+    sc.sensors.rates.update({"imu": 1000, "baro": 50, "range": 20})
+    log, est = tmp_path / "q.tlog", tmp_path / "est.csv"
+    run_fast(sc, log)
+    cmd = [sys.executable, "-m", "groundstation", "replay", str(log), "--speed", "max", "--no-web", "--quiet"]
+    with subprocess.Popen([*cmd, "--export", str(est)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as p:
+        try:
+            assert p.stdout is not None and p.stdout.readline().startswith("replaying")  # estimating from here
+            deadline = time.monotonic() + 60
+            while not (est.exists() and est.stat().st_size > 0) and p.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.005)  # until the first estimates reach the file
+            p.send_signal(signal.SIGINT)
+            out, err = p.communicate(timeout=60)
+        finally:
+            p.kill()
+    assert p.returncode == 130 and "Traceback" not in err, err
+    last = out.strip().splitlines()[-1]
+    stopped = re.match(r"stopped \(Ctrl-C\) at t ([\d.]+) s: (\d+) of (\d+) measurements", last)
+    assert stopped and int(stopped.group(2)) < int(stopped.group(3)), last
+    rows = _estimates(est)
+    assert 0 < len(rows["t"]) and rows["t"][-1] <= float(stopped.group(1)) + 0.05

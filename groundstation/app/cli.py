@@ -194,6 +194,8 @@ def _run(args) -> int:
             return asyncio.run(run_demo(args))
         if args.vehicle:
             vehicle_config(args.vehicle, args.model)  # an unknown one is a one-line error before anything starts
+        if args.command == "replay" and args.speed == math.inf and args.no_web and not args.loop:
+            return replay_in_batch(args)  # (outside an event loop: Ctrl-C interrupts it at once)
         runner = {"connect": run_connect, "replay": run_replay}[args.command]
         return asyncio.run(runner(args))
     except BrokenPipeError:
@@ -452,110 +454,132 @@ def _open_replay(args) -> tuple[Replay, str, str | None]:
     return rp, f"{len(rp.index)} records, {rp.duration:.1f} s", None
 
 
-def _replay_blocked(args) -> int | None:
-    """A replay at max speed with no one to watch it and no reading to export: the log read as
-    columns and its IMU taken in blocks (:func:`~groundstation.estimation.logs.load_blocked`), three
-    times faster than reading by reading. None where that does not hold (a log of several vehicles)."""
-    log = load_blocked(args.file)
-    if log is None:
-        return None
-    out = VehicleOutputs(
-        args,
-        args.declared or declared_beside(args.file),
-        None,
-        args.vehicle or log.vehicle,
-        is_vehicle=lambda sysid: sysid != GCS_SYSTEM_ID and sysid not in log.ground_stations,
-        in_time_order=True,
-    )
-    print(f"replaying {args.file} at max speed: {log.description}", flush=True)
-    for m in log.measurements:
-        out.see(m)
+def replay_in_batch(args) -> int:
+    """A replay at max speed with no dashboard: every record estimated in one synchronous pass, no
+    event loop round trip per record, so that Ctrl-C stops it at once (KeyboardInterrupt), with what
+    was estimated so far written and the last line saying where it stopped (exit status 130).
+
+    Without ``--start`` or ``--export-measurements`` the log is read as columns and its IMU taken in
+    10 ms blocks (:func:`~groundstation.estimation.logs.load_blocked`), three times faster than
+    reading by reading; a log of several vehicles is read by reading, as the other cases are."""
+    log = None if args.start or args.export_measurements else load_blocked(args.file)
+    if log is not None:
+        stations = log.ground_stations
+        out = _replay_outputs(args, None, log.vehicle, stations, in_time_order=True)
+        print(f"replaying {args.file} at max speed: {log.description}", flush=True)
+        at = _estimate_all(out, log.measurements)
+        blocks = f"the IMU's in {IMU_BLOCK_S * 1e3:g} ms blocks"
+        count = (
+            f"{log.readings} measurements ({blocks}, as {len(log.measurements)})"
+            if at is None
+            else f"{out.count} of {len(log.measurements)} measurements ({blocks})"
+        )
+        damage = log.damage
+    else:
+        rp, desc, vehicle = _open_replay(args)
+        decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
+        out = _replay_outputs(args, None, vehicle, decoder.ground_stations if decoder is not None else set())
+        print(f"replaying {args.file} at max speed: {desc}", flush=True)
+        at = _estimate_all(out, rp.iter_measurements())
+        count = f"{out.count} measurements from {rp.receiver.counters.messages} messages"
+        damage = rp.skipped_summary()
     written = out.close()
     print(
-        f"done: {log.readings} measurements (the IMU's in {IMU_BLOCK_S * 1e3:g} ms blocks, as"
-        f" {len(log.measurements)})" + (f"; {log.damage}" if log.damage else "") + (f"; {written}" if written else ""),
+        (f"stopped (Ctrl-C) at t {at:.1f} s: " if at is not None else "done: ")
+        + count
+        + (f"; {damage}" if damage else "")
+        + (f"; {written}" if written else ""),
         flush=True,
     )
-    return 0
+    return 0 if at is None else 130
 
 
-async def run_replay(args) -> int:
-    if args.speed == math.inf and args.no_web and not (args.loop or args.start or args.export_measurements):
-        done = _replay_blocked(args)
-        if done is not None:
-            return done
-    rp, desc, vehicle = _open_replay(args)
-    dash = _start_dashboard(args)
-    decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
-    stations = decoder.ground_stations if decoder is not None else set()
-    out = VehicleOutputs(
+def _estimate_all(out: VehicleOutputs, ms) -> float | None:
+    """Every measurement of ``ms`` estimated; None, or the vehicle time Ctrl-C stopped it at."""
+    t = math.nan
+    try:
+        for m in ms:
+            t = m.t
+            out.see(m)
+    except KeyboardInterrupt:
+        return t
+    return None
+
+
+def _replay_outputs(args, dash, vehicle: str | None, stations, *, in_time_order: bool = False) -> VehicleOutputs:
+    """The outputs of a replay: one estimator per vehicle, none for a ground station (ours or one
+    recorded in the log: its own frames are in a tlog too, some before its first heartbeat)."""
+    return VehicleOutputs(
         args,
         args.declared or declared_beside(args.file),
         dash,
         args.vehicle or vehicle,
-        # our own frames are in a tlog too, some before our first heartbeat
         is_vehicle=lambda sysid: sysid not in stations and sysid != GCS_SYSTEM_ID,
         on_new=dash.set_vehicles if dash is not None else None,
+        in_time_order=in_time_order,
     )
+
+
+async def run_replay(args) -> int:
+    """A paced replay, or one with a dashboard (a max-speed one without is :func:`replay_in_batch`)."""
+    rp, desc, vehicle = _open_replay(args)
+    dash = _start_dashboard(args)
+    decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
+    out = _replay_outputs(args, dash, vehicle, decoder.ground_stations if decoder is not None else set())
     if dash is not None:
         dash.on_vehicle = out.show
     print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}", flush=True)
-    if rp.speed == math.inf and not args.loop and dash is None:
-        # Batch: the same receive path, without an event loop round trip per record.
-        for m in rp.iter_measurements():
-            out.see(m)
-    else:
-        stop = asyncio.Event()
-        _install_stop(stop)
-        supervisor = Supervisor(stop.set)
-        sub = rp.measurements()
-        consumer = supervisor.start("estimation", lambda: _consume(sub, out))
-        player = asyncio.create_task(rp.run())
+    stop = asyncio.Event()
+    _install_stop(stop)
+    supervisor = Supervisor(stop.set)
+    sub = rp.measurements()
+    consumer = supervisor.start("estimation", lambda: _consume(sub, out))
+    player = asyncio.create_task(rp.run())
 
-        rates = RateMeter()
+    rates = RateMeter()
 
-        async def print_status():
-            while True:
-                await asyncio.sleep(1.0)
-                if dash is not None:
-                    dash.set_link_status(
-                        link_markdown(
-                            f"replay {rp.status.state.value} · t {rp.position:.1f} / {rp.duration:.1f} s",
-                            rp.receiver.counters,
-                            rates(rp.receiver.counters.by_type),
-                        )
+    async def print_status():
+        while True:
+            await asyncio.sleep(1.0)
+            if dash is not None:
+                dash.set_link_status(
+                    link_markdown(
+                        f"replay {rp.status.state.value} · t {rp.position:.1f} / {rp.duration:.1f} s",
+                        rp.receiver.counters,
+                        rates(rp.receiver.counters.by_type),
                     )
-                if not args.quiet:
-                    out.print_status(
-                        rp.status.state.value, rp.receiver.counters, f"t {rp.position:.1f}/{rp.duration:.1f} s"
-                    )
+                )
+            if not args.quiet:
+                out.print_status(
+                    rp.status.state.value, rp.receiver.counters, f"t {rp.position:.1f}/{rp.duration:.1f} s"
+                )
 
-        printer = supervisor.start("status line", print_status)
-        web = None
-        if dash is not None:
-            dash.attach_replay(rp)
-            web = supervisor.start("dashboard", dash.run)
-        if sys.stdin is not None and sys.stdin.isatty():
-            print(REPLAY_HELP, flush=True)
+    printer = supervisor.start("status line", print_status)
+    web = None
+    if dash is not None:
+        dash.attach_replay(rp)
+        web = supervisor.start("dashboard", dash.run)
+    if sys.stdin is not None and sys.stdin.isatty():
+        print(REPLAY_HELP, flush=True)
 
-            def on_stdin():
-                reply = replay_command(sys.stdin.readline(), rp, stop)
-                if reply:
-                    print(reply, flush=True)
+        def on_stdin():
+            reply = replay_command(sys.stdin.readline(), rp, stop)
+            if reply:
+                print(reply, flush=True)
 
-            asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
-        stopper = asyncio.create_task(stop.wait())
-        await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
-        if dash is not None and not stop.is_set():
-            print(f"replay ended; the dashboard stays at {dash.url} until Ctrl-C", flush=True)
-            await stop.wait()
-        for t in (printer, stopper, player, *([web] if web else [])):
-            t.cancel()
-        await asyncio.gather(player, *([web] if web else []), return_exceptions=True)
-        rp.close()
-        await consumer
-        if dash is not None:
-            dash.stop()
+        asyncio.get_running_loop().add_reader(sys.stdin.fileno(), on_stdin)
+    stopper = asyncio.create_task(stop.wait())
+    await asyncio.wait({player, stopper}, return_when=asyncio.FIRST_COMPLETED)
+    if dash is not None and not stop.is_set():
+        print(f"replay ended; the dashboard stays at {dash.url} until Ctrl-C", flush=True)
+        await stop.wait()
+    for t in (printer, stopper, player, *([web] if web else [])):
+        t.cancel()
+    await asyncio.gather(player, *([web] if web else []), return_exceptions=True)
+    rp.close()
+    await consumer
+    if dash is not None:
+        dash.stop()
     written = out.close()
     damage = rp.skipped_summary()
     print(

@@ -138,9 +138,8 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
     never came), which an estimation loop passes over, is left out."""
     log = load_log(path, tables=False, imu_columns=True)
     imu = log.imu if log.imu is not None else ImuColumns()
-    systems = {source_system(m.source) for m in log.measurements} | {
-        source_system(s.source) for s in imu.series.values()
-    }
+    sources = {m.source for m in log.measurements} | {s.source for s in imu.series.values()}
+    systems = {source_system(s) for s in sources}
     systems -= {None, GCS_SYSTEM_ID, *log.ground_stations}  # a ground station's own commands are no vehicle's
     if len(systems) > 1:
         return None
