@@ -251,7 +251,9 @@ def damage_summary(index: TlogIndex | _MeasurementIndex, c: LinkCounters) -> str
         parts.append(f"truncated last record at byte {index.truncated_at} ignored")
     mended = getattr(index, "mended_times", 0)
     if mended:
-        parts.append(f"{mended} records with a damaged timestamp given the time of the one before")
+        parts.append(
+            f"{mended} record{'s' if mended > 1 else ''} with a damaged timestamp given the time of the one before"
+        )
     steps = index.clock_steps
     if steps:
         parts.append(f"the recorder's clock stepped {len(steps)} time(s) (at byte {steps[0]}): played on as one")

@@ -117,6 +117,6 @@ def test_a_lone_damaged_timestamp_takes_the_time_before_it(tmp_path):
     assert idx.seek(0.595) == 60  # (ahead, record 50 took every later seek)
     rp = Replay(p)
     assert sum(1 for _ in rp.iter_measurements()) == 300
-    assert "1 records with a damaged timestamp given the time of the one before" in rp.skipped_summary()
+    assert "1 record with a damaged timestamp given the time of the one before" in rp.skipped_summary()
     gap = TlogIndex.scan(write_tlog(tmp_path / "gap.tlog", imu_frames(100), gap_after=49, gap=3600.0))
     assert gap.mended_times == 0 and gap.duration == pytest.approx(3600.99, abs=1e-3)
