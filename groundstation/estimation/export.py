@@ -120,7 +120,8 @@ class EstimateCsvWriter(_SegmentedCsv):
             self._start()
             self._newest = -math.inf
         self._newest = max(self._newest, snap.t)
-        self._w.writerow([repr(float(snap.t)), *map(repr, map(float, snap.x)), *map(repr, map(float, snap.sigma))])
+        # tolist(): Python floats, the shortest repr that reads back the same number
+        self._w.writerow([repr(float(snap.t)), *map(repr, snap.x.tolist()), *map(repr, snap.sigma.tolist())])
         self.rows += 1
 
     def close(self, counters=None, loop=None) -> None:
