@@ -113,8 +113,6 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
     brk = np.flatnonzero(np.diff(rec) != 1) + 1
     firsts = np.r_[0, brk] if len(rec) else np.zeros(0, dtype=np.int64)
     ends = np.r_[brk, len(rec)] if len(rec) else firsts
-    systems = np.unique(cols.sysid)
-    one_system = int(systems[0]) if len(systems) == 1 else None  # (the usual log: one vehicle's IMU)
     i = 0  # the next record to read
     for k, end, r0 in zip(firsts.tolist(), ends.tolist(), rec[firsts].tolist()):
         while i < r0:
@@ -126,17 +124,11 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
         if k == end:
             continue
         # each shown to its vehicle's clock, where it lies in the file
-        if one_system is not None:
-            clock = clocks.get(one_system)
+        for sysid, tv, tr in zip(cols.sysid[k:end].tolist(), cols.t[k:end].tolist(), t_rec[rec[k:end]].tolist()):
+            clock = clocks.get(sysid)
             if clock is None:
-                clock = clocks[one_system] = VehicleClock()
-            clock.observe_many(cols.t[k:end].tolist(), t_rec[rec[k:end]].tolist())
-        else:
-            for sysid, tv, tr in zip(cols.sysid[k:end].tolist(), cols.t[k:end].tolist(), t_rec[rec[k:end]].tolist()):
-                clock = clocks.get(sysid)
-                if clock is None:
-                    clock = clocks[sysid] = VehicleClock()
-                clock.observe(tv, tr)
+                clock = clocks[sysid] = VehicleClock()
+            clock.observe(tv, tr)
         taken[k:end] = True
         i += end - k
     while i < len(ix):

@@ -74,34 +74,6 @@ class VehicleClock:
         elif not t_vehicle <= self._newest or abs(t_vehicle - self._newest) > self.jump_s:
             self._newest, self._newest_rx = t_vehicle, t_rx
 
-    def observe_many(self, t_vehicle: list[float], t_rx: list[float]) -> None:
-        """:meth:`observe` of each pair in turn, the same arithmetic in one loop (a 1 kHz IMU's
-        frames, read from a log as columns)."""
-        off, last_rx, newest, newest_rx = self.offset, self._last_rx, self._newest, self._newest_rx
-        drift, jump_s = self.drift, self.jump_s
-        for tv, tr in zip(t_vehicle, t_rx):
-            new = tv - tr
-            if self.assumed:
-                self.assumed = False
-                self.resets += 1
-                off = math.nan
-            if off != off:
-                off = new
-            else:
-                off -= drift * max(0.0, tr - last_rx)
-                if abs(new - off) > jump_s:
-                    self.resets += 1
-                    off = new
-                elif new > off:
-                    off = new
-            last_rx = tr
-            if tv < newest - RESTART_BACK_S:
-                self.restarts += 1
-                newest, newest_rx = tv, tr
-            elif not tv <= newest or abs(tv - newest) > jump_s:
-                newest, newest_rx = tv, tr
-        self.offset, self._last_rx, self._newest, self._newest_rx = off, last_rx, newest, newest_rx
-
     def assume_receive_time(self) -> None:
         """Give up waiting for a time field: stamp with receive time (offset 0)."""
         self.offset = 0.0
