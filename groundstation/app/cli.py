@@ -464,8 +464,7 @@ def replay_in_batch(args) -> int:
     reading by reading; a log of several vehicles is read by reading, as the other cases are."""
     log = None if args.start or args.export_measurements else load_blocked(args.file)
     if log is not None:
-        stations = log.ground_stations
-        out = _replay_outputs(args, None, log.vehicle, stations, in_time_order=True)
+        out = _replay_outputs(args, None, log.vehicle, log.ground_stations, in_time_order=True)
         print(f"replaying {args.file} at max speed: {log.description}", flush=True)
         at = _estimate_all(out, log.measurements)
         blocks = f"the IMU's in {IMU_BLOCK_S * 1e3:g} ms blocks"
@@ -477,15 +476,14 @@ def replay_in_batch(args) -> int:
         damage = log.damage
     else:
         rp, desc, vehicle = _open_replay(args)
-        decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
-        out = _replay_outputs(args, None, vehicle, decoder.ground_stations if decoder is not None else set())
+        out = _replay_outputs(args, None, vehicle, _ground_stations(rp))
         print(f"replaying {args.file} at max speed: {desc}", flush=True)
         at = _estimate_all(out, rp.iter_measurements())
         count = f"{out.count} measurements from {rp.receiver.counters.messages} messages"
         damage = rp.skipped_summary()
     written = out.close()
     print(
-        (f"stopped (Ctrl-C) at t {at:.1f} s: " if at is not None else "done: ")
+        ("done: " if at is None else f"stopped (Ctrl-C) at t {at:.1f} s: " if at == at else "stopped (Ctrl-C): ")
         + count
         + (f"; {damage}" if damage else "")
         + (f"; {written}" if written else ""),
@@ -506,6 +504,13 @@ def _estimate_all(out: VehicleOutputs, ms) -> float | None:
     return None
 
 
+def _ground_stations(rp: Replay) -> set[int]:
+    """The system ids a tlog's decoder has heard a ground station's heartbeat from: its own set,
+    which grows as the replay reads (none for a log read by another reader)."""
+    decoder = getattr(rp.receiver, "decoder", None)
+    return decoder.ground_stations if decoder is not None else set()
+
+
 def _replay_outputs(args, dash, vehicle: str | None, stations, *, in_time_order: bool = False) -> VehicleOutputs:
     """The outputs of a replay: one estimator per vehicle, none for a ground station (ours or one
     recorded in the log: its own frames are in a tlog too, some before its first heartbeat)."""
@@ -524,8 +529,7 @@ async def run_replay(args) -> int:
     """A paced replay, or one with a dashboard (a max-speed one without is :func:`replay_in_batch`)."""
     rp, desc, vehicle = _open_replay(args)
     dash = _start_dashboard(args)
-    decoder = getattr(rp.receiver, "decoder", None)  # a tlog's: it knows the ground stations in it
-    out = _replay_outputs(args, dash, vehicle, decoder.ground_stations if decoder is not None else set())
+    out = _replay_outputs(args, dash, vehicle, _ground_stations(rp))
     if dash is not None:
         dash.on_vehicle = out.show
     print(f"replaying {args.file} at {'max' if rp.speed == math.inf else f'{rp.speed:g}x'} speed: {desc}", flush=True)
