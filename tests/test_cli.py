@@ -337,3 +337,5 @@ def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: not a truth CSV")
     bad.write_text("time,height\n0.0,1.0\n")
     assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: no truth in it")
+    bad.write_bytes(bytes(range(256)) * 4)  # not text at all
+    assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: not a truth CSV")

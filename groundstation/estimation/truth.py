@@ -84,8 +84,11 @@ def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) 
         # the simulator's sidecar (NAME.csv) or a truth file beside the log (NAME_truth.csv)
         p = next((q for q in (log.with_suffix(".csv"), log.with_name(log.stem + "_truth.csv")) if q.exists()), None)
     if p is not None and p.exists():
-        with open(p) as f:
-            rows = list(csv.DictReader(f))
+        try:
+            with open(p, newline="") as f:
+                rows = list(csv.DictReader(f))
+        except (UnicodeDecodeError, csv.Error) as e:  # a binary file, a broken quote
+            raise ValueError(f"{p}: not a truth CSV: {e}") from None
         # the height above the floor, up: "h" (the simulator's sidecar) or "z"
         height = next((k for k in ("h", "z") if rows and k in rows[0]), None)
         if height is not None and "t" in rows[0]:
