@@ -4,6 +4,7 @@ diagnosis finds the same with either path on simulated, foreign and real logs.""
 
 import importlib.util
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -58,7 +59,12 @@ def test_a_linear_candidate_through_the_gains_is_its_own_run(flight):
             f = fit(sig, cols, shape)
             aug = c.augment(su.model) if shape is None else c.augment(su.model, shape)
             virtual = virtual_run(aug, base, sig, f.J, f.ts, t_score)
+            assert callable(virtual.covariance)  # computed when read: a ranking reads few candidates' P
             real = run_model(aug, su.prep, su.make)
+            if checked == 0:  # to another process (trials.portable) with its covariance computed
+                again = pickle.loads(pickle.dumps(trials.portable(virtual)))
+                assert not callable(again.covariance)
+                np.testing.assert_array_equal(again.P, virtual.P)
             if not all(col.exact for col in cols):
                 n = base.n_scored
                 claimable = [-2.0 * (r.loglik - base.loglik) + (c.k + 1) * math.log(n) < -10.0 for r in (virtual, real)]
@@ -73,6 +79,9 @@ def test_a_linear_candidate_through_the_gains_is_its_own_run(flight):
                 assert vv == pytest.approx(rv, rel=1e-6, abs=1e-9), (c.name, col.state)
                 assert vs == pytest.approx(rs, rel=1e-6), (c.name, col.state)
             np.testing.assert_allclose(virtual.x[:, 0], real.x[:, 0], atol=1e-7)
+            last = virtual.P_rows(slice(-1, None))[0]  # (Run.final's, without the rest)
+            np.testing.assert_allclose(virtual.P[:, 0, 0], real.P[:, 0, 0], rtol=1e-6)
+            np.testing.assert_array_equal(virtual.P[-1], last)
             checked += 1
     assert checked >= 5  # the drift, the wash at three time constants, the scale
 

@@ -242,6 +242,7 @@ def diagnose(
     candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number).
     ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it."""
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu)
+    imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
     cands = [c for c in catalogue(prep.kinds) if c.name not in names]
@@ -283,9 +284,15 @@ def diagnose(
     held: dict[int, holdout.Holdout] = {}
     discoveries: list[Discovery] = []
     tried: set[tuple[str, str]] = set()  # (sensor, expression) of the discoveries tried
+    best: Scored | None = None
+    runner_up: Scored | None = None
+    s: Scored | None = None
     for _ in range(MAX_EFFECTS):
         if not cands:
             break
+        # the last ranking's candidates hold its signatures and runs: let go before the next is made
+        scored, best, runner_up, s = [], None, None, None
+        held.clear()
         try:
             scored = rank(
                 cands,
@@ -305,7 +312,6 @@ def diagnose(
                 started.close()
                 started = None
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
-        best: Scored | None = None
         for s in (s for s in scored if s.accepted):
             veto = _contradicted(truth, base, s) if veto_with_truth and truth is not None else None
             if veto is None:

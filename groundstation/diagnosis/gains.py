@@ -100,30 +100,47 @@ def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict
 def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], ts: TwoStage, t_score: float) -> Run:
     """The augmented model's run as the two-stage filter gives it (:mod:`.signature`): the base run's
     readings with the augmented innovations, and its estimate ``x + Delta theta`` with theta's
-    states appended (their covariance, and the cross terms, as the augmented filter has them)."""
+    states appended (their covariance, and the cross terms, as the augmented filter has them).
+    The covariance is computed when it is read (``Run.P``): a ranking reads most candidates' final
+    row alone (``Run.final``), and all of it, (N, n + p, n + p), only for the effects added."""
     assert base.taped is not None
     rows = base.taped.x_record
-    D = sig.Delta[rows][:, :, list(J)]  # (N, n, p)
-    th, Sg = ts.theta[rows], ts.Sigma[rows]
-    x_own = base.x + np.einsum("kij,kj->ki", D, th)
-    DS = np.einsum("kij,kjl->kil", D, Sg)
-    top = base.P + np.einsum("kil,kml->kim", DS, D)
+    J = list(J)
     # the effect's states at each time from their values at the filter's start (a drift's error grows
     # with its rate: b(t) = b0 + rate (t - t_start)); constants stay as they are
     n0 = base.x.shape[1]
     a_ee = aug.A(np.zeros(len(aug.inputs)))[n0:, n0:]
-    if np.any(a_ee):
-        if np.any(a_ee @ a_ee):
-            raise ValueError(f"{aug.name}: the two-stage filter carries an effect's own dynamics only when nilpotent")
-        tau = sig.t[rows] - sig.t_start[rows]
-        Psi = np.eye(len(J))[None] + a_ee[None] * tau[:, None, None]
+    own_dynamics = bool(np.any(a_ee))
+    if own_dynamics and np.any(a_ee @ a_ee):
+        raise ValueError(f"{aug.name}: the two-stage filter carries an effect's own dynamics only when nilpotent")
+
+    def at(k: slice) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+        """Rows ``k``: Delta of the effect's columns (k, n, p), theta, Sigma, and Psi (theta from the
+        filter's start to then) where the effect has dynamics of its own."""
+        r = rows[k]
+        Psi = None
+        if own_dynamics:
+            tau = sig.t[r] - sig.t_start[r]
+            Psi = np.eye(len(J))[None] + a_ee[None] * tau[:, None, None]
+        return sig.Delta[r][:, :, J], ts.theta[r], ts.Sigma[r], Psi
+
+    def covariance(k: slice) -> np.ndarray:
+        D, _, Sg, Psi = at(k)
+        DS = np.einsum("kij,kjl->kil", D, Sg)
+        top = base.P_rows(k) + np.einsum("kil,kml->kim", DS, D)
+        if Psi is not None:
+            DS = np.einsum("kil,kml->kim", DS, Psi)
+            Sg = np.einsum("kij,kjl,kml->kim", Psi, Sg, Psi)
+        return np.concatenate(
+            [np.concatenate([top, DS], axis=2), np.concatenate([np.transpose(DS, (0, 2, 1)), Sg], axis=2)], axis=1
+        )
+
+    D, th, _, Psi = at(slice(None))
+    x_own = base.x + np.einsum("kij,kj->ki", D, th)
+    if Psi is not None:
         th = np.einsum("kij,kj->ki", Psi, th)
-        DS = np.einsum("kil,kml->kim", DS, Psi)
-        Sg = np.einsum("kij,kjl,kml->kim", Psi, Sg, Psi)
     x = np.concatenate([x_own, th], axis=1)
-    P = np.concatenate(
-        [np.concatenate([top, DS], axis=2), np.concatenate([np.transpose(DS, (0, 2, 1)), Sg], axis=2)], axis=1
-    )
+    del D
     sensors = {}
     for s, tr in base.sensors.items():
         idx = np.flatnonzero(sig.sensor == s)
@@ -133,7 +150,9 @@ def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], 
         nu, S = ts.nu[idx], ts.S[idx]
         sensors[s] = SensorTrace(tr.t, nu[:, None], S[:, None, None], nu * nu / S, tr.z, tr.signals)
     ll_by, inflation, n = sensor_scores(sensors, t_score)
-    return Run(aug, sensors, base.t, x, P, sum(ll_by.values()), n, base.ctx, ll_by, inflation, through_gains=True)
+    return Run(
+        aug, sensors, base.t, x, covariance, sum(ll_by.values()), n, base.ctx, ll_by, inflation, through_gains=True
+    )
 
 
 @dataclass

@@ -147,14 +147,15 @@ def match_gps_slow(
         return model, None, base
     i = model.index("b_gps")
     now = math.sqrt(float(model.P0[i, i]))
-    runs = {
-        s: base if math.isclose(s, now) else run_model(with_gps_slow(model, s), prep, make, measurements=measurements)
-        for s in GPS_SLOW
-    }
-    best = max(runs, key=lambda s: runs[s].loglik)
-    n = int(runs[best].sensors["gps"].t.size) if "gps" in runs[best].sensors else 0
+    best, run = math.nan, None
+    for s in GPS_SLOW:  # the best run so far kept, not all four (a long log's runs are large)
+        r = base if math.isclose(s, now) else run_model(with_gps_slow(model, s), prep, make, measurements=measurements)
+        if run is None or r.loglik > run.loglik:
+            best, run = s, r
+    assert run is not None
+    n = int(run.sensors["gps"].t.size) if "gps" in run.sensors else 0
     level = NoiseLevel("gps (slow)", best, GPS_ERROR_MODEL, n)
-    return (model if math.isclose(best, now) else with_gps_slow(model, best)), level, runs[best]
+    return (model if math.isclose(best, now) else with_gps_slow(model, best)), level, run
 
 
 def match_noise(

@@ -12,7 +12,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from groundstation.estimation.logs import load_log
+from groundstation.core.imu import ImuColumns
+from groundstation.estimation.logs import LoadedLog, load_log
 from groundstation.estimation.truth import truth_from
 
 from . import report
@@ -59,7 +60,6 @@ def run(
     tr = triage(log.tables, ms_all, log.imu)
     say(tr.summary())
     ms, used, cut = usable(ms_all, tr)
-    imu = usable_imu(log.imu, tr) if log.imu is not None else None
     if cut:
         spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
         say(f"fitting the model to {spans}: {len(cut)} stretch(es) cut (report.json: segments_cut)")
@@ -71,6 +71,9 @@ def run(
             f"the triage is in {out / 'report.json'}"
         )
         return LogDiagnosis(j, log.description, duration, [])
+    notch = []
+    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
+        notch = suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
     d = diagnose(
         ms,
         source=str(path),
@@ -81,13 +84,11 @@ def run(
         progress=progress,
         veto_with_truth=veto_with_truth,
         workers=workers,
-        imu=imu,
+        imu=_usable_imu(log, tr, keep=False),
     )
     suggestions = []
-    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
-        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + suggest_notch(
-            ms, log.tables.autopilot, imu
-        )
+    if log.tables.fmt != "crazyflie":
+        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + notch
     j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
     files = []
     for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):
@@ -106,6 +107,16 @@ def run(
         + (f"; {', '.join(files)}" if files else "")
     )
     return LogDiagnosis(j, log.description, duration, files)
+
+
+def _usable_imu(log: LoadedLog, tr: Triage, *, keep: bool) -> ImuColumns | None:
+    """The log's raw IMU outside the triage's cuts; without ``keep``, taken out of ``log``, so that
+    once the diagnosis has averaged it into blocks nothing holds it (a 1-hour 1 kHz log's columns
+    are 0.3 GB)."""
+    imu = log.imu
+    if not keep:
+        log.imu = None
+    return usable_imu(imu, tr) if imu is not None else None
 
 
 def write_triage_only(out: Path, source: Path, description: str, tr: Triage, used, cut) -> dict:

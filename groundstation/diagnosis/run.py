@@ -219,7 +219,11 @@ class Run:
     sensors: dict[str, SensorTrace]
     t: np.ndarray  # after each update
     x: np.ndarray
-    P: np.ndarray
+    #: the covariance after each update, or a function of a slice of its rows that computes them (a
+    #: run through the base filter's gains, ``gains.virtual_run``: most candidates' runs are scored
+    #: by their innovations alone, and theirs would be the largest arrays of a diagnosis); :attr:`P`
+    #: reads it either way
+    covariance: np.ndarray | Callable[[slice], np.ndarray]
     loglik: float  # over the scored window, all sensors but LANDED
     n_scored: int  # innovations in it
     ctx: Context  # the filter's context at the end of the log
@@ -230,9 +234,25 @@ class Run:
     #: the two-stage filter's account of an augmented model's run (gains.virtual_run), not a run of it
     through_gains: bool = False
 
+    @property
+    def P(self) -> np.ndarray:
+        """The covariance after each update (computed now if it was left for later, and kept)."""
+        if callable(self.covariance):
+            self.covariance = self.covariance(slice(None))
+        return self.covariance
+
+    def P_rows(self, k: slice) -> np.ndarray:
+        """Rows ``k`` of :attr:`P`, without computing the others."""
+        return self.covariance(k) if callable(self.covariance) else self.covariance[k]
+
     def final(self, state: str) -> tuple[float, float]:
         i = self.model.index(state)
-        return float(self.x[-1, i]), float(math.sqrt(max(self.P[-1, i, i], 0.0)))
+        return float(self.x[-1, i]), float(math.sqrt(max(self.P_rows(slice(-1, None))[0, i, i], 0.0)))
+
+    def __getstate__(self) -> dict:
+        """Pickled with :attr:`P` computed (a function of arrays held elsewhere does not cross processes)."""
+        _ = self.P
+        return self.__dict__
 
 
 def hold_zeros(prep: Prepared, run: Run) -> None:
