@@ -548,7 +548,7 @@ def settled_signal(d: Discovery, base: Run, model: LinearModel, nu_sd: float) ->
             return sig
         f = fit(sig_d, [column])
         k = float(f.ts.theta[-1][0])
-        x = base.x + np.einsum("kij,j->ki", sig_d.Delta[taped.x_record][:, :, f.J], f.ts.theta[-1])
+        x = base.x + np.einsum("kij,j->ki", sig_d.columns_at(taped.x_record, f.J), f.ts.theta[-1])
         again = library(replace(base, x=x), d.sensor).get(d.expression)
         if again is None or len(again) != len(sig):
             return sig

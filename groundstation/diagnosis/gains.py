@@ -122,7 +122,7 @@ def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], 
         if own_dynamics:
             tau = sig.t[r] - sig.t_start[r]
             Psi = np.eye(len(J))[None] + a_ee[None] * tau[:, None, None]
-        return sig.Delta[r][:, :, J], ts.theta[r], ts.Sigma[r], Psi
+        return sig.columns_at(r, J), ts.theta[r], ts.Sigma[r], Psi
 
     def covariance(k: slice) -> np.ndarray:
         D, _, Sg, Psi = at(k)

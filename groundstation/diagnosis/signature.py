@@ -128,6 +128,11 @@ class Signatures:
     segment: np.ndarray
     t_start: np.ndarray  #: the time its filter started (its segment's)
 
+    def columns_at(self, records: np.ndarray, J: Sequence[int]) -> np.ndarray:
+        """``Delta`` of the columns ``J`` at ``records``, (len(records), n, len(J)), copied once (not
+        every column's first: (records, n, P) is the largest array of a diagnosis)."""
+        return self.Delta[np.ix_(records, np.arange(self.Delta.shape[1]), np.asarray(J, dtype=int))]
+
     def where(self, columns: Sequence[Column]) -> list[int]:
         """The indices of ``columns`` (by identity)."""
         ids = [id(c) for c in self.columns]
