@@ -261,11 +261,13 @@ def diagnose(
     model, noise, matched = match_noise(model, prep, make, probes(), first=first_run)
     if matched is first_run:  # taken with the zeros still open: its readings differ from the runs after it
         matched = None
+    del first_run  # (its zeros are the prepared log's now; a long log's run is large)
     model0 = model  # what the effects are added to
     started = _start_trials(cands, model, prep, make, columns, workers)
     try:
         say("running the model (before)")
         base = matched if matched is not None else run_model(model, prep, make, probes=probes())
+        matched = None  # base's alone, which an added effect's run replaces
         # before: the model as the log's noise has it, the GPS's slow error included; the effects are
         # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
         _, _, first = match_gps_slow(model, prep, make, base=base)

@@ -16,6 +16,7 @@ trajectory with its covariance, and the innovation log-likelihood
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -291,7 +292,8 @@ def run_model(
     kinds = est.kinds
     ms = [m for m in (prep.measurements if measurements is None else measurements) if m.kind in kinds]
     ts, xs, Ps, x_record = [], [], [], []
-    sig: dict[str, dict[str, list]] = {}
+    # each signal as doubles as it comes (not a float object a value: a long log's run holds millions)
+    sig: dict[str, dict[str, array[float]]] = {}
     for m in ms:
         rec = est.handle(m, checked=True)  # prepare() checked every reading
         if rec is None:
@@ -302,7 +304,7 @@ def run_model(
         Ps.append(f.kf.P.copy())
         if taped:
             x_record.append(len(f.log.records) - 1)
-        d = sig.setdefault(rec.sensor, {k: [] for k in SIGNALS})
+        d = sig.setdefault(rec.sensor, {k: array("d") for k in SIGNALS})
         ctx = f.ctx
         if probes is not None:
             probes.record(rec.sensor, ctx, f.kf.x - rec.K @ rec.nu)
