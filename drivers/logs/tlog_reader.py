@@ -164,9 +164,10 @@ def _columns(
     out: dict[tuple[Kind, int], ImuSeries] = {}
     # in the order the series first appear in the file (a frame's accelerometer before its gyro)
     for key in sorted(parts, key=lambda k: (first[k][0], k[0] is not Kind.ACCEL)):
-        # each series' parts let go as it is made, and copied only where they need to be (a 1-hour
-        # 1 kHz log's IMU columns are 0.3 GB): one part in time order, the usual case, is the series
-        ps = parts.pop(key)
+        # each series' parts let go as it is made, and copied only where they must be (a 1-hour 1 kHz
+        # log's IMU columns are 0.3 GB): its parts joined in the file's order are most often already
+        # in time order (the receiver's few readings before the vehicle's clock came, then the columns)
+        ps = sorted(parts.pop(key), key=lambda p: int(p[0][0]))
         r, t, t_rx, v = ps[0] if len(ps) == 1 else (np.concatenate([p[j] for p in ps]) for j in range(4))
         del ps
         dt = np.diff(t)
