@@ -2,9 +2,11 @@
 score as their own filter runs do: exactly for effects linear in their parameters, and the
 diagnosis finds the same with either path on simulated, foreign and real logs."""
 
+import gc
 import importlib.util
 import math
 import pickle
+import weakref
 
 import numpy as np
 import pytest
@@ -150,3 +152,28 @@ def test_the_diagnosis_finds_the_same_through_the_gains_as_by_a_run_per_candidat
     e0 = slow.truth.error(slow.after, slow.after.t[0] + 5.0, slow.after.t[-1]) if slow.truth else math.nan
     e1 = fast.truth.error(fast.after, fast.after.t[0] + 5.0, fast.after.t[-1]) if fast.truth else math.nan
     assert e1 == pytest.approx(e0, rel=0.1, abs=0.002)
+
+
+class _Checked(Exception):
+    """Stops a diagnosis where a test has looked at it."""
+
+
+def test_the_raw_imu_is_let_go_once_the_log_is_prepared(flight):
+    """The raw IMU's columns (0.3 GB of a 1-hour 1 kHz log's) are averaged into the prepared log's
+    blocks; from then on nothing of the diagnosis holds them."""
+    log = load_log(flight, imu_columns=True)
+    assert log.imu is not None and len(log.imu)
+    raw = weakref.ref(log.imu)
+
+    def handed_over():
+        imu, log.imu = log.imu, None
+        return imu
+
+    def progress(line: str) -> None:
+        if line.startswith("running the model"):
+            gc.collect()
+            raise _Checked(raw() is None)
+
+    with pytest.raises(_Checked) as checked:
+        diagnose(log.measurements, imu=handed_over(), progress=progress)
+    assert checked.value.args == (True,)
