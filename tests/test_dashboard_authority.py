@@ -74,10 +74,11 @@ async def test_a_page_from_another_origin_cannot_arm_even_with_the_token():
     async with _Session() as s:
         async with ViserProbe(s.dash.control_url, origin="http://evil.example") as evil:
             await s.press(evil, s.panel.take)
+            await s.settled(evil, "a page from http://evil.example may not command")
             await s.press(evil, s.panel.arm)
             await s.press(evil, s.panel.arm)
             await s.press(evil, s.panel.sliders["z_c"], value=5.0)
-            await s.settled(evil, "a page from http://evil.example may not command")
+            await evil.until_notifications("Not yours to command", 3)  # each handled, and refused
         assert not s.station.commander.armed and s.station.commander.reference["z_c"] == 1.0
         assert s.dash.authority.holder is None and s.station.uplink.sent == 0
 
@@ -90,6 +91,7 @@ async def test_without_the_token_a_tab_views_and_cannot_command():
             await s.settled(viewer, "view only: open the control address")
             await s.press(viewer, s.panel.arm)
             await s.press(viewer, s.panel.arm)
+            await viewer.until_notifications("Not yours to command", 2)  # both presses handled, refused
         assert not s.station.commander.armed and s.station.uplink.sent == 0
 
 

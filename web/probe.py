@@ -120,6 +120,22 @@ class ViserProbe:
 
         await asyncio.wait_for(shown(), timeout)
 
+    async def until_notifications(self, title: str, count: int, timeout: float = 10.0) -> None:
+        """Until ``count`` notifications titled ``title`` have been shown to this tab from now on
+        (TimeoutError after ``timeout`` s): each press a panel refuses is told with one, so this
+        waits until the presses were handled."""
+
+        async def shown() -> None:
+            seen = 0
+            async for _, messages in self.frames():
+                for m in messages:
+                    if m["type"] == "NotificationShowMessage" and m["props"].get("title") == title:
+                        seen += 1
+                        if seen >= count:
+                            return
+
+        await asyncio.wait_for(shown(), timeout)
+
 
 def gui_id(handle) -> str:
     """The id viser's GuiUpdateMessage carries for a GUI handle."""
