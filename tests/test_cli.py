@@ -313,6 +313,12 @@ def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
         assert 1.0 < seconds < 4.0, info.stdout
 
 
+def _sigma_line(stdout: str) -> tuple[float, float]:
+    """``evaluate``'s share within 2 sigma and NEES."""
+    line = next(ln for ln in stdout.splitlines() if ln.startswith("its sigma: "))
+    return float(line.split()[2].rstrip("%")) / 100, float(line.split("NEES ")[1].split()[0])
+
+
 def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     """``evaluate --truth`` reads a truth CSV by any name (a foreign flight's NAME_truth.csv is found
     beside its log); a missing or unreadable one is a one-line error."""
@@ -331,6 +337,17 @@ def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     est = next(ln for ln in r.stdout.splitlines() if ln.startswith("estimate"))
     assert "(truth: truth file elsewhere.csv)" in est
     assert 0.0 < float(est.split()[1]) < 0.5  # m
+    honest = _sigma_line(r.stdout)
+    # a truth 1 m off: the same estimate's sigma cannot hold it
+    rows = named.read_text().splitlines()
+    col = rows[0].split(",").index("h")
+    shifted = tmp_path / "shifted.csv"
+    lines = [rows[0]] + [
+        ",".join(f"{float(v) + 1.0!r}" if i == col else v for i, v in enumerate(ln.split(","))) for ln in rows[1:]
+    ]
+    shifted.write_text("\n".join(lines) + "\n")
+    off = _sigma_line(run("evaluate", str(log), "--truth", str(shifted)).stdout)
+    assert off[0] < 0.05 < 0.5 < honest[0] and off[1] > 25.0 > honest[1], (honest, off)
     assert_one_line_error(run("evaluate", str(log), "--truth", str(tmp_path / "none.csv")), "no such truth file")
     bad = tmp_path / "bad.csv"
     bad.write_text("t,h\n0.0,1.0\n0.1,oops\n")

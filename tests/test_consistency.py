@@ -170,3 +170,27 @@ def test_recursive_least_squares_is_consistent_under_its_own_assumptions():
     assert lo <= np.mean(nees_runs) <= hi, (np.mean(nees_runs), lo, hi)
     lo, hi = band(1)
     assert lo <= np.mean(nis_runs) <= hi, (np.mean(nis_runs), lo, hi)
+
+
+def test_the_truth_says_whether_a_sigma_is_honest():
+    """``Truth.consistency`` (what ``evaluate`` and the diagnosis report print): errors drawn with
+    the sigma the estimate claims hold the truth within 2 sigma 95 % of the time at NEES 1; a sigma
+    half the real spread, 68 % at NEES 4; a constant error of 3 sigma, never; and times outside the
+    truth's span or the window are not scored."""
+    from groundstation.estimation.truth import Truth
+
+    rng = np.random.default_rng(7)
+    t = np.linspace(0.0, 100.0, 20_001)
+    truth = Truth(t, np.sin(0.3 * t), "test")
+    sigma = np.full(len(t), 0.05)
+    z = truth.h + rng.normal(0.0, 0.05, len(t))
+    within, n = truth.consistency(t, z, sigma, 0.0, 100.0)
+    assert within == pytest.approx(0.954, abs=0.01) and n == pytest.approx(1.0, abs=0.05)
+    within, n = truth.consistency(t, z, sigma / 2, 0.0, 100.0)
+    assert within == pytest.approx(0.683, abs=0.01) and n == pytest.approx(4.0, abs=0.2)
+    within, n = truth.consistency(t, truth.h + 0.15, sigma, 0.0, 100.0)
+    assert within == 0.0 and n == pytest.approx(9.0)
+    wrong_later = np.where(t > 50.0, truth.h + 1.0, z)
+    within, n = truth.consistency(t, wrong_later, sigma, 0.0, 50.0)
+    assert within == pytest.approx(0.954, abs=0.015)
+    assert np.isnan(truth.consistency(t + 200.0, z, sigma, 0.0, 1e9)[1])

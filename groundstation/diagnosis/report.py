@@ -21,7 +21,9 @@ failed tests, and ``skipped_spurious`` (a count) and ``skipped_spurious_at`` ([f
 spans in s) where readings were skipped as spurious (the thrust model's range echoes on the
 ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
 ``rmse_vs_truth`` of the height [m] or, for the attitude model, of roll and pitch together
-[rad] (``rmse_of`` says which).
+[rad] (``rmse_of`` says which), and for the height whether its sigma is honest:
+``within_2sigma`` (the share of its errors within 2 sigma; 0.95 if honest) and ``nees`` (1 if
+honest; :meth:`~groundstation.estimation.truth.Truth.consistency`).
 An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_colour``
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
 trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update`` over ``support`` updates (those the
@@ -87,6 +89,17 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
             out["rmse_vs_truth"] = e
             out["rmse_of"] = truth.quantity(run)
             out["truth"] = truth.source
+        if "z" in run.model.states and len(run.t):
+            i = run.model.index("z")
+            sigma = np.concatenate(  # a few thousand rows at a time: a covariance left for later stays so
+                [
+                    np.sqrt(np.clip(run.P_rows(slice(a, a + 4096))[:, i, i], 0.0, None))
+                    for a in range(0, len(run.t), 4096)
+                ]
+            )
+            within, nees = truth.consistency(run.t, run.x[:, i], sigma, t0, t1)
+            if math.isfinite(nees):
+                out["within_2sigma"], out["nees"] = within, nees
     return out
 
 
@@ -301,6 +314,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(
             f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
             f"{a['rmse_vs_truth'] * 100:.2f} cm after."
+        )
+    if "nees" in b and "nees" in a:
+        parts.append(
+            f"The height's sigma held the truth within 2 sigma {b['within_2sigma']:.0%} of the time before and "
+            f"{a['within_2sigma']:.0%} after (95 % for an honest sigma; NEES {b['nees']:.2f} and "
+            f"{a['nees']:.2f}, 1 for an honest one)."
         )
     elif "rmse_vs_truth" in b:
         parts.append(
@@ -561,6 +580,12 @@ def write(
             f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
             f"after.</p>"
         )
+        if "nees" in b and "nees" in a:
+            truth += (
+                f"<p>Truth within the height's 2 sigma: <b>{b['within_2sigma']:.0%}</b> of the time before, "
+                f"<b>{a['within_2sigma']:.0%}</b> after (95 % if the sigma is honest); NEES {b['nees']:.2f} "
+                f"before, {a['nees']:.2f} after (1 if honest).</p>"
+            )
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
 <style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
 table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}

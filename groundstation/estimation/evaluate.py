@@ -4,7 +4,9 @@ Runs the estimator the log's sensors allow and prints, per sensor: its raw
 error against truth (motion capture in the log, or a truth CSV beside it or named), the estimate's
 RMSE against truth, the innovations' mean NIS, and a whiteness p-value
 (Ljung-Box on the normalised innovations): a small p says the innovations are
-correlated, i.e. the model misses something the diagnosis should find.
+correlated, i.e. the model misses something the diagnosis should find. Against truth it also
+says whether the height's sigma (what the dashboard draws) is honest: the share of the errors
+within 2 sigma (95 % if so) and the height's NEES (1 if so).
 """
 
 from __future__ import annotations
@@ -46,6 +48,8 @@ class Evaluation:
     estimates: int
     skipped: dict[str, int] = field(default_factory=dict)  # the estimator's counted skips
     truth: str = ""  # where the truth came from ('' without one)
+    within_2sigma: float = float("nan")  # share of the height's errors within its 2 sigma
+    nees: float = float("nan")  # the height's mean squared error in sigmas
 
     def table(self) -> str:
         out = [
@@ -62,6 +66,11 @@ class Evaluation:
                 out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the vehicle's offset applied)")
         est = f"{self.estimate_rmse:.4f}" if self.estimate_rmse == self.estimate_rmse else "- (no truth)"
         out.append(f"{'estimate':<10}{'':>7}{est:>24}" + (f"   (truth: {self.truth})" if self.truth else ""))
+        if self.nees == self.nees:
+            out.append(
+                f"its sigma: {self.within_2sigma:.0%} of the height within 2 sigma of truth (95 % if honest), "
+                f"NEES {self.nees:.2f} (1 if honest)"
+            )
         return "\n".join(out)
 
 
@@ -125,6 +134,18 @@ def evaluate(
             rows.append(SensorRow("range-o", len(r), rmse_vs_truth(r[:, 0], r[:, 1] - offset), math.nan, math.nan))
     st = np.array([x.t for x in s])
     sz = np.array([x.x[0] for x in s])
+    within, nees = math.nan, math.nan
+    if truth is not None and len(s):
+        sigma = np.sqrt(np.clip([x.P[0, 0] for x in s], 0.0, None))
+        within, nees = truth.consistency(st, sz, sigma, t0, t1)
     return Evaluation(
-        desc, model, rows, rmse_vs_truth(st, sz), len(s), est.counters.rejected, truth.source if truth else ""
+        desc,
+        model,
+        rows,
+        rmse_vs_truth(st, sz),
+        len(s),
+        est.counters.rejected,
+        truth.source if truth else "",
+        within,
+        nees,
     )

@@ -42,6 +42,17 @@ class Truth:
         k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
         return float(np.sqrt(np.mean((z[k] - np.interp(t[k], self.t, self.h)) ** 2))) if k.any() else math.nan
 
+    def consistency(self, t: np.ndarray, z: np.ndarray, sigma: np.ndarray, t0: float, t1: float) -> tuple[float, float]:
+        """Whether a height estimate's sigma is honest against truth: the share of its errors within
+        2 sigma (95 % for an honest Gaussian sigma) and their mean square in sigmas (the height's
+        NEES, 1 for an honest sigma; Bar-Shalom, Li and Kirubarajan 2001, 5.4). A sigma of zero
+        (an estimate held exactly, as on the ground) counts as a micrometre."""
+        k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
+        if not k.any():
+            return math.nan, math.nan
+        e = (z[k] - np.interp(t[k], self.t, self.h)) / np.maximum(sigma[k], 1e-6)
+        return float(np.mean(np.abs(e) <= 2.0)), float(np.mean(e * e))
+
     def error(self, run: Estimated, t0: float, t1: float) -> float:
         """RMSE against truth of what the run estimates: the height [m], or roll and pitch
         together [rad] (the attitude model)."""
