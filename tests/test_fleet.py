@@ -118,3 +118,43 @@ def test_a_file_named_as_a_log_that_is_none_is_a_failed_log_not_passed_over(tmp_
     err = fleet.diagnose_one(jobs[0])
     assert err["error"].startswith("not a log by its content") and err["log"] == "quad-2/junk.tlog"
     assert json.loads((Path(jobs[0].out) / "error.json").read_text())["error"] == err["error"]
+
+
+def test_a_row_carries_the_error_and_whether_the_sigma_is_honest_against_truth(tmp_path):
+    """Where a log has truth, each row of the table has its height error and NEES before and after
+    (report.json's); without truth they are empty, not zero; and the Parquet file keeps them as numbers."""
+    import pyarrow.parquet as pq
+
+    from groundstation.diagnosis import fleet
+
+    job = fleet.LogJob("f.tlog", "quad-1/f.tlog", str(tmp_path), "quad-1", "altitude")
+    report = {
+        "before": {
+            "rmse_vs_truth": 0.42,
+            "nees": 48.2,
+            "within_2sigma": 0.03,
+            "sensors": {"baro": {"innovation_rms": 0.5}},
+        },
+        "after": {
+            "rmse_vs_truth": 0.053,
+            "nees": 0.96,
+            "within_2sigma": 1.0,
+            "sensors": {"baro": {"innovation_rms": 0.1}},
+        },
+        "effects": [
+            {
+                "name": "baro_thrust",
+                "params": {"k": 2.1, "sigma_k": 0.1},
+                "evidence": {"sensor": "baro", "delta_bic": -300.0},
+            }
+        ],
+    }
+    (row,) = fleet.rows_of(job, report, 90.0)
+    assert (row["rmse_before"], row["rmse_after"], row["nees_before"], row["nees_after"]) == (0.42, 0.053, 48.2, 0.96)
+    assert row["innovation_rms_before"] == 0.5 and json.loads(row["parameters"]) == {"k": 2.1}
+    (bare,) = fleet.rows_of(job, {"before": {"sensors": {}}, "after": {"sensors": {}}}, 90.0)
+    assert bare["effect"] == "" and bare["nees_before"] is None and bare["rmse_after"] is None
+    fleet.write_table([row, bare], tmp_path)
+    table = pq.read_table(tmp_path / "fleet.parquet").to_pylist()
+    assert table[0]["nees_after"] == 0.96 and table[1]["nees_after"] is None
+    assert _rows(tmp_path)[0]["nees_before"] == "48.2" and _rows(tmp_path)[1]["nees_before"] == ""

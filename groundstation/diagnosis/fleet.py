@@ -46,6 +46,8 @@ TABLE_COLUMNS = (
     "innovation_rms_after",
     "rmse_before",
     "rmse_after",
+    "nees_before",
+    "nees_after",
 )
 
 
@@ -158,6 +160,12 @@ def _num(x) -> float | None:
 def rows_of(job: LogJob, j: dict, duration: float) -> list[dict]:
     """One row per effect found in a report; one row with no effect when none was."""
     before, after = j.get("before", {}), j.get("after", {})
+    against_truth = {  # where the log has truth: its error, and whether its sigma is honest (NEES 1)
+        "rmse_before": _num(before.get("rmse_vs_truth")),
+        "rmse_after": _num(after.get("rmse_vs_truth")),
+        "nees_before": _num(before.get("nees")),
+        "nees_after": _num(after.get("nees")),
+    }
     rows = []
     for e in j.get("effects", []):
         params = {k: v for k, v in e["params"].items() if not k.startswith("sigma_") and _num(v) is not None}
@@ -175,8 +183,7 @@ def rows_of(job: LogJob, j: dict, duration: float) -> list[dict]:
                 "sensor": sensor,
                 "innovation_rms_before": _num(sb.get("innovation_rms")),
                 "innovation_rms_after": _num(sa.get("innovation_rms")),
-                "rmse_before": _num(before.get("rmse_vs_truth")),
-                "rmse_after": _num(after.get("rmse_vs_truth")),
+                **against_truth,
             }
         )
     if not rows:
@@ -191,8 +198,7 @@ def rows_of(job: LogJob, j: dict, duration: float) -> list[dict]:
                 "sensor": "",
                 "innovation_rms_before": None,
                 "innovation_rms_after": None,
-                "rmse_before": _num(before.get("rmse_vs_truth")),
-                "rmse_after": _num(after.get("rmse_vs_truth")),
+                **against_truth,
             }
         )
     return rows
@@ -229,7 +235,7 @@ def write_table(rows: list[dict], out: Path) -> None:
             (
                 c,
                 pa.float64()
-                if c in ("duration_s", "delta_bic") or c.startswith(("innovation", "rmse"))
+                if c in ("duration_s", "delta_bic") or c.startswith(("innovation", "rmse", "nees"))
                 else pa.string(),
             )
             for c in TABLE_COLUMNS
