@@ -132,17 +132,19 @@ def evaluate(
         if sensor == "range" and offset and len(r) and len(tt):
             # the sensor alone at its best: the same mounting offset the model uses, applied to the raw reading
             rows.append(SensorRow("range-o", len(r), rmse_vs_truth(r[:, 0], r[:, 1] - offset), math.nan, math.nan))
+    # the height truth scores is the model's z (a model without one, as the 3-DOF rig's, is not scored)
+    iz = s[0].states.index("z") if s and "z" in s[0].states else None
     st = np.array([x.t for x in s])
-    sz = np.array([x.x[0] for x in s])
+    sz = np.array([x.x[iz] for x in s]) if iz is not None else np.zeros(0)
     within, nees = math.nan, math.nan
-    if truth is not None and len(s):
-        sigma = np.sqrt(np.clip([x.P[0, 0] for x in s], 0.0, None))
+    if truth is not None and iz is not None:
+        sigma = np.sqrt(np.clip([x.P[iz, iz] for x in s], 0.0, None))
         within, nees = truth.consistency(st, sz, sigma, t0, t1)
     return Evaluation(
         desc,
         model,
         rows,
-        rmse_vs_truth(st, sz),
+        rmse_vs_truth(st, sz) if iz is not None else math.nan,
         len(s),
         est.counters.rejected,
         truth.source if truth else "",
