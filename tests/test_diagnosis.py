@@ -256,8 +256,14 @@ def test_diagnose_command_writes_the_reports(tmp_path):
         assert set(j[side]["sensors"]) >= {"range", "baro"} and "rmse_vs_truth" in j[side]
         assert {"innovation_rms", "nis_mean", "ljung_box_p"} <= set(j[side]["sensors"]["baro"])
     assert j["after"]["sensors"]["baro"]["nis_mean"] < j["before"]["sensors"]["baro"]["nis_mean"]
+    # against the simulator's truth the height's sigma is honest either way (the range holds the height
+    # through the baro's wash): NEES near 1, the truth within 2 sigma near 95 % of the time
+    for side in (j["before"], j["after"]):
+        assert 0.3 < side["nees"] < 3.0 and 0.8 < side["within_2sigma"] <= 1.0, side
+    assert "held the truth within 2 sigma" in r.stdout and "Roll and pitch" not in r.stdout, r.stdout
     assert "range_offset" in j["unobservable"]
     page = (out / "report.html").read_text()
+    assert "Truth within the height's 2 sigma" in page
     assert "baro_thrust" in page and "<svg" in page and "autocorrelation" in page
     # for people: parameters with their units, the evidence in words (the numbers are report.json's)
     assert f"k = {j['effects'][0]['params']['k']:.4g} m per unit throttle" in page

@@ -315,16 +315,16 @@ def conclusion(d: Diagnosis, j: dict) -> str:
             f"Height error against the {b['truth']}: {b['rmse_vs_truth'] * 100:.2f} cm before, "
             f"{a['rmse_vs_truth'] * 100:.2f} cm after."
         )
+    elif "rmse_vs_truth" in b:
+        parts.append(
+            f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
+            f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after."
+        )
     if "nees" in b and "nees" in a:
         parts.append(
             f"The height's sigma held the truth within 2 sigma {b['within_2sigma']:.0%} of the time before and "
             f"{a['within_2sigma']:.0%} after (95 % for an honest sigma; NEES {b['nees']:.2f} and "
             f"{a['nees']:.2f}, 1 for an honest one)."
-        )
-    elif "rmse_vs_truth" in b:
-        parts.append(
-            f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
-            f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after."
         )
     still = sorted(
         {f.sensor for f in d.findings_after if not f.passed and f.test in ("NIS mean", "Ljung-Box whiteness")}
