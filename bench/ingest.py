@@ -281,7 +281,7 @@ def main() -> int:
     print(f"{'ours: MavlinkReceiver.feed -> Measurement':<44}{rate['ours']:>12,.0f}{1.0:>12.2f}")
     ok = rate["ours"] / rate["parse_buffer"] >= 1.5
     print(f"target ours >= 1.5x parse_buffer: {'met' if ok else 'NOT met'}")
-    # what no receive path that makes one record per reading can go below: framing and the records
+    # ours in parts: what its framer and its records alone take, and what is left for the rest
     print(f"\nParts of ours, per message (the records: {counts['records']} messages' worth)")
     per = {k: 1e6 * best[k] / counts["parse_buffer"] for k in best}
     print(f"{'part':<44}{'us/msg':>12}{'of ours':>12}")
