@@ -194,3 +194,39 @@ def test_the_truth_says_whether_a_sigma_is_honest():
     within, n = truth.consistency(t, wrong_later, sigma, 0.0, 50.0)
     assert within == pytest.approx(0.954, abs=0.015)
     assert np.isnan(truth.consistency(t + 200.0, z, sigma, 0.0, 1e9)[1])
+
+
+def test_a_live_truth_scores_each_estimate_between_the_truth_samples_around_it():
+    """``LiveTruthScore`` (the dashboard's): estimates at 50 Hz against a 100 Hz truth, whichever
+    comes first, each scored against the truth interpolated at its time; honest noise reads 95 %
+    and NEES 1, a 3 sigma offset 16 % and NEES 10; truth lost for 0.5 s scores nothing there; and time
+    going back starts over."""
+    from groundstation.estimation.truth import LiveTruthScore
+
+    rng = np.random.default_rng(3)
+    t_truth = np.arange(0.0, 60.0, 0.01)
+    t_est = np.arange(0.0037, 60.0, 0.02)
+    h = lambda t: 1.0 + 0.8 * np.sin(0.7 * t)  # noqa: E731
+    z = h(t_est) + rng.normal(0.0, 0.02, len(t_est))
+
+    def played(truth_late: bool, offset: float = 0.0, lost=(np.inf, np.inf)) -> LiveTruthScore:
+        score = LiveTruthScore(window_s=120.0)
+        events = [(t, 0, float(h(t))) for t in t_truth if not lost[0] <= t < lost[1]]
+        events += [(t, 1, float(v) + offset) for t, v in zip(t_est, z)]
+        # the truth reaches the dashboard 50 ms late, or 50 ms early
+        events.sort(key=lambda e: e[0] + (0.05 if (e[1] == 0) == truth_late else 0.0))
+        for t, which, v in events:
+            score.truth(t, v) if which == 0 else score.estimate(t, v, 0.02)
+        return score
+
+    for truth_late in (True, False):
+        n, rms, within, nees = played(truth_late).summary()
+        assert n == len(t_est) and rms == pytest.approx(0.02, rel=0.05)
+        assert within == pytest.approx(0.954, abs=0.015) and nees == pytest.approx(1.0, abs=0.08)
+        _, _, within, nees = played(truth_late, offset=0.06).summary()  # 3 sigma off: |3 + N(0, 1)| <= 2
+        assert within == pytest.approx(0.159, abs=0.02) and nees == pytest.approx(10.0, abs=0.6)
+    n_lost = played(True, lost=(20.0, 20.5)).summary()[0]
+    assert n_lost == len(t_est) - 25  # 20.0037 to 20.4837 s: between the truth samples of 19.99 and 20.5 s
+    score = played(True)
+    score.truth(5.0, 1.0)  # a seek back
+    assert score.summary() is None

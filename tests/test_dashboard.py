@@ -297,6 +297,40 @@ def test_the_state_panel_lists_what_the_estimator_skipped():
         dash.stop()
 
 
+def test_the_state_panel_scores_the_height_against_a_truth_in_the_stream():
+    """Motion capture in the stream (TRUTH_POSE, NED): the state panel gives the height's error against
+    it and whether the sigma drawn holds it; without truth it says nothing of it."""
+    from groundstation.core.measurement import Kind, Measurement
+    from groundstation.estimation.loop import Snapshot
+    from web.dashboard import Dashboard
+
+    rng = np.random.default_rng(5)
+    dash = Dashboard(port=0)
+    try:
+        dash.attach_session(model="altitude", declared=[])
+        P = np.diag([0.01**2, 1e-4, 1e-4])
+        for k in range(1000):  # 10 s: truth at 100 Hz, the estimate at 50 Hz just after it, 1 cm sigma
+            t = 0.01 * k
+            h = 1.0 + 0.5 * math.sin(t)
+            dash.feed_measurement(Measurement(t, Kind.TRUTH_POSE, np.array([0.0, 0.0, -h, 1.0, 0, 0, 0]), "mocap"))
+            if k % 2 == 1:
+                z = 1.0 + 0.5 * math.sin(t - 0.004) + rng.normal(0.0, 0.01)
+                dash.feed_snapshot(
+                    Snapshot(t - 0.004, "altitude", ("z", "vz", "b_acc"), np.array([z, 0, 0]), P, None, 0.0)
+                )
+        dash.update_panels()
+        line = dash.state_md.content.split("\n\n")[-1]
+        assert line.startswith("against truth, last 60 s: height 1.0 cm RMS, within 2σ 9"), line
+        nees = float(line.split("NEES ")[1])
+        assert 0.8 < nees < 1.2, line
+        dash.clear_view()
+        dash.feed_snapshot(Snapshot(11.0, "altitude", ("z", "vz", "b_acc"), np.zeros(3), P, None, 0.0))
+        dash.update_panels()
+        assert "against truth" not in dash.state_md.content
+    finally:
+        dash.stop()
+
+
 def test_the_vehicle_follows_the_estimate_once_a_session_is_attached():
     """The 3D view's vehicle is placed at the estimate after the command line has attached its
     session (model, declared effects, airframe): the airframe's name is not the scene's handle."""

@@ -15,7 +15,8 @@ session's model, horizontal place from the IMU + GPS filter of
 ``groundstation.estimation.models.horizontal``), the truth as a ghost
 when the session has truth, a trail, the position covariance as a 3-sigma
 ellipsoid oriented by its eigenvectors, the range sensor's ray, a ground grid.
-Panels: link status, the state table with +-sigma, time plots (estimate with
+Panels: link status, the state table with +-sigma (and, with truth in the stream, the height's
+error against it and whether its sigma holds it: ``LiveTruthScore``), time plots (estimate with
 +-2 sigma against its measurements; innovations with +-2 sqrt(S); NIS with its
 95 % chi-square band; a bias or parameter state, chosen in a dropdown, +-2
 sigma), replay controls, and the diagnosis panel.
@@ -44,6 +45,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.live import DIAGNOSIS_NICE, SessionBuffer, diagnose_window, markdown
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.truth import LiveTruthScore
 
 from .authority import Authority, is_loopback
 from .control_panel import ControlPanel
@@ -116,6 +118,8 @@ class Dashboard:
         self._meas: deque = deque()  # (t, range)
         self._innov: deque = deque()  # (t, nu, 2 sqrt S, nis)
         self._params: deque = deque()  # (t, x[2:], sigma[2:])
+        #: the height against truth, when the session streams it (is the sigma shown honest?)
+        self.truth_score = LiveTruthScore(window_s=max(window_s, 60.0))
         self._dirty = False
         self.status_text = "waiting for data"
         #: the estimator's counters (its skipped readings are listed under the state), if one is attached
@@ -296,6 +300,7 @@ class Dashboard:
             self._meas.append((m.t, self._range))
         elif k is Kind.TRUTH_POSE:
             self._truth = m
+            self.truth_score.truth(m.t, -float(m.value[2]))  # NED down: the height is up
         self._dirty = True
 
     def feed_snapshot(self, snap) -> None:
@@ -314,6 +319,8 @@ class Dashboard:
         if "z" in snap.states:
             i = snap.states.index("z")
             self._series.append((snap.t, float(snap.x[i]), float(snap.sigma[i])))
+            if self._truth is not None:
+                self.truth_score.estimate(snap.t, float(snap.x[i]), float(snap.sigma[i]))
         if len(snap.states) > 2:
             self._params.append((snap.t, snap.x[2:].copy(), snap.sigma[2:]))
         rec = snap.innovation
@@ -335,6 +342,7 @@ class Dashboard:
     def clear_view(self) -> None:
         """Forget what is shown (another vehicle comes next): its place, trail, plots and window."""
         self._snap, self._truth, self._P_ne = None, None, None
+        self.truth_score.clear()
         self._att, self._pos_ne, self._range = (0.0, 0.0, 0.0), np.zeros(2), math.nan
         for buf in (self._trail, self._series, self._meas, self._innov, self._params):
             buf.clear()
@@ -471,8 +479,16 @@ class Dashboard:
             rows = "\n".join(f"| {n} | {v:+.4f} | ±{sg:.4f} |" for n, v, sg in zip(s.states, s.x, s.sigma))
             rejected = self.estimator_counters.rejected if self.estimator_counters is not None else {}
             skipped = f"\n\nskipped: {counted(rejected)}" if rejected else ""
+            score = self.truth_score.summary()
+            vs_truth = ""
+            if score is not None:
+                _, rms, within, nees = score
+                vs_truth = (
+                    f"\n\nagainst truth, last {self.truth_score.window_s:.0f} s: height {rms * 100:.1f} cm RMS, "
+                    f"within 2σ {within:.0%} (95 % if σ is honest), NEES {nees:.2f}"
+                )
             self.state_md.content = (
-                f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}" + skipped
+                f"t = {s.t:.2f} s ({s.estimator})\n\n| state | value | σ |\n|---|---|---|\n{rows}" + vs_truth + skipped
             )
         t_now = self._series[-1][0] if self._series else 0.0
         for buf in (self._series, self._meas, self._innov, self._params):

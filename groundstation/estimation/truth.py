@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -76,6 +77,69 @@ class Truth:
     @staticmethod
     def quantity(run: Estimated) -> str:
         return "height [m]" if "z" in run.model.states else "roll and pitch [rad]"
+
+
+class LiveTruthScore:
+    """A height estimate against truth as the flight goes (motion capture in the stream): each
+    estimate paired with the truth interpolated at its time between the two truth samples around it,
+    over the last ``window_s``; what :meth:`Truth.consistency` says of a whole log. Truth and
+    estimates reach the dashboard by different paths, either first: the truth of the last
+    ``keep_s`` is kept, and an estimate newer than all of it waits for the next sample. Two truth
+    samples more than ``gap_s`` apart bracket nothing (motion capture lost the vehicle)."""
+
+    def __init__(self, window_s: float = 60.0, gap_s: float = 0.2, keep_s: float = 2.0) -> None:
+        self.window_s, self.gap_s, self.keep_s = window_s, gap_s, keep_s
+        self._truth: deque[tuple[float, float]] = deque()  # (t, h), the last keep_s
+        self._waiting: deque[tuple[float, float, float]] = deque(maxlen=2000)  # (t, z, sigma) past the truth
+        self.pairs: deque[tuple[float, float, float]] = deque()  # (t, estimate - truth, sigma)
+
+    def clear(self) -> None:
+        self._truth.clear()
+        self._waiting.clear()
+        self.pairs.clear()
+
+    def truth(self, t: float, h: float) -> None:
+        tr = self._truth
+        if tr and t <= tr[-1][0]:
+            if t < tr[-1][0] - 1.0:  # time went back (a seek, a loop)
+                self.clear()
+            else:
+                return  # a repeat or out of order: the samples stay in time order
+        tr.append((t, h))
+        while tr[0][0] < t - self.keep_s:
+            tr.popleft()
+        while self._waiting and self._waiting[0][0] <= t:
+            self._pair(*self._waiting.popleft())
+
+    def estimate(self, t: float, z: float, sigma: float) -> None:
+        if self.pairs and t < self.pairs[-1][0] - 1.0:
+            self.clear()
+        if self._truth and t <= self._truth[-1][0]:
+            self._pair(t, z, sigma)
+        else:
+            self._waiting.append((t, z, sigma))
+
+    def _pair(self, t: float, z: float, sigma: float) -> None:
+        tr = self._truth
+        i = len(tr) - 1  # the estimate is near the newest truth: search back from there
+        while i > 0 and tr[i - 1][0] >= t:
+            i -= 1
+        if i == 0:
+            return  # older than the truth kept
+        (t0, h0), (t1, h1) = tr[i - 1], tr[i]
+        if t1 - t0 > self.gap_s:
+            return
+        self.pairs.append((t, z - (h0 + (h1 - h0) * (t - t0) / (t1 - t0)), sigma))
+        while self.pairs[0][0] < t - self.window_s:
+            self.pairs.popleft()
+
+    def summary(self) -> tuple[int, float, float, float] | None:
+        """(pairs, RMS error [m], share within 2 sigma, NEES) over the window, or None without a pair."""
+        if not self.pairs:
+            return None
+        a = np.array(self.pairs)
+        e = a[:, 1] / np.maximum(a[:, 2], 1e-6)
+        return len(a), float(np.sqrt(np.mean(a[:, 1] ** 2))), float(np.mean(np.abs(e) <= 2.0)), float(np.mean(e * e))
 
 
 def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
