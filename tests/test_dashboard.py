@@ -16,7 +16,7 @@ from sim_bridge.scenario import Scenario
 from web.dashboard import frd_quat_to_view, ned_to_view
 
 from .browser import CHROMIUM, Browser
-from .conftest import async_test, free_tcp_port
+from .conftest import async_test, free_tcp_port, real_file
 
 ARTIFACTS = Path(__file__).resolve().parents[1] / "artifacts"
 
@@ -164,6 +164,37 @@ async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
             await b.wait_for_text("No diagnosis has been run")
             img = await _drawn(b, ARTIFACTS / "dashboard_panels.png", vehicle=False)
         assert dark_pixels(img[:, -380:]) > 1000  # folders, tables and uPlot axes
+    finally:
+        if proc.returncode is None:
+            proc.terminate()
+            await proc.wait()
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
+@async_test(timeout=120)
+async def test_a_replay_with_motion_capture_shows_the_height_against_it():
+    """A Crazyflie log with Vicon in it, replayed: the browser's state panel scores the height
+    against the motion capture as the replay goes."""
+    log = real_file("crazyflie_util/0422-log00")
+    port = free_tcp_port()
+    proc = await asyncio.create_subprocess_exec(
+        *(sys.executable, "-m", "groundstation", "replay", str(log), "--speed", "1", "--port", str(port), "--quiet"),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    try:
+        url = None
+        while url is None:  # wait for the server's own announcement
+            line = (await proc.stdout.readline()).decode()
+            assert line, (await proc.stderr.read()).decode()
+            if line.startswith("dashboard: "):
+                url = line.split()[1]
+        async with Browser() as b:
+            await b.goto(url)
+            await b.wait_for_text("against truth, last 60 s: height", timeout=60.0)
+            r = await b.call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
+        line = next(ln for ln in r["result"]["value"].splitlines() if "against truth" in ln)
+        assert re.search(r"height [0-9.]+ cm RMS, within 2σ [0-9]+% \(95 % if σ is honest\), NEES [0-9.]+", line), line
     finally:
         if proc.returncode is None:
             proc.terminate()
