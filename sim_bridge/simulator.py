@@ -19,7 +19,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from groundstation.core.frames import euler_from_matrix
+from groundstation.core.frames import euler_from_matrix, quaternion_from_euler
+from groundstation.core.measurement import Kind, Measurement
 
 from .effects import Effect
 from .profile import CoaxAutopilot, FlightProfile, GuidedProfile, Heli3dofAutopilot, QuadAutopilot
@@ -234,3 +235,13 @@ class Simulator:
             r, p, y = euler_from_matrix(k.R)
             row.update({"roll": r, "pitch": p, "yaw": y})
         return {key: float(val) for key, val in row.items()}
+
+
+def truth_pose(row: dict[str, float], source: str = "sim/truth") -> Measurement:
+    """A row of :meth:`Simulator.truth` as motion capture reports a pose (``Kind.TRUTH_POSE``: NED
+    position, the FRD body's quaternion), for a dashboard to draw and to score the height against.
+    Down is minus the height above the floor, the height every estimate is scored on."""
+    q = quaternion_from_euler(row.get("roll", 0.0), row.get("pitch", 0.0), row.get("yaw", 0.0))
+    return Measurement(
+        row["t"], Kind.TRUTH_POSE, np.array([row.get("n", 0.0), row.get("e", 0.0), -row["h"], *q]), source
+    )

@@ -201,6 +201,38 @@ async def test_a_replay_with_motion_capture_shows_the_height_against_it():
             await proc.wait()
 
 
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
+@async_test(timeout=120)
+async def test_the_demo_shows_the_simulators_truth_and_scores_the_height_against_it():
+    """``demo``: the simulator's truth reaches the dashboard as motion capture would (never an
+    estimator), and the state panel scores the height against it; the filter, tuned on this
+    simulator, holds it (NEES under 3)."""
+    port = free_tcp_port()
+    proc = await asyncio.create_subprocess_exec(
+        *(sys.executable, "-m", "groundstation", "demo", "--duration", "40", "--port", str(port)),
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    try:
+        url = None
+        while url is None:  # wait for the server's own announcement
+            line = (await proc.stdout.readline()).decode()
+            assert line, (await proc.stderr.read()).decode()
+            if line.startswith("dashboard: "):
+                url = line.split()[1]
+        async with Browser() as b:
+            await b.goto(url)
+            await b.wait_for_text("against truth, last 60 s: height", timeout=60.0)
+            r = await b.call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
+        line = next(ln for ln in r["result"]["value"].splitlines() if "against truth" in ln)
+        m = re.search(r"height ([0-9.]+) cm RMS, within 2σ ([0-9]+)% \(95 % if σ is honest\), NEES ([0-9.]+)", line)
+        assert m and float(m.group(1)) < 10.0 and float(m.group(3)) < 3.0, line
+    finally:
+        if proc.returncode is None:
+            proc.terminate()
+            await proc.wait()
+
+
 @async_test(timeout=60)
 async def test_websocket_updates_arrive_at_the_configured_rates():
     """What a tab receives, at the protocol level: the scene at scene_hz, the plots at plot_hz,

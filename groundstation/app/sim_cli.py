@@ -20,6 +20,7 @@ from sim_bridge.fast import declared_path, run_fast
 from sim_bridge.profile import FLIGHTS
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import VEHICLES, Scenario
+from sim_bridge.simulator import truth_pose
 from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
@@ -250,6 +251,10 @@ async def run_demo(args) -> int:
     if getattr(args, "control", False) and args.vehicle == "heli3dof":
         board_port = PtyPort()
     bridge = SimBridge(scenario, udp_to=("127.0.0.1", port), board=board_port)
+    if dash is not None and args.vehicle != "heli3dof":
+        # the simulator's truth as a motion-capture arena gives it, to the dashboard alone (never to an
+        # estimator): the ghost, and the height's error against it with whether its sigma holds it
+        bridge.truth_sink = lambda row: dash.feed_measurement(truth_pose(row))
     await bridge.open()
     supervisor = Supervisor(bridge.close)
     control_tasks = []
