@@ -29,11 +29,12 @@ def test_every_example_is_listed_and_runs_here():
     assert listed == {p.name for p in EXAMPLES.glob("[0-9][0-9]_*.py")}
 
 
-def test_01_the_estimate_beats_the_range_sensor():
-    est, raw = numbers(
-        r"estimate ([0-9.]+) mm, raw range ([0-9.]+) mm", run("01_replay_through_the_estimation_loop.py", 20)
-    )
+def test_01_the_estimate_beats_the_range_sensor_and_its_sigma_holds_the_truth():
+    out = run("01_replay_through_the_estimation_loop.py", 20)
+    est, raw = numbers(r"estimate ([0-9.]+) mm, raw range ([0-9.]+) mm", out)
     assert est < raw
+    within, nees = numbers(r"within 2 sigma ([0-9]+)% of the time \(95 % if honest\), NEES ([0-9.]+)", out)
+    assert within > 80 and 0.2 < nees < 3.0, out
 
 
 def test_02_rls_reads_the_atmospheres_diluted_slope():
