@@ -1,6 +1,7 @@
 """The dashboard in a real browser (Debian's headless Chromium): screenshots kept in artifacts/."""
 
 import asyncio
+import contextlib
 import math
 import os
 import re
@@ -38,26 +39,13 @@ def dark_pixels(img: np.ndarray) -> int:
     return int(np.sum(img.max(axis=2) < 120))
 
 
-@pytest.mark.slow
-@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
-@async_test(timeout=150)
-async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path):
-    ARTIFACTS.mkdir(exist_ok=True)
-    # 60 s at real speed: whenever the tab gets ready (a loaded machine takes 5-30 s), a height
-    # step or the sine is still ahead (seed 2: steps at 11, 16 and 51 s, sine 21-33 s, landing at 53 s)
-    run_fast(Scenario.from_args("quad", 2, 60.0, ["range_tilt"], []), tmp_path / "q.tlog")
+@contextlib.asynccontextmanager
+async def _dashboard_of(*command: str):
+    """``groundstation COMMAND --port P`` in its own process, and its dashboard's address once the
+    process announces it; the process is stopped on the way out, whatever happened."""
     port = free_tcp_port()
     proc = await asyncio.create_subprocess_exec(
-        sys.executable,
-        "-m",
-        "groundstation",
-        "replay",
-        str(tmp_path / "q.tlog"),
-        "--speed",
-        "1",
-        "--port",
-        str(port),
-        "--quiet",
+        *(sys.executable, "-m", "groundstation", *command, "--port", str(port)),
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
     )
@@ -68,6 +56,35 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
             assert line, (await proc.stderr.read()).decode()
             if line.startswith("dashboard: "):
                 url = line.split()[1]
+        yield url
+    finally:
+        if proc.returncode is None:
+            proc.terminate()
+            await proc.wait()
+
+
+#: the state panel's line scoring the height against truth: RMS [cm], share within 2 sigma [%], NEES
+AGAINST_TRUTH = re.compile(r"height ([0-9.]+) cm RMS, within 2σ ([0-9]+)% \(95 % if σ is honest\), NEES ([0-9.]+)")
+
+
+async def _against_truth(url: str) -> str:
+    """The state panel's line against truth, once a browser shows it."""
+    async with Browser() as b:
+        await b.goto(url)
+        await b.wait_for_text("against truth, last 60 s: height", timeout=60.0)
+        r = await b.call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
+    return next(ln for ln in r["result"]["value"].splitlines() if "against truth" in ln)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
+@async_test(timeout=150)
+async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path):
+    ARTIFACTS.mkdir(exist_ok=True)
+    # 60 s at real speed: whenever the tab gets ready (a loaded machine takes 5-30 s), a height
+    # step or the sine is still ahead (seed 2: steps at 11, 16 and 51 s, sine 21-33 s, landing at 53 s)
+    run_fast(Scenario.from_args("quad", 2, 60.0, ["range_tilt"], []), tmp_path / "q.tlog")
+    async with _dashboard_of("replay", str(tmp_path / "q.tlog"), "--speed", "1", "--quiet") as url:
         async with Browser() as b:
             await b.goto(url)
             await b.wait_for_text("NIS and its 95 % band")  # the panels have arrived
@@ -92,10 +109,6 @@ async def test_dashboard_draws_the_scene_and_the_plots_and_they_change(tmp_path)
         )
         for img in (a, c):
             assert dark_pixels(img[:, -380:]) > 1000  # panels: text, tables, plot axes
-    finally:
-        if proc.returncode is None:
-            proc.terminate()
-            await proc.wait()
 
 
 def _vehicle_on_screen(img: np.ndarray) -> tuple[float, float]:
@@ -176,29 +189,9 @@ async def test_a_replay_with_motion_capture_shows_the_height_against_it():
     """A Crazyflie log with Vicon in it, replayed: the browser's state panel scores the height
     against the motion capture as the replay goes."""
     log = real_file("crazyflie_util/0422-log00")
-    port = free_tcp_port()
-    proc = await asyncio.create_subprocess_exec(
-        *(sys.executable, "-m", "groundstation", "replay", str(log), "--speed", "1", "--port", str(port), "--quiet"),
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    try:
-        url = None
-        while url is None:  # wait for the server's own announcement
-            line = (await proc.stdout.readline()).decode()
-            assert line, (await proc.stderr.read()).decode()
-            if line.startswith("dashboard: "):
-                url = line.split()[1]
-        async with Browser() as b:
-            await b.goto(url)
-            await b.wait_for_text("against truth, last 60 s: height", timeout=60.0)
-            r = await b.call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
-        line = next(ln for ln in r["result"]["value"].splitlines() if "against truth" in ln)
-        assert re.search(r"height [0-9.]+ cm RMS, within 2σ [0-9]+% \(95 % if σ is honest\), NEES [0-9.]+", line), line
-    finally:
-        if proc.returncode is None:
-            proc.terminate()
-            await proc.wait()
+    async with _dashboard_of("replay", str(log), "--speed", "1", "--quiet") as url:
+        line = await _against_truth(url)
+    assert AGAINST_TRUTH.search(line), line
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
@@ -207,30 +200,10 @@ async def test_the_demo_shows_the_simulators_truth_and_scores_the_height_against
     """``demo``: the simulator's truth reaches the dashboard as motion capture would (never an
     estimator), and the state panel scores the height against it; the filter, tuned on this
     simulator, holds it (NEES under 3)."""
-    port = free_tcp_port()
-    proc = await asyncio.create_subprocess_exec(
-        *(sys.executable, "-m", "groundstation", "demo", "--duration", "40", "--port", str(port)),
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    try:
-        url = None
-        while url is None:  # wait for the server's own announcement
-            line = (await proc.stdout.readline()).decode()
-            assert line, (await proc.stderr.read()).decode()
-            if line.startswith("dashboard: "):
-                url = line.split()[1]
-        async with Browser() as b:
-            await b.goto(url)
-            await b.wait_for_text("against truth, last 60 s: height", timeout=60.0)
-            r = await b.call("Runtime.evaluate", expression="document.body.innerText", returnByValue=True)
-        line = next(ln for ln in r["result"]["value"].splitlines() if "against truth" in ln)
-        m = re.search(r"height ([0-9.]+) cm RMS, within 2σ ([0-9]+)% \(95 % if σ is honest\), NEES ([0-9.]+)", line)
-        assert m and float(m.group(1)) < 10.0 and float(m.group(3)) < 3.0, line
-    finally:
-        if proc.returncode is None:
-            proc.terminate()
-            await proc.wait()
+    async with _dashboard_of("demo", "--duration", "40") as url:
+        line = await _against_truth(url)
+    m = AGAINST_TRUTH.search(line)
+    assert m and float(m.group(1)) < 10.0 and float(m.group(3)) < 3.0, line
 
 
 @async_test(timeout=60)
