@@ -348,6 +348,10 @@ def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     shifted.write_text("\n".join(lines) + "\n")
     off = _sigma_line(run("evaluate", str(log), "--truth", str(shifted)).stdout)
     assert off[0] < 0.05 < 0.5 < honest[0] and off[1] > 25.0 > honest[1], (honest, off)
+    # a model with no height (the 3-DOF rig's, whose first state is its pitch) is not scored on one
+    r = run("evaluate", str(log), "--truth", str(named), "--model", "heli3dof")
+    assert r.returncode == 0, r.stderr
+    assert "- (no height state)" in r.stdout and "its sigma" not in r.stdout, r.stdout
     assert_one_line_error(run("evaluate", str(log), "--truth", str(tmp_path / "none.csv")), "no such truth file")
     bad = tmp_path / "bad.csv"
     bad.write_text("t,h\n0.0,1.0\n0.1,oops\n")

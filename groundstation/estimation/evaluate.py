@@ -64,7 +64,10 @@ class Evaluation:
                 out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}{r.nis:>10.2f}{r.whiteness_p:>13.3g}")
             else:
                 out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the vehicle's offset applied)")
-        est = f"{self.estimate_rmse:.4f}" if self.estimate_rmse == self.estimate_rmse else "- (no truth)"
+        if self.estimate_rmse == self.estimate_rmse:
+            est = f"{self.estimate_rmse:.4f}"
+        else:  # no truth, or a model with no height to score (the 3-DOF rig's)
+            est = "- (no height state)" if self.truth else "- (no truth)"
         out.append(f"{'estimate':<10}{'':>7}{est:>24}" + (f"   (truth: {self.truth})" if self.truth else ""))
         if self.nees == self.nees:
             out.append(
