@@ -49,8 +49,8 @@ class VehicleClock:
         self._newest = math.nan  # the newest timed message's vehicle time, and when it came
         self._newest_rx = math.nan
 
-    def observe(self, t_vehicle: float, t_rx: float) -> None:
-        """Take a timestamped message into the offset estimate."""
+    def observe(self, t_vehicle: float, t_rx: float) -> bool:
+        """Take a timestamped message into the offset estimate; True if it shows a restart."""
         new = t_vehicle - t_rx
         off = self.offset
         if self.assumed:  # a real time field at last: replace the assumption
@@ -60,19 +60,24 @@ class VehicleClock:
         if off != off:  # nan: first sample
             self.offset = new
         else:
-            off -= self.drift * max(0.0, t_rx - self._last_rx)
-            if abs(new - off) > self.jump_s:
+            if t_rx > self._last_rx:  # (several messages of one read share a receive time)
+                off -= self.drift * (t_rx - self._last_rx)
+            d = new - off
+            if d > self.jump_s or d < -self.jump_s:
                 self.resets += 1
                 off = new
-            elif new > off:
+            elif d > 0.0:
                 off = new
             self.offset = off
         self._last_rx = t_rx
-        if t_vehicle < self._newest - RESTART_BACK_S:  # its uptime went back: it restarted
+        newest = self._newest
+        if t_vehicle < newest - RESTART_BACK_S:  # its uptime went back: it restarted
             self.restarts += 1
             self._newest, self._newest_rx = t_vehicle, t_rx
-        elif not t_vehicle <= self._newest or abs(t_vehicle - self._newest) > self.jump_s:
+            return True
+        if not t_vehicle <= newest or t_vehicle - newest < -self.jump_s:
             self._newest, self._newest_rx = t_vehicle, t_rx
+        return False
 
     def assume_receive_time(self) -> None:
         """Give up waiting for a time field: stamp with receive time (offset 0)."""

@@ -130,14 +130,16 @@ PENDING_S = 2.0
 _PENDING_MAX = 2000
 
 
-def _time_field(cls) -> tuple[str, float] | None:
+def _time_field(cls) -> tuple[str, float, float] | None:
+    """The message's vehicle-time field, its scale to seconds, and the largest raw value that is
+    a time since boot (a larger ``time_usec`` is a UNIX-epoch time)."""
     names = cls.fieldnames
     if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min
         return None
     if "time_usec" in names:
-        return "time_usec", 1e-6
+        return "time_usec", 1e-6, EPOCH_THRESHOLD_US
     if "time_boot_ms" in names:
-        return "time_boot_ms", 1e-3
+        return "time_boot_ms", 1e-3, math.inf
     return None
 
 
@@ -210,7 +212,8 @@ class MavlinkDecoder:
         self.clocks: dict[int, VehicleClock] = {}
         self.skipped: Counter[str] = Counter()
         self.unknown: Counter[str] = Counter()
-        self._sources: dict[tuple[int, int], str] = {}
+        #: sysid << 8 | compid -> the source name of that system's component
+        self._sources: dict[int, str] = {}
         self._pending: dict[int, list[Measurement]] = {}
         #: called with a system id whose clock went back (it restarted: VehicleClock.restarts)
         self.on_restart: Callable[[int], None] | None = None
@@ -219,7 +222,7 @@ class MavlinkDecoder:
         #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
         self._battery_status_from: set[str] = set()
         # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
-        self._handlers: dict[type, tuple[Callable, tuple[str, float] | None, int]] = {}
+        self._handlers: dict[type, tuple[Callable, tuple[str, float, float] | None, int]] = {}
         for cls in mavlink.mavlink_map.values():
             handler = self._handler_for(cls.msgname)
             if handler is not None:
@@ -246,10 +249,16 @@ class MavlinkDecoder:
         ``m`` is anything with the message's field names as attributes: a
         pymavlink object, or the framer's light namedtuple.
         """
+        out: Out = []
+        self.convert_into(out, cls, m, sysid, compid, t_rx)
+        return out
+
+    def convert_into(self, out: Out, cls, m, sysid: int, compid: int, t_rx: float) -> None:
+        """:meth:`convert`, appending to ``out`` (a receiver's list of one read's measurements)."""
         entry = self._handlers.get(cls)
         if entry is None:
             self.unknown[cls.msgname] += 1
-            return []
+            return
         handler, tfield, instance = entry
         clock = self.clocks.get(sysid)
         if clock is None:
@@ -257,25 +266,23 @@ class MavlinkDecoder:
         t = _nan
         if tfield is not None:
             raw = getattr(m, tfield[0])
-            if raw and not (tfield[1] == 1e-6 and raw > EPOCH_THRESHOLD_US):
+            if raw and raw <= tfield[2]:  # (0, or a UNIX-epoch time_usec: no vehicle time)
                 t = raw * tfield[1]
-                restarts = clock.restarts
-                clock.observe(t, t_rx)
-                if clock.restarts != restarts and self.on_restart is not None:
+                if clock.observe(t, t_rx) and self.on_restart is not None:
                     self.on_restart(sysid)
         if t != t:
             t = clock.vehicle_time(t_rx)
-        key = (sysid, compid)
-        source = self._sources.get(key)
+        source = self._sources.get(sysid << 8 | compid)
         if source is None:
-            source = self._sources[key] = f"{self.link_name}/{sysid}.{compid}"
-        out: Out = []
+            source = self._sources[sysid << 8 | compid] = f"{self.link_name}/{sysid}.{compid}"
+        n = len(out)
         handler(m, t, t_rx, source, instance, out)
         if t != t:  # clock still unknown: hold these back
-            return self._hold(sysid, clock, out, t_rx)
-        if self._pending and sysid in self._pending:
-            out[:0] = self._release(sysid, clock)
-        return out
+            held = out[n:]
+            del out[n:]
+            out += self._hold(sysid, clock, held, t_rx)
+        elif self._pending and sysid in self._pending:
+            out[n:n] = self._release(sysid, clock)
 
     def _hold(self, sysid: int, clock: VehicleClock, out: Out, t_rx: float) -> Out:
         pend = self._pending.setdefault(sysid, [])
@@ -351,15 +358,12 @@ class MavlinkDecoder:
             out.append(_new(_M, (t, _TEMPERATURE, v[11:12], source, t_rx, None, instance, 1)))
 
     def _scaled_pressure(self, m, t, t_rx, source, instance, out):
-        out.append(_new(_M, (t, _BARO_PRESSURE, _array([m.press_abs * _HPA]), source, t_rx, None, instance, 1)))
+        # one array for the message; the measurements hold views of it
+        v = _array((m.press_abs * _HPA, m.press_diff * _HPA, m.temperature * _CDEGC_S + _CDEGC_O))
+        out.append(_new(_M, (t, _BARO_PRESSURE, v[0:1], source, t_rx, None, instance, 1)))
         if m.press_diff:
-            out.append(_new(_M, (t, _DIFF_PRESSURE, _array([m.press_diff * _HPA]), source, t_rx, None, instance, 1)))
-        out.append(
-            _new(
-                _M,
-                (t, _TEMPERATURE, _array([m.temperature * _CDEGC_S + _CDEGC_O]), source, t_rx, None, instance, 1),
-            )
-        )
+            out.append(_new(_M, (t, _DIFF_PRESSURE, v[1:2], source, t_rx, None, instance, 1)))
+        out.append(_new(_M, (t, _TEMPERATURE, v[2:3], source, t_rx, None, instance, 1)))
 
     _scaled_pressure2 = _scaled_pressure
     _scaled_pressure3 = _scaled_pressure
@@ -390,47 +394,26 @@ class MavlinkDecoder:
         out.append(_new(_M, (t, _GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance, 1)))
 
     def _global_position_int(self, m, t, t_rx, source, instance, out):
-        out.append(
-            _new(
-                _M,
-                (
-                    t,
-                    _GLOBAL_POSITION,
-                    _array([m.lat * _DEGE7, m.lon * _DEGE7, m.alt * _MM, m.relative_alt * _MM]),
-                    source,
-                    t_rx,
-                    None,
-                    instance,
-                    1,
-                ),
+        v = _array(
+            (
+                m.lat * _DEGE7,
+                m.lon * _DEGE7,
+                m.alt * _MM,
+                m.relative_alt * _MM,
+                m.vx * _CM,
+                m.vy * _CM,
+                m.vz * _CM,
             )
         )
-        out.append(
-            _new(
-                _M,
-                (t, _VELOCITY_NED, _array([m.vx, m.vy, m.vz], dtype=float) * _CM, source, t_rx, None, instance, 1),
-            )
-        )
+        out.append(_new(_M, (t, _GLOBAL_POSITION, v[0:4], source, t_rx, None, instance, 1)))
+        out.append(_new(_M, (t, _VELOCITY_NED, v[4:7], source, t_rx, None, instance, 1)))
 
     def _vfr_hud(self, m, t, t_rx, source, instance, out):
-        out.append(_new(_M, (t, _THROTTLE, _array([m.throttle * _PCT]), source, t_rx, None, instance, 1)))
-        out.append(_new(_M, (t, _ALTITUDE, _array([float(m.alt)]), source, t_rx, None, instance, 1)))
-        out.append(_new(_M, (t, _CLIMB_RATE, _array([float(m.climb)]), source, t_rx, None, instance, 1)))
-        out.append(
-            _new(
-                _M,
-                (
-                    t,
-                    _AIRSPEED,
-                    _array([m.airspeed, m.groundspeed, m.heading * _DEG]),
-                    source,
-                    t_rx,
-                    None,
-                    instance,
-                    1,
-                ),
-            )
-        )
+        v = _array((m.throttle * _PCT, m.alt, m.climb, m.airspeed, m.groundspeed, m.heading * _DEG), dtype=float)
+        out.append(_new(_M, (t, _THROTTLE, v[0:1], source, t_rx, None, instance, 1)))
+        out.append(_new(_M, (t, _ALTITUDE, v[1:2], source, t_rx, None, instance, 1)))
+        out.append(_new(_M, (t, _CLIMB_RATE, v[2:3], source, t_rx, None, instance, 1)))
+        out.append(_new(_M, (t, _AIRSPEED, v[3:6], source, t_rx, None, instance, 1)))
 
     def _sys_status(self, m, t, t_rx, source, instance, out):
         if source in self._battery_status_from:

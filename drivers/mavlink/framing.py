@@ -33,6 +33,8 @@ from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 _crc = crc16.mcrf4xx
+#: a namedtuple from a tuple of all its fields, without its keyword ``__new__``
+_new = tuple.__new__
 
 #: Sensor messages that take the fast path (the high-rate ones).
 FAST_TYPES = (
@@ -70,20 +72,25 @@ def _record_type(name: str, fields: list[str]) -> Any:
 class FastSpec:
     """How to turn one message type's payload into a namedtuple."""
 
-    __slots__ = ("cls", "name", "tuple_type", "unpack", "size", "group")
+    __slots__ = ("cls", "name", "tuple_type", "unpack", "unpack_from", "size", "group")
 
     def __init__(self, cls) -> None:
         self.cls = cls
         self.name = cls.msgname
         self.tuple_type = _record_type(cls.msgname.lower(), cls.ordered_fieldnames)
         self.unpack = cls.unpacker.unpack
+        self.unpack_from = cls.unpacker.unpack_from
         self.size = cls.unpacker.size
         # Array fields come out of struct as several values: group them back.
         self.group = tuple(cls.lengths) if any(n > 1 for n in cls.lengths) else None
 
-    def make(self, payload: bytes):
-        if len(payload) < self.size:  # MAVLink 2 trims trailing zeros
-            payload = payload + bytes(self.size - len(payload))
+    def make(self, buf: bytes, start: int, length: int):
+        """The fields of the payload of ``length`` bytes at ``buf[start:]``."""
+        if length == self.size and self.group is None:  # the common case: read in place
+            return _new(self.tuple_type, self.unpack_from(buf, start))
+        payload = buf[start : start + length]
+        if length < self.size:  # MAVLink 2 trims trailing zeros
+            payload = payload + bytes(self.size - length)
         vals = self.unpack(payload[: self.size])
         if self.group is not None:
             out, k = [], 0
@@ -187,7 +194,7 @@ class Framer:
                 continue
             spec = fast.get(msgid)
             if spec is not None:
-                self.on_fast(spec, spec.make(buf[pos + hlen : end_crc]), sysid, compid, seq, frame)
+                self.on_fast(spec, spec.make(buf, pos + hlen, plen), sysid, compid, seq, frame)
             else:
                 try:
                     m = self._mav.decode(bytearray(frame))

@@ -22,6 +22,8 @@ from .framing import Framer
 
 _UNKNOWN = mavlink.MAVLink_unknown
 
+#: what a message that passed its CRC but makes no sense raises in the decoder
+_UNDECODABLE = (AttributeError, ValueError, TypeError, IndexError, OverflowError, ZeroDivisionError)
 #: the largest sequence gap counted as lost frames; larger ones are a frame up to 15 places late
 MAX_LOSS_GAP = 240
 #: a sender silent this long [s] may have restarted its sequence counter
@@ -110,7 +112,9 @@ class MavlinkReceiver:
         self.counters = LinkCounters()
         self.on_frame = on_frame
         self.on_message = on_message
-        self._last_seq: dict[tuple[int, int], tuple[int, float] | None] = {}
+        #: sysid << 8 | compid -> [its per_source counts, last sequence number (-1: none), its time,
+        #: MAVLink 1 only so far]
+        self._senders: dict[int, list] = {}
         #: (sysid, compid) -> a gap counted as loss where the sequence started over near 0: a
         #: restart's, if the sender's clock turns out to have gone back too (:meth:`_restarted`)
         self._reset_gap: dict[tuple[int, int], int] = {}
@@ -118,7 +122,9 @@ class MavlinkReceiver:
         self.peer_mavlink1: dict[tuple[int, int], bool] = {}
         self._framer = Framer(self._fast, self._object, self._crc_error, self._garbage)
         self._framer.on_refused = self._refused
+        self._convert_into = self.decoder.convert_into
         self._out: list[Measurement] = []
+        self._names: list[str] = []  # the types of one read's messages, counted at its end
         self._t_rx = 0.0
 
     def require_signing(self, check) -> None:
@@ -132,9 +138,8 @@ class MavlinkReceiver:
         """Drop a partial frame and the sequence history (a replay seeking
         elsewhere: the jump in sequence numbers is not loss)."""
         self._framer.reset()
-        self._last_seq.clear()
-        for key in self.counters.per_source:
-            self._last_seq[key] = None
+        for sender in self._senders.values():
+            sender[1] = -1
 
     def idle_for(self, sysids: Iterable[int]) -> bool:
         """No partial frame waits for more bytes, and no untimed message of these systems for its
@@ -146,54 +151,59 @@ class MavlinkReceiver:
         return not dec.waiting or not any(dec.waiting_for(int(s)) for s in set(sysids))
 
     def feed(self, data: bytes, t_rx: float) -> list[Measurement]:
-        self.counters.bytes += len(data)
+        c = self.counters
+        c.bytes += len(data)
         self._t_rx = t_rx
         out = self._out = []
-        self._framer.feed(data)
+        names = self._names = []
+        v1 = c.mavlink1
+        try:
+            self._framer.feed(data)
+        finally:
+            # counted once a read, not once a message (a C loop over the names)
+            c.messages += len(names)
+            c.mavlink2 += len(names) - (c.mavlink1 - v1)
+            c.by_type.update(names)
         return out
 
     # -- framer callbacks ------------------------------------------------------------
     def _fast(self, spec, m, sysid, compid, seq, frame) -> None:
-        c = self.counters
-        c.messages += 1
-        c.by_type[spec.name] += 1
-        self._track(frame[0], seq, sysid, compid, c)
+        self._names.append(spec.name)
+        self._track(frame[0], seq, sysid, compid)
         if self.on_frame is not None:
             self.on_frame(frame, self._t_rx)
-        out = self._convert(spec.cls, m, sysid, compid)
-        if out:
-            self._out += out
+        try:
+            self._convert_into(self._out, spec.cls, m, sysid, compid, self._t_rx)
+        except _UNDECODABLE as e:
+            self._undecodable(spec.cls, e)
 
     def _object(self, m, sysid, compid, seq, frame) -> None:
-        c = self.counters
         if type(m) is _UNKNOWN:
             # an id this dialect does not know: its CRC cannot be checked, so its header says nothing
             # either (no sequence, no sign of life); recorded and passed on as it came
-            c.unknown += 1
-            c.by_type[m.get_type()] += 1
+            self.counters.unknown += 1
+            self.counters.by_type[m.get_type()] += 1
             if self.on_frame is not None:
                 self.on_frame(frame, self._t_rx)
             if self.on_message is not None:
                 self.on_message(m, self._t_rx)
             return
-        c.messages += 1
-        c.by_type[m.get_type()] += 1
-        self._track(frame[0], seq, sysid, compid, c)
+        self._names.append(m.get_type())
+        self._track(frame[0], seq, sysid, compid)
         if self.on_frame is not None:
             self.on_frame(frame, self._t_rx)
         if self.on_message is not None:
             self.on_message(m, self._t_rx)
-        self._out.extend(self._convert(type(m), m, sysid, compid))
-
-    def _convert(self, cls, m, sysid: int, compid: int) -> list[Measurement]:
-        """The decoder's measurements of one message; a message it cannot convert (field values
-        that pass the CRC but no sense: a channel count past its fields) is counted and skipped."""
         try:
-            return self.decoder.convert(cls, m, sysid, compid, self._t_rx)
-        except (AttributeError, ValueError, TypeError, IndexError, OverflowError, ZeroDivisionError) as e:
-            self.counters.undecodable += 1
-            self.counters.last_undecodable = f"{cls.__name__.removeprefix('MAVLink_').upper()}: {e}"
-            return []
+            self._convert_into(self._out, type(m), m, sysid, compid, self._t_rx)
+        except _UNDECODABLE as e:
+            self._undecodable(type(m), e)
+
+    def _undecodable(self, cls, e: Exception) -> None:
+        """A message the decoder cannot convert (field values that pass the CRC but no sense: a
+        channel count past its fields) is counted and skipped."""
+        self.counters.undecodable += 1
+        self.counters.last_undecodable = f"{cls.__name__.removeprefix('MAVLink_').upper()}: {e}"
 
     def _crc_error(self) -> None:
         self.counters.crc_errors += 1
@@ -201,7 +211,7 @@ class MavlinkReceiver:
     def _garbage(self) -> None:
         self.counters.bad_data += 1
 
-    def _track(self, magic: int, seq: int, sysid: int, compid: int, c: LinkCounters) -> None:
+    def _track(self, magic: int, seq: int, sysid: int, compid: int) -> None:
         """Sequence-gap counting per (system, component), and protocol version.
 
         A frame 1..15 places behind the last (a gap of 241..255) was reordered or duplicated: no
@@ -210,33 +220,36 @@ class MavlinkReceiver:
         than :data:`SILENCE_S` without a frame from that sender the gap says nothing (a reboot
         restarts the counter; an outage loses more than 256 frames): the link's state reports it.
         """
-        key = (sysid, compid)
-        stats = c.per_source.get(key)
-        if magic == 0xFD:
-            c.mavlink2 += 1
-        else:
-            c.mavlink1 += 1
-        t = self._t_rx
-        if stats is None:
-            c.per_source[key] = [1, 0]
-            self._last_seq[key] = (seq, t)
-            self.peer_mavlink1[key] = magic != 0xFD
+        sender = self._senders.get(sysid << 8 | compid)
+        if sender is None:
+            self._first_frame(magic, seq, sysid, compid)
             return
-        stats[0] += 1
-        if magic == 0xFD and self.peer_mavlink1[key]:
-            self.peer_mavlink1[key] = False
-        last = self._last_seq[key]
-        self._last_seq[key] = (seq, t)
+        sender[0][0] += 1
+        if magic != 0xFD:
+            self.counters.mavlink1 += 1
+        elif sender[3]:
+            sender[3] = self.peer_mavlink1[(sysid, compid)] = False
+        last, t_last = sender[1], sender[2]
+        t = sender[2] = self._t_rx
+        sender[1] = seq
         if seq >= RESET_SEQ and self._reset_gap:
-            self._reset_gap.pop(key, None)  # well past a start of the counter: that gap was loss
-        if last is None or t - last[1] > SILENCE_S:  # (unknown receive times, NaN: every gap counts)
+            self._reset_gap.pop((sysid, compid), None)  # well past a start of the counter: that gap was loss
+        if last < 0 or t - t_last > SILENCE_S:  # (unknown receive times, NaN: every gap counts)
             return
-        gap = (seq - last[0] - 1) & 0xFF
+        gap = (seq - last - 1) & 0xFF
         if gap and gap <= MAX_LOSS_GAP:
-            c.seq_lost += gap
-            stats[1] += gap
+            self.counters.seq_lost += gap
+            sender[0][1] += gap
             if seq < RESET_SEQ:
-                self._reset_gap[key] = gap
+                self._reset_gap[(sysid, compid)] = gap
+
+    def _first_frame(self, magic: int, seq: int, sysid: int, compid: int) -> None:
+        key = (sysid, compid)
+        stats = self.counters.per_source[key] = [1, 0]
+        self.peer_mavlink1[key] = magic != 0xFD
+        self._senders[sysid << 8 | compid] = [stats, seq, self._t_rx, magic != 0xFD]
+        if magic != 0xFD:
+            self.counters.mavlink1 += 1
 
     def _restarted(self, sysid: int) -> None:
         """A vehicle's clock went back: it restarted, and its sequence numbers started over. The
