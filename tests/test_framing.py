@@ -1,12 +1,14 @@
 """The fast frame walker agrees with pymavlink on every frame, however the bytes arrive."""
 
 import random
+import struct
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from pymavlink.generator.mavcrc import x25crc
 
 from drivers.mavlink.decode import MavlinkDecoder
 from drivers.mavlink.framing import FAST_TYPES
@@ -80,3 +82,22 @@ def test_garbage_and_bad_crc_between_good_frames():
     out = r.feed(data, 1.0)
     assert [round(m.value[0], 3) for m in out if m.kind.value == "attitude"] == [0.1, 0.3]
     assert r.counters.crc_errors == 1 and r.counters.bad_data == 2
+
+
+def test_payload_longer_than_the_definition_reads_the_known_fields():
+    """A newer dialect's extension fields (more payload than ours defines) are passed over, as
+    pymavlink passes over them."""
+    enc = mavlink.MAVLink(None, 1, 1)
+    frame = bytearray(enc.attitude_encode(1000, 0.5, 0.25, 0.125, 0.1, 0.2, 0.3).pack(enc))
+    payload = frame[10:-2] + b"\x01\x02\x03\x04"  # four bytes of a field this dialect lacks
+    body = bytes([frame[0], len(payload)]) + bytes(frame[2:10]) + payload
+    crc = x25crc(body[1:])
+    crc.accumulate(bytes([mavlink.MAVLink_attitude_message.crc_extra]))
+    longer = body + struct.pack("<H", crc.crc)
+    ref = mavlink.MAVLink(None).parse_buffer(longer)
+    r = MavlinkReceiver()
+    out = r.feed(longer, 1.0)
+    att = next(m.value for m in out if m.kind.value == "attitude")
+    assert list(att) == pytest.approx([0.5, 0.25, 0.125])
+    assert (ref[0].roll, ref[0].pitch, ref[0].yaw) == pytest.approx(tuple(att))
+    assert r.counters.crc_errors == 0 and r.counters.messages == 1

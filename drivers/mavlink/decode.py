@@ -99,6 +99,7 @@ SPECIAL_UNITS: dict[str, dict[str, str]] = {
 
 _SERVO_FIELDS = tuple(f"servo{i}_raw" for i in range(1, 17))
 _RC_FIELDS = tuple(f"chan{i}_raw" for i in range(1, 19))
+_servo_values = attrgetter(*_SERVO_FIELDS)
 
 _INSTANCE_BY_NAME = {"SCALED_IMU2": 1, "SCALED_IMU3": 2, "SCALED_PRESSURE2": 1, "SCALED_PRESSURE3": 2}
 
@@ -222,11 +223,14 @@ class MavlinkDecoder:
         #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
         self._battery_status_from: set[str] = set()
         # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
-        self._handlers: dict[type, tuple[Callable, tuple[str, float, float] | None, int]] = {}
+        # (handler, the time field's getter or None, instance, its largest time since boot, its scale to s)
+        self._handlers: dict[type, tuple[Callable, Callable | None, int, float, float]] = {}
         for cls in mavlink.mavlink_map.values():
             handler = self._handler_for(cls.msgname)
             if handler is not None:
-                self._handlers[cls] = (handler, _time_field(cls), _INSTANCE_BY_NAME.get(cls.msgname, 0))
+                tf = _time_field(cls)
+                getter, largest, scale_s = (attrgetter(tf[0]), tf[2], tf[1]) if tf else (None, 0.0, 0.0)
+                self._handlers[cls] = (handler, getter, _INSTANCE_BY_NAME.get(cls.msgname, 0), largest, scale_s)
 
     @property
     def waiting(self) -> bool:
@@ -259,15 +263,15 @@ class MavlinkDecoder:
         if entry is None:
             self.unknown[cls.msgname] += 1
             return
-        handler, tfield, instance = entry
+        handler, time_field, instance, largest, to_s = entry
         clock = self.clocks.get(sysid)
         if clock is None:
             clock = self.clocks[sysid] = VehicleClock()
         t = _nan
-        if tfield is not None:
-            raw = getattr(m, tfield[0])
-            if raw and raw <= tfield[2]:  # (0, or a UNIX-epoch time_usec: no vehicle time)
-                t = raw * tfield[1]
+        if time_field is not None:
+            raw = time_field(m)
+            if raw and raw <= largest:  # (0, or a UNIX-epoch time_usec: no vehicle time)
+                t = raw * to_s
                 if clock.observe(t, t_rx) and self.on_restart is not None:
                     self.on_restart(sysid)
         if t != t:
@@ -439,7 +443,10 @@ class MavlinkDecoder:
             out.append(_new(_M, (t, _BATTERY_REMAINING, _array([pct * _PCT]), source, t_rx, None, instance, 1)))
 
     def _servo_output_raw(self, m, t, t_rx, source, instance, out):
-        raw = [getattr(m, f, 0) for f in _SERVO_FIELDS]
+        try:
+            raw = list(_servo_values(m))
+        except AttributeError:  # a message object without the MAVLink 2 extension channels
+            raw = [getattr(m, f, 0) for f in _SERVO_FIELDS]
         while len(raw) > 8 and raw[-1] == 0:  # MAVLink 2 extension channels 9-16 unused
             raw.pop()
         v = _array([(x - 1000.0) * 1e-3 if x else _nan for x in raw])

@@ -72,7 +72,7 @@ def _record_type(name: str, fields: list[str]) -> Any:
 class FastSpec:
     """How to turn one message type's payload into a namedtuple."""
 
-    __slots__ = ("cls", "name", "tuple_type", "unpack", "unpack_from", "size", "group")
+    __slots__ = ("cls", "name", "tuple_type", "unpack", "unpack_from", "size", "zeros", "group")
 
     def __init__(self, cls) -> None:
         self.cls = cls
@@ -81,24 +81,23 @@ class FastSpec:
         self.unpack = cls.unpacker.unpack
         self.unpack_from = cls.unpacker.unpack_from
         self.size = cls.unpacker.size
+        self.zeros = bytes(self.size)
         # Array fields come out of struct as several values: group them back.
         self.group = tuple(cls.lengths) if any(n > 1 for n in cls.lengths) else None
 
     def make(self, buf: bytes, start: int, length: int):
         """The fields of the payload of ``length`` bytes at ``buf[start:]``."""
-        if length == self.size and self.group is None:  # the common case: read in place
-            return _new(self.tuple_type, self.unpack_from(buf, start))
-        payload = buf[start : start + length]
-        if length < self.size:  # MAVLink 2 trims trailing zeros
-            payload = payload + bytes(self.size - length)
-        vals = self.unpack(payload[: self.size])
+        if length >= self.size:  # read in place (a longer payload: a newer dialect's extensions)
+            vals = self.unpack_from(buf, start)
+        else:  # MAVLink 2 trims trailing zeros: put them back
+            vals = self.unpack(buf[start : start + length] + self.zeros[length:])
         if self.group is not None:
             out, k = [], 0
             for n in self.group:
                 out.append(vals[k] if n == 1 else vals[k : k + n])
                 k += n
             vals = out
-        return self.tuple_type._make(vals)
+        return _new(self.tuple_type, vals)
 
 
 class Framer:
@@ -143,6 +142,8 @@ class Framer:
         pos = 0
         crc_extra = self._crc_extra
         fast = self._fast
+        on_fast = self.on_fast
+        signing = self.signing
         while pos < n:
             c = buf[pos]
             if c != 0xFD and c != 0xFE:
@@ -188,13 +189,13 @@ class Framer:
                 self.on_crc_error()
                 pos += flen
                 continue
-            if self.signing is not None and not self.signing.accept(frame, msgid, sysid, compid):
+            if signing is not None and not signing.accept(frame, msgid, sysid, compid):
                 self.on_refused()
                 pos += flen
                 continue
             spec = fast.get(msgid)
             if spec is not None:
-                self.on_fast(spec, spec.make(buf, pos + hlen, plen), sysid, compid, seq, frame)
+                on_fast(spec, spec.make(buf, pos + hlen, plen), sysid, compid, seq, frame)
             else:
                 try:
                     m = self._mav.decode(bytearray(frame))
