@@ -17,6 +17,8 @@ from drivers.mavlink.receiver import MavlinkReceiver
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from ingest import make_stream  # noqa: E402
 
+from tests.helpers import imu_frames  # noqa: E402
+
 
 def _key(m):
     return (m.t, m.kind, m.instance, tuple(np.round(np.nan_to_num(m.value, nan=-12345.0), 9)))
@@ -101,3 +103,27 @@ def test_payload_longer_than_the_definition_reads_the_known_fields():
     assert list(att) == pytest.approx([0.5, 0.25, 0.125])
     assert (ref[0].roll, ref[0].pitch, ref[0].yaw) == pytest.approx(tuple(att))
     assert r.counters.crc_errors == 0 and r.counters.messages == 1
+
+
+def test_counters_of_a_mixed_read_are_those_of_its_frames_one_by_one():
+    """Counted once a read: the same totals as frame by frame, whatever else the read holds."""
+    v1 = imu_frames(5, sysid=1, mavlink1=True)
+    enc = mavlink.MAVLink(None, 1, 1)
+    enc.seq = 5
+    v2 = imu_frames(5, sysid=1, t0_ms=1050, enc=enc)  # the same sender, now on MAVLink 2
+    other = imu_frames(4, sysid=7)
+    unknown = bytes.fromhex("fd0400000001010a0f0b") + b"\x01\x02\x03\x04" + b"\x00\x00"
+    bad = bytearray(other[0])
+    bad[-1] ^= 0xFF
+    data = b"".join(v1[:3] + other[:2] + [unknown] + v1[3:] + [bytes(bad)] + v2[1:] + other[2:])
+    whole, single = MavlinkReceiver(), MavlinkReceiver()
+    whole.feed(data, 1.0)
+    for i in range(len(data)):
+        single.feed(data[i : i + 1], 1.0)
+    for r in (whole, single):
+        c = r.counters
+        assert (c.messages, c.mavlink1, c.mavlink2, c.unknown, c.crc_errors) == (13, 5, 8, 1, 1)
+        assert c.by_type["SCALED_IMU"] == 13 and sum(c.by_type.values()) == 14
+        # sender 1 skipped v2[0]: one lost; sender 7 lost none (the damaged frame is no sequence number)
+        assert c.per_source == {(1, 1): [9, 1], (7, 1): [4, 0]}
+        assert r.peer_mavlink1 == {(1, 1): False, (7, 1): False}
