@@ -1,8 +1,9 @@
 """Ingest benchmark: bytes -> measurement records, against pymavlink on the same data.
 
-    python bench/ingest.py [--messages 100000] [--live-seconds 60] [--live-rate 2000]
+    python bench/ingest.py [--messages 100000] [--live-seconds 60] [--live-rate 2000] [--every-field]
 
-Part 1 (offline, one process, same bytes for every contender, best of 3 runs):
+Part 1 (offline, one process, same bytes for every contender, best of 3 runs; its HIGHRES_IMU
+flag their fields updated as PX4 flags them, or with ``--every-field`` all of them in every message):
   * pymavlink ``MAVLink.parse_buffer`` alone (framing + CRC + message objects),
   * ours: ``MavlinkReceiver.feed`` (that, plus counters and conversion to records),
   * pymavlink ``mavutil`` tlog ``recv_match`` loop on a tlog of the same frames.
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 import os
 import random
 import subprocess
@@ -48,11 +50,29 @@ from drivers.tlog import TlogWriter  # noqa: E402
 from groundstation.core.measurement import Measurement  # noqa: E402
 from groundstation.diagnosis.live import DIAGNOSIS_NICE  # noqa: E402
 
+#: HIGHRES_IMU's fields_updated as PX4 sets it (src/modules/mavlink/streams/HIGHRES_IMU.hpp): accel
+#: and gyro in every message, the magnetometer's and the baro's (pressure, pressure altitude,
+#: temperature) only in a message sent after they updated, differential pressure never on a
+#: rotorcraft without an airspeed sensor
+_HR_ACC_GYRO, _HR_MAG, _HR_BARO, _HR_ALL = 0x3F, 0x1C0, 0x1A00, 0x1FFF
+#: of a 1 kHz IMU's messages, every 10th follows a magnetometer update (100 Hz), every 20th a baro's (50 Hz)
+MAG_EVERY, BARO_EVERY = 10, 20
 
-def make_stream(n: int, seed: int = 1) -> bytes:
-    """A realistic high-rate MAVLink 2 mix (IMU-heavy, as a 1 kHz vehicle sends)."""
+
+def make_stream(n: int, seed: int = 1, *, every_field: bool = False) -> bytes:
+    """A realistic high-rate MAVLink 2 mix (IMU-heavy, as a 1 kHz vehicle sends). ``every_field``:
+    each HIGHRES_IMU flags all its fields updated: six records a message, where PX4's pattern makes
+    two, three after a magnetometer update and four after a baro's."""
     rng = random.Random(seed)
     enc = mavlink.MAVLink(None, 1, 1)
+    imu_count = itertools.count()
+
+    def updated() -> int:
+        k = next(imu_count)
+        if every_field:
+            return _HR_ALL
+        return _HR_ACC_GYRO | (_HR_MAG if k % MAG_EVERY == 0 else 0) | (_HR_BARO if k % BARO_EVERY == 0 else 0)
+
     mix = [
         (
             0.40,
@@ -71,7 +91,7 @@ def make_stream(n: int, seed: int = 1) -> bytes:
                 0.0,
                 10.0,
                 25.0,
-                0x1FFF,
+                updated(),
                 0,
             ),
         ),
@@ -249,10 +269,15 @@ def main() -> int:
     ap.add_argument("--live-seconds", type=float, default=60.0)
     ap.add_argument("--live-rate", type=float, default=2000.0)
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument(
+        "--every-field",
+        action="store_true",
+        help="every HIGHRES_IMU flags all its fields updated (six records a message), not PX4's pattern",
+    )
     ap.add_argument("--beside-diagnosis", type=Path, metavar="LOG", help="the live run again beside a diagnosis of LOG")
     args = ap.parse_args()
 
-    data = make_stream(args.messages)
+    data = make_stream(args.messages, every_field=args.every_field)
     parts = chunks(data)
     with tempfile.TemporaryDirectory() as d:
         tlog = Path(d) / "bench.tlog"
@@ -275,7 +300,11 @@ def main() -> int:
                 took[name] = dt
             pairs.append(took["parse_buffer"] / took["ours"])
     rate = {k: counts[k] / v for k, v in best.items()}
-    print(f"Offline ingest, {args.messages} MAVLink 2 messages ({len(data)} bytes), best of {args.repeat}")
+    pattern = "every field flagged updated" if args.every_field else "PX4's fields_updated"
+    print(
+        f"Offline ingest, {args.messages} MAVLink 2 messages ({len(data)} bytes; HIGHRES_IMU with {pattern}), "
+        f"best of {args.repeat}"
+    )
     print(f"{'contender':<44}{'msg/s':>12}{'ours / it':>12}")
     for name, key in (
         ("pymavlink parse_buffer (frames only)", "parse_buffer"),

@@ -99,6 +99,20 @@ def test_highres_imu_si_and_fields_updated():
     assert (Kind.MAG, 0) not in out and (Kind.DIFF_PRESSURE, 0) not in out
 
 
+@pytest.mark.parametrize("flags, kinds", [(0x3F, {Kind.ACCEL, Kind.GYRO}), (0x7, {Kind.ACCEL}), (0x38, {Kind.GYRO})])
+def test_highres_imu_of_the_imu_alone(flags, kinds):
+    """The messages in between the slower sensors' updates: only what they flag."""
+    out, _ = decode(
+        mavlink.MAVLink_highres_imu_message(
+            3_000_000, 0.1, 0.2, -9.8, 0.01, 0.02, 0.03, 0.2, 0.0, 0.4, 1013.25, 0.5, 11.0, 21.5, flags, 1
+        )
+    )
+    assert {k for k, _ in out} == kinds and {i for _, i in out} == {1}
+    if Kind.GYRO in kinds:
+        assert out[(Kind.GYRO, 1)].value == pytest.approx([0.01, 0.02, 0.03], rel=1e-6)
+        assert out[(Kind.GYRO, 1)].t == pytest.approx(3.0)
+
+
 def test_scaled_pressure_hpa_to_pa_and_cdegc_to_kelvin():
     out, _ = decode(mavlink.MAVLink_scaled_pressure3_message(4000, 1000.5, 0.0, 2500, 0))
     assert out[(Kind.BARO_PRESSURE, 2)].value[0] == pytest.approx(100050.0)

@@ -24,9 +24,9 @@ def _key(m):
     return (m.t, m.kind, m.instance, tuple(np.round(np.nan_to_num(m.value, nan=-12345.0), 9)))
 
 
-@pytest.fixture(scope="module")
-def stream():
-    return make_stream(3000, seed=7)
+@pytest.fixture(scope="module", params=[False, True], ids=["px4_fields", "every_field"])
+def stream(request):
+    return make_stream(3000, seed=7, every_field=request.param)
 
 
 def test_any_chunking_gives_the_same_result(stream):

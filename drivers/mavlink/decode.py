@@ -123,6 +123,7 @@ _M_PER_DEG = 111_320.0
 # HIGHRES_IMU fields_updated bits (MAVLink HIGHRES_IMU_UPDATED_FLAGS)
 _HR_ACC, _HR_GYRO, _HR_MAG = 0x7, 0x38, 0x1C0
 _HR_ABS, _HR_DIFF, _HR_TEMP = 0x200, 0x400, 0x1000
+_HR_OTHER = _HR_MAG | _HR_ABS | _HR_DIFF | _HR_TEMP
 
 Out = list  # list[Measurement]
 
@@ -331,6 +332,13 @@ class MavlinkDecoder:
     def _highres_imu(self, m, t, t_rx, source, instance, out):
         upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
         instance = m.id
+        if upd & _HR_OTHER == 0:  # the IMU alone (most messages: PX4 flags a sensor after it updated)
+            v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro))
+            if upd & _HR_ACC:
+                out.append(_new(_M, (t, _ACCEL, v[0:3], source, t_rx, None, instance, 1)))
+            if upd & _HR_GYRO:
+                out.append(_new(_M, (t, _GYRO, v[3:6], source, t_rx, None, instance, 1)))
+            return
         # One array for the whole message; the measurements hold views of it.
         v = _array(
             (
