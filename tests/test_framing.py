@@ -127,3 +127,25 @@ def test_counters_of_a_mixed_read_are_those_of_its_frames_one_by_one():
         # sender 1 skipped v2[0]: one lost; sender 7 lost none (the damaged frame is no sequence number)
         assert c.per_source == {(1, 1): [9, 1], (7, 1): [4, 0]}
         assert r.peer_mavlink1 == {(1, 1): False, (7, 1): False}
+
+
+def test_a_message_the_decoder_fails_on_is_counted_and_leaves_no_part_behind():
+    """A conversion that raises half-way (a fault no real message here causes: the decoder's
+    handler is replaced) gives none of that message's records; the read goes on."""
+    enc = mavlink.MAVLink(None, 1, 1)
+    frames = [bytes(enc.attitude_encode(1000 * i, 0.1 * i, 0, 0, 0, 0, 0).pack(enc)) for i in (1, 2, 3)]
+    r = MavlinkReceiver()
+    cls = mavlink.MAVLink_attitude_message
+    handler, *rest = r.decoder._handlers[cls]
+
+    def half_then_fail(m, t, t_rx, source, instance, out):
+        handler(m, t, t_rx, source, instance, out)
+        if m.time_boot_ms == 2000:
+            raise ValueError("roll out of range")
+
+    r.decoder._handlers[cls] = (half_then_fail, *rest)
+    out = r.feed(b"".join(frames), 1.0)
+    assert [round(m.t, 3) for m in out if m.kind.value == "attitude"] == [1.0, 3.0]
+    assert len(out) == 4  # attitude and rate of the two good messages, none of the failed one
+    assert r.counters.undecodable == 1 and r.counters.last_undecodable == "ATTITUDE: roll out of range"
+    assert r.counters.messages == 3

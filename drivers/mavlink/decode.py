@@ -214,8 +214,8 @@ class MavlinkDecoder:
         self.clocks: dict[int, VehicleClock] = {}
         self.skipped: Counter[str] = Counter()
         self.unknown: Counter[str] = Counter()
-        #: sysid << 8 | compid -> the source name of that system's component
-        self._sources: dict[int, str] = {}
+        #: sysid << 8 | compid -> (its system's clock, the component's source name)
+        self._senders: dict[int, tuple[VehicleClock, str]] = {}
         self._pending: dict[int, list[Measurement]] = {}
         #: called with a system id whose clock went back (it restarted: VehicleClock.restarts)
         self.on_restart: Callable[[int], None] | None = None
@@ -265,29 +265,37 @@ class MavlinkDecoder:
             self.unknown[cls.msgname] += 1
             return
         handler, time_field, instance, largest, to_s = entry
-        clock = self.clocks.get(sysid)
-        if clock is None:
-            clock = self.clocks[sysid] = VehicleClock()
-        t = _nan
-        if time_field is not None:
-            raw = time_field(m)
-            if raw and raw <= largest:  # (0, or a UNIX-epoch time_usec: no vehicle time)
-                t = raw * to_s
-                if clock.observe(t, t_rx) and self.on_restart is not None:
-                    self.on_restart(sysid)
-        if t != t:
+        sender = self._senders.get(sysid << 8 | compid)
+        if sender is None:
+            sender = self._sender(sysid, compid)
+        clock, source = sender
+        if time_field is not None and (raw := time_field(m)) and raw <= largest:
+            # (0, or a UNIX-epoch time_usec: no vehicle time)
+            t = raw * to_s
+            if clock.observe(t, t_rx) and self.on_restart is not None:
+                self.on_restart(sysid)
+        else:
             t = clock.vehicle_time(t_rx)
-        source = self._sources.get(sysid << 8 | compid)
-        if source is None:
-            source = self._sources[sysid << 8 | compid] = f"{self.link_name}/{sysid}.{compid}"
         n = len(out)
-        handler(m, t, t_rx, source, instance, out)
+        try:
+            handler(m, t, t_rx, source, instance, out)
+        except BaseException:
+            del out[n:]  # a message is converted whole or not at all
+            raise
         if t != t:  # clock still unknown: hold these back
             held = out[n:]
             del out[n:]
             out += self._hold(sysid, clock, held, t_rx)
-        elif self._pending and sysid in self._pending:
+        elif self._pending and sysid in self._pending:  # the clock came: those held go first
             out[n:n] = self._release(sysid, clock)
+
+    def _sender(self, sysid: int, compid: int) -> tuple[VehicleClock, str]:
+        """A component's system clock and its source name, the first time it is heard."""
+        clock = self.clocks.get(sysid)
+        if clock is None:
+            clock = self.clocks[sysid] = VehicleClock()
+        sender = self._senders[sysid << 8 | compid] = (clock, f"{self.link_name}/{sysid}.{compid}")
+        return sender
 
     def _hold(self, sysid: int, clock: VehicleClock, out: Out, t_rx: float) -> Out:
         pend = self._pending.setdefault(sysid, [])

@@ -203,7 +203,7 @@ class MavlinkReceiver:
         """A message the decoder cannot convert (field values that pass the CRC but no sense: a
         channel count past its fields) is counted and skipped."""
         self.counters.undecodable += 1
-        self.counters.last_undecodable = f"{cls.__name__.removeprefix('MAVLink_').upper()}: {e}"
+        self.counters.last_undecodable = f"{cls.msgname}: {e}"
 
     def _crc_error(self) -> None:
         self.counters.crc_errors += 1
