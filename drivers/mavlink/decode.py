@@ -270,11 +270,10 @@ class MavlinkDecoder:
             sender = self._sender(sysid, compid)
         clock, source = sender
         if time_field is not None and (raw := time_field(m)) and raw <= largest:
-            # (0, or a UNIX-epoch time_usec: no vehicle time)
             t = raw * to_s
             if clock.observe(t, t_rx) and self.on_restart is not None:
                 self.on_restart(sysid)
-        else:
+        else:  # no time field, a zero one, or a UNIX-epoch time_usec: the system's aligned clock
             t = clock.vehicle_time(t_rx)
         n = len(out)
         try:

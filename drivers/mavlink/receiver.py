@@ -244,6 +244,7 @@ class MavlinkReceiver:
                 self._reset_gap[(sysid, compid)] = gap
 
     def _first_frame(self, magic: int, seq: int, sysid: int, compid: int) -> None:
+        """A sender heard for the first time: its counts and its sequence start here."""
         key = (sysid, compid)
         stats = self.counters.per_source[key] = [1, 0]
         self.peer_mavlink1[key] = magic != 0xFD
