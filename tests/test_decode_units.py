@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from drivers.mavlink.decode import DECODED_TYPES, SPECIAL_UNITS, VECTORS
+from drivers.mavlink.decode import DECODED_TYPES, SPECIAL_UNITS, VECTORS, MavlinkDecoder
 from drivers.mavlink.receiver import MavlinkReceiver
 from drivers.mavlink.units import G0, UNIT_TO_SI
 from groundstation.core.measurement import Kind
@@ -279,3 +279,15 @@ def test_the_throttle_averages_only_the_outputs_that_drive_rotors(mav_type, thro
     out, _ = decode(mavlink.MAVLink_servo_output_raw_message(1000, 0, 1600, 1600, 1500, 1600, 0, 0, 0, 0))
     read_throttle(out[(Kind.ACTUATOR, 0)], ctx)
     assert ctx.throttle == pytest.approx(throttle)
+
+
+def test_values_are_floats_from_a_message_built_in_code():
+    """A message object made in Python (integer fields, never on the wire) still gives float64."""
+    d = MavlinkDecoder("t")
+    msgs = [
+        mavlink.MAVLink_highres_imu_message(1_000_000, 0, 0, -10, 0, 0, 1, 0, 0, 0, 1013, 0, 0, 25, 0x3F, 0),
+        mavlink.MAVLink_highres_imu_message(1_001_000, 0, 0, -10, 0, 0, 1, 0, 0, 0, 1013, 0, 0, 25, 0x1FFF, 0),
+        mavlink.MAVLink_attitude_message(1002, 0, 0, 1, 0, 0, 0),
+    ]
+    out = [x for m in msgs for x in d.convert(type(m), m, 1, 1, 5.0)]
+    assert len(out) == 10 and all(x.value.dtype == np.float64 for x in out)

@@ -340,7 +340,7 @@ class MavlinkDecoder:
         upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
         instance = m.id
         if upd & _HR_OTHER == 0:  # the IMU alone (most messages: PX4 flags a sensor after it updated)
-            v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro))
+            v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro), dtype=float)
             if upd & _HR_ACC:
                 out.append(_new(_M, (t, _ACCEL, v[0:3], source, t_rx, None, instance, 1)))
             if upd & _HR_GYRO:
