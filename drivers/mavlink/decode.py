@@ -132,17 +132,17 @@ PENDING_S = 2.0
 _PENDING_MAX = 2000
 
 
-def _time_field(cls) -> tuple[str, float, float] | None:
-    """The message's vehicle-time field, its scale to seconds, and the largest raw value that is
-    a time since boot (a larger ``time_usec`` is a UNIX-epoch time)."""
+def _time_field(cls) -> tuple[Callable | None, float, float]:
+    """The getter of the message's vehicle-time field (None: it has none), the largest raw value
+    that is a time since boot (a larger ``time_usec`` is a UNIX-epoch time), and its scale to s."""
     names = cls.fieldnames
     if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min
-        return None
+        return None, 0.0, 0.0
     if "time_usec" in names:
-        return "time_usec", 1e-6, EPOCH_THRESHOLD_US
+        return attrgetter("time_usec"), EPOCH_THRESHOLD_US, 1e-6
     if "time_boot_ms" in names:
-        return "time_boot_ms", 1e-3, math.inf
-    return None
+        return attrgetter("time_boot_ms"), math.inf, 1e-3
+    return None, 0.0, 0.0
 
 
 # Kind's members as module constants, for the handlers: an enum member's lookup costs 100 ns, a
@@ -229,9 +229,8 @@ class MavlinkDecoder:
         for cls in mavlink.mavlink_map.values():
             handler = self._handler_for(cls.msgname)
             if handler is not None:
-                tf = _time_field(cls)
-                getter, largest, scale_s = (attrgetter(tf[0]), tf[2], tf[1]) if tf else (None, 0.0, 0.0)
-                self._handlers[cls] = (handler, getter, _INSTANCE_BY_NAME.get(cls.msgname, 0), largest, scale_s)
+                getter, largest, to_s = _time_field(cls)
+                self._handlers[cls] = (handler, getter, _INSTANCE_BY_NAME.get(cls.msgname, 0), largest, to_s)
 
     @property
     def waiting(self) -> bool:

@@ -19,6 +19,14 @@ from groundstation.core.measurement import Kind, Measurement
 from .models.base import LinearModel
 
 
+def sigma_honesty(error: np.ndarray, sigma: np.ndarray) -> tuple[float, float]:
+    """The share of errors within 2 sigma (95 % for an honest Gaussian sigma) and their mean square
+    in sigmas (the NEES of one state, 1 for an honest sigma; Bar-Shalom, Li and Kirubarajan 2001,
+    5.4). A sigma of zero (an estimate held exactly, as on the ground) counts as a micrometre."""
+    e = error / np.maximum(sigma, 1e-6)
+    return float(np.mean(np.abs(e) <= 2.0)), float(np.mean(e * e))
+
+
 class Estimated(Protocol):
     """A run of a model over a log: its estimates ``x`` at times ``t``."""
 
@@ -44,15 +52,12 @@ class Truth:
         return float(np.sqrt(np.mean((z[k] - np.interp(t[k], self.t, self.h)) ** 2))) if k.any() else math.nan
 
     def consistency(self, t: np.ndarray, z: np.ndarray, sigma: np.ndarray, t0: float, t1: float) -> tuple[float, float]:
-        """Whether a height estimate's sigma is honest against truth: the share of its errors within
-        2 sigma (95 % for an honest Gaussian sigma) and their mean square in sigmas (the height's
-        NEES, 1 for an honest sigma; Bar-Shalom, Li and Kirubarajan 2001, 5.4). A sigma of zero
-        (an estimate held exactly, as on the ground) counts as a micrometre."""
+        """Whether a height estimate's sigma is honest against truth (:func:`sigma_honesty`) over
+        [t0, t1]."""
         k = (t >= max(t0, self.t[0])) & (t <= min(t1, self.t[-1]))
         if not k.any():
             return math.nan, math.nan
-        e = (z[k] - np.interp(t[k], self.t, self.h)) / np.maximum(sigma[k], 1e-6)
-        return float(np.mean(np.abs(e) <= 2.0)), float(np.mean(e * e))
+        return sigma_honesty(z[k] - np.interp(t[k], self.t, self.h), sigma[k])
 
     def error(self, run: Estimated, t0: float, t1: float) -> float:
         """RMSE against truth of what the run estimates: the height [m], or roll and pitch
@@ -138,8 +143,7 @@ class LiveTruthScore:
         if not self.pairs:
             return None
         a = np.array(self.pairs)
-        e = a[:, 1] / np.maximum(a[:, 2], 1e-6)
-        return len(a), float(np.sqrt(np.mean(a[:, 1] ** 2))), float(np.mean(np.abs(e) <= 2.0)), float(np.mean(e * e))
+        return len(a), float(np.sqrt(np.mean(a[:, 1] ** 2))), *sigma_honesty(a[:, 1], a[:, 2])
 
 
 def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
