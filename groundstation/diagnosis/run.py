@@ -291,7 +291,8 @@ def run_model(
         est.filter.tape = GainTape()
     kinds = est.kinds
     ms = [m for m in (prep.measurements if measurements is None else measurements) if m.kind in kinds]
-    ts, xs, Ps, x_record = [], [], [], []
+    # the estimate and covariance after each update as doubles as they come, not an array object each
+    ts, xs, Ps, x_record = array("d"), array("d"), array("d"), array("q")
     # each signal as doubles as it comes (not a float object a value: a long log's run holds millions)
     sig: dict[str, dict[str, array[float]]] = {}
     for m in ms:
@@ -300,10 +301,10 @@ def run_model(
             continue
         f = est.filter
         ts.append(rec.t)
-        xs.append(f.kf.x.copy())
-        Ps.append(f.kf.P.copy())
+        xs.extend(f.kf.x.tolist())
+        Ps.extend(f.kf.P.ravel().tolist())
         if taped:
-            x_record.append(len(f.log.records) - 1)
+            x_record.append(len(f.log) - 1)
         d = sig.setdefault(rec.sensor, {k: array("d") for k in SIGNALS})
         ctx = f.ctx
         if probes is not None:
@@ -326,24 +327,22 @@ def run_model(
             ll_by[s] = float(np.sum(tr.loglik[scored]))
             inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
             n_sc += int(scored.sum())
-    x, P = np.array(xs), np.array(Ps)
+    n = model.n
+    x, P = np.array(xs).reshape(-1, n), np.array(Ps).reshape(-1, n, n)
+    del xs, Ps
     tape = est.filter.tape
     recorded = None
     if tape is not None:
-        rs = log.records
         recorded = Taped(
             tape,
-            np.array([r.t for r in rs]),
-            np.array([r.sensor for r in rs]),
-            np.array([float(r.nu[0]) if r.nu.size == 1 else math.nan for r in rs]),
-            np.array([float(r.S[0, 0]) if r.S.size == 1 else math.nan for r in rs]),
+            *log.in_order(),
             probes,
-            np.array(x_record, dtype=int),
+            np.array(x_record, dtype=int).reshape(-1),
         )
     return Run(
         model,
         sensors,
-        np.array(ts),
+        np.array(ts).reshape(-1),
         x,
         P,
         sum(ll_by.values()),

@@ -158,7 +158,10 @@ def signatures(
     columns = probed + [c for c in extra if all(c is not p for p in probed)]
     P, records = len(columns), len(t)
     G_out = np.zeros((records, P))
-    D_out = np.zeros((records, n, P))
+    # float32: the largest array of a diagnosis (a 1-hour log's would be 0.6 GB in float64). Delta
+    # moves an estimate by Delta theta; its 7 digits put that within 1e-7 of itself, far below any
+    # sensor's noise. G, which the likelihoods are summed from, stays float64.
+    D_out = np.zeros((records, n, P), dtype=np.float32)
     # measurement columns by sensor: indices, and per update of that sensor the regressor's values
     # each record's filter start (a restart is a None among the steps)
     segment = np.zeros(records, dtype=int)

@@ -10,6 +10,8 @@ Attributes keep filterpy's (and the textbook's) symbols: ``x, P, F, Q, H, R``.
 
 from __future__ import annotations
 
+import math
+from array import array
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 
@@ -23,7 +25,7 @@ from .models.base import LinearModel, MeasurementModel, discretize, discretize_s
 SERIES_LIMIT = 0.2
 
 
-@dataclass
+@dataclass(slots=True)  # no __dict__: a long log's run holds one per update
 class InnovationRecord:
     t: float
     sensor: str
@@ -53,31 +55,98 @@ class GainTape:
         self.starts.append(t0)
 
 
-@dataclass
-class InnovationLog:
-    """Every update's innovation, per sensor, as arrays on demand."""
+class _SensorUpdates:
+    """One sensor's updates as doubles: time, NIS, and the innovation, its covariance and the
+    reading flattened (each of the one shape every update of a sensor has)."""
 
-    records: list[InnovationRecord] = field(default_factory=list)
+    def __init__(self, r: InnovationRecord, k: int) -> None:
+        self.k = k  # its place among the log's sensors
+        self.shapes = (r.nu.shape, r.S.shape, r.z.shape)
+        self.t, self.nis, self.nu, self.S, self.z = array("d"), array("d"), array("d"), array("d"), array("d")
+
+    def add(self, r: InnovationRecord) -> None:
+        if (r.nu.shape, r.S.shape, r.z.shape) != self.shapes:
+            raise ValueError(f"sensor {r.sensor}: an update of another size than its first")
+        self.t.append(r.t)
+        self.nis.append(r.nis)
+        self.nu.extend(r.nu.ravel().tolist())
+        self.S.extend(r.S.ravel().tolist())
+        self.z.extend(r.z.ravel().tolist())
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def truncate(self, n: int) -> None:
+        """Keep the first ``n`` updates."""
+        for col, shape in ((self.nu, self.shapes[0]), (self.S, self.shapes[1]), (self.z, self.shapes[2])):
+            del col[n * math.prod(shape) :]
+        del self.t[n:], self.nis[n:]
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        (nu, S, z), n = self.shapes, len(self.t)
+        return {
+            "t": np.array(self.t),
+            "nu": np.array(self.nu).reshape(n, *nu),
+            "S": np.array(self.S).reshape(n, *S),
+            "nis": np.array(self.nis),
+            "z": np.array(self.z).reshape(n, *z),
+        }
+
+
+class InnovationLog:
+    """Every update's innovation, per sensor, as arrays on demand: ``t``, ``nu``, ``S``, ``nis``
+    and ``z`` (the reading, less the model's offset).
+
+    Kept as doubles per sensor, not as the update's record (some 600 bytes each with its arrays):
+    a long log's run makes hundreds of thousands of updates, and a live session never stops."""
+
+    def __init__(self) -> None:
+        self._by_sensor: dict[str, _SensorUpdates] = {}
+        self._names: list[str] = []  # the sensors in the order first seen
+        self._order = array("H")  # each update's sensor, by its place in _names
+
+    def __len__(self) -> int:
+        return len(self._order)
 
     def append(self, r: InnovationRecord) -> None:
-        self.records.append(r)
+        u = self._by_sensor.get(r.sensor)
+        if u is None:
+            u = self._by_sensor[r.sensor] = _SensorUpdates(r, len(self._names))
+            self._names.append(r.sensor)
+        u.add(r)
+        self._order.append(u.k)
 
     def sensors(self) -> list[str]:
-        return sorted({r.sensor for r in self.records})
+        return sorted(s for s, u in self._by_sensor.items() if len(u))
 
     def arrays(self, sensor: str) -> dict[str, np.ndarray]:
-        rs = [r for r in self.records if r.sensor == sensor]
-        if not rs:
+        u = self._by_sensor.get(sensor)
+        if u is None or not len(u):
             return {"t": np.empty(0), "nu": np.empty((0, 1)), "S": np.empty((0, 1, 1)), "nis": np.empty(0)}
-        return {
-            "t": np.array([r.t for r in rs]),
-            "nu": np.array([r.nu for r in rs]),
-            "S": np.array([r.S for r in rs]),
-            "nis": np.array([r.nis for r in rs]),
-            "K": np.array([r.K for r in rs]),
-            "u": np.array([r.u for r in rs]),
-            "z": np.array([r.z for r in rs]),
-        }
+        return u.arrays()
+
+    def truncate(self, n: int) -> None:
+        """Keep the first ``n`` updates (a rollback)."""
+        later = np.bincount(np.array(self._order[n:], dtype=np.int64), minlength=len(self._names))
+        for name, k in zip(self._names, later.tolist()):
+            if k:
+                u = self._by_sensor[name]
+                u.truncate(len(u) - k)
+        del self._order[n:]
+
+    def in_order(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every update in the order it was made: its time, sensor, and for a scalar sensor its
+        innovation and that's variance (NaN for a vector's)."""
+        order = np.array(self._order, dtype=np.int64)
+        t = np.empty(len(order))
+        nu, S = np.full(len(order), np.nan), np.full(len(order), np.nan)
+        for k, name in enumerate(self._names):
+            at, u = np.flatnonzero(order == k), self._by_sensor[name]
+            t[at] = np.array(u.t)
+            if u.shapes[0] == (1,):
+                nu[at], S[at] = np.array(u.nu), np.array(u.S)
+        sensor = np.array(self._names + [""])[np.where(order < len(self._names), order, len(self._names))]
+        return t, sensor, nu, S
 
 
 class ModelFilter:
@@ -235,7 +304,7 @@ class ModelFilter:
             self.kf.P.copy(),
             self.u.copy(),
             self.ctx.copy(),
-            len(self.log.records),
+            len(self.log),
             self.updates,
         )
 
@@ -246,7 +315,7 @@ class ModelFilter:
         self.kf.x, self.kf.P = x.copy(), P.copy()
         self._pending_n = 0
         self.ctx.set_to(ctx)
-        del self.log.records[n_log:]
+        self.log.truncate(n_log)
 
     def _update_only(self, mm: MeasurementModel, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> None:
         """The Schmidt-Kalman ("consider") update: the gain's rows for the states not in
@@ -331,7 +400,7 @@ class ModelFilter:
         S = np.atleast_2d(kf.S).astype(float, copy=False)
         rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
         if self.tape is not None:
-            self.tape.ops.append((mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log.records)))
+            self.tape.ops.append((mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log)))
         self.log.append(rec)
         self.updates += 1
         return rec
