@@ -10,6 +10,7 @@ from scipy.stats import chi2
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.filters import InnovationLog, InnovationRecord
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.models.altitude import altitude_model
 from groundstation.estimation.models.base import (
@@ -229,6 +230,39 @@ def test_a_millisecond_stamp_behind_the_imu_is_on_time_and_real_reordering_still
     assert est.counters.updates == 200
     loop.push(_m(loop.latest["altitude"].t - 0.01, Kind.RANGE, [1.0]))  # 10 ms late: reordering
     assert loop.counters.rollbacks == 1
+
+
+def test_the_innovation_log_gives_back_what_it_was_given_and_forgets_what_a_rollback_undid():
+    def rec(t, sensor, m):
+        nu = np.arange(m, dtype=float) + t
+        return InnovationRecord(t, sensor, nu, np.eye(m) * (1 + t), t * t, np.ones((3, m)), np.zeros(2), nu * 2)
+
+    log = InnovationLog()
+    updates = [rec(0.1 * i, ("baro", "gps", "range")[i % 3], 3 if i % 3 == 1 else 1) for i in range(30)]
+    for r in updates[:20]:
+        log.append(r)
+    log.truncate(11)  # a rollback to before the 12th update
+    for r in updates[11:]:
+        log.append(r)
+    assert len(log) == 30 and log.sensors() == ["baro", "gps", "range"]
+    for s in log.sensors():
+        mine = [r for r in updates if r.sensor == s]
+        a = log.arrays(s)
+        np.testing.assert_array_equal(a["t"], [r.t for r in mine])
+        np.testing.assert_array_equal(a["nu"], [r.nu for r in mine])
+        np.testing.assert_array_equal(a["S"], [r.S for r in mine])
+        np.testing.assert_array_equal(a["nis"], [r.nis for r in mine])
+        np.testing.assert_array_equal(a["z"], [r.z for r in mine])
+    t, sensor, nu, S = log.in_order()
+    np.testing.assert_array_equal(t, [r.t for r in updates])
+    assert sensor.tolist() == [r.sensor for r in updates]
+    scalar = np.array([r.nu.size == 1 for r in updates])
+    np.testing.assert_array_equal(nu[scalar], [r.nu[0] for r in updates if r.nu.size == 1])
+    np.testing.assert_array_equal(S[scalar], [r.S[0, 0] for r in updates if r.nu.size == 1])
+    assert np.isnan(nu[~scalar]).all() and np.isnan(S[~scalar]).all()
+    assert log.arrays("mag")["t"].size == 0
+    with pytest.raises(ValueError, match="another size"):
+        log.append(rec(5.0, "baro", 2))
 
 
 def test_prediction_through_a_dropout_grows_the_covariance():
