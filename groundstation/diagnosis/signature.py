@@ -165,12 +165,8 @@ def signatures(
     # measurement columns by sensor: indices, and per update of that sensor the regressor's values
     # each record's filter start (a restart is a None among the steps)
     segment = np.zeros(records, dtype=int)
-    seg = 0
-    for op in tape.ops:
-        if op is None:
-            seg += 1
-        elif len(op) == 5:
-            segment[op[4]] = seg
+    rec_of, seg_of = tape.records()
+    segment[rec_of] = seg_of
     t_start = np.asarray(tape.starts or [0.0])[np.minimum(segment, max(len(tape.starts) - 1, 0))]
     meas: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     by_sensor: dict[str, list[int]] = {}
@@ -194,7 +190,7 @@ def signatures(
     inputs = [(j, c.input, c.factor) for j, c in enumerate(columns) if c.input is not None]
     counts: dict[str, int] = {}
     D = np.zeros((n, P))
-    for op in tape.ops:
+    for op in tape.steps():
         if op is None:  # the filter started over: nothing of before carries on
             D = np.zeros((n, P))
             continue

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Hashable
-from dataclasses import dataclass, field
+from collections.abc import Hashable, Iterator
+from dataclasses import dataclass
 
 import numpy as np
 from filterpy.kalman import KalmanFilter
@@ -37,22 +37,101 @@ class InnovationRecord:
     z: np.ndarray
 
 
-@dataclass
-class GainTape:
-    """Every step of a run as the filter took it, in order: a prediction as ``(Phi, G, u)``
-    (x <- Phi x + G u), a measurement update as ``(sensor, H, K, reset, record)`` (``reset``: the
-    states a reset update set, else None; ``record``: its index in the innovation log), and a
-    restart of the filter (a clock jump, a divergence) as None. The arrays are the filter's own,
-    shared, not copied (each step makes new ones). The diagnosis runs every candidate effect
-    through these gains at once (:mod:`groundstation.diagnosis.signature`)."""
+#: a gain tape's steps (:class:`GainTape`)
+_PREDICT, _UPDATE, _RESTART = 0, 1, 2
 
-    ops: list = field(default_factory=list)
-    starts: list[float] = field(default_factory=list)  #: when the filter started, and started over [s]
+
+class GainTape:
+    """Every step of a run as the filter took it, in order (:meth:`steps`): a prediction as
+    ``(Phi, G, u)`` (x <- Phi x + G u), a measurement update as ``(sensor, H, K, reset, record)``
+    (``reset``: the states a reset update set, else None; ``record``: its index in the innovation
+    log), and a restart of the filter (a clock jump, a divergence) as None. The diagnosis runs
+    every candidate effect through these gains at once (:mod:`groundstation.diagnosis.signature`).
+
+    Kept compact, as a long log's run takes a million steps: a prediction as the index of its
+    (Phi, G), which the filter's discretisation cache shares among steps, and u as doubles; an
+    update as its sensor's index and H and K as doubles (a tuple of arrays a step was some 300
+    bytes, and crossed between processes as a million objects)."""
+
+    def __init__(self) -> None:
+        self.starts: list[float] = []  #: when the filter started, and started over [s]
+        self._step = array("b")  # each step's kind
+        self._pairs: list[tuple[np.ndarray, np.ndarray]] = []  # the distinct (Phi, G), held
+        self._pair_of: dict[tuple[int, int], int] = {}  # (id(Phi), id(G)) -> index (held: ids stay unique)
+        self._pred = array("i")  # each prediction's (Phi, G)
+        self._u = array("d")  # each prediction's u, flattened
+        self._m = 0  # u's length
+        self._sensors: list[tuple[str, tuple[int, int], tuple[int, ...] | None]] = []  # (name, H's shape, reset)
+        self._sensor_of: dict[tuple, int] = {}
+        self._upd = array("i")  # each update's entry in _sensors
+        self._record = array("q")  # each update's innovation record
+        self._hk = array("d")  # each update's H then K, flattened
 
     def restart(self, t0: float) -> None:
         if self.starts:
-            self.ops.append(None)
+            self._step.append(_RESTART)
         self.starts.append(t0)
+
+    def predict(self, Phi: np.ndarray, G: np.ndarray, u: np.ndarray) -> None:
+        key = (id(Phi), id(G))
+        k = self._pair_of.get(key)
+        if k is None:
+            k = self._pair_of[key] = len(self._pairs)
+            self._pairs.append((Phi, G))
+            self._m = len(u)
+        self._step.append(_PREDICT)
+        self._pred.append(k)
+        self._u.extend(u.tolist())
+
+    def update(self, sensor: str, H: np.ndarray, K: np.ndarray, reset: tuple[int, ...] | None, record: int) -> None:
+        key = (sensor, H.shape, reset)
+        k = self._sensor_of.get(key)
+        if k is None:
+            k = self._sensor_of[key] = len(self._sensors)
+            self._sensors.append((sensor, H.shape, reset))
+        self._step.append(_UPDATE)
+        self._upd.append(k)
+        self._record.append(record)
+        self._hk.extend(H.ravel().tolist())
+        self._hk.extend(K.ravel().tolist())
+
+    def __len__(self) -> int:
+        return len(self._step)
+
+    def records(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each update's innovation record, and the filter start it belongs to (0 the first)."""
+        step = np.frombuffer(self._step, dtype=np.int8)
+        segment = np.cumsum(step == _RESTART)[step == _UPDATE]
+        return np.frombuffer(self._record, dtype=np.int64), segment
+
+    def steps(self) -> Iterator[tuple | None]:
+        """The steps as the class docstring gives them (arrays read off the tape, not to be written)."""
+        u = np.frombuffer(self._u, dtype=float).reshape(-1, self._m) if self._m else np.zeros((len(self._pred), 0))
+        hk = np.frombuffer(self._hk, dtype=float)
+        pairs, sensors = self._pairs, self._sensors
+        pred, upd, record = self._pred, self._upd, self._record
+        i = j = o = 0
+        for kind in self._step:
+            if kind == _PREDICT:
+                Phi, G = pairs[pred[i]]
+                yield Phi, G, u[i]
+                i += 1
+            elif kind == _UPDATE:
+                name, (k, n), reset = sensors[upd[j]]
+                H = hk[o : o + k * n].reshape(k, n)
+                o += k * n
+                K = hk[o : o + n * k].reshape(n, k)
+                o += n * k
+                yield name, H, K, reset, record[j]
+                j += 1
+            else:
+                yield None
+
+    def __getstate__(self) -> dict:
+        """Pickled without the index of pairs by their ids (which another process's are not)."""
+        state = dict(self.__dict__)
+        state["_pair_of"] = {}
+        return state
 
 
 class _SensorUpdates:
@@ -284,7 +363,7 @@ class ModelFilter:
         kf = self.kf
         kf.x = Phi @ kf.x + G @ self.u
         if self.tape is not None:
-            self.tape.ops.append((Phi, G, self.u))
+            self.tape.predict(Phi, G, self.u)
         k = int(dt * 1e7 + 0.5)
         if k == self._pending_k and akey == self._pending_akey:
             self._pending_n += 1
@@ -400,7 +479,7 @@ class ModelFilter:
         S = np.atleast_2d(kf.S).astype(float, copy=False)
         rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
         if self.tape is not None:
-            self.tape.ops.append((mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log)))
+            self.tape.update(mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log))
         self.log.append(rec)
         self.updates += 1
         return rec
