@@ -30,6 +30,8 @@ def assert_same_as_replay(path):
         assert q.source == s.source, key
         for name in ("t", "t_rx", "value", "samples"):
             assert np.array_equal(getattr(q, name), getattr(s, name)), (key, name)
+        # float32 only where that is what was sent: widened, the receiver's float64 to the bit
+        assert q.values().dtype == np.float64 and np.array_equal(q.values(), s.value), key
     return got
 
 

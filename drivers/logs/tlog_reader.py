@@ -61,20 +61,29 @@ class TlogRead:
 
 @dataclass
 class _Columns:
-    """The HIGHRES_IMU frames the columns take: per frame its record, vehicle time and fields."""
+    """The HIGHRES_IMU frames the columns take: per frame its record, vehicle time, and of its
+    fields those the columns read (not the whole rows: a 1-hour 1 kHz log's are 0.2 GB)."""
 
     record: np.ndarray  # record numbers, increasing
     t: np.ndarray  # [s] vehicle time
     sysid: np.ndarray
     compid: np.ndarray
-    fields: np.ndarray  # the structured rows
+    updated: np.ndarray  # fields_updated
+    instance: np.ndarray  # id
+    acc: np.ndarray  # (N, 3) float32 as sent [m/s^2]
+    gyro: np.ndarray  # (N, 3) float32 as sent [rad/s]
+
+
+def _of(f: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
+    """The structured rows' fields ``names`` as one (N, len(names)) array of their own type."""
+    return np.column_stack([f[n] for n in names]) if len(f) else np.zeros((0, len(names)), dtype=np.float32)
 
 
 def _imu_frames(ix: TlogIndex, path: Path) -> _Columns:
     hr = load_tlog(path, index=ix, only=("HIGHRES_IMU",)).messages.get("HIGHRES_IMU")
     if hr is None or hr.record is None or hr.sysid is None or hr.compid is None:
-        e = np.zeros(0, dtype=np.int64)
-        return _Columns(e, np.zeros(0), e, e, np.zeros(0))
+        e, v = np.zeros(0, dtype=np.int64), np.zeros((0, 3), dtype=np.float32)
+        return _Columns(e, np.zeros(0), e, e, e, e, v, v)
     f = hr.fields
     raw = f["time_usec"]
     upd = f["fields_updated"].astype(np.int64)
@@ -82,10 +91,17 @@ def _imu_frames(ix: TlogIndex, path: Path) -> _Columns:
     # a frame the receiver would read otherwise: see the module docstring
     ok = (raw != 0) & (raw <= EPOCH_THRESHOLD_US) & (upd != 0) & ((upd & ~(_ACC | _GYRO)) == 0)
     ok &= L <= f.dtype.itemsize
-    if ok.all():  # the usual case: no copy of the rows
-        return _Columns(hr.record, raw.astype(np.float64) * 1e-6, hr.sysid, hr.compid, f)
-    sel = np.flatnonzero(ok)
-    return _Columns(hr.record[sel], raw[sel].astype(np.float64) * 1e-6, hr.sysid[sel], hr.compid[sel], f[sel])
+    sel = slice(None) if ok.all() else np.flatnonzero(ok)  # the usual case: all, no copy of the rows
+    return _Columns(
+        hr.record[sel],
+        raw[sel].astype(np.float64) * 1e-6,
+        hr.sysid[sel],
+        hr.compid[sel],
+        upd[sel],
+        f["id"][sel].astype(np.int64),
+        _of(f[sel], ("xacc", "yacc", "zacc")),
+        _of(f[sel], ("xgyro", "ygyro", "zgyro")),
+    )
 
 
 def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
@@ -167,7 +183,7 @@ def _columns(
         # each series' parts let go as it is made, and copied only where they must be (a 1-hour 1 kHz
         # log's IMU columns are 0.3 GB): its parts joined in the file's order are most often already
         # in time order (the receiver's few readings before the vehicle's clock came, then the columns)
-        ps = sorted(parts.pop(key), key=lambda p: int(p[0][0]))
+        ps = _one_type(sorted(parts.pop(key), key=lambda p: int(p[0][0])))
         r, t, t_rx, v = ps[0] if len(ps) == 1 else (np.concatenate([p[j] for p in ps]) for j in range(4))
         del ps
         dt = np.diff(t)
@@ -176,6 +192,16 @@ def _columns(
             t, t_rx, v = t[order], t_rx[order], v[order]
         out[key] = ImuSeries(first[key][1], t, t_rx, v, np.ones(len(r), dtype=np.int32))
     return ImuColumns(out)
+
+
+def _one_type(ps: list[tuple[np.ndarray, ...]]) -> list[tuple[np.ndarray, ...]]:
+    """A series' parts with their values of one type: float32 where each is (the columns', as
+    sent; the receiver's readings of a HIGHRES_IMU, widened from those), else float64."""
+    if all(p[3].dtype == np.float32 for p in ps):
+        return ps
+    if all(p[3].dtype == np.float32 or np.array_equal(p[3].astype(np.float32), p[3]) for p in ps):
+        return [(*p[:3], p[3].astype(np.float32)) for p in ps]
+    return [(*p[:3], p[3].astype(np.float64)) for p in ps]
 
 
 def _add_columns(
@@ -187,17 +213,12 @@ def _add_columns(
     first: dict[tuple[Kind, int], tuple[int, str]],
 ) -> None:
     """The accelerometer's and gyro's columns of the frames ``taken``, per (kind, instance)."""
-    f = cols.fields  # selected column by column, not copied whole: a 1-hour 1 kHz log's is 0.2 GB
-    upd = f["fields_updated"].astype(np.int64)
-    inst = f["id"].astype(np.int64)
-    for kind, bits, names in (
-        (Kind.ACCEL, _ACC, ("xacc", "yacc", "zacc")),
-        (Kind.GYRO, _GYRO, ("xgyro", "ygyro", "zgyro")),
-    ):
+    upd, inst = cols.updated, cols.instance
+    for kind, bits, values in ((Kind.ACCEL, _ACC, cols.acc), (Kind.GYRO, _GYRO, cols.gyro)):
         has = taken & ((upd & bits) != 0)
         for i in np.unique(inst[has]).tolist():
             sel = has & (inst == i)
-            v = np.column_stack([f[n][sel].astype(np.float64) for n in names])
+            v = values[sel]  # float32 as sent: the receiver's float64 of them exactly
             r = cols.record[sel]
             parts.setdefault((kind, i), []).append((r, cols.t[sel], t_rec[r], v))
             k0 = int(np.argmax(sel))

@@ -3,9 +3,13 @@
 An IMU at 1 kHz is nine tenths of a log's readings. As :class:`~.measurement.Measurement` records
 (a tuple and an array each) a 10-minute flight's 1.2 million of them took about 600 MB and most
 of the time it took to read, triage and prepare the log; the estimators of a diagnosis take them
-averaged over 10 ms blocks anyway. :class:`ImuColumns` keeps them as float64 arrays (some 50 bytes
+averaged over 10 ms blocks anyway. :class:`ImuColumns` keeps them as arrays (some 30 to 50 bytes
 a sample with its times, not 500) for whatever reads the raw samples (the triage's vibration and
 clipping, the notch's spectrum) and for the block means (:func:`block_means`).
+
+The values are float64, or float32 where the log sent float32 (a tlog's HIGHRES_IMU): widened, they
+are the receiver's float64 exactly, so whatever computes with them widens them first
+(:meth:`ImuSeries.values`) and gets the same numbers.
 """
 
 from __future__ import annotations
@@ -29,11 +33,15 @@ class ImuSeries:
     source: str
     t: np.ndarray  #: [s] vehicle clock, float64
     t_rx: np.ndarray  #: [s] receive time (UNIX), float64
-    value: np.ndarray  #: (N, 3) float64, SI
+    value: np.ndarray  #: (N, 3) SI, float64 or the log's own float32 (module docstring)
     samples: np.ndarray  #: (N,) raw samples each reading stands for (1, or a block mean's count)
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def values(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``value[rows]`` as float64, to compute with (a float32 column widened exactly)."""
+        return self.value[rows].astype(np.float64, copy=False)
 
     def masked(self, keep: np.ndarray) -> ImuSeries:
         return ImuSeries(self.source, self.t[keep], self.t_rx[keep], self.value[keep], self.samples[keep])
@@ -41,7 +49,7 @@ class ImuSeries:
     def records(self, kind: Kind, instance: int) -> list[Measurement]:
         """The samples as measurement records (for a reader that wants them one by one)."""
         return [
-            Measurement(float(t), kind, v.copy(), self.source, float(r), None, instance, int(n))
+            Measurement(float(t), kind, v.astype(np.float64), self.source, float(r), None, instance, int(n))
             for t, r, v, n in zip(self.t, self.t_rx, self.value, self.samples)
         ]
 
@@ -158,7 +166,7 @@ def block_means(s: ImuSeries, kind: Kind, instance: int, dt: float) -> Blocks:
     ends = np.r_[starts[1:], len(s.t)]
     count = ends - starts
     w = s.samples.astype(float)
-    v = s.value
+    v = s.values()
     mean = np.add.reduceat(v * w[:, None], starts, axis=0) / np.add.reduceat(w, starts)[:, None]
     t_first, t_last = s.t[starts], s.t[ends - 1]
     period = np.where(count > 1, (t_last - t_first) / np.maximum(count - 1, 1), 0.0)

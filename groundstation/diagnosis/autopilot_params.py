@@ -223,7 +223,7 @@ def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tupl
             hover = float(np.median(u[flying])) if flying.any() else math.nan
         if flying.sum() < 2048:
             continue
-        x = sensor.value[flying]
+        x = sensor.values(flying)
         f, pxx = welch(x - x.mean(axis=0), fs=rate, nperseg=1024, axis=0)
         psd = pxx.sum(axis=1)
         band = (f >= NOTCH_MIN_HZ) & (f <= 0.45 * rate)

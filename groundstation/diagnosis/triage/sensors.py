@@ -121,7 +121,7 @@ def _raw(acc: ImuSeries | None, docs: dict) -> list[TriageFinding]:
     if acc is None or len(acc) < 100:
         return []
     t = acc.t
-    a = acc.value
+    a = acc.values()
     rate = (len(t) - 1) / max(t[-1] - t[0], 1e-9)
     if rate < 4 * RAW_VIBE_HIGHPASS_HZ:
         return []
@@ -175,8 +175,8 @@ def check_imu_mismatch(tables: LogTables, imu: ImuColumns) -> list[TriageFinding
         a, b = by[(kind, insts[0])], by[(kind, insts[1])]
         if not len(a) or not len(b):
             continue
-        ta, va = a.t, a.value
-        tb, vb = b.t, b.value
+        ta, va = a.t, a.values()
+        tb, vb = b.t, b.values()
         lo, hi = max(ta[0], tb[0]), min(ta[-1], tb[-1])
         if hi - lo < 2.0:
             continue
