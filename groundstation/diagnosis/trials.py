@@ -16,13 +16,11 @@ default is one worker, and the command line asks for more.
 
 from __future__ import annotations
 
-import gc
 import math
 import multiprocessing
 import os
-from collections.abc import Callable, Hashable, Iterable, Iterator
+from collections.abc import Callable, Hashable, Iterable
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
 from dataclasses import replace
 from typing import TypeVar
 
@@ -130,25 +128,11 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
         # 23-minute dronekit tlog)
         with (
             threadpool_limits(limits=1, user_api="blas"),
-            frozen_heap(),
             ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork")) as pool,
         ):
             return list(pool.map(_call, items))
     finally:
         _WORK = None
-
-
-@contextmanager
-def frozen_heap() -> Iterator[None]:
-    """This process's objects out of the collector's reach while children are forked from it. A
-    collection in a child writes to the header of every object it traverses, which copies every
-    page of the inherited log a child never reads (a 1-hour log's readings are a gigabyte of
-    objects); ``gc.freeze`` before a fork keeps them shared (the ``gc`` module's documentation)."""
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def portable(r: Run | None) -> Run | None:
@@ -403,7 +387,7 @@ class Started:
         self._trials = Trials([c for c, _ in tasks], model, prep, make, ms, probes=probes)
         self._running: dict[int, tuple] = {}  # task -> (process, its pipe's reading end)
         ctx = multiprocessing.get_context("fork")
-        with threadpool_limits(limits=1, user_api="blas"), frozen_heap():  # as fork_map (one BLAS thread)
+        with threadpool_limits(limits=1, user_api="blas"):  # as fork_map: one BLAS thread in the children
             for n, (_, key) in enumerate(tasks):
                 recv, send = ctx.Pipe(duplex=False)
                 proc = ctx.Process(target=self._work, args=(n, key, send), daemon=True)
