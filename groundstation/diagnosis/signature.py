@@ -36,6 +36,7 @@ is added is then run as a filter of its own, and that run is what the next step 
 from __future__ import annotations
 
 import math
+from array import array
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -78,7 +79,8 @@ class Probes:
     (:func:`.run.run_model`'s ``probes``)."""
 
     columns: Sequence[Column]
-    values: dict[str, list[list[float]]] = field(default_factory=dict)  # sensor -> per update, per column
+    #: sensor -> per update, per column (as doubles: a long log's run probes millions of values)
+    values: dict[str, array[float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.by_sensor: dict[str, list[Column]] = {}
@@ -105,7 +107,16 @@ class Probes:
     def record(self, sensor: str, ctx: Context, x_prior: np.ndarray) -> None:
         cols = self.by_sensor.get(sensor)
         if cols:
-            self.values.setdefault(sensor, []).append([c.regressor(ctx, x_prior) for c in cols])  # type: ignore[misc]
+            got = self.values.get(sensor)
+            if got is None:
+                got = self.values[sensor] = array("d")
+            got.extend([c.regressor(ctx, x_prior) for c in cols])  # type: ignore[misc]
+
+    def at(self, sensor: str, width: int) -> np.ndarray:
+        """``sensor``'s values, (updates, width)."""
+        if not width:
+            return np.zeros((0, 0))
+        return np.array(self.values.get(sensor, array("d"))).reshape(-1, width)
 
 
 @dataclass
@@ -158,9 +169,9 @@ def signatures(
     columns = probed + [c for c in extra if all(c is not p for p in probed)]
     P, records = len(columns), len(t)
     G_out = np.zeros((records, P))
-    # float32: the largest array of a diagnosis (a 1-hour log's would be 0.6 GB in float64). Delta
-    # moves an estimate by Delta theta; its 7 digits put that within 1e-7 of itself, far below any
-    # sensor's noise. G, which the likelihoods are summed from, stays float64.
+    # float32: records x states x columns, the largest array of a diagnosis. Delta moves an estimate
+    # by Delta theta; its 7 digits put that within 1e-7 of itself, far below any sensor's noise. G,
+    # which the likelihoods are summed from, stays float64.
     D_out = np.zeros((records, n, P), dtype=np.float32)
     # measurement columns by sensor: indices, and per update of that sensor the regressor's values
     # each record's filter start (a restart is a None among the steps)
@@ -177,7 +188,7 @@ def signatures(
         rows = np.flatnonzero(sensor == s)
         vals = np.zeros((len(rows), len(js)))
         probed_s = [columns.index(c) for c in (probes.by_sensor.get(s, []) if probes is not None else [])]
-        got = np.asarray(probes.values.get(s, []), dtype=float) if probes is not None else np.zeros((0, 0))
+        got = probes.at(s, len(probed_s)) if probes is not None else np.zeros((0, 0))
         for q, j in enumerate(js):
             c = columns[j]
             if c.of_time is not None:
