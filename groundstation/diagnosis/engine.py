@@ -545,7 +545,7 @@ def settled_signal(d: Discovery, base: Run, model: LinearModel, nu_sd: float) ->
     k_last = None
     for _ in range(SETTLE_ITERATIONS):
         column = discovered_column(d.sensor, t_sig, sig, nu_sd)
-        sig_d = run_signatures(base, model.n, [column])
+        sig_d = run_signatures(base, model.n, [column], probed=False)  # its own alone: each column's is its own
         if sig_d is None:
             return sig
         f = fit(sig_d, [column])
@@ -585,7 +585,7 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
     # through the base run's gains where the two-stage filter applies (the regressor is a function of
     # time alone, so it is exact there): the effect's own run only once it is claimed
     column = discovered_column(d.sensor, t_sig, sig, nu_sd)
-    sig_d = None if trials.BY_RUNS else run_signatures(base, model.n, [column])
+    sig_d = None if trials.BY_RUNS else run_signatures(base, model.n, [column], probed=False)
     f = fit(sig_d, [column]) if sig_d is not None else None
     try:
         if f is not None:

@@ -74,14 +74,15 @@ class CatalogueColumns:
         return [c for c in self.all() if c.regressor is None]
 
 
-def run_signatures(run: Run, n: int, columns: Sequence[Column]) -> Signatures | None:
-    """The columns' signatures through ``run``'s gains (``run`` taped, with the probes of the
-    regressor columns); None where the two-stage filter does not apply (no tape, a vector reading)."""
+def run_signatures(run: Run, n: int, columns: Sequence[Column], *, probed: bool = True) -> Signatures | None:
+    """The signatures through ``run``'s gains (``run`` taped) of ``columns`` and, with ``probed``,
+    of the regressor columns the run was probed with; None where the two-stage filter does not
+    apply (no tape, a vector reading)."""
     tp = run.taped
     if tp is None or not tp.scalar:
         return None
     informs = tp.sensor != LANDED
-    return signatures(tp.tape, n, tp.t, tp.sensor, tp.nu, tp.S, informs, tp.probes, columns)
+    return signatures(tp.tape, n, tp.t, tp.sensor, tp.nu, tp.S, informs, tp.probes if probed else None, columns)
 
 
 def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict[str, float], dict[str, float], int]:
