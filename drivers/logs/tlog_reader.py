@@ -74,6 +74,10 @@ class _Columns:
     gyro: np.ndarray  # (N, 3) float32 as sent [rad/s]
 
 
+#: a sensor's values once :func:`_add_columns` has taken them
+_NONE = np.zeros((0, 3), dtype=np.float32)
+
+
 def _of(f: np.ndarray, names: tuple[str, ...]) -> np.ndarray:
     """The structured rows' fields ``names`` as one (N, len(names)) array of their own type."""
     return np.column_stack([f[n] for n in names]) if len(f) else np.zeros((0, len(names)), dtype=np.float32)
@@ -97,8 +101,8 @@ def _imu_frames(ix: TlogIndex, path: Path) -> _Columns:
         raw[sel].astype(np.float64) * 1e-6,
         hr.sysid[sel],
         hr.compid[sel],
-        upd[sel],
-        f["id"][sel].astype(np.int64),
+        f["fields_updated"][sel].copy(),  # (copies, not views: a view would hold every row)
+        f["id"][sel].copy(),
         _of(f[sel], ("xacc", "yacc", "zacc")),
         _of(f[sel], ("xgyro", "ygyro", "zgyro")),
     )
@@ -214,7 +218,13 @@ def _add_columns(
 ) -> None:
     """The accelerometer's and gyro's columns of the frames ``taken``, per (kind, instance)."""
     upd, inst = cols.updated, cols.instance
-    for kind, bits, values in ((Kind.ACCEL, _ACC, cols.acc), (Kind.GYRO, _GYRO, cols.gyro)):
+    for kind, bits in ((Kind.ACCEL, _ACC), (Kind.GYRO, _GYRO)):
+        # taken out of the frames' columns, so that they are let go of once cut into the series'
+        # parts (a 1-hour 1 kHz log's are 86 MB a sensor)
+        if kind is Kind.ACCEL:
+            values, cols.acc = cols.acc, _NONE
+        else:
+            values, cols.gyro = cols.gyro, _NONE
         has = taken & ((upd & bits) != 0)
         for i in np.unique(inst[has]).tolist():
             sel = has & (inst == i)
@@ -223,3 +233,4 @@ def _add_columns(
             parts.setdefault((kind, i), []).append((r, cols.t[sel], t_rec[r], v))
             k0 = int(np.argmax(sel))
             first[(kind, i)] = (int(r[0]), f"{link_name}/{int(cols.sysid[k0])}.{int(cols.compid[k0])}")
+        del values
