@@ -127,11 +127,17 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
     if len(y) < 50:
         return None
     whole = library(run, sensor)
-    lib = {k: v[keep] for k, v in whole.items()}
-    names = [k for k, v in lib.items() if np.std(v) > 1e-12]
+    # the scored updates' values standardised, a column at a time (the library's scored copies all
+    # at once were a sixth of a 1-hour log's diagnosis at its peak)
+    spread = {k: float(np.std(v[keep])) for k, v in whole.items()}
+    names = [k for k, sd in spread.items() if sd > 1e-12]
     if not names:
         return None
-    X = np.column_stack([(lib[k] - lib[k].mean()) / lib[k].std() for k in names])
+    X = np.empty((int(keep.sum()), len(names)))
+    for i, k in enumerate(names):
+        v = whole[k][keep]
+        X[:, i] = (v - v.mean()) / spread[k]
+    del v
     n = len(y)
     yc = y - y.mean()
     picked: list[int] = []
@@ -151,7 +157,7 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
         picked, coef, resid, bic = trial, c, r, new_bic
     if not picked:
         return None
-    terms = [(names[j], float(c / lib[names[j]].std())) for j, c in zip(picked, coef)]
+    terms = [(names[j], float(c / spread[names[j]])) for j, c in zip(picked, coef)]
     # out of sample: each block's innovations predicted by the terms fitted on the other blocks
     fit = held_out_fit(X[:, picked], yc)
     if fit is None:
