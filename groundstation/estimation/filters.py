@@ -102,7 +102,7 @@ class GainTape:
         """Each update's innovation record, and the filter start it belongs to (0 the first)."""
         step = np.frombuffer(self._step, dtype=np.int8)
         segment = np.cumsum(step == _RESTART)[step == _UPDATE]
-        return np.frombuffer(self._record, dtype=np.int64), segment
+        return np.array(self._record, dtype=np.int64), segment
 
     def steps(self) -> Iterator[tuple | None]:
         """The steps as the class docstring gives them (arrays read off the tape, not to be written)."""
@@ -224,7 +224,7 @@ class InnovationLog:
             t[at] = np.array(u.t)
             if u.shapes[0] == (1,):
                 nu[at], S[at] = np.array(u.nu), np.array(u.S)
-        sensor = np.array(self._names + [""])[np.where(order < len(self._names), order, len(self._names))]
+        sensor = np.array(self._names + [""])[order]  # ("": a str array also when there is none)
         return t, sensor, nu, S
 
 
