@@ -5,8 +5,9 @@ fraction of its time.
 30 µs a frame in Python; a 1 kHz IMU is nine frames in ten of a log. Here the IMU's HIGHRES_IMU
 frames are framed, CRC-checked and unpacked for the whole file at once (:func:`.bulk.load_tlog`,
 the vectorised framing) and converted as whole columns, with the same arithmetic as
-:class:`~drivers.mavlink.decode.MavlinkDecoder` (the float32 fields widened, the time field in
-seconds); the other frames still go through the receiver, in file order. Each IMU frame taken this
+:class:`~drivers.mavlink.decode.MavlinkDecoder` (the time field in seconds; the float32 values kept
+as sent, which widened are the decoder's float64: ``ImuSeries.values``); the other frames still
+go through the receiver, in file order. Each IMU frame taken this
 way is still shown to its vehicle's clock (:class:`~drivers.mavlink.clock.VehicleClock`) where it
 lies in the file, since the untimed messages after it are stamped by that clock. The result equals
 the replay's, record for record (``tests/test_tlog_reader.py``).
