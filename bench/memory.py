@@ -38,20 +38,18 @@ def _tree(pid: int) -> list[int]:
             with open(f"/proc/{pid}/task/{task}/children") as f:
                 for child in f.read().split():
                     out += _tree(int(child))
-    except OSError:  # ended meanwhile
-        pass
+    except OSError:  # ended meanwhile: those found so far
+        return out
     return out
 
 
 def _kb(pid: int, file: str, key: str) -> int:
+    """``key``'s value [kB] in the process's ``/proc`` file; 0 once the process has ended."""
     try:
         with open(f"/proc/{pid}/{file}") as f:
-            for line in f:
-                if line.startswith(key):
-                    return int(line.split()[1])
+            return next((int(line.split()[1]) for line in f if line.startswith(key)), 0)
     except OSError:
-        pass
-    return 0
+        return 0
 
 
 def measured(cmd: list[str]) -> tuple[float, float, float]:
