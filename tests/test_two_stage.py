@@ -88,6 +88,27 @@ def test_a_linear_candidate_through_the_gains_is_its_own_run(flight):
     assert checked >= 5  # the drift, the wash at three time constants, the scale
 
 
+def test_delta_asked_for_later_is_the_one_the_first_pass_keeps(flight):
+    """A ranking keeps Delta of its candidates' best shapes alone; a column asked for afterwards is
+    computed by another pass over the tape, and its numbers are those a pass keeping every column
+    gives, to the bit. G does not depend on which columns keep their Delta."""
+    su = setup(list(Replay(flight).iter_measurements()), model_name="altitude")
+    columns = CatalogueColumns.of(su.spec.catalogue(su.prep.kinds), su.model)
+    base = run_model(su.model, su.prep, su.make, probes=columns.probes())
+    every = run_signatures(base, su.model.n, columns.extra())
+    none = run_signatures(base, su.model.n, columns.extra(), delta=())
+    assert every is not None and none is not None
+    P = every.G.shape[1]
+    assert P >= 4 and len(every.delta) == P and not none.delta
+    np.testing.assert_array_equal(none.G, every.G)
+    rows = base.taped.x_record
+    J = [P - 1, 0, P // 2]
+    np.testing.assert_array_equal(none.columns_at(rows, J), every.columns_at(rows, J))
+    assert sorted(none.delta) == sorted(J)  # kept from then on, the others still not computed
+    none.keep([1])
+    np.testing.assert_array_equal(none.columns_at(rows[-3:], [1, 0]), every.columns_at(rows[-3:], [1, 0]))
+
+
 def test_held_out_through_the_gains_is_held_out_by_runs(flight):
     """The hold-out's blocks as sums over the others give the verdict fitted runs give, and nearly
     their gains: the runs fit a block's absence with Schmidt updates, the sums leave its readings

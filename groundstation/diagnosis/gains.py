@@ -74,15 +74,19 @@ class CatalogueColumns:
         return [c for c in self.all() if c.regressor is None]
 
 
-def run_signatures(run: Run, n: int, columns: Sequence[Column], *, probed: bool = True) -> Signatures | None:
+def run_signatures(
+    run: Run, n: int, columns: Sequence[Column], *, probed: bool = True, delta: Sequence[int] | None = None
+) -> Signatures | None:
     """The signatures through ``run``'s gains (``run`` taped) of ``columns`` and, with ``probed``,
     of the regressor columns the run was probed with; None where the two-stage filter does not
-    apply (no tape, a vector reading)."""
+    apply (no tape, a vector reading). ``delta``: the columns whose Delta is kept now (None: all;
+    :meth:`.Signatures.keep` computes others when they are wanted)."""
     tp = run.taped
     if tp is None or not tp.scalar:
         return None
     informs = tp.sensor != LANDED
-    return signatures(tp.tape, n, tp.t, tp.sensor, tp.nu, tp.S, informs, tp.probes if probed else None, columns)
+    probes = tp.probes if probed else None
+    return signatures(tp.tape, n, tp.t, tp.sensor, tp.nu, tp.S, informs, probes, columns, delta)
 
 
 def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict[str, float], dict[str, float], int]:
@@ -241,7 +245,7 @@ def profile_shape(c: Candidate, without: LinearModel, prep: Prepared, make, ms) 
     assert c.columns is not None
     shapes = {s: c.columns(without, s) for s in WASH_GRID}
     r = run_model(without, prep, make, measurements=ms, probes=Probes([col for cs in shapes.values() for col in cs]))
-    sig = run_signatures(r, without.n, [])
+    sig = run_signatures(r, without.n, [], delta=())  # the shapes' fits read G alone
     if sig is None:
         return None
     fits = {s: fit(sig, cols, s) for s, cols in shapes.items()}

@@ -122,15 +122,18 @@ class Probes:
 @dataclass
 class Signatures:
     """The columns' signatures through one base run, per innovation record of it (in time order):
-    ``G`` the innovation's sensitivity (records, P) and ``Delta`` the estimate's after the update
-    (records, n, P); with the records' own base innovations ``nu`` and ``S`` (scalar sensors),
-    times, sensors, and which records tell theta anything (``informs``: a sensor's, not a
-    constraint's). ``segment``: the filter's start each record belongs to (a restart forgets theta),
-    and ``t_start`` its time. theta is each column's value at that start."""
+    ``G`` the innovation's sensitivity (records, P) and Delta the estimate's after the update
+    (records, n, P; :meth:`columns_at`); with the records' own base innovations ``nu`` and ``S``
+    (scalar sensors), times, sensors, and which records tell theta anything (``informs``: a
+    sensor's, not a constraint's). ``segment``: the filter's start each record belongs to (a
+    restart forgets theta), and ``t_start`` its time. theta is each column's value at that start.
+
+    Delta is kept for the columns asked for (:meth:`keep`), not for all: at a ranking's 71 columns
+    it is 0.3 GB on a 1-hour log, and a ranking reads it for each candidate's best shape alone.
+    A column asked for later is computed then, by another pass over the tape."""
 
     columns: list[Column]
     G: np.ndarray
-    Delta: np.ndarray
     t: np.ndarray
     sensor: np.ndarray
     nu: np.ndarray
@@ -138,11 +141,23 @@ class Signatures:
     informs: np.ndarray
     segment: np.ndarray
     t_start: np.ndarray  #: the time its filter started (its segment's)
+    #: the pass over the base run's tape that gives Delta of the columns it is asked for
+    delta_pass: Callable[[list[int]], np.ndarray]
+    #: column -> its Delta, (records, n) float32
+    delta: dict[int, np.ndarray] = field(default_factory=dict)
+
+    def keep(self, J: Sequence[int]) -> None:
+        """Delta of the columns ``J`` computed (in one pass for all of them) and kept."""
+        missing = sorted({int(j) for j in J} - set(self.delta))
+        if missing:
+            D = self.delta_pass(missing)
+            for q, j in enumerate(missing):
+                self.delta[j] = D[:, :, q]  # (views: the pass's array is held by its columns alone)
 
     def columns_at(self, records: np.ndarray, J: Sequence[int]) -> np.ndarray:
-        """``Delta`` of the columns ``J`` at ``records``, (len(records), n, len(J)), copied once (not
-        every column's first: (records, n, P) is the largest array of a diagnosis)."""
-        return self.Delta[np.ix_(records, np.arange(self.Delta.shape[1]), np.asarray(J, dtype=int))]
+        """Delta of the columns ``J`` at ``records``, (len(records), n, len(J))."""
+        self.keep(J)
+        return np.stack([self.delta[int(j)][records] for j in J], axis=2)
 
     def where(self, columns: Sequence[Column]) -> list[int]:
         """The indices of ``columns`` (by identity)."""
@@ -160,25 +175,35 @@ def signatures(
     informs: np.ndarray,
     probes: Probes | None,
     extra: Sequence[Column] = (),
+    delta: Sequence[int] | None = None,
 ) -> Signatures:
     """Every column's signature along a base run's gains (module docstring). ``t``, ``sensor``,
     ``nu``, ``S``, ``informs``: per innovation record of the run; ``probes``: its measurement columns
     with their values from it; ``extra``: columns read off the run afterwards (``of_time``,
-    ``input``)."""
+    ``input``); ``delta``: the columns whose Delta is kept from this pass (None: every one)."""
     probed = list(probes.columns) if probes is not None else []
     columns = probed + [c for c in extra if all(c is not p for p in probed)]
-    P, records = len(columns), len(t)
-    G_out = np.zeros((records, P))
-    # float32: records x states x columns, the largest array of a diagnosis. Delta moves an estimate
-    # by Delta theta; its 7 digits put that within 1e-7 of itself, far below any sensor's noise. G,
-    # which the likelihoods are summed from, stays float64.
-    D_out = np.zeros((records, n, P), dtype=np.float32)
-    # measurement columns by sensor: indices, and per update of that sensor the regressor's values
+    records = len(t)
     # each record's filter start (a restart is a None among the steps)
     segment = np.zeros(records, dtype=int)
     rec_of, seg_of = tape.records()
     segment[rec_of] = seg_of
     t_start = np.asarray(tape.starts or [0.0])[np.minimum(segment, max(len(tape.starts) - 1, 0))]
+    walk = _Walk(tape, n, columns, records, _measured(columns, probes, t, sensor, t_start))
+    keep = list(range(len(columns))) if delta is None else sorted({int(j) for j in delta})
+    G, D = walk(keep, with_G=True)
+    assert G is not None
+    sig = Signatures(columns, G, t, sensor, nu, S, informs, segment, t_start, lambda J: walk(J, with_G=False)[1])
+    for q, j in enumerate(keep):
+        sig.delta[j] = D[:, :, q]
+    return sig
+
+
+def _measured(
+    columns: list[Column], probes: Probes | None, t: np.ndarray, sensor: np.ndarray, t_start: np.ndarray
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The measurement columns by sensor: their indices, and per update of that sensor their values
+    (the probed regressors', or of the updates' times)."""
     meas: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     by_sensor: dict[str, list[int]] = {}
     for j, c in enumerate(columns):
@@ -198,34 +223,62 @@ def signatures(
             elif j in probed_s:
                 raise ValueError(f"column {c.state}: {len(got)} probed values for {len(rows)} updates of {s}")
         meas[s] = (np.array(js), vals)
-    inputs = [(j, c.input, c.factor) for j, c in enumerate(columns) if c.input is not None]
-    counts: dict[str, int] = {}
-    D = np.zeros((n, P))
-    for op in tape.steps():
-        if op is None:  # the filter started over: nothing of before carries on
-            D = np.zeros((n, P))
-            continue
-        if len(op) == 3:
-            Phi, Gu, u = op
-            D = Phi @ D
-            for j, i, factor in inputs:
-                D[:, j] += Gu[:, i] * factor(u)  # type: ignore[misc]
-            continue
-        name, H, K, reset, rec = op
-        g = H @ D
-        cols = meas.get(name)
-        if cols is not None:
-            k = counts.get(name, 0)
-            counts[name] = k + 1
-            g[0, cols[0]] += cols[1][k]
-        G_out[rec] = g[0]
-        if reset is not None:
-            D = D.copy()
-            D[list(reset), :] = 0.0
-        else:
-            D = D - K @ g
-        D_out[rec] = D
-    return Signatures(columns, G_out, D_out, t, sensor, nu, S, informs, segment, t_start)
+    return meas
+
+
+@dataclass
+class _Walk:
+    """One pass over a base run's tape with every column's Delta (the module docstring's recursion),
+    giving G of all columns and Delta of those asked for. Every column is carried along even when
+    only some are kept, so a column's numbers are the same whichever pass gives them."""
+
+    tape: GainTape
+    n: int
+    columns: list[Column]
+    records: int
+    meas: dict[str, tuple[np.ndarray, np.ndarray]]
+
+    def __call__(self, keep: list[int], *, with_G: bool) -> tuple[np.ndarray | None, np.ndarray]:
+        n, P = self.n, len(self.columns)
+        G_out = np.zeros((self.records, P)) if with_G else None
+        # float32: Delta moves an estimate by Delta theta; its 7 digits put that within 1e-7 of itself,
+        # far below any sensor's noise. G, which the likelihoods are summed from, stays float64.
+        D_out = np.zeros((self.records, n, len(keep)), dtype=np.float32)
+        every = keep == list(range(P))  # (then stored as it is, not gathered)
+        kept = np.asarray(keep, dtype=int)
+        inputs = [(j, c.input, c.factor) for j, c in enumerate(self.columns) if c.input is not None]
+        meas = self.meas
+        counts: dict[str, int] = {}
+        D = np.zeros((n, P))
+        for op in self.tape.steps():
+            if op is None:  # the filter started over: nothing of before carries on
+                D = np.zeros((n, P))
+                continue
+            if len(op) == 3:
+                Phi, Gu, u = op
+                D = Phi @ D
+                for j, i, factor in inputs:
+                    D[:, j] += Gu[:, i] * factor(u)  # type: ignore[misc]
+                continue
+            name, H, K, reset, rec = op
+            g = H @ D
+            cols = meas.get(name)
+            if cols is not None:
+                k = counts.get(name, 0)
+                counts[name] = k + 1
+                g[0, cols[0]] += cols[1][k]
+            if G_out is not None:
+                G_out[rec] = g[0]
+            if reset is not None:
+                D = D.copy()
+                D[list(reset), :] = 0.0
+            else:
+                D = D - K @ g
+            if every:
+                D_out[rec] = D
+            elif len(kept):
+                D_out[rec] = D[:, kept]
+        return G_out, D_out
 
 
 @dataclass

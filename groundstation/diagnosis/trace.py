@@ -267,8 +267,17 @@ def rank(
     read_off = {id(c): c.screen(model, base) for c in cands if c.screen is not None} if columns is not None else {}
     if columns is not None and not trials.BY_RUNS:
         extra = columns.extra() + [col for stand_ins in read_off.values() for cols in stand_ins for col in cols]
-        sig = run_signatures(base, model.n, extra)
+        sig = run_signatures(base, model.n, extra, delta=())
     t_score = prep.t0 + SETTLE_S
+    # each linear candidate's best shape first, then Delta of those shapes' columns alone, in one pass
+    best: dict[int, tuple[Fit, float | None]] = {}
+    if sig is not None and columns is not None:
+        for i, c in enumerate(cands):
+            shapes = columns.by_candidate.get(id(c))
+            if shapes is not None:
+                fits = {shape: fit(sig, cols, shape) for shape, cols in shapes.items()}
+                best[i] = best_shape(fits, t_score, c.refine_shape)
+        sig.keep([j for f, _ in best.values() for j in f.J])
     n = max(base.n_scored, 1)
     out: list[tuple[int, Scored]] = []
     to_run: list[tuple[int, Candidate]] = []
@@ -279,7 +288,7 @@ def rank(
             continue
         shapes = columns.by_candidate.get(id(c))
         if shapes is not None:
-            s = _two_stage_score(c, shapes, model, base, sig, t_score, n, ms)
+            s = _two_stage_score(c, best[i], model, base, sig, t_score, n, ms)
             columns_exact = exact_gains and all(col.exact for cols in shapes.values() for col in cols)
             if s.delta_bic < STRONG and not columns_exact:
                 # claimable by a score the augmented filter only approaches: its own runs, every shape
@@ -375,12 +384,12 @@ def realise(s: Scored, base: Run, prep: Prepared, make, probes) -> None:
 
 
 def _two_stage_score(
-    c: Candidate, shapes: dict, model: LinearModel, base: Run, sig, t_score: float, n: int, ms
+    c: Candidate, best: tuple[Fit, float | None], model: LinearModel, base: Run, sig, t_score: float, n: int, ms
 ) -> Scored:
-    """A linear candidate scored by the two-stage filter at its best shape (:func:`.gains.best_shape`):
-    its run that filter's; the candidate as it is then added (its shape bound, as :func:`score` binds it)."""
-    fits = {shape: fit(sig, cols, shape) for shape, cols in shapes.items()}
-    f, shape = best_shape(fits, t_score, c.refine_shape)
+    """A linear candidate scored by the two-stage filter at its best shape (``best``, as
+    :func:`.gains.best_shape` chose it): its run that filter's; the candidate as it is then added (its
+    shape bound, as :func:`score` binds it)."""
+    f, shape = best
     assert c.augment is not None
     aug = c.augment(model) if f.shape is None else c.augment(model, f.shape)
     r = virtual_run(aug, base, sig, f.J, f.ts, t_score)
