@@ -116,7 +116,7 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
 
 
 def _altitude(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
-    prep = prepare(ms, imu=imu)
+    prep = prepare(ms, imu=imu, imu_kinds=(Kind.ACCEL,))
     return Base(prep, altitude_base(prep, names, vehicle))
 
 
@@ -126,7 +126,8 @@ def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None, imu: Im
         ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
         if imu is not None:
             imu = imu.masked(lambda s: (s.t >= window[0]) & (s.t <= window[1] + 5.0))
-    prep = prepare(interval_means(ms), imu=imu)  # the throttle between its records (outputs.py)
+    # the throttle between its records (outputs.py)
+    prep = prepare(interval_means(ms), imu=imu, imu_kinds=(Kind.ACCEL,))
     params = vehicle_config(vehicle, "quad_thrust")
     if "range_limits" in params:
         params["range_limits"] = tuple(params["range_limits"])

@@ -86,11 +86,17 @@ def in_time_order(m: Measurement) -> tuple[float, int]:
     return m.t, m.kind not in CONTEXT_KINDS
 
 
-def prepare(ms: list[Measurement], input_dt: float = 0.01, imu: ImuColumns | None = None) -> Prepared:
+def prepare(
+    ms: list[Measurement],
+    input_dt: float = 0.01,
+    imu: ImuColumns | None = None,
+    imu_kinds: tuple[Kind, ...] = IMU_KINDS,
+) -> Prepared:
     """``ms`` made ready for repeated runs: sorted, truth set aside, the IMU's readings (in ``ms``, or
     given as columns in ``imu``) averaged over ``input_dt`` blocks (:func:`.core.imu.block_means`),
     the ones no estimator takes counted and left out. Only the first IMU's blocks are kept: every
-    model reads instance 0."""
+    model reads instance 0; and only of ``imu_kinds``, the ones the models read (the altitude's
+    read no gyro: a 1-hour log's gyro blocks are 0.1 GB)."""
     truth = [m for m in ms if m.kind is Kind.TRUTH_POSE]
     rest = [m for m in ms if m.kind is not Kind.TRUTH_POSE]
     if any(m.kind in IMU_KINDS for m in rest):
@@ -99,7 +105,7 @@ def prepare(ms: list[Measurement], input_dt: float = 0.01, imu: ImuColumns | Non
     rest.sort(key=in_time_order)
     out: list[Measurement] = list(rest)
     vib: list[tuple[float, float]] = []  # (t, spread of |f| within the block)
-    for kind in IMU_KINDS:
+    for kind in imu_kinds:
         s = imu.get(kind, 0) if imu is not None else None
         if s is None:
             continue

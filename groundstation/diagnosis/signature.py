@@ -189,7 +189,7 @@ def signatures(
     rec_of, seg_of = tape.records()
     segment[rec_of] = seg_of
     t_start = np.asarray(tape.starts or [0.0])[np.minimum(segment, max(len(tape.starts) - 1, 0))]
-    walk = _Walk(tape, n, columns, records, _measured(columns, probes, t, sensor, t_start))
+    walk = _Walk(tape, n, columns, probes, t, sensor, t_start)
     keep = list(range(len(columns))) if delta is None else sorted({int(j) for j in delta})
     G, D = walk(keep, with_G=True)
     assert G is not None
@@ -230,24 +230,27 @@ def _measured(
 class _Walk:
     """One pass over a base run's tape with every column's Delta (the module docstring's recursion),
     giving G of all columns and Delta of those asked for. Every column is carried along even when
-    only some are kept, so a column's numbers are the same whichever pass gives them."""
+    only some are kept, so a column's numbers are the same whichever pass gives them. The measured
+    columns' values are gathered for each pass, not held between them (the probes are the run's)."""
 
     tape: GainTape
     n: int
     columns: list[Column]
-    records: int
-    meas: dict[str, tuple[np.ndarray, np.ndarray]]
+    probes: Probes | None
+    t: np.ndarray
+    sensor: np.ndarray
+    t_start: np.ndarray
 
     def __call__(self, keep: list[int], *, with_G: bool) -> tuple[np.ndarray | None, np.ndarray]:
-        n, P = self.n, len(self.columns)
-        G_out = np.zeros((self.records, P)) if with_G else None
+        n, P, records = self.n, len(self.columns), len(self.t)
+        G_out = np.zeros((records, P)) if with_G else None
         # float32: Delta moves an estimate by Delta theta; its 7 digits put that within 1e-7 of itself,
         # far below any sensor's noise. G, which the likelihoods are summed from, stays float64.
-        D_out = np.zeros((self.records, n, len(keep)), dtype=np.float32)
+        D_out = np.zeros((records, n, len(keep)), dtype=np.float32)
         every = keep == list(range(P))  # (then stored as it is, not gathered)
         kept = np.asarray(keep, dtype=int)
         inputs = [(j, c.input, c.factor) for j, c in enumerate(self.columns) if c.input is not None]
-        meas = self.meas
+        meas = _measured(self.columns, self.probes, self.t, self.sensor, self.t_start)
         counts: dict[str, int] = {}
         D = np.zeros((n, P))
         for op in self.tape.steps():
