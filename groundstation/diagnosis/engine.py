@@ -14,7 +14,7 @@ worse is rejected and reported as such, and the next candidate is tried.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -314,6 +314,7 @@ def diagnose(
                 started.close()
                 started = None
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
+        _untaped((s for s in scored if not s.accepted), base)
         for s in (s for s in scored if s.accepted):
             veto = _contradicted(truth, base, s) if veto_with_truth and truth is not None else None
             if veto is None:
@@ -378,6 +379,7 @@ def diagnose(
             continue
         if best is None:
             break
+        _untaped((s for s in scored if s is not best), base, best.run)
         if best.run.through_gains:
             # scored through the base filter's gains: the effect's own run, which the next ranking starts from
             say(f"running the model with {_label(best)}")
@@ -625,6 +627,15 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
     if not ho.holds:
         return Effect("discovered", params, {**evidence, "reason": ho.reason})
     return Effect("discovered", params, {**evidence, "model": aug, "run": run, "candidate": cand})
+
+
+def _untaped(scored: Iterable[Scored], *kept: Run) -> None:
+    """The tapes and probes of candidates' runs let go of, but ``kept``'s (a candidate scored as the
+    base itself shares its run): only the base and the added effect's run start a ranking (each is
+    some 0.1 GB on a 1-hour log; what else is read of them stays)."""
+    for s in scored:
+        if all(s.run is not k for k in kept):
+            s.run.taped = None
 
 
 def _taken(found: Effect, prep: Prepared, make, stream, probes: Probes | None) -> tuple[LinearModel, Run]:
