@@ -9,6 +9,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from drivers.logs.tlog_reader import read_tlog
 from drivers.replay import Replay
 from groundstation.core.imu import ImuColumns
+from groundstation.core.measurement import Kind
 
 from .helpers import imu_frames, write_tlog
 
@@ -75,6 +76,21 @@ def _mixed_frames():
 def test_mixed_vehicles_and_flags(tmp_path):
     got = assert_same_as_replay(write_tlog(tmp_path / "mixed.tlog", _mixed_frames(), dt=0.001))
     assert len(got.imu) > 4000
+
+
+def test_accelerometer_and_gyro_of_the_same_frames_share_their_times(tmp_path):
+    """Frames that carry both (as PX4 sends them) give the two series one array of times, one of
+    receive times and one of sample counts, not a copy each; the series are the replay's still."""
+    a = mavlink.MAVLink(None, 1, 1)
+    frames = []
+    for k in range(500):
+        frames.append(_highres(a, 2_000_000 + 1000 * k, 0x3F, k))
+        a.seq = (a.seq + 1) % 256
+    got = assert_same_as_replay(write_tlog(tmp_path / "plain.tlog", frames, dt=0.001))
+    acc, gyro = got.imu.get(Kind.ACCEL), got.imu.get(Kind.GYRO)
+    assert acc is not None and gyro is not None and len(acc) == len(gyro) == 500
+    assert gyro.t is acc.t and gyro.t_rx is acc.t_rx and gyro.samples is acc.samples
+    assert not np.shares_memory(gyro.value, acc.value)
 
 
 def test_damaged_file(tmp_path):

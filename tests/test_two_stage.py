@@ -91,22 +91,28 @@ def test_a_linear_candidate_through_the_gains_is_its_own_run(flight):
 def test_delta_asked_for_later_is_the_one_the_first_pass_keeps(flight):
     """A ranking keeps Delta of its candidates' best shapes alone; a column asked for afterwards is
     computed by another pass over the tape, and its numbers are those a pass keeping every column
-    gives, to the bit. G does not depend on which columns keep their Delta."""
+    gives, to the bit. G does not depend on which columns keep their Delta; a column let go of
+    (a ranking keeps a claim's alone) is computed again when it is read."""
     su = setup(list(Replay(flight).iter_measurements()), model_name="altitude")
     columns = CatalogueColumns.of(su.spec.catalogue(su.prep.kinds), su.model)
     base = run_model(su.model, su.prep, su.make, probes=columns.probes())
     every = run_signatures(base, su.model.n, columns.extra())
     none = run_signatures(base, su.model.n, columns.extra(), delta=())
     assert every is not None and none is not None
-    P = every.G.shape[1]
+    P = len(every.columns)
     assert P >= 4 and len(every.delta) == P and not none.delta
-    np.testing.assert_array_equal(none.G, every.G)
+    np.testing.assert_array_equal(none.G_of(range(P)), every.G_of(range(P)))
     rows = base.taped.x_record
     J = [P - 1, 0, P // 2]
     np.testing.assert_array_equal(none.columns_at(rows, J), every.columns_at(rows, J))
     assert sorted(none.delta) == sorted(J)  # kept from then on, the others still not computed
     none.keep([1])
     np.testing.assert_array_equal(none.columns_at(rows[-3:], [1, 0]), every.columns_at(rows[-3:], [1, 0]))
+    none.forget([2, 0])
+    assert none.G.shape[1] == 2 and sorted(none.delta) == [0]
+    np.testing.assert_array_equal(none.G_of([2, 0]), every.G_of([2, 0]))
+    np.testing.assert_array_equal(none.G_of([3]), every.G_of([3]))  # let go of: computed again
+    np.testing.assert_array_equal(none.columns_at(rows, [P - 1]), every.columns_at(rows, [P - 1]))
 
 
 def test_held_out_through_the_gains_is_held_out_by_runs(flight):

@@ -183,7 +183,7 @@ class Fit:
         ``at_least`` (one column): the best over the values theta can physically take, theta >= it
         (the likelihood is concave in theta, so a best fit below it gives way to it)."""
         k = self.sig.informs & (self.sig.t >= t_score)
-        G = self.sig.G[:, self.J]
+        G = self.sig.G_of(self.J)
         w = np.where(self.sig.informs, 1.0 / self.sig.S, 0.0)
         A = (G * w[:, None]).T @ G
         b = (G * w[:, None]).T @ self.sig.nu

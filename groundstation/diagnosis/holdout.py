@@ -234,7 +234,7 @@ def two_stage_blocks(f: Fit, prep: Prepared) -> tuple[list[dict[str, float]], di
     the base's. Per block the gain by sensor; and each sensor's standard error of its summed gain
     (the per-update differences' spread)."""
     sig = f.sig
-    G = sig.G[:, f.J]
+    G = sig.G_of(f.J)
     per_block: list[dict[str, float]] = []
     diffs: dict[str, list[np.ndarray]] = {}
     for lo, hi in blocks(prep):

@@ -122,18 +122,19 @@ class Probes:
 @dataclass
 class Signatures:
     """The columns' signatures through one base run, per innovation record of it (in time order):
-    ``G`` the innovation's sensitivity (records, P) and Delta the estimate's after the update
-    (records, n, P; :meth:`columns_at`); with the records' own base innovations ``nu`` and ``S``
-    (scalar sensors), times, sensors, and which records tell theta anything (``informs``: a
+    G the innovation's sensitivity (records, P; :meth:`G_of`) and Delta the estimate's after the
+    update (records, n, P; :meth:`columns_at`); with the records' own base innovations ``nu`` and
+    ``S`` (scalar sensors), times, sensors, and which records tell theta anything (``informs``: a
     sensor's, not a constraint's). ``segment``: the filter's start each record belongs to (a
     restart forgets theta), and ``t_start`` its time. theta is each column's value at that start.
 
     Delta is kept for the columns asked for (:meth:`keep`), not for all: at a ranking's 71 columns
     it is 0.3 GB on a 1-hour log, and a ranking reads it for each candidate's best shape alone.
-    A column asked for later is computed then, by another pass over the tape."""
+    Once a ranking is made, G and Delta of the columns no claim reads are let go of
+    (:meth:`forget`). A column asked for afterwards is computed then, by another pass over the tape."""
 
     columns: list[Column]
-    G: np.ndarray
+    G: np.ndarray  #: the columns' G that are kept, (records, kept), in the order of ``g_index``
     t: np.ndarray
     sensor: np.ndarray
     nu: np.ndarray
@@ -141,18 +142,37 @@ class Signatures:
     informs: np.ndarray
     segment: np.ndarray
     t_start: np.ndarray  #: the time its filter started (its segment's)
-    #: the pass over the base run's tape that gives Delta of the columns it is asked for
-    delta_pass: Callable[[list[int]], np.ndarray]
+    #: the pass over the base run's tape: (the columns whose Delta it keeps, with G or not) -> (G, Delta)
+    walk: Callable[..., tuple[np.ndarray | None, np.ndarray]]
     #: column -> its Delta, (records, n) float32
     delta: dict[int, np.ndarray] = field(default_factory=dict)
+    #: column -> its place in ``G`` (None: every column, in order)
+    g_index: dict[int, int] | None = None
+
+    def G_of(self, J: Sequence[int]) -> np.ndarray:
+        """G of the columns ``J``, (records, len(J)) (a copy)."""
+        if self.g_index is not None and any(int(j) not in self.g_index for j in J):
+            G, _ = self.walk([], with_G=True)  # a column let go of: G of every column again
+            assert G is not None
+            self.G, self.g_index = G, None
+        if self.g_index is None:
+            return self.G[:, list(J)]
+        return self.G[:, [self.g_index[int(j)] for j in J]]
 
     def keep(self, J: Sequence[int]) -> None:
         """Delta of the columns ``J`` computed (in one pass for all of them) and kept."""
         missing = sorted({int(j) for j in J} - set(self.delta))
         if missing:
-            D = self.delta_pass(missing)
+            _, D = self.walk(missing, with_G=False)
             for q, j in enumerate(missing):
                 self.delta[j] = D[:, :, q]  # (views: the pass's array is held by its columns alone)
+
+    def forget(self, J: Sequence[int]) -> None:
+        """G and Delta of every column but ``J`` let go of (a column read after all is computed again)."""
+        J = sorted({int(j) for j in J})
+        self.G = self.G_of(J)
+        self.g_index = {j: q for q, j in enumerate(J)}
+        self.delta = {j: d for j, d in self.delta.items() if j in self.g_index}
 
     def columns_at(self, records: np.ndarray, J: Sequence[int]) -> np.ndarray:
         """Delta of the columns ``J`` at ``records``, (len(records), n, len(J))."""
@@ -193,7 +213,7 @@ def signatures(
     keep = list(range(len(columns))) if delta is None else sorted({int(j) for j in delta})
     G, D = walk(keep, with_G=True)
     assert G is not None
-    sig = Signatures(columns, G, t, sensor, nu, S, informs, segment, t_start, lambda J: walk(J, with_G=False)[1])
+    sig = Signatures(columns, G, t, sensor, nu, S, informs, segment, t_start, walk)
     for q, j in enumerate(keep):
         sig.delta[j] = D[:, :, q]
     return sig
@@ -312,7 +332,7 @@ def two_stage(sig: Signatures, J: Sequence[int], prior: np.ndarray, informs: np.
     """The augmented filter of the columns ``J`` (priors ``prior``), from the base run's innovations
     (module docstring). ``informs``: the records whose update tells theta something (default: the
     signatures'; a held-out block leaves its own out)."""
-    G = sig.G[:, list(J)]
+    G = sig.G_of(J)
     p = G.shape[1]
     w = np.where(sig.informs if informs is None else informs, 1.0 / sig.S, 0.0)
     Gw = G * w[:, None]

@@ -358,7 +358,7 @@ def rank(
         if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
             if s.fit is not None:
                 k = s.fit.sig.informs & (s.fit.sig.t >= t_score) & (s.fit.sig.sensor == sensor)
-                support = participation(s.fit.sig.G[k][:, s.fit.J].sum(axis=1), s.fit.sig.S[k])
+                support = participation(s.fit.sig.G_of(s.fit.J)[k].sum(axis=1), s.fit.sig.S[k])
             else:
                 assert made is not None
                 j = next(j for j, (q, _) in enumerate(to_run) if q == i)
@@ -368,6 +368,9 @@ def rank(
         s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
     ranked = [s for _, s in out]
     ranked.sort(key=lambda s: s.delta_bic)
+    if sig is not None:
+        # from here on only a claim's columns are read (its hold-out): the others' G and Delta go
+        sig.forget([j for s in ranked if s.accepted and s.fit is not None and s.fit.sig is sig for j in s.fit.J])
     return ranked
 
 
