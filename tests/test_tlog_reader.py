@@ -91,6 +91,15 @@ def test_accelerometer_and_gyro_of_the_same_frames_share_their_times(tmp_path):
     assert acc is not None and gyro is not None and len(acc) == len(gyro) == 500
     assert gyro.t is acc.t and gyro.t_rx is acc.t_rx and gyro.samples is acc.samples
     assert not np.shares_memory(gyro.value, acc.value)
+    # cut as the triage cuts a stretch: still shared, and each series as masking it alone gives
+    cut = got.imu.masked(lambda s: (s.t < 2.1) | (s.t > 2.3))
+    c_acc, c_gyro = cut.get(Kind.ACCEL), cut.get(Kind.GYRO)
+    assert c_acc is not None and c_gyro is not None and 250 < len(c_acc) < 500
+    assert c_gyro.t is c_acc.t and c_gyro.t_rx is c_acc.t_rx and c_gyro.samples is c_acc.samples
+    for q, s in ((c_acc, acc), (c_gyro, gyro)):
+        alone = s.masked((s.t < 2.1) | (s.t > 2.3))
+        for name in ("t", "t_rx", "value", "samples"):
+            assert np.array_equal(getattr(q, name), getattr(alone, name)), name
 
 
 def test_damaged_file(tmp_path):

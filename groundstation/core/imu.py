@@ -113,8 +113,20 @@ class ImuColumns:
         return rest, cls({k: g.done() for k, g in growing.items()})
 
     def masked(self, keep: Callable[[ImuSeries], np.ndarray]) -> ImuColumns:
-        """Each series with the samples ``keep(series)`` (a boolean array) keeps."""
-        return ImuColumns({k: s.masked(keep(s)) for k, s in self.series.items()})
+        """Each series with the samples ``keep(series)`` (a boolean array) keeps. Series that share
+        their times (a frame's accelerometer and gyro) still share them where they keep the same."""
+        out: dict[tuple[Kind, int], ImuSeries] = {}
+        done: dict[tuple[int, int, int], tuple[np.ndarray, ImuSeries]] = {}  # the times' arrays -> kept, series
+        for k, s in self.series.items():
+            kept = keep(s)
+            key = (id(s.t), id(s.t_rx), id(s.samples))
+            same = done.get(key)
+            if same is not None and np.array_equal(same[0], kept):
+                out[k] = ImuSeries(s.source, same[1].t, same[1].t_rx, s.value[kept], same[1].samples)
+            else:
+                out[k] = s.masked(kept)
+                done[key] = (kept, out[k])
+        return ImuColumns(out)
 
     def records(self) -> list[Measurement]:
         return [m for (kind, inst), s in self.series.items() for m in s.records(kind, inst)]
