@@ -137,7 +137,6 @@ def discover(run: Run, sensor: str, max_terms: int = 3) -> Discovery | None:
     for i, k in enumerate(names):
         v = whole[k][keep]
         X[:, i] = (v - v.mean()) / spread[k]
-    del v
     n = len(y)
     yc = y - y.mean()
     picked: list[int] = []

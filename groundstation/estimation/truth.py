@@ -168,9 +168,8 @@ def _truth_columns(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, 
                     continue
                 for col, i in zip(cols, at):
                     col.append(float(row[i]))
-    except (UnicodeDecodeError, csv.Error) as e:  # a binary file, a broken quote
-        raise ValueError(f"{p}: not a truth CSV: {e}") from None
-    except (IndexError, ValueError) as e:  # a short row, a cell not a number
+    # a binary file, a broken quote, a short row, a cell not a number
+    except (csv.Error, IndexError, ValueError) as e:  # (UnicodeDecodeError is a ValueError)
         raise ValueError(f"{p}: not a truth CSV: {e}") from None
     if not len(cols[0]):
         return None
