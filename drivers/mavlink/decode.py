@@ -1,5 +1,11 @@
 """MAVLink messages (pymavlink objects) to :class:`Measurement` records.
 
+A message comes as the tuple of its fields in wire order (pymavlink's
+``ordered_fieldnames``), as the framer unpacks it; a pymavlink message object is
+turned into that tuple first. Each handler reads its fields through an
+``itemgetter`` built from the field names (:func:`_fields`), which at 1 kHz
+costs a fraction of reading them by name from an object.
+
 Every unit conversion of the MAVLink driver happens here, driven by the unit
 names of the message definitions (:data:`VECTORS` and :data:`SPECIAL_UNITS`,
 checked against pymavlink's ``fieldunits_by_name`` by the tests). Frames are
@@ -26,7 +32,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable
-from operator import attrgetter
+from operator import itemgetter
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -97,9 +103,54 @@ SPECIAL_UNITS: dict[str, dict[str, str]] = {
     "ATT_POS_MOCAP": {"x": "m", "y": "m", "z": "m"},
 }
 
+_CLASS = {cls.msgname: cls for cls in mavlink.mavlink_map.values()}
+
+
+def _fields(name: str, *fields: str) -> Callable:
+    """The getter of ``fields`` from a message ``name``'s field tuple (wire order): the value of
+    one field, or the tuple of several."""
+    order = _CLASS[name].ordered_fieldnames
+    return itemgetter(*(order.index(f) for f in fields))
+
+
+def _as_fields(cls) -> Callable:
+    """Message object -> its field tuple in wire order; a field an older dialect's object lacks
+    (MAVLink 2 extensions) is 0, as on the wire."""
+    names = cls.ordered_fieldnames
+    return lambda m: tuple(getattr(m, f, 0) for f in names)
+
+
 _SERVO_FIELDS = tuple(f"servo{i}_raw" for i in range(1, 17))
 _RC_FIELDS = tuple(f"chan{i}_raw" for i in range(1, 19))
-_servo_values = attrgetter(*_SERVO_FIELDS)
+_servo_values = _fields("SERVO_OUTPUT_RAW", *_SERVO_FIELDS)
+_servo_port = _fields("SERVO_OUTPUT_RAW", "port")
+_rc_count = _fields("RC_CHANNELS", "chancount")
+_rc_values = _fields("RC_CHANNELS", *_RC_FIELDS)
+_hr_flags = _fields("HIGHRES_IMU", "fields_updated", "id")
+_hr_imu = _fields("HIGHRES_IMU", "xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro")
+_hr_all = _fields(
+    "HIGHRES_IMU",
+    *("xacc", "yacc", "zacc", "xgyro", "ygyro", "zgyro", "xmag", "ymag", "zmag"),
+    *("abs_pressure", "diff_pressure", "temperature"),
+)
+_pressure = _fields("SCALED_PRESSURE", "press_abs", "press_diff", "temperature")  # (2 and 3 alike)
+_distance = _fields("DISTANCE_SENSOR", "current_distance", "min_distance", "max_distance", "covariance", "id")
+_gps = _fields("GPS_RAW_INT", "fix_type", "lat", "lon", "alt", "h_acc", "v_acc")
+_global_position = _fields("GLOBAL_POSITION_INT", "lat", "lon", "alt", "relative_alt", "vx", "vy", "vz")
+_vfr_hud_fields = _fields("VFR_HUD", "throttle", "alt", "climb", "airspeed", "groundspeed", "heading")
+_sys_battery = _fields("SYS_STATUS", "voltage_battery", "current_battery", "battery_remaining")
+_battery_status_fields = _fields(
+    "BATTERY_STATUS", "id", "voltages", "voltages_ext", "current_battery", "battery_remaining"
+)
+_manual = _fields("MANUAL_CONTROL", "x", "y", "z", "r", "target")
+_heartbeat_fields = _fields("HEARTBEAT", "type", "base_mode", "custom_mode", "system_status", "autopilot")
+_quaternion = _fields("ATTITUDE_QUATERNION", "q1", "q2", "q3", "q4")
+_mocap = _fields("ATT_POS_MOCAP", "x", "y", "z", "q")
+_ekf = _fields(
+    "EKF_STATUS_REPORT",
+    *("flags", "velocity_variance", "pos_horiz_variance", "pos_vert_variance"),
+    *("compass_variance", "terrain_alt_variance"),
+)
 
 _INSTANCE_BY_NAME = {"SCALED_IMU2": 1, "SCALED_IMU3": 2, "SCALED_PRESSURE2": 1, "SCALED_PRESSURE3": 2}
 
@@ -135,13 +186,13 @@ _PENDING_MAX = 2000
 def _time_field(cls) -> tuple[Callable | None, float, float]:
     """The getter of the message's vehicle-time field (None: it has none), the largest raw value
     that is a time since boot (a larger ``time_usec`` is a UNIX-epoch time), and its scale to s."""
-    names = cls.fieldnames
+    names = cls.ordered_fieldnames
     if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min
         return None, 0.0, 0.0
     if "time_usec" in names:
-        return attrgetter("time_usec"), EPOCH_THRESHOLD_US, 1e-6
+        return itemgetter(names.index("time_usec")), EPOCH_THRESHOLD_US, 1e-6
     if "time_boot_ms" in names:
-        return attrgetter("time_boot_ms"), math.inf, 1e-3
+        return itemgetter(names.index("time_boot_ms")), math.inf, 1e-3
     return None, 0.0, 0.0
 
 
@@ -224,13 +275,15 @@ class MavlinkDecoder:
         #: sources whose first battery comes in BATTERY_STATUS: their SYS_STATUS repeats it
         self._battery_status_from: set[str] = set()
         # Keyed by class: a message's ``id`` attribute can be a field (RAW_IMU.id).
-        # (handler, the time field's getter or None, instance, its largest time since boot, its scale to s)
-        self._handlers: dict[type, tuple[Callable, Callable | None, int, float, float]] = {}
+        # (handler, the time field's getter or None, instance, its largest time since boot, its scale
+        # to s, a message object's field tuple)
+        self._handlers: dict[type, tuple[Callable, Callable | None, int, float, float, Callable]] = {}
         for cls in mavlink.mavlink_map.values():
             handler = self._handler_for(cls.msgname)
             if handler is not None:
                 getter, largest, to_s = _time_field(cls)
-                self._handlers[cls] = (handler, getter, _INSTANCE_BY_NAME.get(cls.msgname, 0), largest, to_s)
+                instance = _INSTANCE_BY_NAME.get(cls.msgname, 0)
+                self._handlers[cls] = (handler, getter, instance, largest, to_s, _as_fields(cls))
 
     @property
     def waiting(self) -> bool:
@@ -250,8 +303,8 @@ class MavlinkDecoder:
     def convert(self, cls, m, sysid: int, compid: int, t_rx: float) -> Out:
         """Measurements from message ``m`` of pymavlink class ``cls``.
 
-        ``m`` is anything with the message's field names as attributes: a
-        pymavlink object, or the framer's light namedtuple.
+        ``m`` is the tuple of the message's fields in wire order (the framer's), or anything with
+        the message's field names as attributes (a pymavlink object).
         """
         out: Out = []
         self.convert_into(out, cls, m, sysid, compid, t_rx)
@@ -263,7 +316,9 @@ class MavlinkDecoder:
         if entry is None:
             self.unknown[cls.msgname] += 1
             return
-        handler, time_field, instance, largest, to_s = entry
+        handler, time_field, instance, largest, to_s, as_fields = entry
+        if type(m) is not tuple:
+            m = as_fields(m)
         sender = self._senders.get(sysid << 8 | compid)
         if sender is None:
             sender = self._sender(sysid, compid)
@@ -318,13 +373,13 @@ class MavlinkDecoder:
             for kind, fs, _ in VECTORS[name]:
                 slices.append((kind, slice(k, k + len(fs))))
                 k += len(fs)
-            has_id = name == "RAW_IMU"
-            values = attrgetter(*fields)
+            imu_id = _fields(name, "id") if name == "RAW_IMU" else None
+            values = _fields(name, *fields)
             unscaled = bool(np.all(scales == 1.0))  # (radians: the ATTITUDE at an IMU's rate)
 
-            def vectors(m, t, t_rx, source, instance, out, values=values, scales=scales, slices=slices, has_id=has_id):
-                if has_id:
-                    instance = m.id or 0
+            def vectors(m, t, t_rx, source, instance, out, values=values, scales=scales, slices=slices, imu_id=imu_id):
+                if imu_id is not None:
+                    instance = imu_id(m) or 0
                 v = _array(values(m), dtype=float)
                 if not unscaled:
                     v *= scales
@@ -336,30 +391,31 @@ class MavlinkDecoder:
 
     # -- messages with special rules ----------------------------------------
     def _highres_imu(self, m, t, t_rx, source, instance, out):
-        upd = m.fields_updated or 0xFFFF  # 0 from legacy senders: treat as all
-        instance = m.id
+        upd, instance = _hr_flags(m)
+        upd = upd or 0xFFFF  # 0 from legacy senders: treat as all
         if upd & _HR_OTHER == 0:  # the IMU alone (most messages: PX4 flags a sensor after it updated)
-            v = _array((m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro), dtype=float)
+            v = _array(_hr_imu(m), dtype=float)
             if upd & _HR_ACC:
                 out.append(_new(_M, (t, _ACCEL, v[0:3], source, t_rx, None, instance, 1)))
             if upd & _HR_GYRO:
                 out.append(_new(_M, (t, _GYRO, v[3:6], source, t_rx, None, instance, 1)))
             return
         # One array for the whole message; the measurements hold views of it.
+        xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure, diff_pressure, temperature = _hr_all(m)
         v = _array(
             (
-                m.xacc,
-                m.yacc,
-                m.zacc,
-                m.xgyro,
-                m.ygyro,
-                m.zgyro,
-                m.xmag * _GAUSS,
-                m.ymag * _GAUSS,
-                m.zmag * _GAUSS,
-                m.abs_pressure * _HPA,
-                m.diff_pressure * _HPA,
-                m.temperature + _DEGC_O,
+                xacc,
+                yacc,
+                zacc,
+                xgyro,
+                ygyro,
+                zgyro,
+                xmag * _GAUSS,
+                ymag * _GAUSS,
+                zmag * _GAUSS,
+                abs_pressure * _HPA,
+                diff_pressure * _HPA,
+                temperature + _DEGC_O,
             )
         )
         if upd & _HR_ACC:
@@ -377,9 +433,10 @@ class MavlinkDecoder:
 
     def _scaled_pressure(self, m, t, t_rx, source, instance, out):
         # one array for the message; the measurements hold views of it
-        v = _array((m.press_abs * _HPA, m.press_diff * _HPA, m.temperature * _CDEGC_S + _CDEGC_O))
+        press_abs, press_diff, temperature = _pressure(m)
+        v = _array((press_abs * _HPA, press_diff * _HPA, temperature * _CDEGC_S + _CDEGC_O))
         out.append(_new(_M, (t, _BARO_PRESSURE, v[0:1], source, t_rx, None, instance, 1)))
-        if m.press_diff:
+        if press_diff:
             out.append(_new(_M, (t, _DIFF_PRESSURE, v[1:2], source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, _TEMPERATURE, v[2:3], source, t_rx, None, instance, 1)))
 
@@ -387,47 +444,38 @@ class MavlinkDecoder:
     _scaled_pressure3 = _scaled_pressure
 
     def _distance_sensor(self, m, t, t_rx, source, instance, out):
-        d = m.current_distance
-        if d <= m.min_distance or d >= m.max_distance:
+        d, lo, hi, cov, sensor = _distance(m)
+        if d <= lo or d >= hi:
             # a reading at or beyond a limit is the sensor's clamp, not a distance: ArduPilot and PX4
             # report out-of-range readings this way, and a sensor on the ground reads its minimum
             self.skipped["range_out_of_bounds"] += 1
             return
-        cov = m.covariance
         var = None if cov in (0, 255) else _array([cov * 1e-4])
-        out.append(_new(_M, (t, _RANGE, _array([d * _CM]), source, t_rx, var, m.id, 1)))
+        out.append(_new(_M, (t, _RANGE, _array([d * _CM]), source, t_rx, var, sensor, 1)))
 
     def _gps_raw_int(self, m, t, t_rx, source, instance, out):
-        if m.fix_type < 3:  # no fix or 2D: no usable altitude
+        fix_type, lat, lon, alt, h_acc, v_acc = _gps(m)
+        if fix_type < 3:  # no fix or 2D: no usable altitude
             self.skipped["gps_no_3d_fix"] += 1
             return
-        lat = m.lat * _DEGE7
+        lat = lat * _DEGE7
         var = None
-        h_acc, v_acc = getattr(m, "h_acc", 0), getattr(m, "v_acc", 0)
         if h_acc and v_acc:
             # Accuracy [mm] to variance in the value's own units (deg^2, deg^2, m^2).
             h_deg = h_acc * _MM / _M_PER_DEG
             coslat = max(math.cos(math.radians(lat)), 1e-6)
             var = _array([h_deg**2, (h_deg / coslat) ** 2, (v_acc * _MM) ** 2])
-        out.append(_new(_M, (t, _GPS, _array([lat, m.lon * _DEGE7, m.alt * _MM]), source, t_rx, var, instance, 1)))
+        out.append(_new(_M, (t, _GPS, _array([lat, lon * _DEGE7, alt * _MM]), source, t_rx, var, instance, 1)))
 
     def _global_position_int(self, m, t, t_rx, source, instance, out):
-        v = _array(
-            (
-                m.lat * _DEGE7,
-                m.lon * _DEGE7,
-                m.alt * _MM,
-                m.relative_alt * _MM,
-                m.vx * _CM,
-                m.vy * _CM,
-                m.vz * _CM,
-            )
-        )
+        lat, lon, alt, relative_alt, vx, vy, vz = _global_position(m)
+        v = _array((lat * _DEGE7, lon * _DEGE7, alt * _MM, relative_alt * _MM, vx * _CM, vy * _CM, vz * _CM))
         out.append(_new(_M, (t, _GLOBAL_POSITION, v[0:4], source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, _VELOCITY_NED, v[4:7], source, t_rx, None, instance, 1)))
 
     def _vfr_hud(self, m, t, t_rx, source, instance, out):
-        v = _array((m.throttle * _PCT, m.alt, m.climb, m.airspeed, m.groundspeed, m.heading * _DEG), dtype=float)
+        throttle, alt, climb, airspeed, groundspeed, heading = _vfr_hud_fields(m)
+        v = _array((throttle * _PCT, alt, climb, airspeed, groundspeed, heading * _DEG), dtype=float)
         out.append(_new(_M, (t, _THROTTLE, v[0:1], source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, _ALTITUDE, v[1:2], source, t_rx, None, instance, 1)))
         out.append(_new(_M, (t, _CLIMB_RATE, v[2:3], source, t_rx, None, instance, 1)))
@@ -436,15 +484,17 @@ class MavlinkDecoder:
     def _sys_status(self, m, t, t_rx, source, instance, out):
         if source in self._battery_status_from:
             return  # the same battery monitor's reading, already taken from BATTERY_STATUS
-        self._battery(m.voltage_battery, m.current_battery, m.battery_remaining, t, t_rx, source, 0, out)
+        volts, current, remaining = _sys_battery(m)
+        self._battery(volts, current, remaining, t, t_rx, source, 0, out)
 
     def _battery_status(self, m, t, t_rx, source, instance, out):
-        if m.id == 0:
+        battery, voltages, voltages_ext, current, remaining = _battery_status_fields(m)
+        if battery == 0:
             self._battery_status_from.add(source)
-        cells = [v for v in m.voltages if v != _UINT16_MAX]
-        cells += [v for v in (getattr(m, "voltages_ext", None) or ()) if v not in (0, _UINT16_MAX)]
+        cells = [v for v in voltages if v != _UINT16_MAX]
+        cells += [v for v in (voltages_ext or ()) if v not in (0, _UINT16_MAX)]
         volts = sum(cells) if cells else _UINT16_MAX
-        self._battery(volts, m.current_battery, m.battery_remaining, t, t_rx, source, m.id, out)
+        self._battery(volts, current, remaining, t, t_rx, source, battery, out)
 
     def _battery(self, mv, ca, pct, t, t_rx, source, instance, out):
         if mv not in (_UINT16_MAX, 0):
@@ -457,97 +507,44 @@ class MavlinkDecoder:
             out.append(_new(_M, (t, _BATTERY_REMAINING, _array([pct * _PCT]), source, t_rx, None, instance, 1)))
 
     def _servo_output_raw(self, m, t, t_rx, source, instance, out):
-        try:
-            raw = list(_servo_values(m))
-        except AttributeError:  # a message object without the MAVLink 2 extension channels
-            raw = [getattr(m, f, 0) for f in _SERVO_FIELDS]
+        raw = list(_servo_values(m))
         while len(raw) > 8 and raw[-1] == 0:  # MAVLink 2 extension channels 9-16 unused
             raw.pop()
         v = _array([(x - 1000.0) * 1e-3 if x else _nan for x in raw])
-        out.append(_new(_M, (t, _ACTUATOR, v, source, t_rx, None, m.port, 1)))
+        out.append(_new(_M, (t, _ACTUATOR, v, source, t_rx, None, _servo_port(m), 1)))
 
     def _rc_channels(self, m, t, t_rx, source, instance, out):
-        n = min(m.chancount or 18, 18)  # a count past the 18 fields the message has is damage
-        raw = [getattr(m, f) for f in _RC_FIELDS[:n]]
+        n = min(_rc_count(m) or 18, 18)  # a count past the 18 fields the message has is damage
+        raw = _rc_values(m)[:n]
         v = _array([(x - 1000.0) * 1e-3 if x != _UINT16_MAX else _nan for x in raw], dtype=float)
         out.append(_new(_M, (t, _RC_INPUT, v, source, t_rx, None, instance, 1)))
 
     def _manual_control(self, m, t, t_rx, source, instance, out):
         # Normalised as MAVLink defines them: x, y, r in [-1000, 1000]; z in [0, 1000]
         # for ArduPilot and PX4 (some GCSs send [-1000, 1000]); passed on as sent / 1000.
-        out.append(
-            _new(
-                _M,
-                (
-                    t,
-                    _MANUAL_CONTROL,
-                    _array([m.x, m.y, m.z, m.r], dtype=float) * 1e-3,
-                    source,
-                    t_rx,
-                    None,
-                    m.target,
-                    1,
-                ),
-            )
-        )
+        x, y, z, r, target = _manual(m)
+        v = _array([x, y, z, r], dtype=float) * 1e-3
+        out.append(_new(_M, (t, _MANUAL_CONTROL, v, source, t_rx, None, target, 1)))
 
     def _heartbeat(self, m, t, t_rx, source, instance, out):
-        if m.type == mavlink.MAV_TYPE_GCS:
+        vehicle_type, base_mode, custom_mode, system_status, autopilot = _heartbeat_fields(m)
+        if vehicle_type == mavlink.MAV_TYPE_GCS:
             # a ground station's (ours, recorded in a tlog): no vehicle status, and not a vehicle
             self.ground_stations.add(int(source.rsplit("/", 1)[1].split(".")[0]))
             return
-        armed = 1.0 if m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
-        out.append(
-            _new(
-                _M,
-                (
-                    t,
-                    _VEHICLE_STATUS,
-                    _array([armed, m.custom_mode, m.system_status, m.type, m.autopilot], dtype=float),
-                    source,
-                    t_rx,
-                    None,
-                    instance,
-                    1,
-                ),
-            )
-        )
+        armed = 1.0 if base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED else 0.0
+        v = _array([armed, custom_mode, system_status, vehicle_type, autopilot], dtype=float)
+        out.append(_new(_M, (t, _VEHICLE_STATUS, v, source, t_rx, None, instance, 1)))
 
     def _attitude_quaternion(self, m, t, t_rx, source, instance, out):
-        out.append(
-            _new(_M, (t, _ATTITUDE_QUATERNION, _array([m.q1, m.q2, m.q3, m.q4]), source, t_rx, None, instance, 1))
-        )
+        out.append(_new(_M, (t, _ATTITUDE_QUATERNION, _array(_quaternion(m)), source, t_rx, None, instance, 1)))
 
     def _att_pos_mocap(self, m, t, t_rx, source, instance, out):
-        q = list(m.q)
-        out.append(_new(_M, (t, _TRUTH_POSE, _array([m.x, m.y, m.z, *q]), source, t_rx, None, instance, 1)))
+        x, y, z, q = _mocap(m)
+        out.append(_new(_M, (t, _TRUTH_POSE, _array([x, y, z, *q]), source, t_rx, None, instance, 1)))
 
     def _ekf_status_report(self, m, t, t_rx, source, instance, out):
-        out.append(
-            _new(
-                _M,
-                (
-                    t,
-                    _EKF_STATUS,
-                    _array(
-                        [
-                            m.flags,
-                            m.velocity_variance,
-                            m.pos_horiz_variance,
-                            m.pos_vert_variance,
-                            m.compass_variance,
-                            m.terrain_alt_variance,
-                        ],
-                        dtype=float,
-                    ),
-                    source,
-                    t_rx,
-                    None,
-                    instance,
-                    1,
-                ),
-            )
-        )
+        out.append(_new(_M, (t, _EKF_STATUS, _array(_ekf(m), dtype=float), source, t_rx, None, instance, 1)))
 
 
 #: Every message type this decoder converts (the issue's list and a few more).
