@@ -12,6 +12,12 @@ flag their fields updated as PX4 flags them, or with ``--every-field`` all of th
   ready values (a view and a tuple each), so the table shows what is left for the rest
   (counters, vehicle clocks, unit conversion) at 1.5x.
 
+``--instructions`` counts instead of timing: the CPU instructions each contender spends per message,
+from valgrind (``cachegrind``, no cache simulation), for one pass over the stream and for two, the
+difference being one pass with imports and set-up cancelled out. A count does not move with the
+machine's load, so it shows a change of a few per cent that the timed rounds cannot; time per
+instruction is not the same for both, so it does not replace the timed ratio.
+
 Part 2 (live): a separate process sends HIGHRES_IMU over loopback UDP at a fixed
 rate, stamping each with its send time (CLOCK_MONOTONIC, shared by all
 processes); the ground-station link receives, and a
@@ -31,6 +37,8 @@ import asyncio
 import itertools
 import os
 import random
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -263,6 +271,38 @@ async def live(rate: float, seconds: float) -> dict:
     }
 
 
+#: the contenders ``--instructions`` counts, by the name ``--count-only`` takes
+_COUNTED = {"parse_buffer": bench_parse_buffer, "ours": bench_ours}
+
+
+def count_instructions(messages: int, every_field: bool) -> dict[str, float] | None:
+    """Instructions per message of each of :data:`_COUNTED` (valgrind), or None without valgrind."""
+    valgrind = shutil.which("valgrind")
+    if valgrind is None:
+        return None
+    # the same hashes and one BLAS thread in every run: the counts are then equal from run to run
+    env = dict(os.environ, PYTHONHASHSEED="0", OPENBLAS_NUM_THREADS="1")
+
+    def start(name: str, passes: int) -> subprocess.Popen:
+        cmd = [valgrind, "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null"]
+        cmd += [sys.executable, __file__, "--count-only", name, "--passes", str(passes)]
+        cmd += ["--messages", str(messages)] + (["--every-field"] if every_field else [])
+        return subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+    def total(proc: subprocess.Popen) -> int:
+        _, err = proc.communicate()
+        found = re.search(r"I\s+refs:\s+([\d,]+)", err)
+        if proc.returncode != 0 or found is None:
+            raise RuntimeError(f"valgrind failed: {err.strip().splitlines()[-1:]}")
+        return int(found.group(1).replace(",", ""))
+
+    per = {}
+    for name in _COUNTED:  # one and two passes side by side, a core each
+        one, two = start(name, 1), start(name, 2)
+        per[name] = (total(two) - total(one)) / messages
+    return per
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--messages", type=int, default=100_000)
@@ -275,7 +315,32 @@ def main() -> int:
         help="every HIGHRES_IMU flags all its fields updated (six records a message), not PX4's pattern",
     )
     ap.add_argument("--beside-diagnosis", type=Path, metavar="LOG", help="the live run again beside a diagnosis of LOG")
+    ap.add_argument(
+        "--instructions",
+        action="store_true",
+        help="count each contender's instructions per message with valgrind (20,000 messages unless --messages)",
+    )
+    ap.add_argument("--count-only", choices=sorted(_COUNTED), help=argparse.SUPPRESS)  # one counted run
+    ap.add_argument("--passes", type=int, default=1, help=argparse.SUPPRESS)
     args = ap.parse_args()
+
+    if args.count_only:  # a run valgrind counts: the stream, then the passes, nothing printed
+        parts = chunks(make_stream(args.messages, every_field=args.every_field))
+        for _ in range(args.passes):
+            _COUNTED[args.count_only](parts)
+        return 0
+    if args.instructions:
+        messages = args.messages if "--messages" in sys.argv else 20_000
+        per = count_instructions(messages, args.every_field)
+        if per is None:
+            print("valgrind is not installed: no instruction counts")
+            return 1
+        print(f"Instructions per message (valgrind, {messages} messages, one pass)")
+        print(f"{'contender':<44}{'instr/msg':>12}{'ratio':>12}")
+        print(f"{'pymavlink parse_buffer (frames only)':<44}{per['parse_buffer']:>12,.0f}{'':>12}")
+        ratio = per["parse_buffer"] / per["ours"]
+        print(f"{'ours: MavlinkReceiver.feed -> Measurement':<44}{per['ours']:>12,.0f}{ratio:>11.2f}x")
+        return 0
 
     data = make_stream(args.messages, every_field=args.every_field)
     parts = chunks(data)
