@@ -63,19 +63,24 @@ class VehicleClock:
             if t_rx > self._last_rx:  # (several messages of one read share a receive time)
                 off -= self.drift * (t_rx - self._last_rx)
             d = new - off
-            if d > self.jump_s or d < -self.jump_s:
-                self.resets += 1
+            if d > 0.0:  # less delayed than the estimate: the better one (or a jump forward)
+                if d > self.jump_s:
+                    self.resets += 1
                 off = new
-            elif d > 0.0:
+            elif d < -self.jump_s:  # a jump back
+                self.resets += 1
                 off = new
             self.offset = off
         self._last_rx = t_rx
         newest = self._newest
+        if not t_vehicle <= newest:  # the newest yet (the first: NaN): most messages, checked first
+            self._newest, self._newest_rx = t_vehicle, t_rx
+            return False
         if t_vehicle < newest - RESTART_BACK_S:  # its uptime went back: it restarted
             self.restarts += 1
             self._newest, self._newest_rx = t_vehicle, t_rx
             return True
-        if not t_vehicle <= newest or t_vehicle - newest < -self.jump_s:
+        if t_vehicle - newest < -self.jump_s:
             self._newest, self._newest_rx = t_vehicle, t_rx
         return False
 
