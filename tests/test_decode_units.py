@@ -1,6 +1,7 @@
 """Unit and frame conversions, checked against the MAVLink message definitions."""
 
 import math
+import types
 
 import numpy as np
 import pytest
@@ -196,6 +197,20 @@ def test_servo_rc_manual_control_normalised():
     assert out[(Kind.RC_INPUT, 0)].value == pytest.approx([0.5, 0.0, 1.0, 0.5])
     out, _ = decode(mavlink.MAVLink_manual_control_message(1, 200, -300, 500, 0, 0))
     assert out[(Kind.MANUAL_CONTROL, 1)].value == pytest.approx([0.2, -0.3, 0.5, 0.0])
+
+
+def test_an_object_without_an_extension_field_converts_as_the_wire_would():
+    """``convert`` takes any object with the message's fields as attributes: one an older dialect
+    made has no MAVLink 2 extensions (servo9..16, GPS accuracies), which count as 0, as on the wire."""
+    servo = types.SimpleNamespace(time_usec=1000, port=2, **{f"servo{i}_raw": 1500 for i in range(1, 9)})
+    gps = types.SimpleNamespace(time_usec=1000, fix_type=3, lat=473977418, lon=85455938, alt=500000)
+    for name in ("eph", "epv", "vel", "cog", "satellites_visible"):
+        setattr(gps, name, 0)
+    dec = MavlinkDecoder("t")
+    (fix,) = dec.convert(mavlink.MAVLink_gps_raw_int_message, gps, 1, 1, 10.0)  # (timed: the clock is known)
+    assert fix.variance is None and fix.value == pytest.approx([47.3977418, 8.5455938, 500.0])
+    (actuator,) = dec.convert(mavlink.MAVLink_servo_output_raw_message, servo, 1, 1, 10.0)
+    assert actuator.instance == 2 and actuator.value == pytest.approx([0.5] * 8)
 
 
 def test_heartbeat_mocap_ekf():

@@ -1,4 +1,4 @@
-"""MAVLink messages (pymavlink objects) to :class:`Measurement` records.
+"""MAVLink messages (the framer's field tuples, or pymavlink objects) to :class:`Measurement` records.
 
 A message comes as the tuple of its fields in wire order (pymavlink's
 ``ordered_fieldnames``), as the framer unpacks it; a pymavlink message object is
