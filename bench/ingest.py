@@ -305,7 +305,7 @@ def count_instructions(messages: int, every_field: bool) -> dict[str, float] | N
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--messages", type=int, default=100_000)
+    ap.add_argument("--messages", type=int, help="messages in the stream (100,000; counted: 20,000)")
     ap.add_argument("--live-seconds", type=float, default=60.0)
     ap.add_argument("--live-rate", type=float, default=2000.0)
     ap.add_argument("--repeat", type=int, default=3)
@@ -325,12 +325,13 @@ def main() -> int:
     args = ap.parse_args()
 
     if args.count_only:  # a run valgrind counts: the stream, then the passes, nothing printed
+        assert args.messages is not None
         parts = chunks(make_stream(args.messages, every_field=args.every_field))
         for _ in range(args.passes):
             _COUNTED[args.count_only](parts)
         return 0
     if args.instructions:
-        messages = args.messages if "--messages" in sys.argv else 20_000
+        messages = args.messages or 20_000
         per = count_instructions(messages, args.every_field)
         if per is None:
             print("valgrind is not installed: no instruction counts")
@@ -342,6 +343,7 @@ def main() -> int:
         print(f"{'ours: MavlinkReceiver.feed -> Measurement':<44}{per['ours']:>12,.0f}{ratio:>11.2f}x")
         return 0
 
+    args.messages = args.messages or 100_000
     data = make_stream(args.messages, every_field=args.every_field)
     parts = chunks(data)
     with tempfile.TemporaryDirectory() as d:
