@@ -13,7 +13,7 @@ a sensor reading afterwards. This framer does what the C library does:
   wire order (pymavlink's ``ordered_fieldnames``; an array field is a tuple
   within it); MAVLink 2 zero-truncated payloads are padded back. Not a
   namedtuple, nor a message object: building one and reading its fields by
-  name cost a tenth of the receive path at 1 kHz;
+  name costs 6 % more instructions a message (``bench/ingest.py --instructions``);
 * for every other known message, hand the verified frame to pymavlink's
   ``MAVLink.decode`` for a full message object (hooks, HEARTBEAT, ACKs);
 * frames with an id outside the dialect become ``MAVLink_unknown`` objects.
