@@ -35,6 +35,8 @@ from .mavlink.receiver import LinkCounters, MavlinkReceiver
 from .tlog import TlogIndex
 
 MIN_SPEED, MAX_SPEED = 0.1, 100.0
+#: the mapped file's pages behind the playhead are given back every 65,536 records (``TlogIndex.release``)
+_RELEASE_MASK = (1 << 16) - 1
 
 
 class ReplayState(enum.Enum):
@@ -192,7 +194,10 @@ class Replay:
         while self._i < len(idx):
             i = self._i
             self._i += 1
+            if i & _RELEASE_MASK == 0:
+                self._release_before(i)
             yield from feed(idx.frame(i), float(idx.t[i]))
+        self._release_before(len(idx))
 
     async def run(self) -> None:
         """Play to the end (forever with ``loop``), honouring the controls."""
@@ -224,12 +229,20 @@ class Replay:
                 batch_budget += 1
                 if batch_budget >= 256:  # let consumers and controls run
                     batch_budget = 0
+                    if i & _RELEASE_MASK < 256:
+                        self._release_before(i)
                     await asyncio.sleep(0)
             if not self.loop:
                 break
             self.seek(0.0)
         self._set_state(ReplayState.ENDED)
         self.close()
+
+    def _release_before(self, i: int) -> None:
+        """The mapped file's pages before record ``i`` given back (played; a seek maps them again)."""
+        idx = self.index
+        if isinstance(idx, TlogIndex) and len(idx):
+            idx.release(int(idx.offset[i]) if i < len(idx) else None)
 
     def skipped_summary(self) -> str:
         """One line on what the file's damage cost (empty if nothing)."""

@@ -12,10 +12,15 @@ offsets, so a replay can seek by *time* (bisection on the timestamps), not by
 byte fraction, which breaks across recording gaps. Corrupt stretches are
 skipped by resynchronising on the next plausible record and counted; a
 truncated last record is tolerated and reported.
+
+The index maps the file rather than reading it: its bytes stay the kernel's page cache, and a
+reader that has passed a stretch gives those pages back (:meth:`TlogIndex.release`), so that
+a 1-hour log's 0.3 GB are not held in the process beside what is read from them.
 """
 
 from __future__ import annotations
 
+import mmap
 import os
 import struct
 import time
@@ -118,6 +123,17 @@ class TlogWriter:
         return self._f is None
 
 
+def _mapped(p: Path) -> bytes | mmap.mmap:
+    """The file's bytes, mapped read-only (an empty file: ``b""``, which cannot be mapped); a
+    one-line :class:`TlogError` if it cannot be read."""
+    try:
+        with open(p, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) if size else b""
+    except (OSError, ValueError) as e:
+        raise TlogError(f"{p}: cannot read: {getattr(e, 'strerror', None) or e}") from None
+
+
 def _frame_length(data, pos: int) -> int:
     """Length of the MAVLink frame starting at ``pos`` (0 if no frame starts there)."""
     if pos + 3 > len(data):
@@ -135,7 +151,7 @@ class TlogIndex:
     """Record timestamps and offsets of one tlog file, and what was skipped."""
 
     path: Path
-    data: bytes
+    data: bytes | mmap.mmap  # the file, mapped read-only (bytes for an empty one)
     t: np.ndarray  # receive time of each record [s since epoch]
     offset: np.ndarray  # byte offset of each record's timestamp
     length: np.ndarray  # frame length of each record
@@ -168,13 +184,21 @@ class TlogIndex:
         o = int(self.offset[i]) + 8
         return self.data[o : o + int(self.length[i])]
 
+    def release(self, end: int | None = None) -> None:
+        """Give the mapped file's pages before byte ``end`` (all by default) back to the page
+        cache: a reader calls it once it has passed them. Read again, they are mapped again."""
+        data = self.data
+        if not isinstance(data, mmap.mmap):
+            return
+        stop = len(data) if end is None else min(int(end), len(data))
+        stop -= stop % mmap.PAGESIZE  # whole pages
+        if stop > 0:
+            data.madvise(mmap.MADV_DONTNEED, 0, stop)
+
     @classmethod
     def scan(cls, path: str | os.PathLike) -> TlogIndex:
         p = Path(path)
-        try:
-            data = p.read_bytes()
-        except OSError as e:
-            raise TlogError(f"{p}: cannot read: {e.strerror or e}") from None
+        data = _mapped(p)
         n = len(data)
         # typed arrays, not lists: 8 bytes a record instead of a Python int's 36 (a 1-hour 1 kHz log
         # has 4 million records)
@@ -256,6 +280,8 @@ class TlogIndex:
                 truncated_at = pos
         if not ts_list:
             raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
+        if isinstance(data, mmap.mmap):
+            data.madvise(mmap.MADV_DONTNEED)  # scanned: the pages are the page cache's again
         t = np.frombuffer(ts_list, dtype=np.int64) * 1e-6
         mended = _mend_lone_times(t)
         offsets = np.frombuffer(off_list, dtype=np.int64)
@@ -296,7 +322,7 @@ def _mend_lone_times(t: np.ndarray) -> int:
     return len(lone)
 
 
-def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
+def _frame_crc_ok(data: bytes | mmap.mmap, pos: int, flen: int) -> bool:
     """True if the frame at ``pos`` is a known message whose CRC checks out."""
     if data[pos] == 0xFE:
         hlen, msgid = 6, data[pos + 5]
@@ -310,7 +336,7 @@ def _frame_crc_ok(data: bytes, pos: int, flen: int) -> bool:
     return crc == (data[pos + hlen + plen] | data[pos + hlen + plen + 1] << 8)
 
 
-def _resync(data: bytes, pos: int, last_ts: int | None) -> int:
+def _resync(data: bytes | mmap.mmap, pos: int, last_ts: int | None) -> int:
     """Next offset >= pos where a plausible record starts, or -1.
 
     A plausible record has a timestamp within a day of the last one; or, where the recorder's clock
@@ -338,7 +364,7 @@ def _resync(data: bytes, pos: int, last_ts: int | None) -> int:
         pos = start + 1
 
 
-def _starts_segment(data: bytes, start: int, ts: int) -> bool:
+def _starts_segment(data: bytes | mmap.mmap, start: int, ts: int) -> bool:
     """A record at ``start`` whose frame checks out and which is followed by another record within a
     day of it: a new stretch of recording after the recorder's clock stepped."""
     flen = _frame_length(data, start + 8)

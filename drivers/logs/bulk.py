@@ -194,6 +194,8 @@ def load_tlog(
             _frames(u8, ix.offset[rec] + 8, rec, log, per_type)
         else:
             _frames(u8, fo, i0 + np.arange(len(fo)), log, per_type)
+        ix.release(int(fo[-1]))  # the chunk's frames are copied out: its pages are passed
+    ix.release()
     for mid, parts in per_type.items():
         cls = mavlink.mavlink_map[mid]
         idx = np.concatenate([q[0] for q in parts])

@@ -75,6 +75,9 @@ class _Columns:
     gyro: np.ndarray  # (N, 3) float32 as sent [rad/s]
 
 
+#: records the receiver reads between two gives of the file's pages back (:meth:`TlogIndex.release`)
+_RELEASE_EVERY = 1 << 16
+
 #: a sensor's values once :func:`_add_columns` has taken them
 _NONE = np.zeros((0, 3), dtype=np.float32)
 
@@ -135,7 +138,11 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
     firsts = np.r_[0, brk] if len(rec) else np.zeros(0, dtype=np.int64)
     ends = np.r_[brk, len(rec)] if len(rec) else firsts
     i = 0  # the next record to read
+    passed = _RELEASE_EVERY  # records read before the pages behind them are given back
     for k, end, r0 in zip(firsts.tolist(), ends.tolist(), rec[firsts].tolist()):
+        if r0 >= passed:
+            ix.release(int(ix.offset[r0]))
+            passed = r0 + _RELEASE_EVERY
         while i < r0:
             take(i)
             i += 1
@@ -155,6 +162,7 @@ def read_tlog(path: str | Path, link_name: str = "replay") -> TlogRead:
     while i < len(ix):
         take(i)
         i += 1
+    ix.release()
     imu = _columns(cols, taken, t_rec, slow_imu, link_name)
     return TlogRead(rest, imu, ix, damage_summary(ix, rx.counters), frozenset(rx.decoder.ground_stations))
 
