@@ -201,8 +201,6 @@ def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tupl
     PSD per axis, summed, of the gyro and of the accelerometer (a rotor harmonic shows on both,
     more or less), over the samples with the throttle above idle. ``imu``: the raw IMU as columns
     (else read from ``ms``)."""
-    from scipy.signal import welch  # SciPy's Welch estimate: the standard spectrum of a long record
-
     if imu is None:
         _, imu = ImuColumns.split(m for m in ms if m.kind in IMU_KINDS)
     thr = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE]
@@ -224,8 +222,7 @@ def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tupl
         if flying.sum() < 2048:
             continue
         x = sensor.values(flying)
-        f, pxx = welch(x - x.mean(axis=0), fs=rate, nperseg=1024, axis=0)
-        psd = pxx.sum(axis=1)
+        f, psd = _welch_summed(x, x.mean(axis=0), rate)
         band = (f >= NOTCH_MIN_HZ) & (f <= 0.45 * rate)
         if not band.any():
             continue
@@ -234,6 +231,29 @@ def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tupl
         if prominence >= NOTCH_PROMINENCE and (best is None or prominence > best[1]):
             best = (float(f[k]), prominence, hover, "gyro" if kind is Kind.GYRO else "accelerometer")
     return best
+
+
+#: Welch segments [samples] (half overlapping), and how many of them are transformed at once
+NOTCH_SEGMENT = 1024
+_SEGMENTS_AT_ONCE = 256
+
+
+def _welch_summed(x: np.ndarray, mean: np.ndarray, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """SciPy's Welch PSD of ``x - mean`` (samples by rows), summed over the columns: the mean of the
+    segments' periodograms, taken :data:`_SEGMENTS_AT_ONCE` segments at a time. ``welch`` over the
+    whole record would hold every segment detrended, windowed and transformed at once: a 1-hour
+    1 kHz gyro's are 0.6 GB."""
+    from scipy.signal import welch  # SciPy's Welch estimate: the standard spectrum of a long record
+
+    step = NOTCH_SEGMENT // 2
+    n_seg = (len(x) - NOTCH_SEGMENT) // step + 1
+    f, total = np.zeros(0), np.zeros(0)
+    for s0 in range(0, n_seg, _SEGMENTS_AT_ONCE):
+        s1 = min(s0 + _SEGMENTS_AT_ONCE, n_seg)
+        part = x[s0 * step : (s1 - 1) * step + NOTCH_SEGMENT] - mean  # segments s0 .. s1-1, whole
+        f, pxx = welch(part, fs=rate, nperseg=NOTCH_SEGMENT, axis=0)
+        total = pxx.sum(axis=1) * (s1 - s0) + (total if len(total) else 0.0)
+    return f, total / max(n_seg, 1)
 
 
 def suggest_notch(ms: list[Measurement], autopilot: str = "", imu: ImuColumns | None = None) -> list[ParamSuggestion]:

@@ -121,28 +121,32 @@ def _raw(acc: ImuSeries | None, docs: dict) -> list[TriageFinding]:
     if acc is None or len(acc) < 100:
         return []
     t = acc.t
-    a = acc.values()
     rate = (len(t) - 1) / max(t[-1] - t[0], 1e-9)
     if rate < 4 * RAW_VIBE_HIGHPASS_HZ:
         return []
-    # high-pass: minus a moving mean over one period of the cut-off; then 1 s RMS per axis
+    # high-pass: minus a moving mean over one period of the cut-off; then 1 s RMS per axis. One axis
+    # at a time: a 1-hour 1 kHz log's samples are 86 MB an array of three axes, and this takes several
     w = max(3, int(round(rate / RAW_VIBE_HIGHPASS_HZ)))
     kernel = np.ones(w) / w
-    hp = a - np.column_stack([np.convolve(a[:, i], kernel, mode="same") for i in range(3)])
     n = max(1, int(round(rate)))
     m = len(t) // n
     if m < 2:
         return []
-    lvl = np.sqrt((hp[: m * n] ** 2).reshape(m, n, 3).mean(axis=1)).max(axis=1)
+    lvl = np.zeros(m)
+    peak = np.zeros(3)
+    for i in range(3):
+        a = acc.value[:, i].astype(np.float64)
+        hp = a - np.convolve(a, kernel, mode="same")
+        lvl = np.maximum(lvl, np.sqrt((hp[: m * n] ** 2).reshape(m, n).mean(axis=1)))
+        peak[i] = np.abs(a).max()
     tw = t[: m * n].reshape(m, n)[:, 0]
     src = f"raw accelerometer at {rate:.0f} Hz" + (" (aliased: below 200 Hz)" if rate < 200 else "")
     out = _levels(tw, lvl, src, docs)
     # clipping: readings stuck at the largest magnitude the log has, if that is a sensor range (>= 7.8 g)
-    peak = np.abs(a).max(axis=0)
     for i in range(3):
         if peak[i] < 76.0:
             continue
-        stuck = np.abs(a[:, i]) >= 0.995 * peak[i]
+        stuck = np.abs(acc.value[:, i].astype(np.float64)) >= 0.995 * peak[i]
         if stuck.sum() < CLIP_FLAT_TOP:  # one reading at the peak is an impact, not a sensor's range
             continue
         for s, e, _, _ in runs(stuck, t, join=1.0):
