@@ -13,6 +13,7 @@ from drivers.replay import Replay
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis import holdout, trials
 from groundstation.diagnosis.catalogue import Candidate, altitude_catalogue, with_throttle_stand_in
+from groundstation.diagnosis.gains import CatalogueColumns
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.run import run_model
 from groundstation.diagnosis.trace import rank
@@ -123,22 +124,43 @@ def test_a_trial_begun_beside_the_base_run_is_the_rankings_own(flight):
     su, base = flight
     tilt = next(c for c in su.spec.catalogue(su.prep.kinds) if c.name == "range_tilt")
     one = rank([tilt], su.model, base, su.prep, su.make, su.prep.measurements)
-    started = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements, None)
+    started = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements)
     two = rank([tilt], su.model, base, su.prep, su.make, su.prep.measurements, started=started)
     assert summary(two) == summary(one)
     assert np.array_equal(two[0].run.x, one[0].run.x) and two[0].run.model.states == one[0].run.model.states
 
-    unasked = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements, None)
+    unasked = trials.Started([(tilt, None)], su.model, su.prep, su.make, su.prep.measurements)
     ((proc, _),) = unasked._running.values()
     assert unasked.take([]) == {} and not proc.is_alive() and proc.exitcode is not None
 
     def no_estimator(model):
         raise ValueError("no estimator for this model")
 
-    broken = trials.Started([(tilt, None)], su.model, su.prep, no_estimator, su.prep.measurements, None)
+    broken = trials.Started([(tilt, None)], su.model, su.prep, no_estimator, su.prep.measurements)
     with pytest.raises(ValueError, match="no estimator for this model"):
         broken.take([tilt])
     assert not broken._running
+
+
+def test_a_trial_runs_untaped_and_taped_again_once_added_it_is_the_same_run(flight):
+    """A candidate's trial keeps no gains or probes (only an added effect's run starts the next
+    ranking); the added effect's run made again with them is the trial's, number for number, and
+    its other trials are let go once it is scored."""
+    su, base = flight
+    tilt = next(c for c in su.spec.catalogue(su.prep.kinds) if c.name == "range_tilt")
+    r = trials.trial(tilt, None, su.model, su.prep, su.make, su.prep.measurements)
+    assert r is not None and r.taped is None
+    columns = CatalogueColumns.of(su.spec.catalogue(su.prep.kinds), su.model)
+    again = run_model(r.model, su.prep, su.make, measurements=su.prep.measurements, probes=columns.probes())
+    assert again.taped is not None and again.taped.probes is not None
+    assert again.loglik == r.loglik and np.array_equal(again.x, r.x) and np.array_equal(again.P, r.P)
+    assert all(np.array_equal(again.sensors[s].nu, r.sensors[s].nu) for s in r.sensors)
+
+    made = trials.Trials([tilt], su.model, su.prep, su.make, su.prep.measurements)
+    kept = made.run(0, None)
+    made.runs[0]["other"] = r
+    made.settle(0, [kept])
+    assert list(made.runs[0].values()) == [kept]
 
 
 @pytest.mark.parametrize("jobs", ["0", "-2", "two"])

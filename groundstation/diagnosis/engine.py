@@ -119,7 +119,7 @@ def _start_trials(
     tasks = [(c, keys[0]) for c in own if len(keys := trials.first_keys(c)) == 1 and not c.delays]
     if not tasks:
         return None
-    return trials.Started(tasks[: workers - 1], model, prep, make, prep.measurements, columns.probes())
+    return trials.Started(tasks[: workers - 1], model, prep, make, prep.measurements)
 
 
 def _modelled(run: Run) -> list[Effect]:
@@ -380,10 +380,18 @@ def diagnose(
         if best is None:
             break
         _untaped((s for s in scored if s is not best), base, best.run)
+        if base is not best.run:
+            # the ranking it started is done: from here on only the new base's gains are read (and
+            # the run before, kept for the report, would hold its own to the end)
+            base.taped = None
         if best.run.through_gains:
             # scored through the base filter's gains: the effect's own run, which the next ranking starts from
             say(f"running the model with {_label(best)}")
             realise(best, base, prep, make, probes())
+        elif best.run.taped is None and columns is not None:
+            # its trial's run, untaped (trials.trial): again with the gains and probes the next ranking reads
+            say(f"running the model with {_label(best)}")
+            best.run = run_model(best.model, prep, make, measurements=best.measurements or None, probes=probes())
         runner_up = next(iter(scored[scored.index(best) + 1 :]), None)  # the next one down, not a rejected one
         effects.append(
             Effect(

@@ -318,7 +318,6 @@ def rank(
             ms,
             workers=workers,
             base=base,
-            probes=columns.probes() if columns is not None and sig is not None else None,
         )
         if started is not None:
             begun = started.take([c for _, c in to_run])
@@ -334,6 +333,8 @@ def rank(
             if progress:
                 progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
             r = score(c, model, base, made, j, ms)
+            # what its score holds kept, the rest of its runs let go (each a candidate's whole run)
+            made.settle(j, [r.run, *r.profile.values()] if r is not None else [])
             if r is not None:
                 if i in shaped:
                     r.params[c.shape_name], r.fit = shaped[i]

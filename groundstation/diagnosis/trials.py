@@ -32,7 +32,6 @@ from groundstation.estimation.models.base import LinearModel
 
 from .catalogue import SENSOR_KINDS, Candidate, shift
 from .run import Prepared, Run, run_model
-from .signature import Probes
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -83,21 +82,19 @@ def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearMod
     return cand.augment(model) if key is None else cand.augment(model, key)
 
 
-def trial(
-    cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms, probes: Probes | None = None
-) -> Run | None:
+def trial(cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms) -> Run | None:
     """One trial's run; None when the augmented filter ran away (its innovation covariance went
-    singular): not a finding, and not the end of the diagnosis. ``probes``: a run that may become the
-    next ranking's base is taped with them (:mod:`.signature`)."""
+    singular): not a finding, and not the end of the diagnosis. Not taped: of a ranking's dozen
+    trials only an added effect's run starts the next ranking, and it is taped then (the same run,
+    number for number: the tape only records); each trial's gains and probes were 0.1 GB on a 1-hour log."""
     if key == SIGNATURE:
         assert cand.perturb is not None
         return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
-    fresh = probes.fresh() if probes is not None else None
     if cand.delays:
         d = float(key)  # type: ignore[arg-type]
-        return run_model(model, prep, make, measurements=delayed(cand, ms, d), probes=fresh)
+        return run_model(model, prep, make, measurements=delayed(cand, ms, d))
     try:
-        return run_model(trial_model(cand, key, model), prep, make, measurements=ms, probes=fresh)
+        return run_model(trial_model(cand, key, model), prep, make, measurements=ms)
     except np.linalg.LinAlgError:
         return None
 
@@ -136,14 +133,12 @@ def fork_map(fn: Callable[[T], R], items: Iterable[T], workers: int) -> list[R]:
 
 
 def portable(r: Run | None) -> Run | None:
-    """A run as it can travel between processes: without its model and its probes' columns
-    (closures; the receiver gives them back, :meth:`Trials.attach`)."""
+    """An untaped run as it can travel between processes: without its model (closures; the receiver
+    gives it back, :meth:`Trials.attach`)."""
     if r is None:
         return None
-    taped = r.taped
-    if taped is not None and taped.probes is not None:
-        taped = replace(taped, probes=taped.probes.detached())
-    return replace(r, model=None, taped=taped)  # type: ignore[arg-type]
+    assert r.taped is None, "a taped run's probes hold closures: trials run untaped"
+    return replace(r, model=None)  # type: ignore[arg-type]
 
 
 def refine(
@@ -299,12 +294,10 @@ class Trials:
         *,
         workers: int = 1,
         base: Run | None = None,
-        probes: Probes | None = None,
     ) -> None:
         self.cands, self.model, self.prep, self.make, self.ms = cands, model, prep, make, ms
         self.workers = max(1, workers)
         self.base = base
-        self.probes = probes
         self.runs: list[dict[Hashable, Run | None]] = [
             {0.0: base} if base is not None and 0.0 in c.delays else {} for c in cands
         ]
@@ -321,7 +314,7 @@ class Trials:
         """Candidate ``i``'s run at ``key``: computed once, here when no pool computed it before."""
         runs = self.runs[i]
         if key not in runs:
-            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.probes)
+            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms)
         return runs[key]
 
     def pending(self) -> int:
@@ -347,7 +340,7 @@ class Trials:
 
     def _portable_trial(self, task: tuple[int, Hashable]) -> Run | None:
         i, key = task
-        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.probes))
+        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms))
 
     def _portable_refinement(self, grid: tuple[int, dict[float, float]]) -> dict[float, Run | None]:
         i, lik = grid
@@ -359,10 +352,13 @@ class Trials:
         """A run that travelled (:func:`portable`) as candidate ``i``'s at ``key``, whole again."""
         if r is None:
             return None
-        taped = r.taped
-        if taped is not None and taped.probes is not None and self.probes is not None:
-            taped = replace(taped, probes=taped.probes.attached(self.probes.columns))
-        return replace(r, model=trial_model(self.cands[i], key, self.model), taped=taped)
+        return replace(r, model=trial_model(self.cands[i], key, self.model))
+
+    def settle(self, i: int, keep: Iterable[Run]) -> None:
+        """Candidate ``i`` scored: its runs let go of, but its signature (its support is read from
+        it) and ``keep`` (what its score holds)."""
+        held = {id(r) for r in keep}
+        self.runs[i] = {k: r for k, r in self.runs[i].items() if k == SIGNATURE or id(r) in held}
 
 
 class Started:
@@ -381,10 +377,9 @@ class Started:
         prep: Prepared,
         make,
         ms: list[Measurement],
-        probes: Probes | None,
     ) -> None:
         self._tasks = tasks
-        self._trials = Trials([c for c, _ in tasks], model, prep, make, ms, probes=probes)
+        self._trials = Trials([c for c, _ in tasks], model, prep, make, ms)
         self._running: dict[int, tuple] = {}  # task -> (process, its pipe's reading end)
         ctx = multiprocessing.get_context("fork")
         with threadpool_limits(limits=1, user_api="blas"):  # as fork_map: one BLAS thread in the children
