@@ -12,6 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from groundstation.core.allocator import return_freed_arrays
 from groundstation.core.imu import ImuColumns
 from groundstation.estimation.logs import LoadedLog, load_log
 from groundstation.estimation.truth import truth_from
@@ -53,6 +54,7 @@ def run(
 ) -> LogDiagnosis:
     """Diagnose ``path`` into the folder ``out`` (which must be writable). Raises the readers' and
     the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed."""
+    return_freed_arrays()  # a diagnosis's arrays of megabytes go back to the system when freed
     log = load_log(path, imu_columns=True)
     ms_all = log.measurements
     duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
