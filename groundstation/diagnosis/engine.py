@@ -32,7 +32,7 @@ from .discover import Discovery, discover, library
 from .gains import CatalogueColumns, fit, profile_shape, run_signatures, virtual_run
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
-from .run import SETTLE_S, Prepared, Run, hold_zeros, run_model
+from .run import SETTLE_S, Prepared, Run, ending, hold_zeros, run_model
 from .signature import Column, Probes
 from .trace import STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
@@ -638,12 +638,13 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
 
 
 def _untaped(scored: Iterable[Scored], *kept: Run) -> None:
-    """The tapes and probes of candidates' runs let go of, but ``kept``'s (a candidate scored as the
-    base itself shares its run): only the base and the added effect's run start a ranking (each is
-    some 0.1 GB on a 1-hour log; what else is read of them stays)."""
+    """Candidates that will not be added, as their scores and where their runs ended (:func:`.run.
+    ending`): their trajectories, tapes, fits and profiles let go of, but ``kept``'s runs (a
+    candidate scored as the base itself shares its run). Only the base and the added effect's run
+    start a ranking; of the others the size they would be claimed at is read (``_detectable``)."""
     for s in scored:
         if all(s.run is not k for k in kept):
-            s.run.taped = None
+            s.run, s.fit, s.profile = ending(s.run), None, {}
 
 
 def _taken(found: Effect, prep: Prepared, make, stream, probes: Probes | None) -> tuple[LinearModel, Run]:
