@@ -163,6 +163,29 @@ def test_a_trial_runs_untaped_and_taped_again_once_added_it_is_the_same_run(flig
     assert list(made.runs[0].values()) == [kept]
 
 
+def test_a_candidates_runs_below_its_best_keep_their_scores_and_ends_only(flight):
+    """Of a shaped candidate's runs only the best stays whole; the others keep their likelihoods,
+    their innovations and where they ended, the same numbers as their whole runs."""
+    su, _ = flight
+    thrust = next(c for c in su.spec.catalogue(su.prep.kinds) if c.name == "baro_thrust" and len(c.shapes) > 1)
+    ms = su.prep.measurements
+    whole = {k: trials.trial(thrust, k, su.model, su.prep, su.make, ms) for k in thrust.shapes}
+    made = trials.Trials([thrust], su.model, su.prep, su.make, ms)
+    for k in thrust.shapes:
+        made.run(0, k)
+    best = max(whole, key=lambda k: whole[k].loglik)
+    for k, r in made.runs[0].items():
+        w = whole[k]
+        assert r.loglik == w.loglik and r.loglik_by == w.loglik_by
+        assert all(np.array_equal(r.sensors[s].nu, w.sensors[s].nu) for s in w.sensors)
+        assert np.array_equal(r.x[-1], w.x[-1]) and np.array_equal(r.P[-1], w.P[-1])
+        assert (len(r.x) == len(w.x)) == (k == best)
+    assert np.array_equal(made.runs[0][best].P, whole[best].P)
+
+    shape, r = log_profile(lambda x: made.run(0, x), thrust.shapes)
+    assert r is not None and len(r.x) == len(whole[best].x) and r.loglik >= whole[best].loglik
+
+
 @pytest.mark.parametrize("jobs", ["0", "-2", "two"])
 def test_diagnose_with_no_cores_to_run_on_is_one_line(tmp_path, jobs):
     log = tmp_path / "f.tlog"
