@@ -96,7 +96,7 @@ def _imu_frames(ix: TlogIndex, path: Path) -> _Columns:
     raw = f["time_usec"]
     upd = f["fields_updated"].astype(np.int64)
     L = np.frombuffer(ix.data, dtype=np.uint8)[ix.offset[hr.record] + 9]  # each frame's payload length
-    ix.release()  # (reading those lengths mapped every page of the file again)
+    ix.release()  # (reading those lengths maps every page of the file again)
     # a frame the receiver would read otherwise: see the module docstring
     ok = (raw != 0) & (raw <= EPOCH_THRESHOLD_US) & (upd != 0) & ((upd & ~(_ACC | _GYRO)) == 0)
     ok &= L <= f.dtype.itemsize

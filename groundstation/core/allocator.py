@@ -3,9 +3,9 @@
 glibc's ``malloc`` serves a block of 128 kB or more with its own ``mmap``, and gives it back on
 ``free``; but each time such a block is freed it raises that threshold to the block's size (up to
 32 MB), so that the next arrays of that size come from the heap, which is given back only from its
-top. A diagnosis makes and drops arrays of 1-30 MB by the hundred: on a 1-hour 1 kHz log the
-process held 0.3 GB of freed heap after reading it (``malloc_trim`` returned it), and its peak was
-that much higher than what it held alive. Fixing the threshold (``mallopt(M_MMAP_THRESHOLD)``,
+top. A diagnosis makes and drops arrays of 1-30 MB by the hundred: without the fix, a process that
+has read a 1-hour 1 kHz log holds 0.3 GB of freed heap (``malloc_trim`` returns it), and its peak
+is that much higher than what it holds alive. Fixing the threshold (``mallopt(M_MMAP_THRESHOLD)``,
 which also stops its raising) keeps every large array in its own mapping, returned when freed.
 No C library function of this kind is wrapped by numpy or the standard library, hence ``ctypes``.
 """

@@ -266,7 +266,7 @@ def ending(run: Run) -> Run:
     """``run`` without its trajectory: its scores (each sensor's innovations, the likelihoods) and
     where it ended (the last state and covariance, :meth:`Run.final`), no tape. What a candidate
     that is not added is read for once its ranking is decided (``trace.smallest_claimed``); its
-    whole run, through the gains or its own, was 10-30 MB on a 1-hour log."""
+    whole run, through the gains or its own, is 10-30 MB on a 1-hour log."""
     last = slice(-1, None)
     return replace(run, t=run.t[last].copy(), x=run.x[last].copy(), covariance=run.P_rows(last).copy(), taped=None)
 

@@ -86,7 +86,7 @@ def trial(cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, ma
     """One trial's run; None when the augmented filter ran away (its innovation covariance went
     singular): not a finding, and not the end of the diagnosis. Not taped: of a ranking's dozen
     trials only an added effect's run starts the next ranking, and it is taped then (the same run,
-    number for number: the tape only records); each trial's gains and probes were 0.1 GB on a 1-hour log."""
+    number for number: the tape only records); a trial's gains and probes are some 40 MB on a 1-hour log."""
     if key == SIGNATURE:
         assert cand.perturb is not None
         return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
