@@ -280,8 +280,6 @@ class TlogIndex:
                 truncated_at = pos
         if not ts_list:
             raise TlogError(f"{p}: not a MAVLink tlog (no valid record found)")
-        if isinstance(data, mmap.mmap):
-            data.madvise(mmap.MADV_DONTNEED)  # scanned: the pages are the page cache's again
         t = np.frombuffer(ts_list, dtype=np.int64) * 1e-6
         mended = _mend_lone_times(t)
         offsets = np.frombuffer(off_list, dtype=np.int64)
@@ -290,7 +288,7 @@ class TlogIndex:
             i = int(np.searchsorted(offsets, step))
             if 0 < i < len(t):
                 t[i:] -= t[i] - t[i - 1]
-        return cls(
+        index = cls(
             p,
             data,
             t,
@@ -301,6 +299,8 @@ class TlogIndex:
             clock_steps,
             mended,
         )
+        index.release()  # scanned: the pages are the page cache's again
+        return index
 
 
 #: [s] a record this far from both its neighbours, while they agree, has a damaged timestamp

@@ -314,7 +314,7 @@ def diagnose(
                 started.close()
                 started = None
         ranking.append([(_label(s), round(s.delta_bic, 1)) for s in scored])
-        _untaped((s for s in scored if not s.accepted), base)
+        _as_ended((s for s in scored if not s.accepted), base)
         for s in (s for s in scored if s.accepted):
             veto = _contradicted(truth, base, s) if veto_with_truth and truth is not None else None
             if veto is None:
@@ -379,7 +379,7 @@ def diagnose(
             continue
         if best is None:
             break
-        _untaped((s for s in scored if s is not best), base, best.run)
+        _as_ended((s for s in scored if s is not best), base, best.run)
         if base is not best.run:
             # the ranking it started is done: from here on only the new base's gains are read (and
             # the run before, kept for the report, would hold its own to the end)
@@ -637,7 +637,7 @@ def _add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, worker
     return Effect("discovered", params, {**evidence, "model": aug, "run": run, "candidate": cand})
 
 
-def _untaped(scored: Iterable[Scored], *kept: Run) -> None:
+def _as_ended(scored: Iterable[Scored], *kept: Run) -> None:
     """Candidates that will not be added, as their scores and where their runs ended (:func:`.run.
     ending`): their trajectories, tapes, fits and profiles let go of, but ``kept``'s runs (a
     candidate scored as the base itself shares its run). Only the base and the added effect's run
