@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .measurement import Kind, Measurement
+from .readings import Readings, Stream
 
 #: the kinds kept as columns
 IMU_KINDS = (Kind.ACCEL, Kind.GYRO)
@@ -150,12 +151,18 @@ class ImuColumns:
 
 @dataclass
 class Blocks:
-    """One series averaged over blocks: each block's mean as a measurement record, and (for a
-    block of three samples or more) the spread of the reading's magnitude within it."""
+    """One series averaged over blocks: each block's mean as readings (columns: a 1-hour 1 kHz
+    log's accelerometer is 0.36 million blocks, 0.14 GB as records), and (for a block of three
+    samples or more) the spread of the reading's magnitude within it."""
 
-    records: list[Measurement]
+    readings: Readings
     spread_t: np.ndarray
     spread: np.ndarray
+
+    @property
+    def records(self) -> list[Measurement]:
+        """Each block's mean as a measurement record."""
+        return list(self.readings)
 
 
 def block_starts(t: np.ndarray, dt: float) -> np.ndarray:
@@ -183,7 +190,7 @@ def block_means(s: ImuSeries, kind: Kind, instance: int, dt: float) -> Blocks:
     delta-velocity), so one sample period before the block's first stamp, the period being the
     block's own; it carries the raw samples it stands for (``Measurement.samples``)."""
     if not len(s):
-        return Blocks([], np.zeros(0), np.zeros(0))
+        return Blocks(Readings.empty(), np.zeros(0), np.zeros(0))
     starts = block_starts(s.t, dt)
     ends = np.r_[starts[1:], len(s.t)]
     count = ends - starts
@@ -207,13 +214,19 @@ def block_means(s: ImuSeries, kind: Kind, instance: int, dt: float) -> Blocks:
     period = np.where(count > 1, (t_last - t_first) / np.maximum(count - 1, 1), 0.0)
     stamp = t_first - period
     n_raw = np.add.reduceat(s.samples, starts)
-    records = [
-        Measurement(float(a), kind, m, s.source, float(r), None, instance, int(k))
-        for a, m, r, k in zip(stamp, mean, s.t_rx[starts], n_raw)
-    ]
+    mean.flags.writeable = False
+    n = len(starts)
+    blocks = Readings(
+        stamp,
+        s.t_rx[starts].astype(float),
+        n_raw.astype(np.int64),
+        np.zeros(n, dtype=np.int32),
+        np.arange(n, dtype=np.int64),
+        [Stream(kind, s.source, instance, mean)],
+    )
     var = np.maximum(s2 / count - (s1 / count) ** 2, 0.0)
     big = count > 2
-    return Blocks(records, t_first[big], np.sqrt(var[big]))
+    return Blocks(blocks, t_first[big], np.sqrt(var[big]))
 
 
 def block_mean(first: Measurement, t_last: float, values: list) -> Measurement:

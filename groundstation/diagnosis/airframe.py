@@ -43,6 +43,7 @@ written here.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -149,7 +150,7 @@ def _height_and_speed(t: np.ndarray, h: np.ndarray, grid: np.ndarray, w: float) 
 
 
 def thrust_curve(
-    ms: list[Measurement],
+    ms: Sequence[Measurement],
     throttle: list[tuple[float, float]],
     t_spin: float,
     t_lift: float,

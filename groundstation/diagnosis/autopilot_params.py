@@ -33,6 +33,7 @@ that reads high (pressure low) takes a negative scale. An effect with no paramet
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,12 +67,12 @@ class ParamSuggestion:
         }
 
 
-def _mean(ms: list[Measurement], kind: Kind) -> float | None:
+def _mean(ms: Sequence[Measurement], kind: Kind) -> float | None:
     v = [float(m.value[0]) for m in ms if m.kind is kind]
     return float(np.mean(v)) if v else None
 
 
-def _rho_g(ms: list[Measurement]) -> float:
+def _rho_g(ms: Sequence[Measurement]) -> float:
     """rho g [Pa/m] at the log's mean pressure and temperature (ISA sea level if it has neither)."""
     p, t = _mean(ms, Kind.BARO_PRESSURE), _mean(ms, Kind.TEMPERATURE)
     if p and t and p > 1e4 and t > 150:
@@ -85,7 +86,7 @@ def _current(params: dict, name: str, default: float) -> float:
 
 
 def suggest(
-    d: Diagnosis, ms: list[Measurement], params: dict[str, float], autopilot: str = ""
+    d: Diagnosis, ms: Sequence[Measurement], params: dict[str, float], autopilot: str = ""
 ) -> list[ParamSuggestion]:
     """What to set for each effect found and each noise level that differs from the model's.
     ``ms``: the log's measurements (air density, the pack); ``params``: the log's own parameters
@@ -194,7 +195,7 @@ NOTCH_PROMINENCE = 50.0
 NOTCH_MIN_HZ = 20.0  # below: the airframe's own motion, not the rotors
 
 
-def notch_from_imu(ms: list[Measurement], imu: ImuColumns | None = None) -> tuple[float, float, float, str] | None:
+def notch_from_imu(ms: Sequence[Measurement], imu: ImuColumns | None = None) -> tuple[float, float, float, str] | None:
     """The IMU's vibration peak in flight, for a harmonic notch: (frequency [Hz], its prominence
     over the spectrum's median, the median throttle there, the sensor it stands out on), or None
     when the IMU is too slow to show rotor harmonics (below 200 Hz) or no peak stands out. Welch's
@@ -256,7 +257,9 @@ def _welch_summed(x: np.ndarray, mean: np.ndarray, rate: float) -> tuple[np.ndar
     return f, total / max(n_seg, 1)
 
 
-def suggest_notch(ms: list[Measurement], autopilot: str = "", imu: ImuColumns | None = None) -> list[ParamSuggestion]:
+def suggest_notch(
+    ms: Sequence[Measurement], autopilot: str = "", imu: ImuColumns | None = None
+) -> list[ParamSuggestion]:
     """A throttle-referenced harmonic notch on the gyro's rotor peak (ArduPilot INS_HNTCH_*, mode 1:
     the frequency scales with the square root of the throttle from INS_HNTCH_REF; PX4's static
     notch IMU_GYRO_NF0_*), bandwidth half the frequency as ArduPilot's guide advises."""

@@ -33,6 +33,7 @@ between readings is ``V_oc(t) - k tau(t)^2``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise
@@ -46,7 +47,7 @@ MIN_SIGNIFICANCE = 4.0  # k is used only this many standard errors above 0
 
 
 def _readings(
-    ms: list[Measurement], throttle: list[tuple[float, float]]
+    ms: Sequence[Measurement], throttle: list[tuple[float, float]]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The battery's readings (t, V) and the throttle^2 in effect at each, or None without enough of either."""
     volts = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.BATTERY_VOLTAGE and len(m.value)]
@@ -65,7 +66,7 @@ def _readings(
     return t_v[ok], v[ok], tau[i[ok]] ** 2
 
 
-def _pairs(ms: list[Measurement], throttle: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
+def _pairs(ms: Sequence[Measurement], throttle: list[tuple[float, float]]) -> tuple[np.ndarray, np.ndarray] | None:
     """Consecutive readings' voltage change and their throttles' change in tau^2."""
     readings = _readings(ms, throttle)
     if readings is None:
@@ -76,7 +77,7 @@ def _pairs(ms: list[Measurement], throttle: list[tuple[float, float]]) -> tuple[
     return (dv, ds) if len(dv) >= MIN_PAIRS else None
 
 
-def load_line(ms: list[Measurement], throttle: list[tuple[float, float]]) -> tuple[float, float] | None:
+def load_line(ms: Sequence[Measurement], throttle: list[tuple[float, float]]) -> tuple[float, float] | None:
     """``(k, sigma_k)`` in volts per unit throttle^2, or None when the log cannot say (no
     voltage, too few readings, or no sag that stands above the readings' noise)."""
     pairs = _pairs(ms, throttle)
@@ -91,7 +92,7 @@ def load_line(ms: list[Measurement], throttle: list[tuple[float, float]]) -> tup
     return k, sigma
 
 
-def reading_sigma(ms: list[Measurement], throttle: list[tuple[float, float]], k: float = 0.0) -> float | None:
+def reading_sigma(ms: Sequence[Measurement], throttle: list[tuple[float, float]], k: float = 0.0) -> float | None:
     """One reading's noise [V]: consecutive readings differ by the load line's step plus two
     readings' noise (V_oc moves by millivolts between them); the median absolute residual, so that
     the throttle's steps between readings (where the pairing is least sure) do not count as noise."""
@@ -144,7 +145,7 @@ class OpenCircuitVoltage:
 
     @classmethod
     def from_log(
-        cls, ms: list[Measurement], throttle: list[tuple[float, float]], k: float, sigma: float
+        cls, ms: Sequence[Measurement], throttle: list[tuple[float, float]], k: float, sigma: float
     ) -> OpenCircuitVoltage | None:
         """From the log's readings, each with the throttle in effect at it; None without enough of them."""
         readings = _readings(ms, throttle)

@@ -21,16 +21,17 @@ so a parameter found here compares directly with the one injected there.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
 
-from .run import THROTTLE_TC, Run, in_time_order
+from .run import CONTEXT_KINDS, THROTTLE_TC, Run
 from .signature import Column
 
 
@@ -272,9 +273,9 @@ def _scale_param(run) -> dict:
     return {"s": c / (1.0 - c), "sigma_s": sc / (1.0 - c) ** 2}
 
 
-def scale_accelerometer(ms: list[Measurement], s: float) -> list[Measurement]:
+def scale_accelerometer(ms: Iterable[Measurement], s: float) -> Readings:
     """The log as an accelerometer with scale error s would have recorded it (f_meas = (1 + s) f)."""
-    return [m._replace(value=m.value * (1.0 + s)) if m.kind is Kind.ACCEL else m for m in ms]
+    return Readings.of(ms).with_values(Kind.ACCEL, lambda v: v * (1.0 + s))
 
 
 #: s: the rotor wash's time constants :func:`baro_thrust` is tried at before its profile is refined;
@@ -485,11 +486,9 @@ UNOBSERVABLE = {
 }
 
 
-def shift(ms: list[Measurement], kinds: set, d: float) -> list[Measurement]:
+def shift(ms: Iterable[Measurement], kinds: set, d: float) -> Readings:
     """The given kinds' measurements taken as of ``t - d`` (a sensor delay undone), re-sorted."""
-    out = [m._replace(t=m.t - d) if m.kind in kinds else m for m in ms]
-    out.sort(key=in_time_order)
-    return out
+    return Readings.of(ms).shifted(kinds, d).in_time_order(CONTEXT_KINDS)
 
 
 #: each catalogue parameter's unit, as the simulator's effects give it (sim_bridge/effects.py), for the

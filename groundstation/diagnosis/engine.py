@@ -21,6 +21,7 @@ import numpy as np
 
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.truth import Truth
@@ -169,7 +170,7 @@ def joint_shapes(
     added: list[Candidate],
     prep: Prepared,
     make,
-    stream: list[Measurement],
+    stream: Sequence[Measurement],
     model: LinearModel,
     base: Run,
 ) -> tuple[LinearModel, Run]:
@@ -224,7 +225,7 @@ def joint_shapes(
 
 
 def diagnose(
-    ms: list[Measurement],
+    ms: Sequence[Measurement],
     *,
     source: str = "",
     model_name: str = "altitude",
@@ -276,7 +277,7 @@ def diagnose(
             started.close()
         raise
     findings0 = sensor_findings(first)
-    stream = prep.measurements
+    stream: Sequence[Measurement] = prep.measurements
     effects: list[Effect] = []
     rejected: list[Effect] = []
     ranking = []
@@ -453,7 +454,7 @@ def diagnose(
             # user applies from then on: the "after" model reads the range corrected
             unobs.pop("range_offset", None)
             o = against[0].params["o"]
-            stream = [m._replace(value=m.value - o) if m.kind is Kind.RANGE else m for m in stream]
+            stream = Readings.of(stream).with_values(Kind.RANGE, lambda v: v - o)
             say("applying the range offset measured against truth")
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)

@@ -37,11 +37,14 @@ than augmented (the attitude model), is checked for size only.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import expm
 
+from groundstation.core.measurement import Measurement
+from groundstation.core.readings import Readings
 from groundstation.estimation.models.base import LinearModel, MeasurementModel
 from groundstation.estimation.models.ground import LANDED
 
@@ -205,7 +208,7 @@ def carried_back(model: LinearModel, n0: int, run: Run, t0: float) -> np.ndarray
 
 
 def _held_out(
-    aug: LinearModel, n0: int, block: tuple[float, float], prep: Prepared, make, ms: list
+    aug: LinearModel, n0: int, block: tuple[float, float], prep: Prepared, make, ms: Sequence[Measurement]
 ) -> Run | str | None:
     """The augmented model fitted without ``block``'s sensor updates, its added states (from ``n0``
     on) carried back to the log's start and fixed there, and run again: the run scored on the block
@@ -214,7 +217,7 @@ def _held_out(
     causal: the fit of the last block at its start (blind from there on, the added states only
     follow their own dynamics, which the carrying back undoes), the scored run at the block's end."""
     lo, hi = block
-    fit_on = ms if hi <= prep.t1 else [m for m in ms if m.t < lo]
+    fit_on = ms if hi <= prep.t1 else Readings.of(ms).before(lo)
     train = run_model(_blinded(aug, n0, lo, hi, set().union(*SENSOR_KINDS.values())), prep, make, measurements=fit_on)
     if not len(train.t):
         return None
@@ -222,7 +225,7 @@ def _held_out(
     if not np.all(np.isfinite(theta)):
         return "its parameters ran away when fitted without a block"
     try:
-        return portable(run_model(fixed(aug, n0, theta), prep, make, measurements=[m for m in ms if m.t < hi]))
+        return portable(run_model(fixed(aug, n0, theta), prep, make, measurements=Readings.of(ms).before(hi)))
     except np.linalg.LinAlgError:
         return "its filter diverged with the parameters fitted without a block"
 
@@ -264,7 +267,7 @@ def check(
     base: Run,
     prep: Prepared,
     make,
-    ms: list,
+    ms: Sequence[Measurement],
     profile: dict[float, Run] | None = None,
     *,
     workers: int = 1,

@@ -58,7 +58,7 @@ class SessionBuffer:
 
 
 def diagnose_window(
-    ms: list[Measurement], model: str = "altitude", declared: Sequence[dict] = (), vehicle: str | None = None
+    ms: Sequence[Measurement], model: str = "altitude", declared: Sequence[dict] = (), vehicle: str | None = None
 ) -> dict:
     """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
     ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""

@@ -29,7 +29,7 @@ from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
 from .noise_match import GPS_SLOW
 from .outputs import interval_means
-from .run import Prepared, in_time_order, prepare, run_model
+from .run import CONTEXT_KINDS, Prepared, prepare, run_model
 from .thrust import (
     RANGE_FLOOR,
     UNOBSERVABLE_THRUST,
@@ -64,7 +64,7 @@ class DiagnosisSpec:
     model: ModelSpec  #: the registry's entry
     help: str  #: what the model can find, for ``diagnose --help``
     #: (measurements, declared names, vehicle, the raw IMU as columns or None)
-    base: Callable[[list[Measurement], set, str | None, ImuColumns | None], Base]
+    base: Callable[[Sequence[Measurement], set, str | None, ImuColumns | None], Base]
     make: Callable[[LinearModel], KalmanEstimator]  #: the estimator the loop runs each candidate model in
     catalogue: Callable[[set[Kind]], list[Candidate]]  #: the candidates, given the log's kinds
     unobservable: dict[str, str]  #: effects it cannot show, and why
@@ -115,12 +115,12 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
     return model
 
 
-def _altitude(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
+def _altitude(ms: Sequence[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
     prep = prepare(ms, imu=imu, imu_kinds=(Kind.ACCEL,))
     return Base(prep, altitude_base(prep, names, vehicle))
 
 
-def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
+def _quad_thrust(ms: Sequence[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
     window = main_flight(ms)
     if window is not None:
         ms = [m for m in ms if window[0] <= m.t <= window[1] + 5.0]
@@ -149,7 +149,7 @@ def _quad_thrust(ms: list[Measurement], names: set, vehicle: str | None, imu: Im
     return Base(prep, thrust_model(range_tilt="range_tilt" in names, **params), airframe)
 
 
-def _attitude(ms: list[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
+def _attitude(ms: Sequence[Measurement], names: set, vehicle: str | None, imu: ImuColumns | None) -> Base:
     prep = prepare(ms, imu=imu)
     model = attitude_drag_model(**vehicle_config(vehicle, "attitude"))
     if {Kind.GYRO, Kind.ACCEL} <= prep.kinds:
@@ -173,8 +173,10 @@ def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> P
     derived = [
         Measurement(float(t), Kind.CLIMB_RATE, np.array([float(v)]), "altitude model") for t, v in zip(run.t, up)
     ]
-    rest = [m for m in prep.measurements if m.kind not in (Kind.VELOCITY_NED, Kind.CLIMB_RATE)]
-    return replace(prep, measurements=sorted(rest + derived, key=in_time_order), kinds=prep.kinds | {Kind.CLIMB_RATE})
+    rest = prep.measurements.without({Kind.VELOCITY_NED, Kind.CLIMB_RATE})
+    return replace(
+        prep, measurements=(rest + derived).in_time_order(CONTEXT_KINDS), kinds=prep.kinds | {Kind.CLIMB_RATE}
+    )
 
 
 DIAGNOSABLE: dict[str, DiagnosisSpec] = {
@@ -218,7 +220,7 @@ DIAGNOSABLE: dict[str, DiagnosisSpec] = {
 
 
 def setup(
-    ms: list[Measurement],
+    ms: Sequence[Measurement],
     *,
     source: str = "",
     model_name: str = "altitude",

@@ -27,10 +27,12 @@ outside [1/:data:`DIFFERS`, :data:`DIFFERS`] as a finding of its own.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from groundstation.core.measurement import Measurement
 from groundstation.estimation.models.base import LinearModel
 
 from .run import SETTLE_S, Prepared, Run, run_model
@@ -129,7 +131,7 @@ def with_gps_slow(model: LinearModel, sigma: float) -> LinearModel:
 
 
 def match_gps_slow(
-    model: LinearModel, prep: Prepared, make, measurements: list | None = None, *, base: Run
+    model: LinearModel, prep: Prepared, make, measurements: Sequence[Measurement] | None = None, *, base: Run
 ) -> tuple[LinearModel, NoiseLevel | None, Run]:
     """The GPS error's slow part by profile likelihood over :data:`GPS_SLOW` (the one noise
     parameter covariance matching cannot reach: a slow error lives in the low frequencies the

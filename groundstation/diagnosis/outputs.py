@@ -31,6 +31,8 @@ interpolators have no notion of a jump to keep, hence this.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
@@ -44,7 +46,7 @@ MAX_GAP = 0.2
 
 
 def interval_means(
-    ms: list[Measurement], kinds: tuple[Kind, ...] = (Kind.ACTUATOR, Kind.THROTTLE)
+    ms: Sequence[Measurement], kinds: tuple[Kind, ...] = (Kind.ACTUATOR, Kind.THROTTLE)
 ) -> list[Measurement]:
     """``ms`` with each logged output record (ACTUATOR, THROTTLE) held at its interval's mean: see the
     module's docstring. Each kind and instance is its own sequence; a stand-in throttle (``derived/``)

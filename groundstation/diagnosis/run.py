@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from groundstation.core.imu import IMU_KINDS, ImuColumns, block_means
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.core.validity import reading_problem
 from groundstation.estimation.context import Context, Zero
 from groundstation.estimation.estimator import KalmanEstimator
@@ -45,7 +46,7 @@ from .signature import Probes
 class Prepared:
     """A log made ready for repeated runs."""
 
-    measurements: list[Measurement]  # sorted, truth removed, IMU input decimated
+    measurements: Readings  # sorted, truth removed, IMU input decimated
     truth: list[Measurement]
     kinds: set[Kind]
     t0: float
@@ -87,54 +88,60 @@ def in_time_order(m: Measurement) -> tuple[float, int]:
 
 
 def prepare(
-    ms: list[Measurement],
+    ms: Iterable[Measurement],
     input_dt: float = 0.01,
     imu: ImuColumns | None = None,
     imu_kinds: tuple[Kind, ...] = IMU_KINDS,
 ) -> Prepared:
     """``ms`` made ready for repeated runs: sorted, truth set aside, the IMU's readings (in ``ms``, or
     given as columns in ``imu``) averaged over ``input_dt`` blocks (:func:`.core.imu.block_means`),
-    the ones no estimator takes counted and left out. Only the first IMU's blocks are kept: every
+    the ones no estimator takes counted and left out, all held as columns
+    (:class:`~groundstation.core.readings.Readings`). Only the first IMU's blocks are kept: every
     model reads instance 0; and only of ``imu_kinds``, the ones the models read (the altitude's
     read no gyro: a 1-hour log's gyro blocks are 0.1 GB)."""
-    truth = [m for m in ms if m.kind is Kind.TRUTH_POSE]
-    rest = [m for m in ms if m.kind is not Kind.TRUTH_POSE]
-    if any(m.kind in IMU_KINDS for m in rest):
-        rest, more = ImuColumns.split(rest)
+    every = Readings.of(ms)
+    truth = list(every.only({Kind.TRUTH_POSE}))
+    rest = every.without({Kind.TRUTH_POSE})
+    del every
+    if rest.is_kind(IMU_KINDS).any():
+        imu_rest, more = ImuColumns.split(rest.only(IMU_KINDS))  # (one of fewer than three axes stays)
+        rest = rest.without(IMU_KINDS) + imu_rest
         imu = more if imu is None else ImuColumns({**imu.series, **more.series})
-    rest.sort(key=in_time_order)
-    out: list[Measurement] = list(rest)
     vib: list[tuple[float, float]] = []  # (t, spread of |f| within the block)
+    blocks: list[Readings] = []
     for kind in imu_kinds:
         s = imu.get(kind, 0) if imu is not None else None
         if s is None:
             continue
-        b = block_means(s, kind, 0, input_dt)
-        out += b.records
+        means = block_means(s, kind, 0, input_dt)
+        blocks.append(means.readings)
         if kind is Kind.ACCEL:
-            vib = list(zip(b.spread_t.tolist(), b.spread.tolist()))
-    logged_throttle = any(m.kind in (Kind.THROTTLE, Kind.ACTUATOR) for m in rest)
+            vib = list(zip(means.spread_t.tolist(), means.spread.tolist()))
+    logged_throttle = bool(rest.is_kind({Kind.THROTTLE, Kind.ACTUATOR}).any())
+    out = rest = rest.in_time_order(CONTEXT_KINDS)
+    for b in blocks:
+        out = out + b
     if not logged_throttle:
-        out += motors_from_vibration(vib) or airborne_from_range(rest)
-    out.sort(key=in_time_order)
-    status = next((m for m in out if m.kind is Kind.VEHICLE_STATUS), None)
+        out = out + (motors_from_vibration(vib) or airborne_from_range(rest))
+    out = out.in_time_order(CONTEXT_KINDS)
+    status = next(iter(out.only({Kind.VEHICLE_STATUS})), None)
     if status is not None and out:
         # the vehicle's type (which outputs are motors) holds for the whole log: known from the
         # first sample on, not from the first 1 Hz HEARTBEAT (before it a coax's four outputs,
         # two of them swash-plate servos at mid-range, averaged to a 0.25 throttle on the ground)
-        out.insert(0, status._replace(t=out[0].t))
+        out = Readings.of([status._replace(t=out[0].t)]) + out
     # checked once here, not on each of the dozens of runs (what the estimator would skip, it never sees)
     unusable: dict[str, int] = {}
-    usable = []
-    for m in out:
+    ok = np.ones(len(out), dtype=bool)
+    for i, m in enumerate(out):
         bad = reading_problem(m)
-        if bad is None:
-            usable.append(m)
-        else:
+        if bad is not None:
+            ok[i] = False
             key = f"{m.kind.value}_{bad}"
             unusable[key] = unusable.get(key, 0) + 1
-    kinds = {m.kind for m in usable}
-    t0, t1 = (usable[0].t, usable[-1].t) if usable else (0.0, 0.0)
+    usable = out.where(ok) if not ok.all() else out
+    kinds = usable.kinds()
+    t0, t1 = (float(usable.t[0]), float(usable.t[-1])) if len(usable) else (0.0, 0.0)
     return Prepared(usable, truth, kinds, t0, t1, logged_throttle, unusable)
 
 
@@ -164,11 +171,11 @@ def motors_from_vibration(vib: list[tuple[float, float]]) -> list[Measurement]:
     ]
 
 
-def airborne_from_range(ms: list[Measurement], clearance: float = 0.05) -> list[Measurement]:
+def airborne_from_range(ms: Iterable[Measurement], clearance: float = 0.05) -> list[Measurement]:
     """The second stand-in: the rotors carry the vehicle while the range sensor reads more
     than its resting value plus ``clearance`` (a vehicle standing on the ground with its
     motors idling gives no vibration gap, the Crazyflie's logs among them)."""
-    rng = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.RANGE]
+    rng = [(m.t, float(m.value[0])) for m in Readings.of(ms).only({Kind.RANGE})]
     if len(rng) < 50:
         return []
     rest = float(np.median([r for _, r in rng[:10]]))
@@ -289,7 +296,7 @@ def run_model(
     prep: Prepared,
     make_estimator: Callable[[LinearModel], KalmanEstimator],
     *,
-    measurements: list[Measurement] | None = None,
+    measurements: Iterable[Measurement] | None = None,
     score_from: float = SETTLE_S,
     taped: bool = False,
     probes: Probes | None = None,
@@ -305,7 +312,7 @@ def run_model(
     if taped:
         est.filter.tape = GainTape()
     kinds = est.kinds
-    ms = [m for m in (prep.measurements if measurements is None else measurements) if m.kind in kinds]
+    ms = Readings.of(prep.measurements if measurements is None else measurements).only(kinds)
     # the estimate and covariance after each update as doubles as they come, not an array object each
     ts, xs, Ps, x_record = array("d"), array("d"), array("d"), array("q")
     # each signal as doubles as it comes (not a float object a value: a long log's run holds millions)

@@ -47,6 +47,7 @@ Candidates (names as in the issue's catalogue):
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -157,7 +158,7 @@ def thrust_model(
     return replace(m, options={k: v for k, v in options.items() if v})
 
 
-def _motor_outputs_of(ms: list[Measurement]) -> int:
+def _motor_outputs_of(ms: Sequence[Measurement]) -> int:
     for m in ms:
         if m.kind is Kind.VEHICLE_STATUS:
             ctx = Context()
@@ -166,7 +167,7 @@ def _motor_outputs_of(ms: list[Measurement]) -> int:
     return 4
 
 
-def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
+def throttle_series(ms: Sequence[Measurement]) -> list[tuple[float, float]]:
     """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
     them (one source, as :func:`groundstation.estimation.routing.collective` takes it)."""
     n = _motor_outputs_of(ms)
@@ -176,7 +177,9 @@ def throttle_series(ms: list[Measurement]) -> list[tuple[float, float]]:
     return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
 
 
-def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = SETTLE_S + 3.0) -> tuple[float, float] | None:
+def main_flight(
+    ms: Sequence[Measurement], gap: float = 1.0, before: float = SETTLE_S + 3.0
+) -> tuple[float, float] | None:
     """The longest stretch with the rotors carrying the vehicle (throttle at or above
     ground idle, no drop below it for more than ``gap`` s), from ``before`` s ahead
     of it to its end. Ground handling around it (motor tests, hops, a
@@ -199,7 +202,7 @@ def main_flight(ms: list[Measurement], gap: float = 1.0, before: float = SETTLE_
 
 
 def lift_off(
-    ms: list[Measurement],
+    ms: Sequence[Measurement],
     t_spin: float,
     limits: tuple[float, float] = (RANGE_FLOOR, math.inf),
     hold: float = LIFTOFF_HOLD,
@@ -481,7 +484,7 @@ def _rotor_radius_limit(run, z: float) -> dict:
     return {"R": math.sqrt(z * run.final("R2_rotor")[1])}
 
 
-def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
+def lag_throttle(ms: Sequence[Measurement], tc: float) -> Sequence[Measurement]:
     """The throttle as the rotors follow it through a first-order lag of time constant tc, for
     each stream of outputs (a throttle and the PWM outputs each their own: one state shared between
     them was reset at every switch) and each output within it (unused outputs are NaN and stay so:
@@ -524,7 +527,7 @@ def lag_throttle(ms: list[Measurement], tc: float) -> list[Measurement]:
     return out
 
 
-def _next_times(ms: list[Measurement]) -> list[float]:
+def _next_times(ms: Sequence[Measurement]) -> list[float]:
     """For each record, the time of the next of its kind (its own time for the last)."""
     out = [0.0] * len(ms)
     nxt: dict = {}

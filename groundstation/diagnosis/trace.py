@@ -35,11 +35,12 @@ A large f says: weigh this effect's Delta BIC with care.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from groundstation.core.measurement import Measurement
 from groundstation.estimation.models.base import LinearModel
 
 from . import trials
@@ -68,7 +69,7 @@ class Scored:
     run: Run
     delta_bic: float
     params: dict
-    measurements: list = field(default_factory=list)  # the (shifted) stream, for delays
+    measurements: Sequence[Measurement] = ()  # the (shifted) stream, for delays
 
     gain_per_update: float = 0.0
     support: int = 0  # the updates its gain is spread over

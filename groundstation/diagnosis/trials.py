@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-from collections.abc import Callable, Hashable, Iterable
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from typing import TypeVar
@@ -69,7 +69,7 @@ def first_keys(cand: Candidate) -> list[Hashable]:
     return keys
 
 
-def delayed(cand: Candidate, ms: list[Measurement], d: float) -> list[Measurement]:
+def delayed(cand: Candidate, ms: Sequence[Measurement], d: float) -> Sequence[Measurement]:
     """The stream a grid candidate is run on at grid value ``d``: its sensor's readings taken as of
     ``t - d``, or the candidate's own reshaping (an actuator lag)."""
     return cand.reshape(ms, d) if cand.reshape else shift(ms, SENSOR_KINDS.get(cand.sensor or "", set()), d)
@@ -293,7 +293,7 @@ class Trials:
         model: LinearModel,
         prep: Prepared,
         make,
-        ms: list[Measurement],
+        ms: Sequence[Measurement],
         *,
         workers: int = 1,
         base: Run | None = None,
@@ -396,7 +396,7 @@ class Started:
         model: LinearModel,
         prep: Prepared,
         make,
-        ms: list[Measurement],
+        ms: Sequence[Measurement],
     ) -> None:
         self._tasks = tasks
         self._trials = Trials([c for c, _ in tasks], model, prep, make, ms)

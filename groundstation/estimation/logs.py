@@ -7,6 +7,7 @@ events, modes, vibration, motors, the autopilot's own filter, parameters) for th
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from operator import attrgetter
 from pathlib import Path
@@ -22,6 +23,7 @@ from drivers.replay import Replay
 from groundstation.core.counts import counted
 from groundstation.core.imu import ImuColumns, block_means
 from groundstation.core.measurement import Measurement, source_system
+from groundstation.core.readings import Readings
 
 from .derived import with_attitude
 
@@ -34,7 +36,8 @@ def _reader_skipped(skipped) -> str:
 
 @dataclass
 class LoadedLog:
-    measurements: list[Measurement]  # in time order
+    #: in time order; with ``imu_columns`` held as columns (:class:`~groundstation.core.readings.Readings`)
+    measurements: Sequence[Measurement]
     description: str  # one line: format, duration, damage, skips
     vehicle: str | None  # the vehicle configuration the log implies, if any
     tables: LogTables = field(default_factory=LogTables)
@@ -49,10 +52,14 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
     ``tables``) its other records as tables. ``imu_columns``: the raw IMU as columns
     (:class:`~groundstation.core.imu.ImuColumns`) instead of records, a tenth of the memory of a
     1 kHz log's (a tlog's are never held as records, and its IMU frames are converted as columns:
-    :mod:`drivers.logs.tlog_reader`)."""
+    :mod:`drivers.logs.tlog_reader`), and the other readings as
+    :class:`~groundstation.core.readings.Readings`."""
 
     def split(ms):
-        return ImuColumns.split(ms) if imu_columns else (list(ms), None)
+        if not imu_columns:
+            return list(ms), None
+        rest, imu = ImuColumns.split(ms)
+        return Readings.of(rest), imu
 
     if is_crazyflie_log(path):
         log = read_crazyflie(path)
@@ -104,7 +111,7 @@ def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
     """Any supported log -> (measurements in time order, a one-line description,
     the vehicle configuration it implies)."""
     log = load_log(path, tables=False)  # the measurements alone: the records' tables are not built
-    return log.measurements, log.description, log.vehicle
+    return list(log.measurements), log.description, log.vehicle
 
 
 #: [s] the IMU's block for a run over a whole log (the diagnosis's runs take the same)
@@ -144,7 +151,7 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
     if len(systems) > 1:
         return None
     blocks = [m for (kind, inst), s in imu.series.items() for m in block_means(s, kind, inst, imu_dt).records]
-    ms = sorted((m for m in log.measurements + blocks if m.t == m.t), key=attrgetter("t"))
+    ms = sorted((m for m in Readings.of(log.measurements) + blocks if m.t == m.t), key=attrgetter("t"))
     return BlockedLog(
         ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations
     )

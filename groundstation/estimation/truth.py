@@ -9,6 +9,7 @@ import csv
 import math
 from array import array
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -179,7 +180,7 @@ def _truth_columns(p: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, 
     return t, h, np.array(cols[2]), np.array(cols[3])
 
 
-def truth_from(ms: list[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
+def truth_from(ms: Sequence[Measurement], log: Path | None, truth_csv: Path | None) -> Truth | None:
     pose = [m for m in ms if m.kind is Kind.TRUTH_POSE]
     if pose:
         q = np.array([m.value[3:7] for m in pose])

@@ -16,6 +16,7 @@ mismatch), :mod:`.motors`, :mod:`.ekf`, :mod:`.config`.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from drivers.logs.tables import LogTables
 from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Measurement
+from groundstation.core.readings import Readings
 
 from .config import check_config
 from .ekf import check_ekf
@@ -61,7 +63,7 @@ class Triage:
         return "\n".join([head] + (lines or [empty]))
 
 
-def triage(tables: LogTables, ms: list[Measurement], imu: ImuColumns | None = None) -> Triage:
+def triage(tables: LogTables, ms: Sequence[Measurement], imu: ImuColumns | None = None) -> Triage:
     """The log's findings, worst first; ``imu``: its raw IMU as columns (else read from ``ms``)."""
     start = time.monotonic()
     counted = len(imu) if imu is not None else 0  # (in ``ms`` they are counted with it)
@@ -112,14 +114,21 @@ def _inside(t: np.ndarray, merged: list[list[float]]) -> np.ndarray:
     return (k >= 0) & (t <= ends[np.clip(k, 0, None)])
 
 
-def usable(ms: list[Measurement], tr: Triage) -> tuple[list[Measurement], list[tuple[float, float]], list[dict]]:
+def usable(
+    ms: Sequence[Measurement], tr: Triage
+) -> tuple[Sequence[Measurement], list[tuple[float, float]], list[dict]]:
     """The measurements outside every stretch the triage cuts, the stretches used [(t0, t1)], and
     what was cut and why ([{name, t_start, t_end, why}]), all on the triage's clock."""
     cuts, merged = _merged_cuts(tr)
     if not merged or not ms:
         return ms, [tr.span] if ms else [], []
-    inside = _inside(np.array([_time_of(m, tr) for m in ms]), merged)
-    kept = [m for m, cut in zip(ms, inside) if not cut]
+    if isinstance(ms, Readings):  # on its columns
+        kept: Sequence[Measurement] = ms.where(
+            ~_inside(ms.t_rx - tr.origin if tr.clock == "recording" else ms.t, merged)
+        )
+    else:
+        inside = _inside(np.array([_time_of(m, tr) for m in ms]), merged)
+        kept = [m for m, cut in zip(ms, inside) if not cut]
     used, lo = [], tr.span[0]
     for a, b in merged:
         if a > lo:
