@@ -64,6 +64,11 @@ def test_two_workers_rank_the_catalogue_exactly_as_one(flight):
         assert sorted(a.profile) == sorted(b.profile)
     blind = by_name[("blind", "range")]
     assert blind.delta_bic == float("inf") and blind.params == {"note": "the filter diverged"}
+    # one that cannot be accepted is kept as its scores and where its run ended, as soon as it is
+    # scored; one that can keeps its whole run (its hold-out reads it)
+    for s in two:
+        ended = len(s.run.t) == 1 and s.fit is None and not s.profile
+        assert ended != s.accepted, (s.name, s.accepted, len(s.run.t))
 
 
 @pytest.mark.slow

@@ -350,7 +350,8 @@ def run_model(
             inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
             n_sc += int(scored.sum())
     n = model.n
-    x, P = np.array(xs).reshape(-1, n), np.array(Ps).reshape(-1, n, n)
+    # the doubles themselves, not a copy (a long log's covariances are 0.1 GB a run, twice over while copied)
+    x, P = np.frombuffer(xs, dtype=float).reshape(-1, n), np.frombuffer(Ps, dtype=float).reshape(-1, n, n)
     del xs, Ps
     tape = est.filter.tape
     recorded = None

@@ -37,6 +37,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -46,7 +47,7 @@ from groundstation.estimation.models.base import LinearModel
 from . import trials
 from .catalogue import Candidate
 from .gains import SCREEN_SHARE, CatalogueColumns, Fit, best_shape, fit, participation, run_signatures, virtual_run
-from .run import SETTLE_S, Prepared, Run, run_model
+from .run import SETTLE_S, Prepared, Run, ending, run_model
 from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
@@ -239,6 +240,42 @@ def signature_support(pert: Run | None, base: Run, prep: Prepared, sensor: str) 
     return int(round(float(np.sum(w)) ** 2 / sq)) if sq > 0 else len(w)
 
 
+def _supported(
+    s: Scored, base: Run, prep: Prepared, t_score: float, signature: Callable[[], Run | None] | None = None
+) -> Scored:
+    """``s`` with its support (the updates its gain is spread over) and gain per update; one that
+    cannot be accepted then kept as its scores and where its run ended (:func:`.run.ending`): of
+    those only the size they would be claimed at is read, and a ranking's dozen candidates' runs
+    and fits are some 25 MB each on a 1-hour log. ``signature``: its signature trial, for an effect
+    on the input scored by its own runs."""
+    sensor = s.candidate.sensor
+    if sensor is None:
+        # an effect on the input (the accelerometer's scale, the thrust) acts on every sensor
+        # through the state, and shows in the one that resolves the height best: its gain is
+        # spread over that sensor's updates. Over all of them, a 0.02 accelerometer scale
+        # error (estimated 0.019-0.022, Delta BIC -80 to -137, all of it on the range) was
+        # diluted by the baro's 2750 updates to 0.011-0.018 per update and not claimed.
+        gains = {k: s.run.loglik_by.get(k, 0.0) - v for k, v in base.loglik_by.items()}
+        sensor = max(gains, key=lambda k: gains[k]) if gains else None
+    tr = base.sensors.get(sensor) if sensor else None
+    m = int((tr.t >= t_score).sum()) if tr is not None else base.n_scored
+    if s.candidate.support:
+        m = min(m, max(s.candidate.support(s.run, t_score), MIN_SUPPORT))
+    if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
+        if s.fit is not None:
+            k = s.fit.sig.informs & (s.fit.sig.t >= t_score) & (s.fit.sig.sensor == sensor)
+            support = participation(s.fit.sig.G_of(s.fit.J)[k].sum(axis=1), s.fit.sig.S[k])
+        else:
+            assert signature is not None
+            support = signature_support(signature(), base, prep, sensor)
+        m = min(m, max(support, MIN_SUPPORT))
+    s.support = m
+    s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
+    if not s.accepted:
+        s.run, s.fit, s.profile = ending(s.run), None, {}
+    return s
+
+
 def rank(
     cands: list[Candidate],
     model: LinearModel,
@@ -300,14 +337,14 @@ def rank(
                 to_run.append((i, s.candidate))
                 shaped[i] = (s.params[c.shape_name], s.fit)
             else:
-                out.append((i, s))
+                out.append((i, _supported(s, base, prep, t_score)))
         elif id(c) in columns.screens:
             stand_ins = columns.screens[id(c)] + read_off.get(id(c), [])
             bound = _screened(c, stand_ins, model, base, sig, t_score, n, ms)
             if bound is None:
                 to_run.append((i, c))
             else:
-                out.append((i, bound))
+                out.append((i, _supported(bound, base, prep, t_score)))
         else:
             to_run.append((i, c))
     if to_run:
@@ -334,40 +371,15 @@ def rank(
             if progress:
                 progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
             r = score(c, model, base, made, j, ms)
-            # what its score holds kept, the rest of its runs let go (each a candidate's whole run)
-            made.settle(j, [r.run, *r.profile.values()] if r is not None else [])
             if r is not None:
                 if i in shaped:
                     r.params[c.shape_name], r.fit = shaped[i]
-                out.append((i, r))
+                out.append((i, _supported(r, base, prep, t_score, partial(made.run, j, SIGNATURE))))
+            # what its score holds kept, the rest of its runs let go (each a candidate's whole run)
+            made.settle(j, [r.run, *r.profile.values()] if r is not None else [])
     else:
         made = None
     out.sort(key=lambda p: p[0])
-    for i, s in out:
-        sensor = s.candidate.sensor
-        if sensor is None:
-            # an effect on the input (the accelerometer's scale, the thrust) acts on every sensor
-            # through the state, and shows in the one that resolves the height best: its gain is
-            # spread over that sensor's updates. Over all of them, a 0.02 accelerometer scale
-            # error (estimated 0.019-0.022, Delta BIC -80 to -137, all of it on the range) was
-            # diluted by the baro's 2750 updates to 0.011-0.018 per update and not claimed.
-            gains = {k: s.run.loglik_by.get(k, 0.0) - v for k, v in base.loglik_by.items()}
-            sensor = max(gains, key=lambda k: gains[k]) if gains else None
-        tr = base.sensors.get(sensor) if sensor else None
-        m = int((tr.t >= t_score).sum()) if tr is not None else base.n_scored
-        if s.candidate.support:
-            m = min(m, max(s.candidate.support(s.run, t_score), MIN_SUPPORT))
-        if s.candidate.perturb and tr is not None and sensor is not None and math.isfinite(s.delta_bic):
-            if s.fit is not None:
-                k = s.fit.sig.informs & (s.fit.sig.t >= t_score) & (s.fit.sig.sensor == sensor)
-                support = participation(s.fit.sig.G_of(s.fit.J)[k].sum(axis=1), s.fit.sig.S[k])
-            else:
-                assert made is not None
-                j = next(j for j, (q, _) in enumerate(to_run) if q == i)
-                support = signature_support(made.run(j, SIGNATURE), base, prep, sensor)
-            m = min(m, max(support, MIN_SUPPORT))
-        s.support = m
-        s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
     ranked = [s for _, s in out]
     ranked.sort(key=lambda s: s.delta_bic)
     if sig is not None:

@@ -375,10 +375,10 @@ class Trials:
         return replace(r, model=trial_model(self.cands[i], key, self.model))
 
     def settle(self, i: int, keep: Iterable[Run]) -> None:
-        """Candidate ``i`` scored: its runs let go of, but its signature (its support is read from
-        it) and ``keep`` (what its score holds)."""
+        """Candidate ``i`` scored (its support too, which its signature gives): its runs let go of,
+        but ``keep`` (what its score holds)."""
         held = {id(r) for r in keep}
-        self.runs[i] = {k: r for k, r in self.runs[i].items() if k == SIGNATURE or id(r) in held}
+        self.runs[i] = {k: r for k, r in self.runs[i].items() if id(r) in held}
 
 
 class Started:
