@@ -27,7 +27,7 @@ import numpy as np
 
 from .measurement import Kind, Measurement
 
-#: readings made into records (or gathered into columns) at a time: the columns' ``tolist`` per chunk
+#: readings made into records at a time (each column's ``tolist`` a chunk at a time)
 _CHUNK = 1 << 14
 
 _new_record = tuple.__new__
@@ -201,21 +201,6 @@ class Readings(Sequence[Measurement]):
     def before(self, t_end: float) -> Readings:
         """The readings before ``t_end``, in their order."""
         return self.where(self.t < t_end)
-
-    def values_of(self, kind: Kind, instance: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """(times, values) of ``kind``'s readings (of ``instance``, or of all) of its first value
-        layout, in their order: an (n,) and an (n, dim) array."""
-        sel = [j for j, s in enumerate(self.streams) if s.kind is kind and (instance is None or s.instance == instance)]
-        if not sel:
-            return np.zeros(0), np.zeros((0, 0))
-        dim = self.streams[sel[0]].values.shape[1:]
-        sel = [j for j in sel if self.streams[j].values.shape[1:] == dim]
-        k = np.flatnonzero(np.isin(self.stream, sel))
-        v = np.empty((len(k), *dim))
-        for j in sel:
-            at = self.stream[k] == j
-            v[at] = self.streams[j].values[self.row[k][at]]
-        return self.t[k], v
 
 
 class ReadingsBuilder:
