@@ -128,4 +128,4 @@ def test_a_tenth_of_the_memory_of_records():
     ms = [Measurement(i * 0.01, Kind.BARO_PRESSURE, np.array([1e5 + i]), "mav/1.1", i * 0.01) for i in range(10000)]
     r = Readings.of(ms)
     held = sum(a.nbytes for a in (r.t, r.t_rx, r.samples, r.stream, r.row)) + sum(s.values.nbytes for s in r.streams)
-    assert held / len(ms) <= 48
+    assert held / len(ms) <= 28 + 8

@@ -219,9 +219,9 @@ def block_means(s: ImuSeries, kind: Kind, instance: int, dt: float) -> Blocks:
     blocks = Readings(
         stamp,
         s.t_rx[starts].astype(float),
-        n_raw.astype(np.int64),
+        n_raw.astype(np.int32),
         np.zeros(n, dtype=np.int32),
-        np.arange(n, dtype=np.int64),
+        np.arange(n, dtype=np.int32),
         [Stream(kind, s.source, instance, mean)],
     )
     var = np.maximum(s2 / count - (s1 / count) ** 2, 0.0)

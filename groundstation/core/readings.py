@@ -5,7 +5,7 @@ A record is a tuple, two floats and an array view: some 400 bytes, and a 1-hour 
 of them (0.5 GB, more than the file itself). :class:`Readings` keeps one column each of time, receive
 time and samples, and per reading which of its *streams* holds its value and in which row; a stream
 is the readings of one kind, source, instance and value layout, its values one read-only (n, dim)
-array. That is some 28 bytes a reading besides its values. It is a
+array. That is 28 bytes a reading besides its values. It is a
 :class:`~collections.abc.Sequence` of records: iterating, indexing and slicing give records equal
 field by field to those put in (the same floats, the same values as read-only views of the stream's
 array), made as they are asked for (under a microsecond each), so that code written for a list of
@@ -81,7 +81,7 @@ class Readings(Sequence[Measurement]):
     @classmethod
     def empty(cls) -> Readings:
         z = np.zeros(0)
-        return cls(z, z, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int32), np.zeros(0, dtype=np.int64), ())
+        return cls(z, z, np.zeros(0, dtype=np.int32), np.zeros(0, dtype=np.int32), np.zeros(0, dtype=np.int32), ())
 
     # -- a sequence of records ----------------------------------------------------------------------
     def __len__(self) -> int:
@@ -235,7 +235,7 @@ class ReadingsBuilder:
             return
         ids, keys = self._ids, self._keys
         stream = np.empty(len(ms), dtype=np.int32)
-        row = np.empty(len(ms), dtype=np.int64)
+        row = np.empty(len(ms), dtype=np.int32)
         grouped: dict[int, list[int]] = {}
         for i, m in enumerate(ms):
             v, var = m.value, m.variance
@@ -266,7 +266,7 @@ class ReadingsBuilder:
             (
                 np.array([m.t for m in ms], dtype=float),
                 np.array([m.t_rx for m in ms], dtype=float),
-                np.array([m.samples for m in ms], dtype=np.int64),
+                np.array([m.samples for m in ms], dtype=np.int32),
                 stream,
                 row,
             )
