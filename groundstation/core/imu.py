@@ -159,11 +159,6 @@ class Blocks:
     spread_t: np.ndarray
     spread: np.ndarray
 
-    @property
-    def records(self) -> list[Measurement]:
-        """Each block's mean as a measurement record."""
-        return list(self.readings)
-
 
 def block_starts(t: np.ndarray, dt: float) -> np.ndarray:
     """The indices where blocks start: each at the first sample at least ``dt`` after the start of

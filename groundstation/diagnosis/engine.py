@@ -33,7 +33,7 @@ from .discover import Discovery, discover, library
 from .gains import CatalogueColumns, fit, profile_shape, run_signatures, virtual_run
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
-from .run import SETTLE_S, Prepared, Run, ending, hold_zeros, run_model
+from .run import SETTLE_S, Prepared, Run, hold_zeros, run_model
 from .signature import Column, Probes
 from .trace import STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
@@ -645,7 +645,7 @@ def _as_ended(scored: Iterable[Scored], *kept: Run) -> None:
     start a ranking; of the others the size they would be claimed at is read (``_detectable``)."""
     for s in scored:
         if all(s.run is not k for k in kept):
-            s.run, s.fit, s.profile = ending(s.run), None, {}
+            s.end()
 
 
 def _taken(found: Effect, prep: Prepared, make, stream, probes: Probes | None) -> tuple[LinearModel, Run]:

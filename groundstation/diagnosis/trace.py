@@ -91,6 +91,11 @@ class Scored:
     def accepted(self) -> bool:
         return not self.screened and self.delta_bic < STRONG and self.gain_per_update >= MATERIAL
 
+    def end(self) -> None:
+        """Kept as its scores and where its run ended (:func:`.run.ending`): its trajectory, tape, fit
+        and profile let go of. What a candidate that is not added is read for afterwards."""
+        self.run, self.fit, self.profile = ending(self.run), None, {}
+
 
 def delta_bic_effective(aug: Run, base: Run, k: int, n: int) -> float:
     """Delta BIC with each sensor's log-likelihood gain discounted by the colour of the
@@ -272,7 +277,7 @@ def _supported(
     s.support = m
     s.gain_per_update = (s.run.loglik - base.loglik) / max(m, 1)
     if not s.accepted:
-        s.run, s.fit, s.profile = ending(s.run), None, {}
+        s.end()
     return s
 
 

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from operator import attrgetter
 from pathlib import Path
 
 from drivers.logs.crazyflie import is_crazyflie_log, read_crazyflie
@@ -145,13 +144,15 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
     never came), which an estimation loop passes over, is left out."""
     log = load_log(path, tables=False, imu_columns=True)
     imu = log.imu if log.imu is not None else ImuColumns()
-    sources = {m.source for m in log.measurements} | {s.source for s in imu.series.values()}
+    every = Readings.of(log.measurements)
+    sources = {s.source for s in every.streams} | {s.source for s in imu.series.values()}
     systems = {source_system(s) for s in sources}
     systems -= {None, GCS_SYSTEM_ID, *log.ground_stations}  # a ground station's own commands are no vehicle's
     if len(systems) > 1:
         return None
-    blocks = [m for (kind, inst), s in imu.series.items() for m in block_means(s, kind, inst, imu_dt).records]
-    ms = sorted((m for m in Readings.of(log.measurements) + blocks if m.t == m.t), key=attrgetter("t"))
+    for (kind, inst), s in imu.series.items():
+        every = every + block_means(s, kind, inst, imu_dt).readings
+    ms = list(every.where(every.t == every.t).in_time_order())
     return BlockedLog(
         ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations
     )
