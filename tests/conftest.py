@@ -11,6 +11,7 @@ REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("GROUNDSTATION_DATA") or REPO.parent / "shared" / "data")
 REAL = DATA / "real"
 FOREIGN = DATA / "foreign"
+FOREIGN2 = DATA / "foreign2"
 
 
 def real_file(rel: str) -> Path:
@@ -24,6 +25,14 @@ def real_file(rel: str) -> Path:
 def foreign_file(rel: str) -> Path:
     """A file of the shared foreign flights (another generator's, with truth), or a visible skip."""
     p = FOREIGN / rel
+    if not p.exists():
+        pytest.skip(f"foreign flights not available: {p} is absent (set GROUNDSTATION_DATA to the shared data folder)")
+    return p
+
+
+def foreign2_file(rel: str) -> Path:
+    """A file of the second foreign source (ArduPilot .bin and PX4 .ulg, with truth), or a visible skip."""
+    p = FOREIGN2 / rel
     if not p.exists():
         pytest.skip(f"foreign flights not available: {p} is absent (set GROUNDSTATION_DATA to the shared data folder)")
     return p

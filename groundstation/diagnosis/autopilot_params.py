@@ -20,6 +20,8 @@ baro_ground_effect  EK3_GND_EFF_DZ = |A| [m]                EKF2_GND_EFF_DZ = |A
 baro_thermal k      (no parameter: AP's TCAL is for IMUs)   TC_B0_X1 = -rho g k [Pa/K], TC_B_ENABLE 1
 thrust_voltage      MOT_BAT_VOLT_MAX / _MIN from the pack   MC_BAT_SCALE_EN = 1
 vibration peak      INS_HNTCH_* (throttle-referenced)       IMU_GYRO_NF0_FRQ / _BW
+range clearance     RNGFND1_GNDCLEAR [cm], where the        EKF2_MIN_RNG [m], likewise
+                    ground readings say other than it
 noise (sensor)      EK3_ALT_M_NSE (baro), EK3_RNG_M_NSE,    EKF2_BARO_NOISE, EKF2_RNG_NOISE,
                     EK3_POSNE_M_NSE (GPS) [m]               EKF2_GPS_P_NOISE [m]
 ==================  ======================================  ======================================
@@ -156,6 +158,13 @@ def suggest(
         else:
             add("ArduPilot", "", None, e.name, "no autopilot parameter for this effect")
             add("PX4", "", None, e.name, "no autopilot parameter for this effect")
+    c = d.clearance
+    if c is not None and c.readings and (c.disagrees or (c.parameter is None and c.metres >= 0.005)):
+        why = f"on the ground the rangefinder reads {c.metres * 100:.1f} cm ({c.readings} readings)" + (
+            f"; {c.parameter} says {c.parameter_metres * 100:.1f} cm" if c.parameter_metres is not None else ""
+        )
+        add("ArduPilot", "RNGFND1_GNDCLEAR", round(c.metres * 100.0), "range_clearance", why + " [cm]")
+        add("PX4", "EKF2_MIN_RNG", c.metres, "range_clearance", why + " [m]")
     names = {"baro": ("EK3_ALT_M_NSE", "EKF2_BARO_NOISE"), "range": ("EK3_RNG_M_NSE", "EKF2_RNG_NOISE"),
              "gps": ("EK3_POSNE_M_NSE", "EKF2_GPS_P_NOISE")}  # fmt: skip
     for n in d.noise:

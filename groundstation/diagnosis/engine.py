@@ -24,6 +24,7 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
+from groundstation.estimation.stated import RangeClearance
 from groundstation.estimation.truth import Truth
 
 from . import holdout, trials
@@ -89,6 +90,8 @@ class Diagnosis:
     noise: list[NoiseLevel] = field(default_factory=list)
     #: readings no estimator takes (not finite, out of the sensor's range), by ``<kind>_<problem>``
     unusable: dict[str, int] = field(default_factory=dict)
+    #: the range's ground clearance taken off its readings (estimation.stated), if any
+    clearance: RangeClearance | None = None
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -236,13 +239,17 @@ def diagnose(
     veto_with_truth: bool = True,
     workers: int = 1,
     imu: ImuColumns | None = None,
+    clearance: RangeClearance | None = None,
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the processes the
     candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number).
-    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it."""
-    su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu)
+    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``clearance``: the range's
+    reading on the ground, taken off its readings (:func:`.models.setup`)."""
+    su = setup(
+        ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, clearance=clearance
+    )
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
@@ -487,6 +494,7 @@ def diagnose(
         _detectable(scored, added, rejected),
         noise,
         prep.unusable,
+        su.clearance,
     )
 
 

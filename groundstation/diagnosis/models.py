@@ -17,6 +17,7 @@ import numpy as np
 
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.altitude import altitude_model
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
@@ -24,6 +25,7 @@ from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import on_ground
 from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
 from groundstation.estimation.routing import altitude_estimator, attitude_estimator
+from groundstation.estimation.stated import RangeClearance
 
 from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
@@ -86,6 +88,8 @@ class Setup:
     spec: DiagnosisSpec
     declared: set
     airframe: dict | None = None
+    #: the range's ground clearance taken off its readings (estimation.stated), if the log has one
+    clearance: RangeClearance | None = None
 
     @property
     def make(self) -> Callable[[LinearModel], KalmanEstimator]:
@@ -227,13 +231,22 @@ def setup(
     declared: Sequence[dict] = (),
     vehicle: str | None = None,
     imu: ImuColumns | None = None,
+    clearance: RangeClearance | None = None,
 ) -> Setup:
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
-    cannot feed it)."""
+    cannot feed it). ``clearance``: the range's reading on the ground (what the log states or its
+    ground segments show, :mod:`groundstation.estimation.stated`), taken off every range reading so
+    that the range reads the height every model means, 0 on the gear."""
     spec = DIAGNOSABLE.get(model_name)
     if spec is None:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use {', '.join(DIAGNOSABLE)})")
     names = {e.get("name") for e in declared}
+    readings = Readings.of(ms)
+    if clearance is not None and clearance.metres and Kind.RANGE in readings.kinds():
+        c = clearance.metres
+        ms = readings.with_values(Kind.RANGE, lambda v: v - c)
+    else:
+        clearance = None
     base = spec.base(ms, names, vehicle, imu)
     prep = base.prep
     has = bool(spec.needs & prep.kinds) if spec.needs_any else spec.needs <= prep.kinds
@@ -248,4 +261,4 @@ def setup(
             f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
             f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
         )
-    return Setup(prep, base.model, spec, names, base.airframe)
+    return Setup(prep, base.model, spec, names, base.airframe, clearance)

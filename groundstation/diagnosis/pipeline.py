@@ -15,6 +15,7 @@ from pathlib import Path
 from groundstation.core.allocator import return_freed_arrays
 from groundstation.core.imu import ImuColumns
 from groundstation.estimation.logs import LoadedLog, load_log
+from groundstation.estimation.stated import range_clearance
 from groundstation.estimation.truth import truth_from
 
 from . import report
@@ -87,6 +88,7 @@ def run(
         veto_with_truth=veto_with_truth,
         workers=workers,
         imu=_usable_imu(log, tr, keep=False),
+        clearance=range_clearance(log.tables, ms_all),
     )
     suggestions = []
     if log.tables.fmt != "crazyflie":

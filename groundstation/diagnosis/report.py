@@ -14,6 +14,8 @@ report.json::
                                          # size this log would claim it at about half the time (trace.py)
      "noise": [...],                     # each sensor's noise from the log, beside the model's
      "unusable_readings": {"<kind>_<problem>": count},   # not finite or out of range: left out
+     "range_clearance": {"m", "from", "parameter"} or null,   # the range's reading on the ground,
+                                         # taken off its readings (estimation/stated.py)
      "before": {...}, "after": {...}}
 
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
@@ -157,6 +159,7 @@ def as_json(d: Diagnosis) -> dict:
         "unobservable": d.unobservable,
         "noise": [n.as_dict() for n in d.noise],
         "unusable_readings": d.unusable,
+        "range_clearance": d.clearance.as_dict() if d.clearance is not None else None,
         "detectable": d.detectable,
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),

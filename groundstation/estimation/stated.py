@@ -1,0 +1,184 @@
+"""What a log says of its sensors besides their readings: the downward rangefinder's ground
+clearance, from the vehicle standing on its gear or, failing that, from the autopilot's parameters.
+
+A downward rangefinder sits some centimetres above the floor when the vehicle stands on its gear:
+it reads that much where the height the estimators mean (0 on the ground) is zero, and that much
+too much in flight. Autopilots are told it: ArduPilot's ``RNGFND1_GNDCLEAR`` [cm] ("distance from
+the range finder to the ground when the vehicle is landed"), PX4's ``EKF2_MIN_RNG`` [m] ("expected
+rangefinder reading when on ground"). Left in, it is a constant offset on the one precise absolute
+height, which no other sensor can show: a lidar 5 cm above the floor put a 5 cm error on every
+estimate of a flight whose filter was otherwise within a centimetre.
+
+The readings themselves say it best, where the log has them: on the ground, before take-off and
+after landing, the sensor reads its clearance, usually below its own minimum distance, so the
+readers leave those readings out of the measurements (``range_not_good``, ``range_out_of_bounds``)
+while the log's records keep them (ArduPilot ``RFND`` with status OutOfRangeLow, PX4
+``distance_sensor``, MAVLink ``DISTANCE_SENSOR``). Their median is the clearance where they are
+steady (a spread of a few centimetres) and are not a clamp: a sonar that reads its floor (one value,
+or the stated minimum) for anything closer says nothing of the distance. Where the data and the
+parameter disagree, the data is used and the disagreement is said: the parameter is then a setting
+to correct.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivers.logs.tables import LogTables
+from groundstation.core.measurement import Kind, Measurement
+
+#: a throttle at or above this carries the vehicle (models.ground.TAU_GROUND: below it the ground does)
+TAU_AIRBORNE = 0.15
+#: [s] the ground segments end this long before the throttle first carries the vehicle and begin this
+#: long after it last did: the spool-up and the touchdown are neither ground nor flight
+MARGIN_S = 1.0
+#: the least of ground readings a clearance is read from
+MIN_READINGS = 10
+#: [m] ground readings steadier than this (their interquartile range) are a distance, and a clearance
+#: is at most MAX_CLEARANCE (a rangefinder on a landing gear, not a sensor looking at something else)
+MAX_SPREAD = 0.03
+MAX_CLEARANCE = 0.5
+#: a share of identical readings at least this is a sensor clamped at one value, not a distance
+CLAMP_SHARE = 0.8
+#: the data and the parameter agree within this [m]
+AGREE = 0.02
+
+
+@dataclass(frozen=True)
+class RangeClearance:
+    """The downward rangefinder's reading with the vehicle on its gear [m], and where it comes from."""
+
+    metres: float
+    source: str  #: one line: "the ground segments (412 readings)", "RNGFND1_GNDCLEAR = 5 cm"
+    parameter: str | None = None  #: the autopilot's parameter that states it, if the log has one
+    parameter_metres: float | None = None  #: its value [m]
+    readings: int = 0  #: ground readings it was read from (0: the parameter alone)
+
+    @property
+    def disagrees(self) -> bool:
+        """The data says other than the parameter: the parameter is a setting to correct."""
+        return (
+            self.readings > 0 and self.parameter_metres is not None and abs(self.metres - self.parameter_metres) > AGREE
+        )
+
+    def as_dict(self) -> dict:
+        d: dict = {"m": round(self.metres, 4), "from": self.source}
+        if self.parameter is not None:
+            d["parameter"] = {"name": self.parameter, "m": self.parameter_metres}
+        return d
+
+
+def stated_clearance(params: dict[str, float]) -> tuple[str, float] | None:
+    """The clearance the autopilot's parameters state: (name, metres), or None."""
+    for name in ("RNGFND1_GNDCLEAR", "RNGFND_GNDCLEAR"):  # ArduPilot [cm]
+        v = params.get(name)
+        if v is not None and math.isfinite(v) and 0 <= v <= 100 * MAX_CLEARANCE:
+            return name, float(v) / 100.0
+    v = params.get("EKF2_MIN_RNG")  # PX4 [m]
+    if v is not None and math.isfinite(v) and 0 <= v <= MAX_CLEARANCE:
+        return "EKF2_MIN_RNG", float(v)
+    return None
+
+
+def raw_range(tables: LogTables) -> tuple[np.ndarray, np.ndarray, float | None] | None:
+    """Every downward rangefinder reading the log's records hold, whatever its status: (t [s],
+    distance [m], the sensor's stated minimum [m] or None)."""
+    rf = tables.get("RFND")
+    if rf is not None:  # ArduPilot: Dist [m] (3.x: Dist1 [cm]), Orient 25 down
+        d = rf.numeric("Dist")
+        if d is None:
+            d1 = rf.numeric("Dist1")
+            d = d1 / 100.0 if d1 is not None else None
+        if d is None:
+            return None
+        keep = _downward(rf.numeric("Orient"), len(rf)) & _first(rf.numeric("Instance"), len(rf))
+        lo = next((tables.params.get(p + "MIN_CM") for p in ("RNGFND1_", "RNGFND_")), None)
+        return rf.t[keep], d[keep], lo / 100.0 if lo is not None else None
+    ds = tables.get("distance_sensor")
+    if ds is not None:  # PX4: current_distance, min_distance [m]
+        d = ds.numeric("current_distance")
+        if d is None:
+            return None
+        keep = _downward(ds.numeric("orientation"), len(ds))
+        mins = ds.numeric("min_distance")
+        return ds.t[keep], d[keep], _typical(mins[keep]) if mins is not None else None
+    dm = tables.get("DISTANCE_SENSOR")
+    if dm is not None:  # MAVLink: current_distance, min_distance [cm]
+        d = dm.numeric("current_distance")
+        if d is None:
+            return None
+        keep = _downward(dm.numeric("orientation"), len(dm)) & _first(dm.numeric("id"), len(dm))
+        mins = dm.numeric("min_distance")
+        lo_cm = _typical(mins[keep]) if mins is not None else None
+        return dm.t[keep], d[keep] / 100.0, lo_cm / 100.0 if lo_cm is not None else None
+    return None
+
+
+def _downward(orient: np.ndarray | None, n: int) -> np.ndarray:
+    """MAV_SENSOR_ROTATION_PITCH_270 (25): facing down; a log without the field has only that one."""
+    return np.ones(n, bool) if orient is None else orient == 25
+
+
+def _first(instance: np.ndarray | None, n: int) -> np.ndarray:
+    if instance is None or not np.isfinite(instance).any():
+        return np.ones(n, bool)
+    return instance == np.nanmin(instance)
+
+
+def _typical(v: np.ndarray) -> float | None:
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if len(v) else None
+
+
+def ground_segments(ms: Sequence[Measurement]) -> list[tuple[float, float]]:
+    """The log's stretches on the ground by its throttle: from its start to :data:`MARGIN_S` before
+    the throttle first carries the vehicle, and from that long after it last did to the end. None
+    without a logged throttle, or one that never carries the vehicle."""
+    t, tau = [], []
+    for m in ms:
+        if m.kind is Kind.THROTTLE or m.kind is Kind.ACTUATOR:
+            v = [x for x in m.value[: 8 if m.kind is Kind.ACTUATOR else 1].tolist() if math.isfinite(x)]
+            if v and math.isfinite(m.t):
+                t.append(m.t)
+                tau.append(float(np.median(v)))
+    if not t:
+        return []
+    ta, va = np.array(t), np.array(tau)
+    up = np.flatnonzero(va >= TAU_AIRBORNE)
+    if not len(up):
+        return []
+    return [(float(ta[0]), float(ta[up[0]]) - MARGIN_S), (float(ta[up[-1]]) + MARGIN_S, float(ta[-1]))]
+
+
+def range_clearance(tables: LogTables, ms: Sequence[Measurement]) -> RangeClearance | None:
+    """The downward rangefinder's ground clearance (the module's docstring), or None when the log
+    has no rangefinder reading on the ground and no parameter that states it."""
+    stated = stated_clearance(tables.params)
+    raw = raw_range(tables)
+    if raw is not None:
+        t, d, lo = raw
+        on = np.zeros(len(t), bool)
+        for a, b in ground_segments(ms):
+            on |= (t >= a) & (t <= b)
+        g = d[on & np.isfinite(d) & (d >= 0)]
+        if lo is not None:
+            g = g[np.abs(g - lo) > 0.005]  # the floor a sonar clamps to is no distance
+        if len(g) >= MIN_READINGS:
+            _, counts = np.unique(g, return_counts=True)
+            q25, med, q75 = np.percentile(g, [25, 50, 75])
+            if counts.max() < CLAMP_SHARE * len(g) and q75 - q25 <= MAX_SPREAD and med <= MAX_CLEARANCE:
+                return RangeClearance(
+                    float(med),
+                    f"the rangefinder on the ground ({len(g)} readings)",
+                    stated[0] if stated else None,
+                    stated[1] if stated else None,
+                    len(g),
+                )
+    if stated is not None:
+        name, metres = stated
+        return RangeClearance(metres, f"{name} (the log's parameter)", name, metres)
+    return None
