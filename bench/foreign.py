@@ -158,7 +158,7 @@ def evaluate(name: str, data: Path = DATA) -> dict:
     before = height_error(d.before.t, d.before.x[:, d.before.model.index("z")], truth, meta["suite"])
     after = height_error(d.after.t, d.after.x[:, d.after.model.index("z")], truth, meta["suite"])
     hidden = [e["name"] for e in meta["effects"]]
-    claimed = [e.name for e in d.effects]
+    claimed = [e.name for e in [*d.effects, *d.beside]]
     ref = reference_error(ms, meta, truth) if hidden else before
     catalogued = [h for h in hidden if h not in ("discovered", "thrust_voltage")]
     if not hidden:
@@ -167,9 +167,9 @@ def evaluate(name: str, data: Path = DATA) -> dict:
         fell = 1.0 - after / before if before > 0 else 0.0
         ok = "discovered" in claimed and fell >= DISCOVERED_FALL
         why = f"discovered {'named' if 'discovered' in claimed else 'not named'}, error {fell:+.0%} down"
-    elif not catalogued:  # thrust-side only: the altitude model reports it unobservable
-        ok = not claimed and any(h in d.unobservable for h in hidden)
-        why = "reported unobservable" if ok else f"claimed {claimed}"
+    elif not catalogued:  # thrust-side only: traced beside the altitude model (diagnosis/thrust_side.py)
+        ok = claimed == hidden and after <= before + 1e-9
+        why = f"named {claimed} beside the model" if ok else f"claimed {claimed}"
     else:
         named = claimed[: len(catalogued)]
         ok = sorted(named) == sorted(catalogued) and after <= REFERENCE_FACTOR * ref + 1e-9 and after <= before + 1e-9
@@ -178,7 +178,7 @@ def evaluate(name: str, data: Path = DATA) -> dict:
         "flight": name,
         "suite": meta["suite"],
         "hidden": hidden,
-        "claimed": [f"{e.name}({_short(e.params)})" for e in d.effects],
+        "claimed": [f"{e.name}({_short(e.params)})" for e in [*d.effects, *d.beside]],
         "rejected": [f"{e.name}: {e.evidence.get('reason') or 'worse against truth'}" for e in d.rejected],
         "noise": [n.as_dict() for n in d.noise],
         "before": before,

@@ -294,14 +294,18 @@ def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("groundstation: error:") and "Traceback" not in r.stderr
 
 
-def test_diagnose_says_why_when_the_model_cannot_run_on_a_log(tmp_path):
-    """One line of why, and no empty report folder left where the report would have gone."""
+def test_diagnose_says_why_when_the_model_asked_for_cannot_run_on_a_log(tmp_path):
+    """Asked for the altitude model on a log without an accelerometer: one line of why, and no empty
+    report folder left where the report would have gone (without ``--model`` the log's readings pick
+    the thrust model: tests/test_real_logs_diagnose.py)."""
     from .conftest import real_file
 
     p = real_file("ardupilot_dataflash/ardupilot_loganalyzer_underpowered.log")  # no IMU in it
     out = tmp_path / "nested" / "report"
     r = subprocess.run(
-        [sys.executable, "-m", "groundstation", "diagnose", str(p), "--out", str(out)], capture_output=True, text=True
+        [sys.executable, "-m", "groundstation", "diagnose", str(p), "--out", str(out), "--model", "altitude"],
+        capture_output=True,
+        text=True,
     )
     assert r.returncode == 2 and "takes the accelerometer as its input" in r.stderr and "Traceback" not in r.stderr
     assert not out.exists()

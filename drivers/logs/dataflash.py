@@ -58,7 +58,7 @@ from pymavlink import DFReader
 from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import walk_dataflash
-from .tables import LogTables, table_from_rows
+from .tables import FIRMWARE, LogTables, table_from_rows
 
 CONTROL_RATE = 10.0  # CTUN's rate in logs without a clock [Hz]
 
@@ -145,9 +145,12 @@ def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = T
             with tempfile.NamedTemporaryFile("wb", suffix=".log", delete=False) as tmp:
                 tmp.write(clean)
             read_from = Path(tmp.name)
+    banner = "" if binary else _text_banner(data)
     del data  # DFReader maps the file itself
     try:
-        return _read(p, read_from, binary, damage, source, tables)
+        log = _read(p, read_from, binary, damage, source, tables)
+        log.tables.firmware = _firmware(log.tables) or banner
+        return log
     finally:
         if read_from != p:
             read_from.unlink(missing_ok=True)
@@ -310,6 +313,27 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
 
 #: record types that describe the log itself (formats, units, parameters: read above), not the flight
 _NOT_TABLED = frozenset({"FMT", "FMTU", "UNIT", "MULT", "PARM"})
+
+
+def _text_banner(data: bytes) -> str:
+    """A text log's firmware banner: a line of its own before the records ("ArduCopter V3.0.1"),
+    which DFReader passes over."""
+    for line in data[:65536].splitlines():
+        text = line.decode("latin-1", "replace").strip()
+        if FIRMWARE.match(text):
+            return text
+    return ""
+
+
+def _firmware(tables: LogTables) -> str:
+    """The firmware's banner among the records: VER's FWS (ArduPilot 4.x) or the first MSG that is one."""
+    ver = tables.get("VER")
+    if ver is not None and "FWS" in ver and len(ver["FWS"]) and str(ver["FWS"][0]):
+        return str(ver["FWS"][0])
+    msg = tables.get("MSG")
+    if msg is not None and "Message" in msg:
+        return next((str(x) for x in msg["Message"] if FIRMWARE.match(str(x))), "")
+    return ""
 
 
 def rangefinder_limits(params: dict[str, float]) -> tuple[float, float] | None:

@@ -17,6 +17,7 @@ The clock is named in :attr:`LogTables.clock`:
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 
@@ -74,6 +75,9 @@ class LogTables:
     clock: str = "vehicle"
     fmt: str = ""  # "dataflash", "tlog", "ulog", "crazyflie"
     autopilot: str = ""  # "ardupilot", "px4", or "" when the log does not say
+    #: the firmware's own words for itself where the log has them ("ArduCopter V3.1 (5c6503e2)",
+    #: "PX4 v1.14.0"), else ""
+    firmware: str = ""
     origin: float = 0.0  # on the recording clock: the receive time [s, UNIX] its zero stands for
 
     def __getitem__(self, name: str) -> Table:
@@ -132,6 +136,11 @@ def _text(v) -> str:
     return str(v)
 
 
+#: an autopilot's banner, as ArduPilot writes it at boot (a DataFlash MSG, a text log's header line, a
+#: STATUSTEXT): "ArduCopter V3.1 (5c6503e2)", "APM:Copter V3.2", "ArduSub V4.1.1 BETA5", "APMrover2 v2.51"
+FIRMWARE = re.compile(r"^\s*(Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V?\d", re.IGNORECASE)
+
+
 #: MAV_TYPE_GCS: a ground station's heartbeat; its records in a tlog are not the vehicle's
 _MAV_TYPE_GCS = 6
 
@@ -169,6 +178,9 @@ def tables_from_tlog(path, *, index: TlogIndex | None = None, without: tuple[str
     if pv is not None:
         for pid, val in zip(pv["param_id"], pv["param_value"]):
             out.params[str(pid)] = float(val)
+    st = out.get("STATUSTEXT")
+    if st is not None and "text" in st:
+        out.firmware = next((str(x) for x in st["text"] if FIRMWARE.match(str(x))), "")
     if hb is not None and len(hb):
         ap = hb["autopilot"][~np.isin(hb.sysid, list(gcs))] if hb.sysid is not None else hb["autopilot"]
         vals = set(ap.tolist())

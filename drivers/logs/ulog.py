@@ -82,7 +82,7 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
     except Exception as e:  # pyulog raises assorted errors on damaged files
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ULogError(f"{p}: not a readable ULog: {first}") from None
-    tables = LogTables(params=dict(u.initial_parameters), fmt="ulog", autopilot="px4")
+    tables = LogTables(params=dict(u.initial_parameters), fmt="ulog", autopilot="px4", firmware=_px4_version(u))
     for d in u.data_list:
         name = d.name if d.multi_id == 0 else f"{d.name}[{d.multi_id}]"
         t = np.asarray(d.data["timestamp"], dtype=float) * 1e-6
@@ -195,3 +195,14 @@ def _measurements(tables: LogTables, log: UlogLog, s: str) -> None:
             skipped["battery_not_connected"] += int((~ok).sum())
             add_rows(Kind.BATTERY_VOLTAGE, bat.t[ok], v[ok][:, None])
             add_rows(Kind.BATTERY_CURRENT, bat.t[ok], i[ok][:, None])
+
+
+def _px4_version(u) -> str:
+    """ "PX4 v1.14.0" from the log's info (``sys_name``, ``ver_sw_release``: 0xAABBCCTT, major, minor,
+    patch and type), or the bare system name."""
+    info = u.msg_info_dict
+    name = str(info.get("sys_name", "") or "")
+    release = info.get("ver_sw_release")
+    if isinstance(release, int) and release > 0:
+        return f"{name or 'PX4'} v{(release >> 24) & 0xFF}.{(release >> 16) & 0xFF}.{(release >> 8) & 0xFF}"
+    return name

@@ -23,9 +23,11 @@ def add_parser(sub) -> None:
     d.add_argument("file", type=Path)
     d.add_argument(
         "--model",
-        default="altitude",
-        choices=tuple(DIAGNOSABLE),
-        help="; ".join(f"{name}: {spec.help}" for name, spec in DIAGNOSABLE.items()) + " (default altitude)",
+        default="auto",
+        choices=("auto", *DIAGNOSABLE),
+        help="; ".join(f"{name}: {spec.help}" for name, spec in DIAGNOSABLE.items())
+        + " (default auto: the one the vehicle and the log's readings allow, the altitude model first; "
+        "with a throttle and a battery voltage, thrust lost with the battery is traced beside it)",
     )
     d.add_argument("--out", type=Path, help="report directory (default: LOG.diagnosis/)")
     d.add_argument("--declared", type=Path, help="effects the model is told of (default: LOG.declared.json)")

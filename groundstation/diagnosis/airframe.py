@@ -149,6 +149,142 @@ def _height_and_speed(t: np.ndarray, h: np.ndarray, grid: np.ndarray, w: float) 
     return hh, vv
 
 
+@dataclass(frozen=True)
+class CurvePoints:
+    """The equation-error fit's data on its grid (:func:`curve_points`): the throttle ``tau`` and the
+    body-z specific force ``y`` averaged over each window, the drag's regressor ``vc`` (vertical speed
+    times cos_tilt), the voltage's ``lr = ln(V / V_ref)``, which points have every value (``finite``)
+    and which are fitted (``keep``)."""
+
+    grid: np.ndarray
+    tau: np.ndarray
+    y: np.ndarray
+    vc: np.ndarray
+    lr: np.ndarray
+    finite: np.ndarray
+    keep: np.ndarray
+    bias: float
+    with_voltage: bool
+
+    def residual(self, p: Sequence[float], at: np.ndarray) -> np.ndarray:
+        """tau - (u + tc du/dt) at the points ``at`` (a mask), for p = (alpha, beta, mu, n, tc)."""
+        alpha, beta, mu, n, tc = p
+        u = ((self.y + mu * self.vc) * np.exp(-n * self.lr) - beta) / alpha
+        du = np.gradient(np.where(self.finite, u, 0.0), self.grid)  # the zeros reach no kept point
+        return (self.tau - (u + tc * du))[at]
+
+
+def curve_points(
+    ms: Sequence[Measurement],
+    throttle: list[tuple[float, float]],
+    t_spin: float,
+    t_lift: float,
+    t_end: float,
+    *,
+    voltage=None,
+    voltage_ref: float | None = None,
+    range_limits: tuple[float, float] = (0.05, math.inf),
+    height: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> CurvePoints | None:
+    """The fit's data (:func:`thrust_curve` says what each argument is), or None when the log cannot
+    give it. ``height``: (t, h, v_up) of an estimate to take the height and vertical speed from,
+    instead of the range sensor's readings (an altitude filter's run, where the log has no range)."""
+    acc = np.array(
+        [(m.t, m.value[2]) for m in ms if m.kind is Kind.ACCEL and len(m.value) >= 3 and math.isfinite(m.value[2])]
+    )
+    att = np.array(
+        [(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE and np.isfinite(m.value[:2]).all()]
+    )
+    rng = np.array(
+        [
+            (m.t, m.value[0])
+            for m in ms
+            if m.kind is Kind.RANGE and len(m.value) and range_limits[0] <= m.value[0] <= range_limits[1]
+        ]
+    )
+    if len(acc) < 100 or len(att) < 10 or (height is None and len(rng) < 50):
+        return None
+    th = np.array([(t, v) for t, v in throttle if math.isfinite(t) and math.isfinite(v)])
+    if len(th) < 50:
+        return None
+    for a in (acc, att, rng, th):
+        if len(a):
+            a[:] = a[np.argsort(a[:, 0], kind="stable")]
+
+    def c_of(t):  # cos(roll) cos(pitch) at times t
+        return np.cos(np.interp(t, att[:, 0], att[:, 1])) * np.cos(np.interp(t, att[:, 0], att[:, 2]))
+
+    # without 50 samples before the spin-up (a log that starts in the air) the bias is taken as 0: it
+    # then moves beta by itself
+    ground = acc[:, 0] < t_spin
+    bias = float(np.mean(acc[ground, 1] + G * c_of(acc[ground, 0]))) if ground.sum() >= 50 else 0.0
+    grid = np.arange(t_lift + EDGE, t_end - EDGE, STEP)
+    if len(grid) < MIN_POINTS:
+        return None
+    fine = np.arange(grid[0] - WINDOW, grid[-1] + WINDOW, 0.005)  # the held throttle, sampled finely
+    tau_fine = _held(th[:, 0], th[:, 1], fine)
+    tau = _window_mean(fine, tau_fine, grid, WINDOW)
+    y = _window_mean(acc[:, 0], -(acc[:, 1] - bias), grid, WINDOW)
+    c = c_of(grid)
+    if height is None:
+        h, v = _height_and_speed(rng[:, 0], rng[:, 1] * c_of(rng[:, 0]), grid, WINDOW)
+    else:
+        ht, hh, hv = height
+        h, v = _window_mean(ht, hh, grid, WINDOW), _window_mean(ht, hv, grid, WINDOW)
+    lr = np.zeros(len(grid))
+    if voltage is not None and voltage_ref:
+        volts = np.array([voltage(t, u) for t, u in zip(fine, tau_fine)])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lr = _window_mean(fine, np.log(volts / voltage_ref), grid, WINDOW)
+    finite = np.isfinite(y) & np.isfinite(v) & np.isfinite(lr)
+    # du/dt is taken between neighbours: both must be there
+    keep = finite & np.roll(finite, 1) & np.roll(finite, -1) & np.isfinite(tau) & (h >= H_MIN) & (c >= C_MIN)
+    keep[[0, -1]] = False
+    if keep.sum() < MIN_POINTS:
+        return None
+    return CurvePoints(grid, tau, y, v * c, lr, finite, keep, bias, voltage is not None and bool(voltage_ref))
+
+
+def fit_curve(
+    pts: CurvePoints, at: np.ndarray | None = None, *, free_n: bool | None = None, need_alpha: bool = True
+) -> ThrustCurve | None:
+    """The curve by least squares over the points ``at`` (default: every kept point), ``n`` free where
+    the points have the voltage (``free_n`` False holds it at 0); None where the fit fails or (with
+    ``need_alpha``, as a prior needs) cannot tell alpha from beta. A fit held to compare against
+    another is taken whatever its alpha's spread (``need_alpha`` False): a curve that lacks an effect
+    the data has fits worse, and its alpha is the less certain for it."""
+    at = pts.keep if at is None else at & pts.keep
+    free_n = pts.with_voltage if free_n is None else free_n and pts.with_voltage
+    if at.sum() < MIN_POINTS // 2:
+        return None
+    tau_h = float(np.median(pts.tau[at]))
+    if not tau_h > 0:
+        return None
+    x0 = [min(max(G / tau_h, 0.5), 200.0), 0.0, 0.3, 0.0, 0.0]
+    lo = [0.5, -G, 0.0, -3.0 if free_n else -1e-9, 0.0]
+    hi = [200.0, G, 3.0, 5.0 if free_n else 1e-9, 0.5]
+    fit = least_squares(lambda p: pts.residual(p, at), x0, bounds=(lo, hi), x_scale=[G / tau_h, 1.0, 0.3, 1.0, 0.1])
+    if not fit.success:
+        return None
+    r = fit.fun
+    free = [0, 1, 2, 3, 4] if free_n else [0, 1, 2, 4]
+    J = fit.jac[:, free]
+    try:
+        # the windows overlap: WINDOW / STEP grid points per independent one
+        cov = np.linalg.inv(J.T @ J) * float(r @ r) / max(len(r) - len(free), 1) * (WINDOW / STEP)
+    except np.linalg.LinAlgError:
+        return None
+    sd = np.zeros(5)
+    sd[free] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    alpha, beta, mu, n, tc = (float(x) for x in fit.x)
+    if need_alpha and not sd[0] <= MAX_REL_SIGMA * alpha:
+        return None
+    sigma = dict(zip(("alpha", "beta", "drag", "n", "tc"), (float(s) for s in sd)))
+    return ThrustCurve(
+        alpha, beta, mu, n if free_n else 0.0, tc, sigma, int(at.sum()), float(at.sum()) * STEP, pts.bias
+    )
+
+
 def thrust_curve(
     ms: Sequence[Measurement],
     throttle: list[tuple[float, float]],
@@ -166,84 +302,7 @@ def thrust_curve(
     cannot give it: no accelerometer, attitude or range sensor, too little flight above ``H_MIN``, or a
     throttle too steady to tell alpha from beta. ``voltage(t, tau)``: the pack's voltage (with
     ``voltage_ref``), or None to fit without the voltage term."""
-    acc = np.array(
-        [(m.t, m.value[2]) for m in ms if m.kind is Kind.ACCEL and len(m.value) >= 3 and math.isfinite(m.value[2])]
+    pts = curve_points(
+        ms, throttle, t_spin, t_lift, t_end, voltage=voltage, voltage_ref=voltage_ref, range_limits=range_limits
     )
-    att = np.array(
-        [(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE and np.isfinite(m.value[:2]).all()]
-    )
-    rng = np.array(
-        [
-            (m.t, m.value[0])
-            for m in ms
-            if m.kind is Kind.RANGE and len(m.value) and range_limits[0] <= m.value[0] <= range_limits[1]
-        ]
-    )
-    if len(acc) < 100 or len(att) < 10 or len(rng) < 50:
-        return None
-    th = np.array([(t, v) for t, v in throttle if math.isfinite(t) and math.isfinite(v)])
-    if len(th) < 50:
-        return None
-    for a in (acc, att, rng, th):
-        a[:] = a[np.argsort(a[:, 0], kind="stable")]
-
-    def c_of(t):  # cos(roll) cos(pitch) at times t
-        return np.cos(np.interp(t, att[:, 0], att[:, 1])) * np.cos(np.interp(t, att[:, 0], att[:, 2]))
-
-    # without 50 samples before the spin-up (a log that starts in the air) the bias is taken as 0: it
-    # then moves beta by itself
-    ground = acc[:, 0] < t_spin
-    bias = float(np.mean(acc[ground, 1] + G * c_of(acc[ground, 0]))) if ground.sum() >= 50 else 0.0
-    grid = np.arange(t_lift + EDGE, t_end - EDGE, STEP)
-    if len(grid) < MIN_POINTS:
-        return None
-    fine = np.arange(grid[0] - WINDOW, grid[-1] + WINDOW, 0.005)  # the held throttle, sampled finely
-    tau_fine = _held(th[:, 0], th[:, 1], fine)
-    tau = _window_mean(fine, tau_fine, grid, WINDOW)
-    y = _window_mean(acc[:, 0], -(acc[:, 1] - bias), grid, WINDOW)
-    c = c_of(grid)
-    h, v = _height_and_speed(rng[:, 0], rng[:, 1] * c_of(rng[:, 0]), grid, WINDOW)
-    lr = np.zeros(len(grid))
-    if voltage is not None and voltage_ref:
-        volts = np.array([voltage(t, u) for t, u in zip(fine, tau_fine)])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lr = _window_mean(fine, np.log(volts / voltage_ref), grid, WINDOW)
-    finite = np.isfinite(y) & np.isfinite(v) & np.isfinite(lr)
-    # du/dt is taken between neighbours: both must be there
-    keep = finite & np.roll(finite, 1) & np.roll(finite, -1) & np.isfinite(tau) & (h >= H_MIN) & (c >= C_MIN)
-    keep[[0, -1]] = False
-    if keep.sum() < MIN_POINTS:
-        return None
-    vc = v * c
-    free_n = voltage is not None and bool(voltage_ref)
-
-    def residual(p):
-        alpha, beta, mu, n, tc = p
-        u = ((y + mu * vc) * np.exp(-n * lr) - beta) / alpha
-        du = np.gradient(np.where(finite, u, 0.0), grid)  # the zeros reach no kept point
-        return (tau - (u + tc * du))[keep]
-
-    tau_h = float(np.median(tau[keep]))
-    x0 = [G / tau_h, 0.0, 0.3, 0.0, 0.0]
-    lo = [0.5, -G, 0.0, -3.0 if free_n else -1e-9, 0.0]
-    hi = [200.0, G, 3.0, 5.0 if free_n else 1e-9, 0.5]
-    fit = least_squares(residual, x0, bounds=(lo, hi), x_scale=[G / tau_h, 1.0, 0.3, 1.0, 0.1])
-    if not fit.success:
-        return None
-    r = fit.fun
-    free = [0, 1, 2, 3, 4] if free_n else [0, 1, 2, 4]
-    J = fit.jac[:, free]
-    try:
-        # the windows overlap: WINDOW / STEP grid points per independent one
-        cov = np.linalg.inv(J.T @ J) * float(r @ r) / max(len(r) - len(free), 1) * (WINDOW / STEP)
-    except np.linalg.LinAlgError:
-        return None
-    sd = np.zeros(5)
-    sd[free] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-    alpha, beta, mu, n, tc = (float(x) for x in fit.x)
-    if not sd[0] <= MAX_REL_SIGMA * alpha:
-        return None
-    sigma = dict(zip(("alpha", "beta", "drag", "n", "tc"), (float(s) for s in sd)))
-    return ThrustCurve(
-        alpha, beta, mu, n if free_n else 0.0, tc, sigma, int(keep.sum()), float(keep.sum()) * STEP, bias
-    )
+    return fit_curve(pts) if pts is not None else None

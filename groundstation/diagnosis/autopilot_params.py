@@ -26,6 +26,8 @@ noise (sensor)      EK3_ALT_M_NSE (baro), EK3_RNG_M_NSE,    EKF2_BARO_NOISE, EKF
                     EK3_POSNE_M_NSE (GPS) [m]               EKF2_GPS_P_NOISE [m]
 ==================  ======================================  ======================================
 
+No value outside the range its autopilot documents is written (:mod:`.param_limits`).
+
 Signs: the catalogue's effects add to the reading (a baro ``k`` > 0 reads high as throttle
 rises); ArduPilot subtracts ``BARO1_THST_SCALE`` times throttle from the pressure, so a baro
 that reads high (pressure low) takes a negative scale. An effect with no parameter anywhere
@@ -45,6 +47,7 @@ from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 
 from .engine import Diagnosis
+from .param_limits import outside
 from .triage.finding import cell_count
 
 G = 9.80665
@@ -98,10 +101,14 @@ def suggest(
 
     def add(which: str, name: str, value: float | None, effect: str, why: str) -> None:
         if (which == "ArduPilot" and ap) or (which == "PX4" and px):
-            out.append(ParamSuggestion(which, name, None if value is None else float(f"{value:.4g}"), effect, why))
+            v = None if value is None else float(f"{value:.4g}")
+            refused = outside(name, v) if v is not None and name else None
+            if refused is not None:  # kept in the report, with why, and written to no file
+                why, v = f"{why}; {refused}", None
+            out.append(ParamSuggestion(which, name, v, effect, why))
 
     rho_g = _rho_g(ms)
-    for e in d.effects:
+    for e in [*d.effects, *d.beside]:
         base, _, sensor = e.name.partition("(")
         sensor = sensor.rstrip(")") or str(e.evidence.get("sensor", ""))
         p = e.params

@@ -24,18 +24,20 @@ from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
-from groundstation.estimation.stated import RangeClearance
+from groundstation.estimation.stated import RangeClearance, Stated
 from groundstation.estimation.truth import Truth
 
 from . import holdout, trials
 from .catalogue import Candidate, state_param, unobservable_in, with_regressor, with_throttle_stand_in
 from .detect import Finding, detect
 from .discover import Discovery, discover, library
+from .effect import Effect
 from .gains import CatalogueColumns, fit, profile_shape, run_signatures, virtual_run
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
 from .run import SETTLE_S, Prepared, Run, hold_zeros, run_model
 from .signature import Column, Probes
+from .thrust_side import voltage_effect
 from .trace import STRONG, Scored, rank, realise, smallest_claimed, with_shape
 from .trials import log_profile
 
@@ -57,13 +59,6 @@ VETO_FLOOR = {"height [m]": 0.01, "roll and pitch [rad]": math.radians(0.5)}
 #: own 10; Kass and Raftery's scale). A baro drift of 0.03 m/s on a flight whose temperature rose almost
 #: in a line was named baro_thermal, Delta BIC -7168.5 against the drift's -7161.9
 CLOSE_CALL = 10.0
-
-
-@dataclass
-class Effect:
-    name: str
-    params: dict
-    evidence: dict
 
 
 @dataclass
@@ -92,6 +87,9 @@ class Diagnosis:
     unusable: dict[str, int] = field(default_factory=dict)
     #: the range's ground clearance taken off its readings (estimation.stated), if any
     clearance: RangeClearance | None = None
+    #: effects found beside the model, where it cannot show them (thrust_side: thrust lost with the
+    #: battery, from the accelerometer's thrust curve); each one's evidence names how it was found
+    beside: list[Effect] = field(default_factory=list)
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -239,17 +237,16 @@ def diagnose(
     veto_with_truth: bool = True,
     workers: int = 1,
     imu: ImuColumns | None = None,
-    clearance: RangeClearance | None = None,
+    stated: Stated | None = None,
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the processes the
     candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number).
-    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``clearance``: the range's
-    reading on the ground, taken off its readings (:func:`.models.setup`)."""
-    su = setup(
-        ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, clearance=clearance
-    )
+    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``stated``: what the log
+    states besides its readings (the range's ground clearance, the motors' thrust curve:
+    :func:`.models.setup`)."""
+    su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, stated=stated)
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     prep, model, make, catalogue, names = su.prep, su.model, su.spec.make, su.spec.catalogue, su.declared
     say = progress or (lambda _s: None)
@@ -474,6 +471,21 @@ def diagnose(
             measurements=stream,
         )
         findings1 = sensor_findings(base)
+    beside: list[Effect] = []
+    detectable = _detectable(scored, added, rejected)
+    if model_name == "altitude":
+        say("reading the thrust curve from the accelerometer")
+        tv = voltage_effect(prep, base)
+        if tv is not None:
+            unobs.pop("thrust_voltage", None)  # traced beside the model
+            if tv.evidence["claimed"]:
+                beside.append(tv)
+            elif tv.evidence["delta_bic"] < STRONG:  # it fitted better, and a later bar turned it away
+                rejected.append(tv)
+            else:
+                detectable.append(
+                    {"name": tv.name, "size": {"n": tv.evidence["n_50"]}, "delta_bic": tv.evidence["delta_bic"]}
+                )
     return Diagnosis(
         source,
         model_name,
@@ -491,10 +503,11 @@ def diagnose(
         rejected,
         vehicle,
         su.airframe,
-        _detectable(scored, added, rejected),
+        detectable,
         noise,
         prep.unusable,
         su.clearance,
+        beside,
     )
 
 

@@ -19,13 +19,14 @@ from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
 from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.identity import Vehicle
 from groundstation.estimation.models.altitude import altitude_model
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import on_ground
 from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
 from groundstation.estimation.routing import altitude_estimator, attitude_estimator
-from groundstation.estimation.stated import RangeClearance
+from groundstation.estimation.stated import RangeClearance, Stated
 
 from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
@@ -231,12 +232,14 @@ def setup(
     declared: Sequence[dict] = (),
     vehicle: str | None = None,
     imu: ImuColumns | None = None,
-    clearance: RangeClearance | None = None,
+    stated: Stated | None = None,
 ) -> Setup:
     """The model a diagnosis starts from, with the declared effects in it (one line of error if the log
-    cannot feed it). ``clearance``: the range's reading on the ground (what the log states or its
-    ground segments show, :mod:`groundstation.estimation.stated`), taken off every range reading so
-    that the range reads the height every model means, 0 on the gear."""
+    cannot feed it). ``stated``: what the log states besides its readings
+    (:mod:`groundstation.estimation.stated`): the range's reading on the ground, taken off every range
+    reading so that the range reads the height every model means, 0 on the gear; the motors' thrust
+    curve, which the rotor wash's signal is read through (``options["motor_curve"]``)."""
+    clearance = stated.clearance if stated is not None else None
     spec = DIAGNOSABLE.get(model_name)
     if spec is None:
         raise ValueError(f"diagnose: model {model_name!r} is not supported (use {', '.join(DIAGNOSABLE)})")
@@ -261,4 +264,43 @@ def setup(
             f"{source or 'log'}: {prep.duration:.1f} s of data; a diagnosis needs at least "
             f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
         )
-    return Setup(prep, base.model, spec, names, base.airframe, clearance)
+    model = base.model
+    if stated is not None and stated.motors is not None:
+        model = replace(model, options={**model.options, "motor_curve": stated.motors})
+    return Setup(prep, model, spec, names, base.airframe, clearance)
+
+
+#: ``diagnose --model auto``: the first of these the vehicle is described by and the log can feed. The
+#: altitude model first (the accelerometer as input is what every autopilot's height filter takes); the
+#: thrust model where the log has a throttle but no accelerometer (an ArduCopter 3.0 text log); the
+#: attitude model where the log has a raw IMU and no height sensor
+AUTO_ORDER = ("altitude", "quad_thrust", "attitude")
+
+
+def can_feed(spec: DiagnosisSpec, kinds: set[Kind]) -> bool:
+    """The log's kinds feed the model: what it needs, and a height sensor where it needs one."""
+    has = bool(spec.needs & kinds) if spec.needs_any else spec.needs <= kinds
+    return has and (not spec.needs_height or bool(kinds & HEIGHT_SENSORS))
+
+
+def choose_model(kinds: set[Kind], vehicle: Vehicle) -> tuple[str | None, str]:
+    """The model ``diagnose --model auto`` runs on a log with these kinds of readings, written by this
+    vehicle, and one line saying why; None (with the reason) where no model describes the vehicle or
+    the log feeds none that does."""
+    if not vehicle.models:
+        return None, vehicle.why_not("altitude")
+    for name in AUTO_ORDER:
+        if vehicle.describes(name) and can_feed(DIAGNOSABLE[name], kinds):
+            return name, f"{name}: {DIAGNOSABLE[name].help}"
+    missing = []
+    if Kind.ACCEL not in kinds:
+        missing.append("no accelerometer")
+    if not kinds & {Kind.THROTTLE, Kind.ACTUATOR}:
+        missing.append("no throttle or motor outputs")
+    if not kinds & HEIGHT_SENSORS:
+        missing.append("no barometer or range sensor")
+    return None, (
+        f"no model can be run on it ({', '.join(missing) or 'not enough of what the models read'}): the altitude "
+        "model takes the accelerometer as its input, the thrust model the throttle, and both diagnose against a "
+        "barometer or a range sensor"
+    )

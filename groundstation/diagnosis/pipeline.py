@@ -14,13 +14,16 @@ from pathlib import Path
 
 from groundstation.core.allocator import return_freed_arrays
 from groundstation.core.imu import ImuColumns
+from groundstation.core.measurement import Kind
+from groundstation.estimation.identity import Vehicle, identify
 from groundstation.estimation.logs import LoadedLog, load_log
-from groundstation.estimation.stated import range_clearance
+from groundstation.estimation.stated import stated_by
 from groundstation.estimation.truth import truth_from
 
 from . import report
 from .autopilot_params import suggest, suggest_notch, write_param_file
 from .engine import diagnose
+from .models import choose_model
 from .report import triage_headline
 from .triage import Triage, triage, usable, usable_imu
 
@@ -44,7 +47,7 @@ def run(
     path: Path,
     out: Path,
     *,
-    model: str = "altitude",
+    model: str = "auto",
     declared: list | None = None,
     vehicle: str | None = None,
     truth_csv: Path | None = None,
@@ -54,7 +57,9 @@ def run(
     workers: int = 1,
 ) -> LogDiagnosis:
     """Diagnose ``path`` into the folder ``out`` (which must be writable). Raises the readers' and
-    the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed."""
+    the engine's one-line errors (ValueError, OSError) for a log that cannot be diagnosed. ``model``
+    "auto" picks the model the vehicle and the log's readings allow (:func:`.models.choose_model`);
+    where none does, the report holds the triage and says why."""
     return_freed_arrays()  # a diagnosis's arrays of megabytes go back to the system when freed
     log = load_log(path, imu_columns=True)
     ms_all = log.measurements
@@ -67,13 +72,27 @@ def run(
         spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in used) or "nothing"
         say(f"fitting the model to {spans}: {len(cut)} stretch(es) cut (report.json: segments_cut)")
     fit_seconds = sum(b - a for a, b in used)
+    craft = vehicle_of(log)
+    say(f"vehicle: {craft.name} ({craft.evidence})")
     if cut and fit_seconds < MIN_FIT_SECONDS:  # (a log short in itself is the engine's one-line error)
-        j = write_triage_only(out, path, log.description, tr, used, cut)
+        why = "Too little of the log is usable to fit the model."
+        j = write_triage_only(out, path, log.description, tr, used, cut, why, craft)
         say(
             f"not fitted: {fit_seconds:.1f} s of the log is usable (at least {MIN_FIT_SECONDS:.0f} s needed); "
             f"the triage is in {out / 'report.json'}"
         )
         return LogDiagnosis(j, log.description, duration, [])
+    chose = ""
+    if model == "auto":
+        picked, chose = choose_model(_kinds(log), craft)
+        if picked is None:
+            why = f"Not diagnosed: {chose}."
+            j = write_triage_only(out, path, log.description, tr, used, cut, why, craft)
+            say(f"not diagnosed: {chose}; the triage is in {out / 'report.json'}")
+            return LogDiagnosis(j, log.description, duration, [])
+        model = picked
+        say(f"model: {chose}")
+    describes = craft.describes(model) or craft.kind == "unknown"
     notch = []
     if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
         notch = suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
@@ -88,12 +107,22 @@ def run(
         veto_with_truth=veto_with_truth,
         workers=workers,
         imu=_usable_imu(log, tr, keep=False),
-        clearance=range_clearance(log.tables, ms_all),
+        stated=stated_by(log.tables, ms_all),
     )
     suggestions = []
-    if log.tables.fmt != "crazyflie":
+    if log.tables.fmt != "crazyflie" and describes:
         suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + notch
-    j = report.write(d, out, triage=tr, used=used, cut=cut, parameters=suggestions)
+    j = report.write(
+        d,
+        out,
+        triage=tr,
+        used=used,
+        cut=cut,
+        parameters=suggestions,
+        vehicle=craft,
+        model_chosen=chose,
+        not_described=None if describes else craft.why_not(model),
+    )
     files = []
     for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):
         if write_param_file(out / name, suggestions, autopilot, str(path)):
@@ -123,18 +152,38 @@ def _usable_imu(log: LoadedLog, tr: Triage, *, keep: bool) -> ImuColumns | None:
     return usable_imu(imu, tr) if imu is not None else None
 
 
-def write_triage_only(out: Path, source: Path, description: str, tr: Triage, used, cut) -> dict:
-    """report.json and report.html with the triage alone (nothing left to fit)."""
+def vehicle_of(log: LoadedLog) -> Vehicle:
+    """What wrote the log (:func:`~groundstation.estimation.identity.identify`); a session of the 3-DOF
+    rig by its encoders, which no flying vehicle logs."""
+    if Kind.ENCODERS in _kinds(log):
+        return Vehicle("rig", "3-DOF lab helicopter rig", "encoder readings")
+    return identify(log.tables)
+
+
+def _kinds(log: LoadedLog) -> set[Kind]:
+    """The kinds of reading the log holds, its IMU columns' included."""
+    ms = log.measurements
+    kinds = ms.kinds() if hasattr(ms, "kinds") else {m.kind for m in ms}
+    if log.imu is not None:
+        kinds |= {k for k, _ in log.imu.series}
+    return set(kinds)
+
+
+def write_triage_only(
+    out: Path, source: Path, description: str, tr: Triage, used, cut, why: str, vehicle: Vehicle | None = None
+) -> dict:
+    """report.json and report.html with the triage alone, and ``why`` nothing was fitted."""
     j = {
         "source": str(source),
         "description": description,
+        "vehicle_type": vehicle.as_dict() if vehicle is not None else None,
         "triage": tr.as_json(),
         "triage_clock": tr.clock,
         "segments_used": [{"t_start": a, "t_end": b} for a, b in used],
         "segments_cut": cut,
         "effects": [],
         "parameters": [],
-        "conclusion": triage_headline(tr, used, cut) + "Too little of the log is usable to fit the model.",
+        "conclusion": triage_headline(tr, used, cut) + why,
     }
     (out / "report.json").write_text(json.dumps(j, indent=2))
     (out / "report.html").write_text(

@@ -52,6 +52,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.estimation.export import EstimateCsvWriter
+from groundstation.estimation.identity import Vehicle
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import ljung_box
 
@@ -150,7 +151,7 @@ def as_json(d: Diagnosis) -> dict:
         "model": d.model,
         "vehicle": d.vehicle,
         "airframe": d.airframe,
-        "effects": eff + disc,
+        "effects": eff + disc + [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.beside],
         "modelled": [{"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.modelled],
         "measured_against_truth": [
             {"name": e.name, "params": e.params, "evidence": e.evidence} for e in d.against_truth
@@ -246,6 +247,14 @@ def conclusion(d: Diagnosis, j: dict) -> str:
                 )
                 + "."
             )
+    for e in d.beside:
+        ev = e.evidence
+        parts.append(
+            f"Beside the model, which takes the accelerometer as its input and so never predicts thrust, the "
+            f"{ev['model']} shows {_named(e)}: the thrust the throttle buys falls with the pack's voltage. Its "
+            f"residual thrust went from {ev['thrust_rms_before']:.3g} to {ev['thrust_rms_after']:.3g} m/s^2 "
+            f"(Delta BIC {ev['delta_bic']:.0f}, and on each third of the flight when fitted on the other two)."
+        )
     a = d.airframe
     if a and not a.get("used", True) and abs(a["alpha"] - a["file_alpha"]) > CURVE_MISMATCH * a["file_alpha"]:
         parts.append(
@@ -500,13 +509,28 @@ def write(
     used: list[tuple[float, float]] | None = None,
     cut: list[dict] | None = None,
     parameters: list[ParamSuggestion] | None = None,
+    vehicle: Vehicle | None = None,
+    model_chosen: str = "",
+    not_described: str | None = None,
 ) -> dict:
     """report.json, report.html and the estimates' CSVs in ``out``. With the triage: what the log
     says happened opens both, with the stretches the fit used and those it cut; with parameters:
-    what to set on the autopilot for each effect found."""
+    what to set on the autopilot for each effect found; with the vehicle, what wrote the log, why the
+    model was chosen, and (``not_described``) why the model does not describe it and no parameter is
+    written."""
     out.mkdir(parents=True, exist_ok=True)
     j = as_json(d)
     j["conclusion"] = conclusion(d, j)
+    if vehicle is not None:
+        j["vehicle_type"] = vehicle.as_dict()
+    if model_chosen:
+        j["model_chosen"] = model_chosen
+    if not_described:
+        j["not_described"] = not_described
+        j["conclusion"] = (
+            f"The {d.model} model does not describe this vehicle: {not_described}. What follows is a finding "
+            "about the model, and no parameter is written. " + j["conclusion"]
+        )
     if triage is not None:
         j["triage"] = triage.as_json()
         j["triage_clock"] = triage.clock

@@ -36,7 +36,7 @@ from groundstation.estimation.models.base import LinearModel
 # diagnosis credited thrust_ground_effect (R = 0.28 m, Delta BIC -240) for what the constraint
 # alone "gained", and made the height error worse (1.03 -> 1.35 cm)
 from groundstation.estimation.models.ground import LANDED
-from groundstation.estimation.routing import collective, set_throttle
+from groundstation.estimation.routing import collective, motor_outputs, set_throttle
 from groundstation.estimation.whiteness import effective_size
 
 from .signature import Probes
@@ -409,6 +409,10 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
             setattr(ctx, key, old + (value - old) * (1.0 - math.exp(-(t - t_last) / tc)))
         setattr(ctx, key + "_t", t)
 
+    #: the motors' thrust curve the log states (estimation.stated.MotorCurve): the rotor wash's
+    #: low-passes follow the thrust the outputs make, not their mean
+    curve = est.model.options.get("motor_curve")
+
     def throttle(m, ctx):
         tau = collective(m, ctx)
         if tau is None:
@@ -416,13 +420,17 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
         if tcs:
+            wash = tau
+            if curve is not None and m.kind is Kind.ACTUATOR:
+                outputs = [x for x in m.value[: motor_outputs(ctx)].tolist() if math.isfinite(x)]
+                wash = curve.thrust(outputs) if outputs else tau
             t_last, lps = ctx.throttle_lps_t, ctx.throttle_lps
             for tc in tcs:
                 old = lps.get(tc)
                 if old is None or t_last is None:
-                    lps[tc] = tau
+                    lps[tc] = wash
                 elif m.t > t_last:
-                    lps[tc] = old + (tau - old) * (1.0 - math.exp(-(m.t - t_last) / tc))
+                    lps[tc] = old + (wash - old) * (1.0 - math.exp(-(m.t - t_last) / tc))
             ctx.throttle_lps_t = m.t
 
     def temperature(m, ctx):

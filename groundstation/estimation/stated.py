@@ -1,5 +1,8 @@
-"""What a log says of its sensors besides their readings: the downward rangefinder's ground
-clearance, from the vehicle standing on its gear or, failing that, from the autopilot's parameters.
+"""What a log says of its sensors and motors besides their readings: the downward rangefinder's
+ground clearance (from the vehicle standing on its gear or, failing that, from the autopilot's
+parameters) and the motors' thrust curve (from the autopilot's parameters).
+
+**Ground clearance.**
 
 A downward rangefinder sits some centimetres above the floor when the vehicle stands on its gear:
 it reads that much where the height the estimators mean (0 on the ground) is zero, and that much
@@ -18,6 +21,19 @@ steady (a spread of a few centimetres) and are not a clamp: a sonar that reads i
 or the stated minimum) for anything closer says nothing of the distance. Where the data and the
 parameter disagree, the data is used and the disagreement is said: the parameter is then a setting
 to correct.
+
+**The motors' working range.** A motor makes thrust between the output its autopilot spins it at
+when armed and idle and its full output: ArduPilot's ``MOT_SPIN_MIN``/``MOT_SPIN_MAX`` within
+``MOT_PWM_MIN``/``MOT_PWM_MAX`` (``AP_MotorsMulticopter::thrust_to_actuator``), PX4's
+``PWM_MAIN_MIN1``/``PWM_MAIN_MAX1``. The rotor wash on a static port scales with the thrust, so its
+signal is the motors' mean output as a fraction of that range, zero at idle: with the raw output,
+a vehicle idling on the ground at ``MOT_SPIN_ARM`` (0.1) showed a wash that was not there, and on
+another generator's flight a correlate of the battery current was claimed in its place. The
+autopilots also state a thrust curve over that range (ArduPilot's ``MOT_THST_EXPO``, PX4's
+``THR_MDL_FAC``: thrust = e r^2 + (1 - e) r). It is read and reported, not applied: it is what the
+autopilot was told (often its default), and on that generator's flights, whose thrust is linear in
+the command, the wash fitted through the stated 0.65 left 14.3 cm of height error where the linear
+range left 11.2 cm (7.4 cm for a filter that knows the effect).
 """
 
 from __future__ import annotations
@@ -46,6 +62,72 @@ MAX_CLEARANCE = 0.5
 CLAMP_SHARE = 0.8
 #: the data and the parameter agree within this [m]
 AGREE = 0.02
+
+
+@dataclass(frozen=True)
+class MotorCurve:
+    """The motors' working range in ``Kind.ACTUATOR``'s normalised output ``(us - 1000) / 1000``, and
+    the thrust curve the autopilot states over it (module docstring)."""
+
+    expo: float  #: the stated curve's e (reported, not applied)
+    low: float  #: the normalised output at which the motors begin to make thrust (the spin minimum)
+    high: float  #: ... at full thrust
+    source: str  #: the parameters it was read from
+
+    def thrust(self, outputs: list[float]) -> float:
+        """The motors' mean output as a fraction of their working range, 0 at idle."""
+        r = (sum(outputs) / len(outputs) - self.low) / (self.high - self.low)
+        return min(max(r, 0.0), 1.0)
+
+    def as_dict(self) -> dict:
+        return {"expo": self.expo, "low": round(self.low, 4), "high": round(self.high, 4), "from": self.source}
+
+
+def _param(params: dict[str, float], name: str, default: float | None = None) -> float | None:
+    v = params.get(name)
+    return float(v) if v is not None and math.isfinite(v) else default
+
+
+def motor_curve(params: dict[str, float]) -> MotorCurve | None:
+    """The motors' thrust curve the autopilot's parameters state (ArduPilot's ``MOT_THST_EXPO`` with
+    its spin range and PWM range, PX4's ``THR_MDL_FAC`` with its PWM range), or None."""
+    expo = _param(params, "MOT_THST_EXPO")
+    if expo is not None and -1.0 <= expo <= 1.0:
+        pwm_lo = _param(params, "MOT_PWM_MIN", 0.0) or 1000.0  # 0: the RC3 range, 1000-2000 as usual
+        pwm_hi = _param(params, "MOT_PWM_MAX", 0.0) or 2000.0
+        spin_lo = _param(params, "MOT_SPIN_MIN", 0.15) or 0.0
+        spin_hi = _param(params, "MOT_SPIN_MAX", 0.95) or 1.0
+        if pwm_hi > pwm_lo and 0.0 <= spin_lo < spin_hi <= 1.0:
+            lo = (pwm_lo + spin_lo * (pwm_hi - pwm_lo) - 1000.0) / 1000.0
+            hi = (pwm_lo + spin_hi * (pwm_hi - pwm_lo) - 1000.0) / 1000.0
+            return MotorCurve(expo, lo, hi, f"MOT_THST_EXPO {expo:g}, MOT_SPIN_MIN/MAX {spin_lo:g}/{spin_hi:g}")
+    fac = _param(params, "THR_MDL_FAC")
+    if fac is not None and 0.0 <= fac <= 1.0:
+        main_lo = _param(params, "PWM_MAIN_MIN1", _param(params, "PWM_MAIN_MIN"))
+        main_hi = _param(params, "PWM_MAIN_MAX1", _param(params, "PWM_MAIN_MAX"))
+        low, high = main_lo if main_lo is not None else 1000.0, main_hi if main_hi is not None else 2000.0
+        if high > low:
+            return MotorCurve(fac, (low - 1000.0) / 1000.0, (high - 1000.0) / 1000.0, f"THR_MDL_FAC {fac:g}")
+    return None
+
+
+@dataclass(frozen=True)
+class Stated:
+    """What the log states besides its readings (the module's docstring)."""
+
+    clearance: RangeClearance | None = None
+    motors: MotorCurve | None = None
+
+    def as_dict(self) -> dict:
+        return {
+            "range_clearance": self.clearance.as_dict() if self.clearance is not None else None,
+            "motor_curve": self.motors.as_dict() if self.motors is not None else None,
+        }
+
+
+def stated_by(tables: LogTables, ms: Sequence[Measurement]) -> Stated:
+    """What ``tables`` (a log's records and parameters) and its measurements state."""
+    return Stated(range_clearance(tables, ms), motor_curve(tables.params))
 
 
 @dataclass(frozen=True)
