@@ -158,3 +158,45 @@ def test_a_row_carries_the_error_and_whether_the_sigma_is_honest_against_truth(t
     table = pq.read_table(tmp_path / "fleet.parquet").to_pylist()
     assert table[0]["nees_after"] == 0.96 and table[1]["nees_after"] is None
     assert _rows(tmp_path)[0]["nees_before"] == "48.2" and _rows(tmp_path)[1]["nees_before"] == ""
+
+
+def test_a_hostile_archive_gives_a_row_per_failure_and_never_stops_the_walk(tmp_path):
+    """A file link to itself (``Symlink loop`` had ended the whole run), a folder link to its parent (a
+    walk for ever), a link to nothing, and a garbage log beside a good one: each failure is a row
+    with its reason, and the good log is found."""
+    import os
+
+    from groundstation.diagnosis import fleet
+
+    a = tmp_path / "archive"
+    (a / "quad").mkdir(parents=True)
+    shutil.copy(REPO / "tests" / "fixtures" / "px4_sitl_events.ulg", a / "quad" / "good.ulg")
+    os.symlink("loop.bin", a / "quad" / "loop.bin")
+    os.symlink("..", a / "quad" / "up")
+    os.symlink(tmp_path / "nowhere.tlog", a / "quad" / "gone.tlog")
+    (a / "quad" / "junk.ulg").write_bytes(b"ULog\x01\x12\x35" + bytes(5))
+    jobs = fleet.find_logs(a, tmp_path / "out", "auto")
+    assert sorted(j.rel for j in jobs) == ["quad/gone.tlog", "quad/good.ulg", "quad/junk.ulg", "quad/loop.bin"]
+    for j in jobs:
+        if j.rel != "quad/good.ulg":
+            err = fleet.diagnose_one(j)
+            assert err["log"] == j.rel and len(err["error"].splitlines()) == 1, err
+
+
+def test_any_exception_of_one_log_is_its_row(tmp_path, monkeypatch):
+    """A failure no reader names (a bare KeyError from a library, say) is that log's row with its
+    type, not the fleet's end. (The fault is made by replacing the pipeline: no log here causes one.)"""
+    from groundstation.diagnosis import fleet
+
+    a = tmp_path / "archive"
+    a.mkdir()
+    shutil.copy(REPO / "tests" / "fixtures" / "px4_sitl_events.ulg", a / "one.ulg")
+    job = fleet.find_logs(a, tmp_path / "out", "auto")[0]
+
+    def boom(*_a, **_k):
+        raise KeyError("timestamp")
+
+    monkeypatch.setattr(fleet, "run", boom)
+    err = fleet.diagnose_one(job)
+    assert err["error"] == "KeyError: 'timestamp'"
+    assert json.loads((Path(job.out) / "error.json").read_text()) == err

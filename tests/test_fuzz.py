@@ -297,3 +297,101 @@ def test_a_recording_written_through_a_clock_step_reads_back_whole(tmp_path):
         w.write(fr, 1.7e9 + k * 0.01 + (0 if k < 25 else 5 * 86_400))
     w.close()
     assert len(TlogIndex.scan(p)) >= len(frames) - 1
+
+
+def _ulog(formats: list[str], topics: list[tuple[int, str]], records: list[tuple[int, bytes]], cut: int = 0) -> bytes:
+    """A ULog file (docs.px4.io's ULog format): header, flag bits, format definitions, subscriptions
+    (msg_id, name) and data records (msg_id, payload); ``cut`` bytes taken off its end."""
+
+    def msg(kind: str, payload: bytes) -> bytes:
+        return struct.pack("<HB", len(payload), ord(kind)) + payload
+
+    out = bytearray(b"ULog\x01\x12\x35\x01" + struct.pack("<Q", 0))
+    out += msg("B", bytes(16) + bytes(24))
+    for f in formats:
+        out += msg("F", f.encode())
+    for mid, name in topics:
+        out += msg("A", struct.pack("<BH", 0, mid) + name.encode())
+    for mid, payload in records:
+        out += msg("D", struct.pack("<H", mid) + payload)
+    return bytes(out[: len(out) - cut] if cut else out)
+
+
+def _read_ulog_or_one_line(p: Path):
+    from drivers.logs.ulog import ULogError, read_ulog
+
+    try:
+        return read_ulog(p)
+    except ULogError as e:
+        assert str(e).startswith(str(p)) and "\n" not in str(e)
+        return str(e)
+
+
+def test_ulog_reproducers_give_one_line_or_a_counted_skip(tmp_path):
+    """The audit's ULog cases, rebuilt: a topic without a timestamp (a KeyError), formats nested in
+    themselves or multiplying their arrays (163 bytes had grown to 2.67 GB), a file cut inside its
+    definitions (pyulog read on for minutes), a data section cut inside a message."""
+    baro = "baro_t:uint64_t timestamp;float pressure"
+    good = [(1, struct.pack("<Qf", k * 100_000, 101000.0)) for k in range(50)]
+    cases = {
+        "untimed": _ulog([baro, "notime:float x;float y"], [(1, "baro_t"), (2, "notime")], [*good, (2, bytes(8))]),
+        "self_nested": _ulog(["a:uint64_t timestamp;a inner"], [(1, "a")], []),
+        "multiplying": _ulog(
+            ["a:uint64_t timestamp;b[1000] x", "b:c[1000] y", "c:d[1000] z", "d:double w"], [(1, "a")], []
+        ),
+        "unknown_type": _ulog(["a:uint64_t timestamp;nosuch x"], [(1, "a")], []),
+        "cut_in_definitions": _ulog([baro, "other:uint64_t timestamp;" + "float f;" * 50], [], [])[:-30],
+        "cut_in_data": _ulog([baro], [(1, "baro_t")], good, cut=3),
+    }
+    got = {}
+    for name, data in cases.items():
+        p = tmp_path / f"{name}.ulg"
+        p.write_bytes(data)
+        got[name] = _read_ulog_or_one_line(p)
+    assert not isinstance(got["untimed"], str) and got["untimed"].skipped["topic_without_timestamp"] == 1
+    assert "contains itself" in got["self_nested"]
+    assert "larger than a message can carry" in got["multiplying"]
+    assert "unknown type" in got["unknown_type"]
+    assert "cut inside its definitions" in got["cut_in_definitions"]
+    cut = got["cut_in_data"]
+    assert not isinstance(cut, str) and "cut at offset" in cut.damage
+    assert len(cut.tables["baro_t"]) == 49  # every whole record before the cut
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_damaged_ulogs_are_read_as_far_as_they_go_or_refused_in_one_line(tmp_path, seed):
+    rng = random.Random(seed)
+    b = bytearray((FIXTURES / "px4_sample_log_small.ulg").read_bytes()[:150_000])
+    for _ in range(rng.randint(1, 30)):
+        op = rng.random()
+        i = rng.randrange(len(b))
+        if op < 0.6:
+            b[i] = rng.randrange(256)
+        elif op < 0.8:
+            del b[i : i + rng.randrange(1, 300)]
+        else:
+            b[i:i] = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 50)))
+    p = tmp_path / "damaged.ulg"
+    p.write_bytes(bytes(b))
+    _read_ulog_or_one_line(p)
+
+
+def test_a_dataflash_fmt_of_length_zero_is_damage_not_a_loop(tmp_path):
+    """189 bytes: an FMT record declaring a length of 0 made the walker step by 0 while its list grew
+    (1.6 GB in 108 s). Its type's records are now resynced over as damage."""
+    from drivers.logs.bulk import walk_dataflash
+
+    def fmt(type_id, length, name, form, cols):
+        return b"\xa3\x95\x80" + struct.pack(
+            "<BB4s16s64s", type_id, length, name.encode(), form.encode(), cols.encode()
+        )
+
+    data = fmt(128, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns") + fmt(129, 0, "IMU", "Qf", "TimeUS,AccX")
+    data += b"\xa3\x95\x81" + bytes(8)
+    assert len(data) == 189
+    walk = walk_dataflash(data)
+    assert 129 not in walk.fmts and walk.skipped
+    p = tmp_path / "fmt0.bin"
+    p.write_bytes(data)
+    log = read_dataflash(p)
+    assert not log.measurements and "damaged FMT" in log.damage

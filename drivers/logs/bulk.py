@@ -29,6 +29,8 @@ on the next header, and each skipped stretch is kept with its offset.
 from __future__ import annotations
 
 import re
+import struct
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -279,7 +281,7 @@ class DataFlashWalk:
 
     length: dict[int, int]  # record length per type id (header included)
     fmts: dict[int, tuple[str, str, list[str]]]  # type id -> (name, format, columns)
-    offsets: dict[int, list[int]]  # type id -> record offsets
+    offsets: dict[int, array]  # type id -> record offsets (8 bytes each, not a Python int's 32)
     skipped: list[tuple[int, int]]  # (offset, bytes) of bad headers resynced over
     truncated_at: int | None  # offset of an incomplete last record
 
@@ -301,12 +303,25 @@ class DataFlashWalk:
         return f"{path}: " + "; ".join(parts) if parts else ""
 
 
+def fmt_length_ok(length: int, fmt: str) -> bool:
+    """An FMT record's declared length is its record's: the 3-byte header and the fields its format
+    string packs (DFReader's ``FORMAT_TO_STRUCT``). A length that is not (a damaged byte, a crafted
+    0) would walk the log in steps that are not its records: 0 never leaves the first one."""
+    try:
+        size = struct.calcsize("<" + "".join(DFReader.FORMAT_TO_STRUCT[c][0] for c in fmt))
+    except (KeyError, struct.error):
+        return False
+    return bool(fmt) and length == 3 + size
+
+
 def walk_dataflash(data: bytes) -> DataFlashWalk:
-    """Walk the records (lengths from the FMT records as they come); resync on the next header."""
+    """Walk the records (lengths from the FMT records as they come); resync on the next header. An
+    FMT whose length is not its format's (:func:`fmt_length_ok`) defines nothing: its type's records
+    are resynced over as damage."""
     n = len(data)
     length = {_FMT_TYPE: 89}
     fmts: dict[int, tuple[str, str, list[str]]] = {}
-    offsets: dict[int, list[int]] = {}
+    offsets: dict[int, array] = {}
     skipped: list[tuple[int, int]] = []
     truncated_at = None
     pos = 0
@@ -331,13 +346,13 @@ def walk_dataflash(data: bytes) -> DataFlashWalk:
             name = data[pos + 5 : pos + 9].rstrip(b"\0").decode("ascii", "replace")
             fmt = data[pos + 9 : pos + 25].rstrip(b"\0").decode("ascii", "replace")
             cols = data[pos + 25 : pos + 89].rstrip(b"\0").decode("ascii", "replace").split(",")
-            if t2 != _FMT_TYPE:
+            if t2 != _FMT_TYPE and fmt_length_ok(l2, fmt):
                 length[t2] = l2
                 fmts[t2] = (name, fmt, cols)
         else:
             lst = offsets.get(typ)
             if lst is None:
-                lst = offsets[typ] = []
+                lst = offsets[typ] = array("q")
             lst.append(pos)
         pos += L
     else:
@@ -367,7 +382,7 @@ def load_dataflash_bin(path: str | Path) -> BulkLog:
             continue
         name, fmt, cols = fmts[typ]
         try:
-            fields = _df_fields(u8, np.array(offs, dtype=np.int64), length[typ], fmt, cols)
+            fields = _df_fields(u8, np.frombuffer(offs, dtype=np.int64), length[typ], fmt, cols)
         except (KeyError, ValueError):
             log.undecodable[name] = len(offs)  # an FMT we cannot decode: counted, not guessed
             continue

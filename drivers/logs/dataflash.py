@@ -47,7 +47,7 @@ import io
 import math
 import os
 import sys
-import tempfile
+from array import array
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,8 +57,9 @@ from pymavlink import DFReader
 
 from groundstation.core.measurement import Kind, Measurement
 
-from .bulk import walk_dataflash
-from .tables import FIRMWARE, LogTables, table_from_rows
+from .bulk import fmt_length_ok, walk_dataflash
+from .scratch import scratch_copy
+from .tables import FIRMWARE, LogTables, Table
 
 CONTROL_RATE = 10.0  # CTUN's rate in logs without a clock [Hz]
 
@@ -128,32 +129,27 @@ def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = T
     data = p.read_bytes()
     binary = data[:2] == b"\xa3\x95"
     damage = walk_dataflash(data).damage(p) if binary else ""
-    read_from = p
+    cleaned = None
     if binary:
         clean_bin, bad_fmts = clean_binary_formats(data)
         if bad_fmts:
             damage = "; ".join(x for x in (damage, f"{p}: {bad_fmts} damaged FMT record(s) skipped") if x)
-            with tempfile.NamedTemporaryFile("wb", suffix=".bin", delete=False) as tmp:
-                tmp.write(clean_bin)
-            read_from = Path(tmp.name)
+            cleaned = clean_bin
     else:
         # DFReader reads a text log whole, and one damaged line (a byte that is not text, a field
         # that does not read as its format says) rejected all of it: those lines are dropped first
         clean, dropped = clean_text_log(data)
         if dropped:
             damage = f"{p}: {dropped} damaged line(s) skipped"
-            with tempfile.NamedTemporaryFile("wb", suffix=".log", delete=False) as tmp:
-                tmp.write(clean)
-            read_from = Path(tmp.name)
+            cleaned = clean
     banner = "" if binary else _text_banner(data)
     del data  # DFReader maps the file itself
-    try:
+    with contextlib.ExitStack() as stack:
+        read_from = p if cleaned is None else stack.enter_context(scratch_copy(cleaned, ".bin" if binary else ".log"))
+        del cleaned
         log = _read(p, read_from, binary, damage, source, tables)
-        log.tables.firmware = _firmware(log.tables) or banner
-        return log
-    finally:
-        if read_from != p:
-            read_from.unlink(missing_ok=True)
+    log.tables.firmware = _firmware(log.tables) or banner
+    return log
 
 
 #: DFReader's format characters by how a text log writes them (pymavlink.DFReader.FORMAT_TO_STRUCT)
@@ -164,7 +160,8 @@ _KNOWN_FORMATS = _INT_FORMATS | _FLOAT_FORMATS | set("anNZ")
 
 def clean_binary_formats(data: bytes) -> tuple[bytes, int]:
     """A binary DataFlash log with its damaged FMT records (a format character DFReader does not
-    know, a name that is not a name, columns that do not match the format) unmade: their header
+    know, a name that is not a name, columns that do not match the format, a length that is not the
+    format's: DFReader steps by it, and a 0 never leaves the record) unmade: their header
     bytes zeroed, so that DFReader resyncs over them and skips that type's records instead of
     rejecting the whole log."""
     out: bytearray | None = None
@@ -174,7 +171,13 @@ def clean_binary_formats(data: bytes) -> tuple[bytes, int]:
         name = data[pos + 5 : pos + 9].rstrip(b"\0")
         fmt = data[pos + 9 : pos + 25].rstrip(b"\0")
         cols = data[pos + 25 : pos + 89].rstrip(b"\0").split(b",")
-        ok = name.isalnum() and bool(fmt) and all(chr(c) in _KNOWN_FORMATS for c in fmt) and len(cols) == len(fmt)
+        ok = (
+            name.isalnum()
+            and bool(fmt)
+            and all(chr(c) in _KNOWN_FORMATS for c in fmt)
+            and len(cols) == len(fmt)
+            and fmt_length_ok(data[pos + 4], fmt.decode("ascii"))
+        )
         if not ok:
             if out is None:
                 out = bytearray(data)
@@ -230,85 +233,155 @@ def _fields_read(fmt: str, values: list[str]) -> bool:
 
 
 def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tables: bool) -> DataFlashLog:
-    msgs: list = []  # DFReader's messages, then a ("__damage__", why) where it stopped
+    """One pass over DFReader's messages, each converted and tabled as it comes and let go: held as
+    a list, a 10 MB log of tiny records took 1.6 GB. What the conversion needs to know of the whole
+    log first (its parameters, which sensors it has, whether its records carry a clock) comes from
+    DFReader's own index and formats and a pass over the PARM records alone."""
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
     # damage, so that chatter is dropped.
     with _quiet():
         try:
             r = DFReader.DFReader_binary(str(read_from)) if binary else DFReader.DFReader_text(str(read_from))
+            params = _parameters(r)
         except Exception as e:  # DFReader raises assorted errors on foreign data
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
             raise DataFlashError(f"{p}: not a readable DataFlash log: {first}") from None
+        present = _record_counts(r)
+        columns = {f.name: set(f.columns) for f in r.formats.values()}
+        timed = any(present[t] and columns.get(t, set()) & {"TimeUS", "TimeMS"} for t in ("CTUN", "IMU", "ATT"))
+        log = DataFlashLog(p, [], Counter(), damage=damage, range_limits=rangefinder_limits(params))
+        log.tables = LogTables(params=params, fmt="dataflash", autopilot="ardupilot")
+        if not timed:
+            log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
+        has_baro, has_rfnd = present["BARO"] > 0, present["RFND"] > 0
+        rows: dict[str, _Columns] = {}
+        n_ctun = 0
+        # DFReader's clock minus the records' own (TimeUS/TimeMS): a record without a time field
+        # (ERR, EV, MODE, old GPS) is put on the same clock as the records around it
+        offset: float | None = None
+        first_stamp: float | None = None
+        out = log.measurements
         while True:
             try:
                 m = r.recv_msg()
             except Exception as e:  # damage after this point: keep what came before
-                msgs.append(("__damage__", f"{p}: unreadable after record {len(msgs)}: {e}"))
+                log.skipped["damage"] += 1
+                log.damage = "; ".join(
+                    x for x in (log.damage, f"{p}: unreadable after record {sum(log.counts.values())}: {e}") if x
+                )
                 break
             if m is None:
                 break
-            msgs.append(m)
-    if msgs and isinstance(msgs[-1], tuple):
-        damage = "; ".join(x for x in (damage, msgs[-1][1]) if x)
-    types = Counter(m.get_type() for m in msgs if not isinstance(m, tuple))
-    has_baro = types["BARO"] > 0
-    has_rfnd = types["RFND"] > 0
-    params = {}
-    for m in msgs:
-        if not isinstance(m, tuple) and m.get_type() == "PARM":
-            with contextlib.suppress(ValueError, TypeError, AttributeError):
-                params[str(m.Name)] = float(m.Value)
-    log = DataFlashLog(p, [], types, damage=damage, range_limits=rangefinder_limits(params))
-    log.tables = LogTables(params=params, fmt="dataflash", autopilot="ardupilot")
-    rows: dict[str, tuple[list[float], list[dict]]] = {}
-    timed = any(
-        hasattr(m, "TimeUS") or hasattr(m, "TimeMS")
-        for m in msgs
-        if not isinstance(m, tuple) and m.get_type() in ("CTUN", "IMU", "ATT")
-    )
-    if not timed:
-        log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
-    n_ctun = 0
-    # DFReader's clock minus the records' own (TimeUS/TimeMS): a record without a time field
-    # (ERR, EV, MODE, old GPS) is put on the same clock as the records around it
-    offset: float | None = None
-    out = log.measurements
-    for m in msgs:
-        if isinstance(m, tuple):
-            log.skipped["damage"] += 1
-            continue
-        typ = m.get_type()
-        if typ == "CTUN":
-            n_ctun += 1
-        try:
-            if timed:
-                if hasattr(m, "TimeUS"):
-                    t = m.TimeUS * 1e-6
-                elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
-                    t = m.TimeMS * 1e-3
-                elif typ == "GPS" and hasattr(m, "T"):  # ArduCopter 3.x: T is the boot time [ms]
-                    t = m.T * 1e-3
-                elif hasattr(m, "_timestamp"):
-                    t = m._timestamp - (offset if offset is not None else msgs[0]._timestamp)
+            typ = m.get_type()
+            log.counts[typ] += 1
+            if typ == "CTUN":
+                n_ctun += 1
+            stamp = getattr(m, "_timestamp", None)
+            if first_stamp is None and stamp is not None:
+                first_stamp = stamp
+            try:
+                if timed:
+                    if hasattr(m, "TimeUS"):
+                        t = m.TimeUS * 1e-6
+                    elif hasattr(m, "TimeMS") and typ != "GPS":  # GPS TimeMS is GPS time of week
+                        t = m.TimeMS * 1e-3
+                    elif typ == "GPS" and hasattr(m, "T"):  # ArduCopter 3.x: T is the boot time [ms]
+                        t = m.T * 1e-3
+                    elif stamp is not None:
+                        t = stamp - (offset if offset is not None else first_stamp)
+                    else:
+                        t = math.nan
+                    if stamp is not None and (hasattr(m, "TimeUS") or (hasattr(m, "TimeMS") and typ != "GPS")):
+                        offset = stamp - t
                 else:
-                    t = math.nan
-                if hasattr(m, "_timestamp") and (hasattr(m, "TimeUS") or (hasattr(m, "TimeMS") and typ != "GPS")):
-                    offset = m._timestamp - t
-            else:
-                t = n_ctun / CONTROL_RATE
-            _convert(typ, m, t, source, has_baro, has_rfnd, log.range_limits, out, log.skipped)
-            if tables and typ not in _NOT_TABLED:
-                ts, rs = rows.setdefault(typ, ([], []))
-                ts.append(t)
-                rs.append(m.to_dict())
-        except (ValueError, TypeError, AttributeError, IndexError, OverflowError):
-            # a record whose fields do not read as their format says (a damaged line or block):
-            # skipped and counted, the rest of the log kept
-            log.skipped["damaged_record"] += 1
+                    t = n_ctun / CONTROL_RATE
+                _convert(typ, m, t, source, has_baro, has_rfnd, log.range_limits, out, log.skipped)
+                if tables and typ not in _NOT_TABLED:
+                    cols = rows.get(typ)
+                    if cols is None:
+                        cols = rows[typ] = _Columns()
+                    cols.add(t, m.to_dict())
+            except (ValueError, TypeError, AttributeError, IndexError, OverflowError):
+                # a record whose fields do not read as their format says (a damaged line or block):
+                # skipped and counted, the rest of the log kept
+                log.skipped["damaged_record"] += 1
     out.sort(key=lambda x: x.t)
-    log.tables.tables = {typ: table_from_rows(ts, rs) for typ, (ts, rs) in rows.items()}
+    log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
     return log
+
+
+def _parameters(r) -> dict[str, float]:
+    """The log's PARM records (the last value of each), read ahead of the rest: the rangefinder's
+    limits the conversion checks readings against are among them. The reader is rewound after."""
+    params: dict[str, float] = {}
+    while True:
+        try:
+            m = r.recv_match(type="PARM")
+        except Exception:  # damage: the parameters before it are kept, the main pass says where
+            break
+        if m is None:
+            break
+        with contextlib.suppress(ValueError, TypeError, AttributeError):
+            params[str(m.Name)] = float(m.Value)
+    r.rewind()
+    return params
+
+
+def _record_counts(r) -> Counter:
+    """Records per type name, from DFReader's index (a list by type id in a binary log, a dict by
+    name in a text one)."""
+    if isinstance(r.counts, dict):
+        return Counter({str(k): int(c) for k, c in r.counts.items() if c})
+    return Counter({r.id_to_name[i]: int(c) for i, c in enumerate(r.counts) if c and i in r.id_to_name})
+
+
+class _Columns:
+    """One record type's rows gathered as columns as they come: 8 bytes a number (a row as a dict
+    was some 300 bytes), text as a list. A field a row lacks is NaN (numbers) or '' (text), as
+    :func:`~.tables.table_from_rows` makes them."""
+
+    def __init__(self) -> None:
+        self.t = array("d")
+        self.cols: dict[str, array | list] = {}
+
+    def add(self, t: float, row: dict) -> None:
+        n = len(self.t)
+        for k, v in row.items():
+            if k == "mavpackettype":
+                continue
+            col = self.cols.get(k)
+            number = isinstance(v, (int, float)) and not isinstance(v, bool)
+            if col is None:
+                col = self.cols[k] = array("d", [math.nan]) * n if number or v is None else [""] * n
+            elif len(col) < n:  # a field the rows before this one lacked
+                col.extend(array("d", [math.nan]) * (n - len(col)) if isinstance(col, array) else [""] * (n - len(col)))
+            if isinstance(col, array):
+                if number:
+                    col.append(v)
+                    continue
+                if v is None:
+                    col.append(math.nan)
+                    continue
+                col = self.cols[k] = [_as_text(x) for x in col]  # a text value in a number's column
+            col.append("" if v is None else _as_text(v))
+        self.t.append(t)
+
+    def table(self) -> Table:
+        n = len(self.t)
+        out: dict[str, np.ndarray] = {}
+        for k, col in self.cols.items():
+            if isinstance(col, array):
+                a = np.frombuffer(col, dtype=float) if len(col) else np.zeros(0)
+                out[k] = np.concatenate([a, np.full(n - len(a), math.nan)]) if len(a) < n else a
+            else:
+                out[k] = np.array(col + [""] * (n - len(col)), dtype=object)
+        return Table(np.frombuffer(self.t, dtype=float) if n else np.zeros(0), out)
+
+
+def _as_text(v) -> str:
+    """A value of a text column, as :func:`~.tables.table_from_rows` writes it."""
+    return v.split(b"\0", 1)[0].decode("latin-1") if isinstance(v, bytes) else str(v)
 
 
 #: record types that describe the log itself (formats, units, parameters: read above), not the flight

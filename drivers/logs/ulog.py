@@ -28,6 +28,7 @@ parameters to ``tables.params``.
 
 from __future__ import annotations
 
+import io
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -38,6 +39,7 @@ import numpy as np
 from groundstation.core.measurement import Kind, Measurement
 
 from .tables import LogTables, Table
+from .ulog_check import ULogStructureError, check
 
 #: a ULog file's first bytes: "ULog", then 0x01 0x12 0x35 (the format's magic)
 ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -78,13 +80,30 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
     if not is_ulog(p):
         raise ULogError(f"{p}: not a ULog (no ULog magic at offset 0)")
     try:
-        u = ULog(str(p))
+        data = p.read_bytes()
+    except OSError as e:
+        raise ULogError(f"{p}: cannot read: {e.strerror or e}") from None
+    try:
+        checked = check(data)  # bounds first: pyulog trusts the file (ulog_check.py)
+    except ULogStructureError as e:
+        raise ULogError(f"{p}: not a readable ULog: {e}") from None
+    # pyulog is handed the file up to its last whole message, from memory (it takes a file object)
+    source_file = io.BytesIO(data[: checked.end] if checked.cut else data)
+    del data
+    try:
+        u = ULog(source_file)
     except Exception as e:  # pyulog raises assorted errors on damaged files
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ULogError(f"{p}: not a readable ULog: {first}") from None
+    finally:
+        source_file.close()
     tables = LogTables(params=dict(u.initial_parameters), fmt="ulog", autopilot="px4", firmware=_px4_version(u))
+    untimed: Counter = Counter()
     for d in u.data_list:
         name = d.name if d.multi_id == 0 else f"{d.name}[{d.multi_id}]"
+        if "timestamp" not in d.data:
+            untimed["topic_without_timestamp"] += 1  # no clock to put it on
+            continue
         t = np.asarray(d.data["timestamp"], dtype=float) * 1e-6
         tables.tables[name] = Table(t, {k: np.asarray(v) for k, v in d.data.items() if k != "timestamp"})
     msgs = list(u.logged_messages)
@@ -95,9 +114,14 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
             "text": np.array([m.message for m in msgs], dtype=object),
         },
     )
-    log = UlogLog(p, [], tables, hardware=str(u.msg_info_dict.get("ver_hw", "")))
+    log = UlogLog(p, [], tables, skipped=untimed, hardware=str(u.msg_info_dict.get("ver_hw", "")))
+    damage = []
     if getattr(u, "file_corruption", False):
-        log.damage = f"{p}: damaged stretches skipped by the reader"
+        damage.append("damaged stretches skipped by the reader")
+    if checked.cut:
+        damage.append(f"last message cut at offset {checked.end}")
+    if damage:
+        log.damage = f"{p}: " + "; ".join(damage)
     _measurements(tables, log, source)
     log.measurements.sort(key=lambda m: m.t)
     return log

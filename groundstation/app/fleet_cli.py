@@ -25,7 +25,9 @@ def add_parser(sub) -> None:
     d = fsub.add_parser("diagnose", help="every log under ARCHIVE_DIR, resumable, one table and a fleet report")
     d.add_argument("archive", type=Path)
     d.add_argument("--out", type=Path, required=True, help="the fleet's folder: a report folder per log, the table")
-    d.add_argument("--model", default="altitude", choices=tuple(DIAGNOSABLE))
+    d.add_argument(
+        "--model", default="auto", choices=("auto", *DIAGNOSABLE), help="as diagnose's (default auto: by each log)"
+    )
     d.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)")
     d.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")
 
@@ -86,8 +88,14 @@ def cmd_fleet(args) -> int:
             where = args.scheduler or f"a local cluster of {len(client.scheduler_info()['workers'])} workers"
             print(f"on {where}", flush=True)
             bar = _Bar(len(todo))
-            for fut in as_completed(client.map(fleet.diagnose_one, todo, pure=False)):
-                bar(fut.result())
+            futures = client.map(fleet.diagnose_one, todo, pure=False)
+            job_of = {f.key: j for f, j in zip(futures, todo)}
+            for fut in as_completed(futures):
+                try:
+                    result = fut.result()
+                except Exception as e:  # the task's worker died (killed, out of memory) or it raised
+                    result = fleet.failed(job_of[fut.key], f"its worker failed: {type(e).__name__}: {e}"[:300])
+                bar(result)
         finally:
             client.close()
             if cluster is not None:

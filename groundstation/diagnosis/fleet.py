@@ -18,6 +18,7 @@ the log's first folder under the archive (``archive/quad-3/2026-05-01.bin`` is `
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import html
 import io
@@ -90,17 +91,34 @@ LOG_SUFFIXES = frozenset({".tlog", ".bin", ".ulg"})
 
 def find_logs(archive: Path, out: Path, model: str) -> list[LogJob]:
     """Every log under ``archive``, and every file named as one (:data:`LOG_SUFFIXES`), sorted by
-    path; the output folder itself is skipped."""
+    path; the output folder itself is skipped. Folders are walked without following their links (a
+    link to a parent folder would walk for ever); a file that is a link is taken as its target, and a
+    link that leads nowhere or to itself is a log that fails (a row with its reason), not an error
+    of the whole run."""
     jobs = []
     out = out.resolve()
-    for p in sorted(archive.rglob("*")):
-        if out in p.resolve().parents or not (is_log(p) or (p.suffix.lower() in LOG_SUFFIXES and p.is_file())):
+    for p in sorted(_files(archive)):
+        try:
+            inside_out = out in p.resolve(strict=False).parents
+            wanted = is_log(p) or p.suffix.lower() in LOG_SUFFIXES  # (a link to nothing named as a log fails)
+        except (OSError, RuntimeError):  # a link loop, a target that cannot be read
+            inside_out, wanted = False, p.suffix.lower() in LOG_SUFFIXES or p.is_symlink()
+        if inside_out or not wanted:
             continue
         rel = str(p.relative_to(archive))
         parts = Path(rel).parts
         vehicle = parts[0] if len(parts) > 1 else "(root)"
         jobs.append(LogJob(str(p), rel, str(out / folder_name(rel)), vehicle, model))
     return jobs
+
+
+def _files(archive: Path) -> list[Path]:
+    """The non-folder entries under ``archive``, folder links not followed."""
+    found = []
+    for root, dirs, files in os.walk(archive, followlinks=False):
+        found += [Path(root) / f for f in files]
+        found += [Path(root) / d for d in dirs if (Path(root) / d).is_symlink() and not (Path(root) / d).is_dir()]
+    return found
 
 
 def _stamp(p: Path) -> dict:
@@ -129,11 +147,10 @@ def diagnose_one(job: LogJob) -> dict:
         if not is_log(Path(job.path)):
             raise ValueError("not a log by its content (a MAVLink tlog, DataFlash, ULog or Crazyflie log)")
         r = run(Path(job.path), out, model=job.model)
-    except (ValueError, OSError, RuntimeError, ArithmeticError) as e:
-        msg = str(e).splitlines()[0] if str(e) else type(e).__name__
-        err = {"log": job.rel, "vehicle": job.vehicle, "error": msg}
-        (out / "error.json").write_text(json.dumps(err, indent=2))
-        return err
+    except MemoryError:
+        return failed(job, "out of memory while diagnosing it")
+    except Exception as e:  # any failure of one log is that log's row, never the fleet's end
+        return failed(job, _one_line(e))
     summary = {
         "log": job.rel,
         "vehicle": job.vehicle,
@@ -147,6 +164,22 @@ def diagnose_one(job: LogJob) -> dict:
     tmp.write_text(json.dumps(summary, indent=2, default=float))
     tmp.replace(out / "done.json")  # whole or absent: a killed run leaves no half marker
     return summary
+
+
+def _one_line(e: BaseException) -> str:
+    """An exception as one line: its message, or its type where it has none (a bare KeyError)."""
+    text = str(e).splitlines()[0] if str(e) else ""
+    return text if isinstance(e, (ValueError, OSError)) and text else f"{type(e).__name__}: {text}".rstrip(": ")
+
+
+def failed(job: LogJob, reason: str) -> dict:
+    """Record that ``job`` failed, for ``reason`` (one line): its ``error.json``, and the row."""
+    err = {"log": job.rel, "vehicle": job.vehicle, "error": reason}
+    out = Path(job.out)
+    with contextlib.suppress(OSError):  # a folder that cannot be written: the row is still returned
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "error.json").write_text(json.dumps(err, indent=2))
+    return err
 
 
 def _num(x) -> float | None:

@@ -63,6 +63,8 @@ def run(
     return_freed_arrays()  # a diagnosis's arrays of megabytes go back to the system when freed
     log = load_log(path, imu_columns=True)
     ms_all = log.measurements
+    if not ms_all and (log.imu is None or not log.imu.series):
+        raise ValueError(f"{path}: no reading could be read from it ({log.description})")
     duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
     say(f"diagnosing {path}: {log.description}")
     tr = triage(log.tables, ms_all, log.imu)
