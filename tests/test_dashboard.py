@@ -287,7 +287,11 @@ async def test_live_diagnosis_panel_names_the_undeclared_effect(tmp_path):
         for m in Replay(log).iter_measurements():
             d.feed_measurement(m)
         md_id = gui_id(d.diagnosis_md)
-        async with ViserProbe(d.url) as probe:
+        async with ViserProbe(d.url) as viewer:  # a view-only tab starts nothing that costs
+            await viewer.set_gui(gui_id(d.diagnose_button), value=True)
+            await viewer.until_notifications("Not yours to start", 1)
+            assert d.last_diagnosis is None and not d._diagnosing
+        async with ViserProbe(d.control_url) as probe:
             await probe.set_gui(gui_id(d.diagnosis_window), value=40.0)
             await probe.set_gui(gui_id(d.diagnose_button), value=True)
             async for _, messages in probe.frames():

@@ -115,6 +115,10 @@ async def test_one_tab_holds_control_arm_asks_twice_and_a_nan_reference_is_refus
             await s.press(a, s.panel.sliders["z_c"], value=math.nan)
             await s.settled(a, "must be a finite number")
             assert s.station.commander.reference["z_c"] == 1.0 and s.station.commander.armed
+            for crafted in (1e9, -1e9, 20.0):  # the audit's: a slider of 0.3-5.0 sent anything
+                await s.press(a, s.panel.sliders["z_c"], value=crafted)
+                await s.settled(a, f"z_c = {crafted:g} is outside 0.3 to 5")
+                assert s.station.commander.reference["z_c"] == 1.0
 
             await s.press(b, s.panel.disarm)
             await s.settled(b, f"tab {holder} holds control; press Take control first")
@@ -150,3 +154,58 @@ def test_the_command_line_refuses_a_network_dashboard_in_one_line():
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("groundstation: error: dashboard on 0.0.0.0")
+
+
+def test_a_request_naming_its_host_or_origin_twice_is_refused_in_words():
+    """A duplicate Host header had given a traceback in the request check and dropped the press."""
+    from websockets.datastructures import Headers
+
+    auth = Authority("127.0.0.1", 8080)
+    path = f"/control/{auth.token}"
+    twice = Headers([("Host", "127.0.0.1:8080"), ("Host", "evil.example:8080")])
+    assert "a header named twice" in (auth.refusal(path, twice) or "")
+    origins = Headers([("Host", "127.0.0.1:8080"), ("Origin", "http://127.0.0.1:8080"), ("Origin", "http://x")])
+    assert "a header named twice" in (auth.refusal(path, origins) or "")
+    assert auth.refusal(path, Headers([("Host", "127.0.0.1:8080"), ("Origin", "http://127.0.0.1:8080")])) is None
+
+
+def test_panel_work_runs_on_the_sessions_loop_not_on_vipers():
+    """viser awaits GUI callbacks on its own loop, in its server's thread: what they hand the session
+    (web/session_loop.py) runs on the session's loop, and its result and exceptions come back."""
+    import threading
+
+    from web.session_loop import SessionLoop
+
+    session = SessionLoop()
+    seen: list[tuple[int, asyncio.AbstractEventLoop]] = []
+
+    async def on_loop(x):
+        seen.append((threading.get_ident(), asyncio.get_running_loop()))
+        if x < 0:
+            raise ValueError("refused")
+        return 2 * x
+
+    async def main():
+        session.bind()
+        other = asyncio.new_event_loop()  # viser's, in its thread
+        box: dict = {}
+
+        def viser_thread():
+            async def callback():
+                box["result"] = await session.call(on_loop, 21)
+                try:
+                    await session.call(on_loop, -1)
+                except ValueError as e:
+                    box["error"] = str(e)
+
+            other.run_until_complete(callback())
+            other.close()
+
+        t = threading.Thread(target=viser_thread)
+        t.start()
+        await asyncio.to_thread(t.join)  # the session's loop stays free to run what is handed it
+        return box, threading.get_ident(), asyncio.get_running_loop()
+
+    box, ident, loop = asyncio.run(main())
+    assert box == {"result": 42, "error": "refused"}
+    assert seen and all(s == (ident, loop) for s in seen)

@@ -72,13 +72,13 @@ async def test_the_holder_sets_the_mode_arms_and_takes_off_and_another_tab_canno
             await s.said(a, "takeoff 2.0: accepted by vehicle 1")
             assert guided.flying
 
-            await s.press(viewer, s.panel.param_name, value="SIM_DRAG")
-            await s.press(viewer, s.panel.param_get)
-            await s.said(viewer, "SIM_DRAG = 0.35")
-            await s.press(viewer, s.panel.param_value, value=0.45)
-            await s.press(viewer, s.panel.param_set)  # reading is open; setting is the holder's
-            await s.said(viewer, "view only")
             await s.press(a, s.panel.param_name, value="SIM_DRAG")
+            await s.press(viewer, s.panel.param_get)  # reading is open: the parameter the holder named
+            await s.said(viewer, "SIM_DRAG = 0.35")
+            await s.press(viewer, s.panel.param_value, value=0.45)  # the inputs are the holder's
+            await viewer.until_notifications("Not changed", 1)
+            await s.press(viewer, s.panel.param_set)  # setting is the holder's
+            await viewer.until_notifications("Not yours to command", 1)
             await s.press(a, s.panel.param_value, value=0.45)
             await s.press(a, s.panel.param_set)
             await s.said(a, "SIM_DRAG set to 0.45, confirmed by vehicle 1")
@@ -86,3 +86,34 @@ async def test_the_holder_sets_the_mode_arms_and_takes_off_and_another_tab_canno
             await s.press(a, s.panel.param_name, value="NO_SUCH_PARAM")
             await s.press(a, s.panel.param_get)
             await s.said(a, "parameter NO_SUCH_PARAM: no answer")
+
+
+@async_test(timeout=90)
+async def test_a_view_only_tab_cannot_change_what_the_holder_sends():
+    """The audit's attack: a view-only tab rewrote the panel's inputs (the holder picked LOITER and
+    sent LAND; asked 2 m and took off to 30 m). Its every change is undone on the server and it is
+    told; the holder's own values, range-checked there, are what is sent."""
+    async with _Session() as s:
+        guided = s.bridge.protocol.guided
+        async with ViserProbe(s.dash.control_url) as a, ViserProbe(s.dash.url) as viewer:
+            await s.press(a, s.panel.take)
+            await s.said(a, "control held by tab")
+            await s.press(a, s.panel.mode, value="GUIDED")
+            await s.press(a, s.panel.altitude, value=2.0)
+            await s.press(viewer, s.panel.mode, value="LAND")
+            await viewer.until_notifications("Not changed", 1)
+            await s.press(viewer, s.panel.altitude, value=30.0)
+            await viewer.until_notifications("Not changed", 1)
+            assert (s.panel.mode.value, s.panel.altitude.value) == ("GUIDED", 2.0)  # undone for every tab
+            await s.press(a, s.panel.altitude, value=1e9)  # a crafted value from the holder's own tab
+            await s.said(a, "outside 1-30 m")
+            assert s.panel.accepted["altitude"] == 2.0
+            await s.press(a, s.panel.set_mode)
+            await s.said(a, "mode GUIDED: accepted by vehicle 1")
+            await s.press(a, s.panel.arm)
+            await s.press(a, s.panel.arm)
+            await s.said(a, "arm: accepted by vehicle 1")
+            await s.press(a, s.panel.takeoff)
+            await s.press(a, s.panel.takeoff)
+            await s.said(a, "takeoff 2.0: accepted by vehicle 1")
+            assert guided.flying

@@ -36,6 +36,15 @@ def is_loopback(host: str) -> bool:
         return False
 
 
+def _all(headers, name: str) -> list[str]:
+    """Every value of header ``name`` (websockets' ``Headers.get`` raises on a header named twice)."""
+    get_all = getattr(headers, "get_all", None)
+    if get_all is not None:
+        return [str(v) for v in get_all(name)]
+    v = headers.get(name)
+    return [] if v is None else [str(v)]
+
+
 class RemoteRefused(ValueError):
     """Binding to a non-loopback address without ``allow_remote`` (one line)."""
 
@@ -75,13 +84,18 @@ class Authority:
 
     # -- who may command ---------------------------------------------------------------------------
     def refusal(self, path: str, headers) -> str | None:
-        """Why a connection with this request path and headers may not command, or None."""
+        """Why a connection with this request path and headers may not command, or None. A request
+        that names its Host or Origin more than once is malformed, and refused: which one would a
+        browser have meant?"""
         if path.split("?")[0].rstrip("/") != f"/control/{self.token}":
             return "view only: open the control address the command line printed (it carries the session's token)"
-        host = headers.get("Host", "")
+        hosts, origins = _all(headers, "Host"), _all(headers, "Origin")
+        if len(hosts) > 1 or len(origins) > 1:
+            return "view only: a malformed request (a header named twice)"
+        host = hosts[0] if hosts else ""
         if not self.allow_remote and host not in self._hosts():
             return f"view only: the page came through {host or 'no host'}, not this dashboard's address"
-        origin = headers.get("Origin")
+        origin = origins[0] if origins else None
         if origin is not None:
             allowed = {f"http://{h}" for h in self._hosts()} | {f"https://{h}" for h in self._hosts()}
             if self.allow_remote:

@@ -15,12 +15,15 @@ Built on a :class:`groundstation.control.station.ControlStation`, behind the das
   the collective otherwise) over the last ``window_s`` seconds.
 
 A control action from any other tab is ignored, and that tab is told why in a notification. A
-gamepad is not wired: viser's GUI offers no Gamepad API hook, and the sliders give the same
-references.
+reference is range-checked here, on the server, against the limits its slider shows (a crafted tab
+can send a slider any number). What the commander does runs on the session's event loop
+(:class:`~web.session_loop.SessionLoop`), where it flies the vehicle. A gamepad is not wired:
+viser's GUI offers no Gamepad API hook, and the sliders give the same references.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from collections.abc import Callable
@@ -31,6 +34,7 @@ from groundstation.control.commander import ArmRefused
 from groundstation.control.station import REFERENCE_RANGES, ControlStation
 
 from .authority import Authority
+from .session_loop import SessionLoop
 
 #: what the plot shows per reference: the state it tracks
 TRACKS = {"p_c": "p", "e_c": "e", "e_dot_c": "e_dot", "z_c": "z"}
@@ -48,10 +52,12 @@ class ControlPanel:
         *,
         window_s: float = 20.0,
         clock: Callable[[], float] = time.monotonic,
+        session: SessionLoop | None = None,
     ) -> None:
         """``refusal(client_id)``: why that tab may not command (the dashboard reads its request),
-        or None."""
+        or None; ``session``: the loop the commander runs on (default: the caller's)."""
         self.station, self.window_s = station, window_s
+        self.session = session or SessionLoop()
         self.authority, self.refusal, self.clock = authority, refusal, clock
         self.message = ""
         self._arm_pending: tuple[int, float] | None = None  # (client id, when ARM was first pressed)
@@ -104,12 +110,12 @@ class ControlPanel:
         @self.arm.on_click
         async def _(e) -> None:
             if self._allowed(e):
-                self._arm(e.client_id)
+                await self._arm(e.client_id)
 
         @self.disarm.on_click
         async def _(e) -> None:
             if self._allowed(e):
-                self.station.commander.disarm(f"by the user (dashboard, tab {e.client_id})")
+                await self.session.call(self.station.commander.disarm, f"by the user (dashboard, tab {e.client_id})")
                 self._arm_pending = None
                 self.arm.label = "ARM"
             self._refresh()
@@ -123,7 +129,7 @@ class ControlPanel:
             if self.controller.value == self.station.controller_name:
                 return
             if self._allowed(e):
-                self._select(controller=self.controller.value)
+                await self._select(controller=self.controller.value)
             else:
                 self.controller.value = self.station.controller_name
 
@@ -132,7 +138,7 @@ class ControlPanel:
             if self.feedback.value == self.station.feedback_name:
                 return
             if self._allowed(e):
-                self._select(feedback=self.feedback.value)
+                await self._select(feedback=self.feedback.value)
             else:
                 self.feedback.value = self.station.feedback_name
 
@@ -156,7 +162,7 @@ class ControlPanel:
         self._refresh()
 
     # -- user actions ------------------------------------------------------------------------------
-    def _arm(self, client_id: int) -> None:
+    async def _arm(self, client_id: int) -> None:
         """First press asks for a second within :data:`CONFIRM_S` s; the second arms."""
         now = self.clock()
         pending = self._arm_pending
@@ -169,15 +175,15 @@ class ControlPanel:
         self._arm_pending = None
         self.arm.label = "ARM"
         try:
-            self.station.commander.arm()
+            await self.session.call(self.station.commander.arm)
             self.message = ""
         except ArmRefused as e:
             self.message = f"arming refused: {e}"
         self._refresh()
 
-    def _select(self, **choice) -> None:
+    async def _select(self, **choice) -> None:
         try:
-            self.station.select(**choice)
+            await self.session.call(lambda: self.station.select(**choice))
             self._records.close()
             self._records = self.station.commander.records.subscribe(lossy=True, maxlen=5000)
             self._rows.clear()
@@ -196,9 +202,15 @@ class ControlPanel:
                 return
             if self._allowed(e):
                 try:
-                    cmd.set_reference(**{name: float(self.sliders[name].value)})
+                    value = float(self.sliders[name].value)
+                    lo, hi, _ = REFERENCE_RANGES[name]
+                    if not math.isfinite(value):
+                        raise ValueError(f"reference {name} must be a finite number, not {value!r}")
+                    if not lo <= value <= hi:  # a value no slider gives (a crafted tab's)
+                        raise ValueError(f"reference {name} = {value:g} is outside {lo:g} to {hi:g}")
+                    await self.session.call(lambda: cmd.set_reference(**{name: value}))
                     return
-                except (ValueError, TypeError) as err:  # a value no slider gives (NaN from a crafted tab)
+                except (ValueError, TypeError) as err:  # (NaN too: set_reference refuses it)
                     self._tell(e, "Reference refused", str(err))
                     self._refresh()
             self.sliders[name].value = cmd.reference[name]  # back to what is flown

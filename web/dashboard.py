@@ -49,6 +49,7 @@ from groundstation.estimation.truth import LiveTruthScore
 
 from .authority import Authority, is_loopback
 from .control_panel import ControlPanel
+from .session_loop import SessionLoop
 from .vehicle_panel import VehiclePanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
@@ -99,6 +100,8 @@ class Dashboard:
         self.scene_hz, self.plot_hz, self.window_s = scene_hz, plot_hz, window_s
         #: who may command from which tab (web/authority.py)
         self.authority = Authority(host, self.port, allow_remote)
+        #: the session's event loop, where the panels' commands run (viser's callbacks run on its own)
+        self.session_loop = SessionLoop()
         self.url = self.authority.view_url
         self.control_url = self.authority.control_url
         self.server.on_client_disconnect(self._client_left)
@@ -245,7 +248,14 @@ class Dashboard:
             self.diagnose_button = gui.add_button("Diagnose")
 
         @self.diagnose_button.on_click
-        async def _(_e) -> None:
+        async def _(e) -> None:
+            # minutes of a core: only a tab opened at the control address starts one (any tab sees
+            # the result); holding control is not needed, as a replay has nothing else to control
+            why = self.client_refusal(e.client_id)
+            if why is not None:
+                if e.client is not None:
+                    e.client.add_notification("Not yours to start", why, auto_close_seconds=6.0, color="yellow")
+                return
             await self.run_diagnosis()
 
     def attach_session(self, *, model: str, declared: list[dict], counters=None, vehicle: str | None = None) -> None:
@@ -353,6 +363,7 @@ class Dashboard:
     def add_vehicle_panel(self, link) -> VehiclePanel:
         """Show the Vehicle panel (mode, arm, takeoff, land, parameters) for the vehicle shown, on
         ``link`` (a :class:`~drivers.mavlink.link.MavlinkLink`), commanded as the Control panel is."""
+        self.session_loop.bind_if_running()
         self.vehicle_panel = VehiclePanel(
             self.server.gui,
             link,
@@ -360,6 +371,7 @@ class Dashboard:
             self.client_refusal,
             lambda: self.shown_vehicle(link),
             take_button=getattr(self, "control", None) is None,
+            session=self.session_loop,
         )
         return self.vehicle_panel
 
@@ -372,8 +384,14 @@ class Dashboard:
     def add_control(self, station):
         """Show the control panel for ``station`` (a :class:`~groundstation.control.station.ControlStation`),
         commanded only from a tab the :attr:`authority` admits."""
+        self.session_loop.bind_if_running()
         self.control = ControlPanel(
-            self.server.gui, station, self.authority, self.client_refusal, window_s=self.window_s
+            self.server.gui,
+            station,
+            self.authority,
+            self.client_refusal,
+            window_s=self.window_s,
+            session=self.session_loop,
         )
         return self.control
 
@@ -534,6 +552,8 @@ class Dashboard:
         """Push scene and panels at their rates until cancelled. An update that raises is reported
         (:attr:`update_errors`, one line on stderr per new error) and the schedule goes on: one bad
         frame must not freeze the view for the rest of the session."""
+
+        self.session_loop.bind()  # the loop the session runs on, where the panels' commands go
 
         def scene():
             if self._dirty:

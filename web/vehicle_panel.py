@@ -10,6 +10,13 @@ line under the buttons.
 
 Behind the dashboard's :class:`~web.authority.Authority`, as the Control panel: only the tab
 holding control commands (reading a parameter is open to every tab); any other is told why.
+
+The panel's inputs (mode, take-off height, parameter name and value) are shown to every tab alike
+(viser keeps one value for all), so the values a command is sent with are the ones the tab holding
+control set, kept here as :attr:`VehiclePanel.accepted`: a change from any other tab is undone at
+once and that tab told why, and the holder's own is range-checked here, on the server, against
+the limits the panel shows (a crafted tab can send a slider any number). Commands run on the
+session's event loop (:class:`~web.session_loop.SessionLoop`), where the link lives.
 """
 
 from __future__ import annotations
@@ -23,9 +30,41 @@ from drivers.mavlink.params import ParamClient, ParamError
 
 from .authority import Authority
 from .control_panel import CONFIRM_S
+from .session_loop import SessionLoop
 
 #: the modes offered (ArduCopter's that a ground station switches to)
 MODES = ("STABILIZE", "ALT_HOLD", "LOITER", "POSHOLD", "GUIDED", "AUTO", "RTL", "LAND")
+#: [m] the take-off heights the panel offers
+TAKEOFF_RANGE = (1.0, 30.0)
+
+
+def _mode(v: object) -> str | None:
+    return None if v in MODES else f"mode {str(v)[:20]!r} is not one offered ({', '.join(MODES)})"
+
+
+def _within(limits: tuple[float, float], what: str, unit: str) -> Callable[[object], str | None]:
+    def check(v: object) -> str | None:
+        try:
+            x = float(v)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return f"{what} {str(v)[:20]!r} is not a number"
+        if not limits[0] <= x <= limits[1]:
+            return f"{what} {x:g} {unit} is outside {limits[0]:g}-{limits[1]:g} {unit}"
+        return None
+
+    return check
+
+
+def _param_name(v: object) -> str | None:
+    name = str(v).strip()
+    return None if len(name) <= 16 and name.isascii() else "a parameter name is at most 16 ASCII characters"
+
+
+def _finite(v: object) -> str | None:
+    try:
+        return None if math.isfinite(float(v)) else f"{v} is not a number to set"  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return f"{str(v)[:20]!r} is not a number"
 
 
 class VehiclePanel:
@@ -39,11 +78,13 @@ class VehiclePanel:
         *,
         take_button: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        session: SessionLoop | None = None,
     ) -> None:
         """``link``: the :class:`~drivers.mavlink.link.MavlinkLink`; ``sysid()``: the vehicle shown
         (None: none heard yet); ``take_button``: offer Take control here (the Control panel has its
-        own when it is there)."""
+        own when it is there); ``session``: the loop commands run on (default: the caller's)."""
         self.link, self.authority, self.refusal, self.sysid, self.clock = link, authority, refusal, sysid, clock
+        self.session = session or SessionLoop()
         self.message = ""
         self.busy = False
         self._pending: tuple[str, int, float] | None = None  # (action, client id, first press)
@@ -55,13 +96,29 @@ class VehiclePanel:
             self.set_mode = gui.add_button("Set mode")
             self.arm = gui.add_button("ARM", color="red")
             self.disarm = gui.add_button("DISARM")
-            self.altitude = gui.add_slider("takeoff [m]", min=1.0, max=30.0, step=0.5, initial_value=3.0)
+            self.altitude = gui.add_slider(
+                "takeoff [m]", min=TAKEOFF_RANGE[0], max=TAKEOFF_RANGE[1], step=0.5, initial_value=3.0
+            )
             self.takeoff = gui.add_button("TAKEOFF", color="red")
             self.land = gui.add_button("LAND")
             self.param_name = gui.add_text("parameter", initial_value="")
             self.param_value = gui.add_number("value", initial_value=0.0)
             self.param_get = gui.add_button("Get")
             self.param_set = gui.add_button("Set")
+        #: the inputs' values as the tab holding control set them: what commands are sent with
+        self.accepted: dict[str, float | str] = {
+            "mode": "LOITER",
+            "altitude": 3.0,
+            "param_name": "",
+            "param_value": 0.0,
+        }
+        for key, handle, check in (
+            ("mode", self.mode, _mode),
+            ("altitude", self.altitude, _within(TAKEOFF_RANGE, "takeoff height", "m")),
+            ("param_name", self.param_name, _param_name),
+            ("param_value", self.param_value, _finite),
+        ):
+            handle.on_update(self._input(key, handle, check))
 
         # async callbacks: viser runs them on the event loop, where the link lives
         @self.take.on_click
@@ -73,7 +130,7 @@ class VehiclePanel:
         @self.set_mode.on_click
         async def _(e) -> None:
             if self._allowed(e):
-                await self._command("mode", str(self.mode.value))
+                await self._command("mode", str(self.accepted["mode"]))
 
         @self.arm.on_click
         async def _(e) -> None:
@@ -83,7 +140,7 @@ class VehiclePanel:
         @self.takeoff.on_click
         async def _(e) -> None:
             if self._allowed(e) and self._confirmed("takeoff", e.client_id):
-                await self._command("takeoff", float(self.altitude.value))
+                await self._command("takeoff", float(self.accepted["altitude"]))
 
         @self.disarm.on_click
         async def _(e) -> None:
@@ -102,9 +159,30 @@ class VehiclePanel:
         @self.param_set.on_click
         async def _(e) -> None:
             if self._allowed(e):
-                await self._param(float(self.param_value.value))
+                await self._param(float(self.accepted["param_value"]))
 
     # -- who ---------------------------------------------------------------------------------------
+    def _input(self, key: str, handle, check: Callable[[object], str | None]):
+        """The callback of one input: the holder's value, range-checked, is accepted; any other
+        tab's, or one out of range, is undone (the value every tab sees goes back) and that tab told
+        why."""
+
+        async def cb(e) -> None:
+            value = handle.value
+            if value == self.accepted[key]:
+                return
+            why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id) or check(value)
+            if why is None:
+                self.accepted[key] = value
+                return
+            handle.value = self.accepted[key]
+            self.message = f"tab {e.client_id}: {why}"
+            if e.client is not None:
+                e.client.add_notification("Not changed", why, auto_close_seconds=6.0, color="yellow")
+            self._refresh()
+
+        return cb
+
     def _allowed(self, e) -> bool:
         why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id)
         if why is None:
@@ -143,7 +221,7 @@ class VehiclePanel:
         self.message = f"{what}{f' {arg}' if arg is not None else ''}: sent to vehicle {target[0]}…"
         self._refresh()
         try:
-            self.message = await run_command(self.link, *target, what, arg)
+            self.message = await self.session.call(run_command, self.link, *target, what, arg)
         except CommandError as err:
             self.message = str(err)
         finally:
@@ -153,7 +231,7 @@ class VehiclePanel:
     async def _param(self, value: float | None) -> None:
         """Get (``value`` None) or set the named parameter, as the vehicle confirms it."""
         target = self._vehicle()
-        name = str(self.param_name.value).strip().upper()
+        name = str(self.accepted["param_name"]).strip().upper()
         if target is None or self.busy:
             return
         if not name or len(name) > 16:
@@ -165,16 +243,16 @@ class VehiclePanel:
             self._refresh()
             return
         client = self._params.get(target[0])
-        if client is None:
-            client = self._params[target[0]] = ParamClient(self.link, *target)
+        if client is None:  # made on the session's loop: it listens to the link there
+            client = self._params[target[0]] = await self.session.call(ParamClient, self.link, *target)
         self.busy = True
         try:
             if value is None:
-                got = await client.get(name)
-                self.param_value.value = got
+                got = await self.session.call(client.get, name)
+                self.param_value.value = self.accepted["param_value"] = got
                 self.message = f"{name} = {got:g} (vehicle {target[0]})"
             else:
-                got = await client.set(name, value)
+                got = await self.session.call(client.set, name, value)
                 self.message = f"{name} set to {got:g}, confirmed by vehicle {target[0]}"
         except ParamError as err:
             self.message = str(err)

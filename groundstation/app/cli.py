@@ -276,7 +276,14 @@ def _start_dashboard(args):
         return None
     dash = Dashboard(host=args.host, port=args.port, allow_remote=args.allow_remote)
     print(f"dashboard: {dash.url}", flush=True)
+    print_control_address(dash)
     return dash
+
+
+def print_control_address(dash) -> None:
+    """The address whose tab may command (the Vehicle and Control panels) and start a diagnosis:
+    printed for every session with a dashboard, as Jupyter prints its token."""
+    print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
 
 
 def link_markdown(state: str, counters, rates: dict[str, float], shed: int = 0) -> str:
@@ -400,7 +407,6 @@ async def run_connect(args) -> int:
         ]
         if dash is not None:
             dash.add_control(station)
-            print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
     if dash is not None:
         dash.add_vehicle_panel(link)
         tasks.append(supervisor.start("dashboard", dash.run))

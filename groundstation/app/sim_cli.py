@@ -232,6 +232,7 @@ async def run_demo(args) -> int:
     if not args.no_web:
         dash = Dashboard(host=args.host, port=args.port, allow_remote=args.allow_remote)
         print(f"dashboard: {dash.url}", flush=True)
+        print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
     declared = [{"name": "range_tilt"}] if model == "altitude" else []
     estimators = [build_estimator(model, declared)]
@@ -273,7 +274,6 @@ async def run_demo(args) -> int:
         control_tasks.append(asyncio.create_task(print_control_notes(station.notes.subscribe())))
         if dash is not None:
             dash.add_control(station)
-            print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
         print(
             f"demo: control ready ({', '.join(station.controllers)}); take control and arm it from the "
             "dashboard's Control panel at the control address",
