@@ -27,6 +27,7 @@ bytes, loss bursts, and :meth:`SimBridge.disconnect` for a while.
 from __future__ import annotations
 
 import asyncio
+import ipaddress
 import math
 import random
 import socket
@@ -37,6 +38,8 @@ from dataclasses import dataclass
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.board import BinaryBoardReceiver
+from drivers.mavlink.framing import Framer
+from drivers.mavlink.signing import SignatureCheck, SigningState
 from drivers.transports import close_watched_socket
 from groundstation.core.measurement import Kind
 
@@ -71,6 +74,16 @@ MAX_TILT = math.radians(30.0)
 UNASKED_RATE = 2.0
 
 
+def is_loopback(host: str) -> bool:
+    """``host`` is this machine's own (a name that resolves elsewhere is not)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 @dataclass
 class LinkFaults:
     loss: float = 0.0  # probability a frame is lost
@@ -95,7 +108,11 @@ class SimBridge:
         unasked_rate: float | None = UNASKED_RATE,
     ) -> None:
         """``signing_key``: MAVLink 2 signing required, as a vehicle with its signing set up: its
-        frames signed, and anything unsigned or signed with another key refused (pymavlink's check).
+        frames signed, and anything unsigned, signed with another key, replayed or reflected refused
+        (:class:`~drivers.mavlink.signing.SignatureCheck`, as the ground station checks: pymavlink's
+        own check let one forged frame block the valid stream, and kept nothing across restarts).
+        Over UDP it answers ``udp_to``, from a socket bound to loopback when ``udp_to`` is loopback; a
+        datagram from elsewhere moves its answers there only when it carries a correctly signed frame.
         ``unasked_rate`` [Hz]: each stream's rate until it is asked for (None: every stream at its
         sensor's rate from the start, as a radio set up to stream)."""
         self.scenario = scenario
@@ -128,9 +145,21 @@ class SimBridge:
         self._sock: socket.socket | None = None
         self._parser = mavlink.MAVLink(None)
         self._parser.robust_parsing = True
+        #: MAVLink 2 signing: the check every incoming frame passes before pymavlink parses it
+        self.signing: SignatureCheck | None = None
+        self._accepted: list[bytes] = []
+        self._framer = Framer(
+            lambda spec, fields, sysid, compid, seq, frame: self._accepted.append(frame),
+            lambda m, sysid, compid, seq, frame: self._accepted.append(frame),
+            lambda: None,
+            lambda: None,
+        )
         if signing_key is not None:
-            self._parser.signing.secret_key = signing_key  # no allow_unsigned_callback: unsigned refused
-            self.encoder.packer.sign_with(signing_key)
+            state = SigningState(signing_key, role=f"vehicle-{sysid}")
+            self.signing = SignatureCheck(signing_key, own=(sysid, 1), state=state)
+            self._framer.signing = self.signing
+            self._framer.on_refused = self._refused
+            self.encoder.packer.sign_with(signing_key, after=state.local())
         self.frames_sent = 0
         self.frames_dropped = 0
         self.send_errors = 0
@@ -149,7 +178,7 @@ class SimBridge:
         loop = asyncio.get_running_loop()
         if self.udp_to is not None:
             s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind(("0.0.0.0", 0))
+            s.bind(("127.0.0.1" if is_loopback(self.udp_to[0]) else "0.0.0.0", 0))
             s.setblocking(False)
             self._sock = s
             loop.add_reader(s.fileno(), self._udp_readable)
@@ -166,6 +195,8 @@ class SimBridge:
 
     def close(self) -> None:
         self._stop.set()
+        if self.signing is not None:
+            self.signing.state.save()  # the timestamps seen, for the next start to refuse replays
         close_watched_socket(self._sock)
         self._sock = None
         if self.pty is not None:
@@ -180,8 +211,9 @@ class SimBridge:
             data, addr = self._sock.recvfrom(65536)
         except (BlockingIOError, OSError):
             return
-        self.udp_to = addr  # answer whoever talks to us
-        self._incoming(data)
+        authenticated = self._incoming(data)
+        if addr != self.udp_to and authenticated:
+            self.udp_to = addr  # a peer that holds the key: answered where it is
 
     def _send(self, frame: bytes) -> None:
         f, now = self.faults, time.monotonic()
@@ -213,12 +245,19 @@ class SimBridge:
             self.pty.plug()
 
     # -- the ground station's messages --------------------------------------------------------
-    def _incoming(self, data: bytes) -> None:
+    def _refused(self) -> None:
+        self.signature_refused += 1  # unsigned, another key's, replayed or our own come back
+
+    def _incoming(self, data: bytes) -> bool:
+        """Handle the ground station's bytes; whether they held a correctly signed frame."""
+        if self.signing is not None:
+            self._framer.feed(data)
+            data, self._accepted = b"".join(self._accepted), []
+            if not data:
+                return False
         for m in self._parser.parse_buffer(data) or ():
             t = m.get_type()
             if t == "BAD_DATA":
-                if "signature" in str(getattr(m, "reason", "")):
-                    self.signature_refused += 1  # unsigned, or signed with another key
                 continue
             self.received[t] = self.received.get(t, 0) + 1
             if getattr(m, "target_system", 0) not in (0, self.protocol.sysid):
@@ -228,6 +267,7 @@ class SimBridge:
             handler = getattr(self, "_on_" + t.lower(), None)
             if handler is not None:
                 handler(m)
+        return self.signing is not None  # (what got here passed the signature check)
 
     def _board_incoming(self, data: bytes) -> None:
         """The motor board's side: MOTORS frames (ground -> board) set the voltages

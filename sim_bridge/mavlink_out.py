@@ -50,9 +50,11 @@ class FramePacker:
         self.signing_key: bytes | None = None
         self._sign_ts = 0
 
-    def sign_with(self, key: bytes | None) -> None:
+    def sign_with(self, key: bytes | None, after: int = 0) -> None:
+        """Sign every frame with ``key``, timestamps from now or, where later, from ``after`` (the
+        timestamp stored when the key was last used: the specification's, across restarts)."""
         self.signing_key = key
-        self._sign_ts = timestamp_now()
+        self._sign_ts = max(timestamp_now(), after)
 
     def _signed(self, frame: bytes) -> bytes:
         """The frame with its signature block: link id 0, the timestamp, SHA-256(key + all before)[:6]."""

@@ -21,7 +21,7 @@ class PtyPort:
         self.master: int | None = None
         self._slave: int | None = None
         self.slave_path: str | None = None
-        self.on_data: Callable[[bytes], None] = lambda _b: None
+        self.on_data: Callable[[bytes], object] = lambda _b: None
         self._loop: asyncio.AbstractEventLoop | None = None
 
     @property

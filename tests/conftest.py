@@ -14,6 +14,16 @@ FOREIGN = DATA / "foreign"
 FOREIGN2 = DATA / "foreign2"
 
 
+@pytest.fixture(autouse=True)
+def signing_state(tmp_path_factory, monkeypatch) -> Path:
+    """Each test keeps its MAVLink signing timestamps in a folder of its own (drivers.mavlink.signing
+    stores them across restarts, as the specification says): tests that share a key on parallel
+    workers, or a rerun within the minute, must not read each other's."""
+    folder = tmp_path_factory.mktemp("signing-state")
+    monkeypatch.setenv("GROUNDSTATION_STATE", str(folder))
+    return folder
+
+
 def real_file(rel: str) -> Path:
     """A file of the shared real logs, or a visible skip when it is not there."""
     p = REAL / rel

@@ -312,3 +312,26 @@ async def test_the_kernels_own_drops_are_counted_and_receive_times_are_the_kerne
     finally:
         sock.close()
         await link.close()
+
+
+@async_test(timeout=30)
+async def test_254_forged_system_ids_are_counted_not_followed():
+    """The audit's 254 forged system ids had each been asked for streams and given export files: a
+    link follows at most MAX_VEHICLES vehicles and counts the rest."""
+    from drivers.mavlink.link import MAX_VEHICLES
+
+    port = free_udp_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", streams={"ATTITUDE": 10.0})
+    last_heard = asyncio.Event()
+    link.message_hooks.append(lambda m, _t: m._header.srcSystem == 254 and last_heard.set())
+    await link.open()
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        for sysid in range(1, 255):
+            enc = mavlink.MAVLink(None, sysid, 1)
+            tx.sendto(bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(enc)), ("127.0.0.1", port))
+        await last_heard.wait()  # (the hooks run after the heartbeat is taken)
+        assert len(link.vehicles) == MAX_VEHICLES and len(link.vehicles_ignored) == 254 - MAX_VEHICLES
+    finally:
+        tx.close()
+        await link.close()

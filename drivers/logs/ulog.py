@@ -43,6 +43,8 @@ from .ulog_check import ULogStructureError, check
 
 #: a ULog file's first bytes: "ULog", then 0x01 0x12 0x35 (the format's magic)
 ULOG_MAGIC = b"ULog\x01\x12\x35"
+#: [us] a timestamp past this is from the UNIX epoch (PX4 SITL), not from boot: about 31 years of uptime
+EPOCH_US = 1e15
 
 
 class ULogError(ValueError):
@@ -99,16 +101,22 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
         source_file.close()
     tables = LogTables(params=dict(u.initial_parameters), fmt="ulog", autopilot="px4", firmware=_px4_version(u))
     untimed: Counter = Counter()
+    # a vehicle's clock counts from its boot; PX4 SITL's (lockstep) from the UNIX epoch: its times are
+    # taken from the log's start, as a pilot reads a flight's (1710773351.3 s is 1.0 s into the log)
+    zero_us = float(u.start_timestamp) if u.start_timestamp > EPOCH_US else 0.0
     for d in u.data_list:
         name = d.name if d.multi_id == 0 else f"{d.name}[{d.multi_id}]"
         if "timestamp" not in d.data:
             untimed["topic_without_timestamp"] += 1  # no clock to put it on
             continue
-        t = np.asarray(d.data["timestamp"], dtype=float) * 1e-6
-        tables.tables[name] = Table(t, {k: np.asarray(v) for k, v in d.data.items() if k != "timestamp"})
+        t = (np.asarray(d.data["timestamp"], dtype=float) - zero_us) * 1e-6
+        cols = {k: np.asarray(v) for k, v in d.data.items() if k != "timestamp"}
+        if zero_us and "timestamp_sample" in cols:
+            cols["timestamp_sample"] = cols["timestamp_sample"].astype(float) - zero_us
+        tables.tables[name] = Table(t, cols)
     msgs = list(u.logged_messages)
     tables.tables["logged_messages"] = Table(
-        np.array([m.timestamp * 1e-6 for m in msgs], dtype=float),
+        np.array([(m.timestamp - zero_us) * 1e-6 for m in msgs], dtype=float),
         {
             "level": np.array([m.log_level for m in msgs], dtype=float),
             "text": np.array([m.message for m in msgs], dtype=object),

@@ -31,12 +31,29 @@ import math
 #: ``time_usec`` above this is a UNIX-epoch time (MAVLink lets senders use
 #: either); 1e15 us is about 31 years of uptime.
 EPOCH_THRESHOLD_US = 1e15
-#: [s] a vehicle time this far behind the newest one seen is a restart, not a late message
+#: [s] a vehicle time this far behind the newest one seen is a restart, not a late message ...
 RESTART_BACK_S = 0.5
+#: ... once this many timed messages in a row say so and agree with one another (within ``jump_s``):
+#: one message's time is no evidence (a corrupt or forged one had started a new flight segment, and
+#: a new export file, each time); a rebooted vehicle's every message says it
+RESTART_CONFIRM = 3
 
 
 class VehicleClock:
-    __slots__ = ("offset", "_last_rx", "jump_s", "drift", "resets", "restarts", "assumed", "_newest", "_newest_rx")
+    __slots__ = (
+        "offset",
+        "_last_rx",
+        "jump_s",
+        "drift",
+        "resets",
+        "restarts",
+        "assumed",
+        "_newest",
+        "_newest_rx",
+        "outliers",
+        "_back",
+        "_back_n",
+    )
 
     def __init__(self, jump_s: float = 1.0, drift: float = 1e-4) -> None:
         self.offset = math.nan
@@ -48,6 +65,9 @@ class VehicleClock:
         self.assumed = False  # True while running on receive time (no time field seen)
         self._newest = math.nan  # the newest timed message's vehicle time, and when it came
         self._newest_rx = math.nan
+        self.outliers = 0  # timed messages far behind the newest that no others confirmed
+        self._back = math.nan  # the newest time of the messages in a row behind it, and how many
+        self._back_n = 0
 
     def observe(self, t_vehicle: float, t_rx: float) -> bool:
         """Take a timestamped message into the offset estimate; True if it shows a restart."""
@@ -75,14 +95,30 @@ class VehicleClock:
         newest = self._newest
         if not t_vehicle <= newest:  # the newest yet (the first: NaN): most messages, checked first
             self._newest, self._newest_rx = t_vehicle, t_rx
+            self._end_back()
             return False
-        if t_vehicle < newest - RESTART_BACK_S:  # its uptime went back: it restarted
-            self.restarts += 1
-            self._newest, self._newest_rx = t_vehicle, t_rx
-            return True
-        if t_vehicle - newest < -self.jump_s:
-            self._newest, self._newest_rx = t_vehicle, t_rx
-        return False
+        if t_vehicle >= newest - RESTART_BACK_S:  # in order, or a little late
+            self._end_back()
+            return False
+        # far behind the newest: its uptime went back (a restart), once others say so too
+        if self._back_n and abs(t_vehicle - self._back) <= self.jump_s:
+            self._back_n += 1
+            self._back = max(self._back, t_vehicle)
+        else:
+            self._end_back()
+            self._back, self._back_n = t_vehicle, 1
+        if self._back_n < RESTART_CONFIRM:
+            return False
+        self.restarts += 1
+        self._newest, self._newest_rx = self._back, t_rx
+        self._back, self._back_n = math.nan, 0
+        return True
+
+    def _end_back(self) -> None:
+        """Messages behind the newest that stopped before they confirmed a restart were outliers."""
+        if self._back_n:
+            self.outliers += self._back_n
+            self._back, self._back_n = math.nan, 0
 
     def assume_receive_time(self) -> None:
         """Give up waiting for a time field: stamp with receive time (offset 0)."""

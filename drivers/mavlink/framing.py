@@ -29,9 +29,13 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from fastcrc import crc16
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+if TYPE_CHECKING:
+    from .signing import SignatureCheck
 
 _crc = crc16.mcrf4xx
 
@@ -113,7 +117,7 @@ class Framer:
         self.on_garbage = on_garbage
         self._mav = mavlink.MAVLink(None)  # pymavlink's full decoder for the rest
         #: set to check MAVLink 2 signatures (drivers.mavlink.signing); refused frames go to on_refused
-        self.signing = None
+        self.signing: SignatureCheck | None = None
         self.on_refused: Callable[[], None] = lambda: None
         self._crc_extra: dict[int, bytes] = {}
         self._fast: dict[int, FastSpec] = {}
@@ -176,7 +180,11 @@ class Framer:
             frame = buf[pos : pos + flen]
             extra = crc_extra.get(msgid)
             if extra is None:
-                self.on_object(mavlink.MAVLink_unknown(msgid, frame), sysid, compid, seq, frame)
+                # an id this dialect does not know: no CRC to check, but a signature all the same
+                if signing is not None and not signing.accept(frame, msgid, sysid, compid):
+                    self.on_refused()
+                else:
+                    self.on_object(mavlink.MAVLink_unknown(msgid, frame), sysid, compid, seq, frame)
                 pos += flen
                 continue
             crc = _crc(extra, _crc(buf[pos + 1 : end_crc]))

@@ -41,7 +41,7 @@ from groundstation.core.broadcast import Broadcast, Subscription
 from groundstation.core.measurement import Measurement
 
 from .receiver import LinkCounters, MavlinkReceiver
-from .signing import SignatureCheck, timestamp_now
+from .signing import SignatureCheck
 from .streams import StreamRequester
 
 #: Streams requested from a vehicle: message name -> rate [Hz].
@@ -82,6 +82,10 @@ GCS_SYSTEM_ID = 255
 _GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
 
 
+#: the vehicles one link follows (asks for streams, answers); further system ids are counted
+MAX_VEHICLES = 16
+
+
 class MavlinkLink:
     def __init__(
         self,
@@ -117,11 +121,15 @@ class MavlinkLink:
         self.recorder: TlogWriter | None = None
         self._mav_out = mavlink.MAVLink(None, system_id, component_id)
         self.receiver = MavlinkReceiver(name, on_frame=self._frame_in, on_message=self._message_in)
+        #: the signature check, with the timestamps it keeps across restarts (None: no signing)
+        self.signing: SignatureCheck | None = None
         if signing_key is not None:
+            self.signing = SignatureCheck(signing_key, own=(system_id, component_id))
             self._mav_out.signing.secret_key = signing_key
             self._mav_out.signing.sign_outgoing = True
-            self._mav_out.signing.timestamp = timestamp_now()
-            self.receiver.require_signing(SignatureCheck(signing_key))
+            # after every timestamp this key has used or seen, here or before a restart (the spec)
+            self._mav_out.signing.timestamp = self.signing.state.local() + 1
+            self.receiver.require_signing(self.signing)
         self.message_hooks: list[Callable[[object, float], None]] = []
         #: called synchronously with each batch of new measurements, before the
         #: ``async for`` subscribers see them: the estimation loop attaches here
@@ -151,6 +159,8 @@ class MavlinkLink:
         self._command_acks: dict[tuple[int, int], asyncio.Future] = {}  # (sysid, command) -> its ACK
         self._lost_since_heartbeat: dict[int, bool] = {}  # sysid -> the link was lost since its last heartbeat
         self._clock_restarts: dict[int, int] = {}  # sysid -> its clock's restarts at its last heartbeat
+        #: system ids heard past MAX_VEHICLES, not followed
+        self.vehicles_ignored: set[int] = set()
         self._burst: list[Measurement] = []  # measurements of the transport's current burst
         self._bursts = False  # the transport calls on_burst_end (UDP)
 
@@ -221,6 +231,9 @@ class MavlinkLink:
             await self.transport.close()
         if self.recorder is not None:
             self.recorder.close()
+        if self.signing is not None:
+            self.signing.state.timestamp = max(self.signing.state.timestamp, self._mav_out.signing.timestamp)
+            self.signing.state.save()
         self._set_state(LinkState.CLOSED, "closed")
         self._measurements.close()
         self._events.close()
@@ -315,9 +328,14 @@ class MavlinkLink:
         tr = self.transport
         if isinstance(tr, UdpTransport) and tr.endpoint.scheme == "udpin" and tr.source is not None:
             self._address_of[sysid] = tr.source  # answered there, whoever wrote last
+        new = sysid not in self._vehicles
+        if new and len(self._vehicles) >= MAX_VEHICLES:
+            # a link's budget of vehicles: more system ids (254 forged ones had each been asked for
+            # streams and given files of their own) are counted, not followed
+            self.vehicles_ignored.add(sysid)
+            return
         clock = self.receiver.decoder.clocks.get(sysid)
         restarts = clock.restarts if clock is not None else 0
-        new = sysid not in self._vehicles
         # heard again after the link was lost, or its clock went back (a reboot): it starts over
         # at its default rates, so everything is asked again
         restarted = not new and restarts > self._clock_restarts.get(sysid, 0)

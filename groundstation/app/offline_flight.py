@@ -55,7 +55,7 @@ class Flight:
 class _Wire:
     """Uplink bytes straight into the simulated vehicle's parsers (after ``latency``)."""
 
-    def __init__(self, deliver: Callable[[bytes], None], mav: bool) -> None:
+    def __init__(self, deliver: Callable[[bytes], object], mav: bool) -> None:
         self.deliver = deliver
         self.queue: collections.deque[tuple[float, bytes]] = collections.deque()
         self.now = 0.0

@@ -25,6 +25,9 @@ from groundstation.estimation.vehicles import declared_effects
 
 from .console import StatusLine
 
+#: vehicles a session keeps outputs (estimators, exports) for; more system ids are counted
+MAX_VEHICLES = 16
+
 
 def beside(path: Path | None, sysid: int) -> Path | None:
     """``est.csv`` -> ``est.sys2.csv``: a further vehicle's file beside the first one's."""
@@ -125,12 +128,21 @@ class Outputs:
             parts.append(f"the estimator diverged and restarted {c.diverged} times")
         if self.loop.counters.shed:
             parts.append(f"decimated {self.loop.counters.shed} readings under load")
-        if self.estimates is not None:
-            self.estimates.close(counters=c, loop=self.loop.counters)
-            parts.append(f"wrote {self.estimates.rows} estimates to {self.estimates.path}")
-        if self.measurements is not None:
-            self.measurements.close()
-            parts.append(f"wrote {self.measurements.rows} measurement rows to {self.measurements.path}")
+        for w, what in ((self.estimates, "estimates"), (self.measurements, "measurement rows")):
+            if w is None:
+                continue
+            if w is self.estimates:
+                self.estimates.close(counters=c, loop=self.loop.counters)
+            else:
+                w.close()
+            parts.append(
+                f"wrote {w.rows} {what} to {w.path}" + (f" and {w.segments - 1} more segment(s)" * (w.segments > 1))
+            )
+            if w.refused or w.back_in_time:
+                parts.append(
+                    f"{w.refused} {what} of impossible times or values and {w.back_in_time} going back in time "
+                    f"past the last segment file were not written"
+                )
         return "; ".join(parts)
 
 
@@ -156,6 +168,9 @@ class VehicleOutputs:
         self.in_time_order = in_time_order
         self.is_vehicle, self.on_new = is_vehicle, on_new
         self.by_id: dict[int, Outputs] = {}
+        #: system ids past :data:`MAX_VEHICLES`, with their measurements (the first vehicle's outputs
+        #: take them, as a non-vehicle's): 254 forged ids had made 508 export files
+        self.beyond: dict[int, int] = {}
         self.first: Outputs | None = None
         self.first_id: int | None = None
         self.shown: int | None = None  # the system id the dashboard shows
@@ -194,7 +209,12 @@ class VehicleOutputs:
             return out
         sysid = source_system(source)
         if sysid is not None and self.is_vehicle(sysid):
-            out = self.by_id.get(sysid) or self._new(sysid)
+            out = self.by_id.get(sysid)
+            if out is None:
+                if len(self.by_id) >= MAX_VEHICLES:
+                    self.beyond[sysid] = self.beyond.get(sysid, 0) + 1
+                    return self.first if self.first is not None else self._new(None)
+                out = self._new(sysid)
             self._route[source] = out
             return out
         return self.first if self.first is not None else self._new(None)
@@ -240,8 +260,14 @@ class VehicleOutputs:
             print(f"vehicle {sysid}: {text}" if many else text, flush=True)
 
     def close(self) -> str:
-        return "; ".join(
+        parts = [
             (f"vehicle {k}: " if len(self.by_id) > 1 and k is not None else "") + text
             for k, o in self.outputs
             if (text := o.close())
-        )
+        ]
+        if self.beyond:
+            parts.append(
+                f"{len(self.beyond)} more system ids ({sum(self.beyond.values())} readings) past the "
+                f"{MAX_VEHICLES} vehicles a session follows were not given outputs of their own"
+            )
+        return "; ".join(parts)
