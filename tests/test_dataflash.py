@@ -178,3 +178,37 @@ def test_records_without_a_clock_share_the_imus():
     crash = err.t[(err["Subsys"] == 12) & (err["ECode"] == 1)]
     imu_t = log.tables["IMU"].t
     assert len(crash) == 1 and imu_t[imu_t < crash[0]].max() == pytest.approx(51.5, abs=0.1)
+
+
+def test_an_arducopter_30_text_log_whose_gps_has_no_week_is_read(tmp_path):
+    """ArduCopter 3.0.x text logs write GPS with ``Time`` and no week: pymavlink's text reader could
+    not set up its clock (``unsupported operand type(s) for *: 'int' and 'NoneType'``) and the log was
+    refused. Read by the project's own text reader: its GPS, throttle, baro, sonar and raw IMU, its
+    firmware from the header line, and it triages."""
+    from groundstation.diagnosis.triage import triage
+    from groundstation.estimation.logs import load_log
+
+    lines = [
+        "ArduCopter V3.0.1",
+        "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+        "FMT, 129, 23, PARM, Nf, Name,Value",
+        "FMT, 130, 45, GPS, BIBcLLeeEe, Status,Time,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs",
+        "FMT, 131, 27, IMU, ffffff, GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+        "FMT, 132, 30, CTUN, hcefhhhhh, ThrIn,SonAlt,BarAlt,WPAlt,NavThr,AngBst,CRate,ThrOut,DCRate",
+        "FMT, 133, 9, MODE, Mh, Mode,ThrCrs",
+        "PARM, SONAR_TYPE, 0",
+        "MODE, STABILIZE, 0",
+    ]
+    for k in range(200):
+        lines.append(f"GPS, 3, {100000 + 200 * k}, 9, 1.20, -35.3632, 149.1652, 1.50, 584.10, 0.10, 12.00")
+        lines.append(f"CTUN, 500, 1.20, {1.0 + 0.01 * k:.2f}, 1.50, 500, 0, 10, 520, 0")
+        lines.append("IMU, 0.01, 0.0, 0.0, 0.1, 0.0, -9.80")
+    p = tmp_path / "ac30.log"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_dataflash(p)
+    kinds = {m.kind for m in log.measurements}
+    assert {Kind.GPS, Kind.THROTTLE, Kind.BARO_ALTITUDE, Kind.RANGE, Kind.ACCEL} <= kinds
+    assert log.tables.firmware == "ArduCopter V3.0.1" and log.clock.startswith("row count")
+    loaded = load_log(p, imu_columns=True)
+    tr = triage(loaded.tables, loaded.measurements, loaded.imu)
+    assert tr.records > 0 and "mode STABILIZE" in tr.summary()

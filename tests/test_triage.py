@@ -364,3 +364,74 @@ def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
     assert 0.4 < got["INS_HNTCH_REF"] < 0.7 and got["INS_HNTCH_MODE"] == 1
     p, _ = _sim(tmp_path, "")
     assert suggest_notch(load_log(p).measurements, "ardupilot") == []
+
+
+def _text_log(path: Path, params: dict[str, str], seconds: float, att, acc) -> Path:
+    """A text DataFlash log as an ArduCopter 3.1 writes one (FMT lines, then records on TimeMS): its
+    parameters, ATT at 10 Hz from ``att(t) -> (roll, pitch)`` [deg] and IMU at 50 Hz from
+    ``acc(t) -> (ax, ay, az)`` [m/s^2], the gyros still."""
+    lines = [
+        "ArduCopter V3.1 (5c6503e2)",
+        "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+        "FMT, 129, 23, PARM, Nf, Name,Value",
+        "FMT, 130, 31, IMU, Iffffff, TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+        "FMT, 131, 31, ATT, IcccccCC, TimeMS,RollIn,Roll,PitchIn,Pitch,YawIn,Yaw,NavYaw",
+    ]
+    lines += [f"PARM, {k}, {v}" for k, v in params.items()]
+    for k in range(int(seconds * 50)):
+        ms = 1000 + 20 * k
+        ax, ay, az = acc(ms / 1000.0)
+        lines.append(f"IMU, {ms}, 0.001, -0.002, 0.001, {ax:.3f}, {ay:.3f}, {az:.3f}")
+        if k % 5 == 0:
+            roll, pitch = att(ms / 1000.0)
+            lines.append(f"ATT, {ms}, 0, {roll:.2f}, 0, {pitch:.2f}, 0, 10.00, 10.00")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_an_attitude_estimate_that_runs_away_on_the_ground_is_a_divergence_not_a_flip(tmp_path):
+    """The issue's ArduCopter 3.1 log: COMPASS_MOT_X/Y/Z are NaN; the vehicle sits level at idle while its
+    roll estimate runs to 95 deg. The raw IMU says level and still: an estimator divergence with the NaN
+    parameters named as the likely cause, never a flip or a crash."""
+    nan = {"COMPASS_MOT_X": "nan", "COMPASS_MOT_Y": "nan", "COMPASS_MOT_Z": "nan", "ARMING_CHECK": "1"}
+    p = _text_log(
+        tmp_path / "diverged.log",
+        nan,
+        30.0,
+        att=lambda t: (min(95.0, max(0.0, (t - 10.0) * 12.0)), 0.0),
+        acc=lambda t: (0.01, -0.02, -9.81),
+    )
+    _, tr = _triage(p)
+    names = [f.name for f in tr.findings]
+    assert "flip" not in names and "crash" not in names, tr.summary()
+    (div,) = _named(tr, "estimator_divergence")
+    assert "COMPASS_MOT_X" in div.evidence and "likely cause" in div.evidence and div.cuts
+    assert "COMPASS_MOT_X" in _named(tr, "bad_parameter")[0].evidence
+    # the same attitude with an accelerometer that turns over with it: a flip
+    p2 = _text_log(
+        tmp_path / "flipped.log",
+        {},
+        30.0,
+        att=lambda t: (min(170.0, max(0.0, (t - 10.0) * 40.0)), 0.0),
+        acc=lambda t: (
+            0.0,
+            9.81 * np.sin(np.radians(min(170.0, max(0.0, (t - 10.0) * 40.0)))),
+            -9.81 * np.cos(np.radians(min(170.0, max(0.0, (t - 10.0) * 40.0)))),
+        ),
+    )
+    assert "flip" in [f.name for f in _triage(p2)[1].findings]
+
+
+def test_every_finding_is_shown_folded_and_counted(tmp_path):
+    """The text output had said "5 findings" and printed 2 (the info ones hidden, CBRK_SUPPLY_CHK
+    among them); 80 imu_mismatch lines on one log were one story. All are shown: repeats folded into
+    the worst with their count, info last."""
+    from groundstation.diagnosis.triage import Triage, TriageFinding
+
+    fs = [TriageFinding("imu_mismatch", float(k), k + 0.5, "warning", f"accel differ by {k}") for k in range(80)]
+    fs += [TriageFinding("config_risk", 0.0, 0.0, "info", "CBRK_SUPPLY_CHK = 894281: that safety check is disabled")]
+    fs += [TriageFinding("mode_change", float(k), float(k), "info", "mode LOITER") for k in range(3)]
+    text = Triage(fs, "vehicle", (0.0, 100.0), 0.1, records=100).summary()
+    assert "84 findings" in text and "(and 79 more like it, 0.0-79.5 s)" in text
+    assert "CBRK_SUPPLY_CHK" in text and "mode LOITER (x3" in text
+    assert len(text.splitlines()) == 4

@@ -43,10 +43,7 @@ a replay had shown the vehicle 7.65 m up before it took off. They are skipped an
 from __future__ import annotations
 
 import contextlib
-import io
 import math
-import os
-import sys
 from array import array
 from collections import Counter
 from dataclasses import dataclass, field
@@ -58,6 +55,8 @@ from pymavlink import DFReader
 from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import fmt_length_ok, walk_dataflash
+from .dataflash_text import TextReader
+from .quiet import quiet
 from .scratch import scratch_copy
 from .tables import FIRMWARE, LogTables, Table
 
@@ -97,25 +96,6 @@ class DataFlashLog:
     @property
     def duration(self) -> float:
         return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
-
-
-@contextlib.contextmanager
-def _quiet():
-    """Silence stdout and stderr, Python's and the C level's (fds 1 and 2)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    null = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(null, 1)
-        os.dup2(null, 2)
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
-            yield
-    finally:
-        os.dup2(saved[0], 1)
-        os.dup2(saved[1], 2)
-        for fd in (*saved, null):
-            os.close(fd)
 
 
 def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = True) -> DataFlashLog:
@@ -240,9 +220,9 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
     # damage, so that chatter is dropped.
-    with _quiet():
+    with quiet():
         try:
-            r = DFReader.DFReader_binary(str(read_from)) if binary else DFReader.DFReader_text(str(read_from))
+            r = DFReader.DFReader_binary(str(read_from)) if binary else _text_reader(read_from)
             params = _parameters(r)
         except Exception as e:  # DFReader raises assorted errors on foreign data
             first = str(e).splitlines()[0] if str(e) else type(e).__name__
@@ -309,6 +289,15 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
     out.sort(key=lambda x: x.t)
     log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
     return log
+
+
+def _text_reader(path: Path):
+    """pymavlink's text reader, or the project's where pymavlink's cannot set up its clock
+    (:mod:`.dataflash_text`: ArduCopter 3.0's GPS records without a week)."""
+    try:
+        return DFReader.DFReader_text(str(path))
+    except (TypeError, ValueError, AttributeError, KeyError, ZeroDivisionError):
+        return TextReader(path)
 
 
 def _parameters(r) -> dict[str, float]:

@@ -63,7 +63,8 @@ class Table:
         v = self.get(*names)
         if v is None or v.dtype.kind not in "biuf":
             return None
-        return v.astype(float)
+        with np.errstate(invalid="ignore"):  # a damaged record's value out of a float's reach: NaN, no warning
+            return v.astype(float)
 
 
 @dataclass

@@ -38,6 +38,7 @@ import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 
+from .quiet import quiet
 from .tables import LogTables, Table
 from .ulog_check import ULogStructureError, check
 
@@ -93,7 +94,8 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
     source_file = io.BytesIO(data[: checked.end] if checked.cut else data)
     del data
     try:
-        u = ULog(source_file)
+        with quiet():  # pyulog prints a warning per message it cannot place
+            u = ULog(source_file)
     except Exception as e:  # pyulog raises assorted errors on damaged files
         first = str(e).splitlines()[0] if str(e) else type(e).__name__
         raise ULogError(f"{p}: not a readable ULog: {first}") from None

@@ -38,7 +38,8 @@ from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 from groundstation.control.station import ControlStation
 from groundstation.estimation.evaluate import evaluate
-from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_measurements
+from groundstation.estimation.identity import identify
+from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_log, load_measurements
 from groundstation.estimation.noise import stationary_noise
 from groundstation.estimation.registry import CLI_MODELS, build_estimator, vehicle_config
 from groundstation.estimation.vehicles import declared_beside
@@ -131,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--loop", action="store_true")
     _add_output_options(r)
 
-    i = sub.add_parser("info", help="summarise a .tlog: duration, messages, damage")
+    i = sub.add_parser("info", help="summarise a log (tlog, DataFlash, ULog, Crazyflie): duration, contents, damage")
     i.add_argument("file", type=Path)
     n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
     n.add_argument("file", type=Path)
@@ -222,6 +223,12 @@ def _run(args) -> int:
 
 # ---------------------------------------------------------------- info
 def cmd_info(args) -> int:
+    """What a log holds: a tlog's frames, damage and loss (below); any other log (DataFlash, ULog,
+    Crazyflie) through its reader: format, duration, the vehicle, what it measured, its records."""
+    if not args.file.exists():
+        raise OSError(f"{args.file}: cannot read: no such file")
+    if is_dataflash(args.file) or is_ulog(args.file) or is_crazyflie_log(args.file):
+        return info_of_log(args.file)
     idx = TlogIndex.scan(args.file)
     rp = Replay(args.file, speed=math.inf)
     n = sum(1 for _ in rp.iter_measurements())
@@ -241,6 +248,24 @@ def cmd_info(args) -> int:
         print(f"  damage: {damage}")
     for name, count in sorted(c.by_type.items(), key=lambda kv: -kv[1]):
         print(f"  {name:<28} {count:>8}")
+    return 0
+
+
+def info_of_log(path: Path) -> int:
+    log = load_log(path, imu_columns=True)
+    print(f"{path}: {log.description}")
+    v = identify(log.tables)
+    print(f"  vehicle: {v.name} ({v.evidence})" + (f"; firmware {log.tables.firmware}" if log.tables.firmware else ""))
+    kinds: dict[str, int] = {}
+    for m in log.measurements:
+        kinds[m.kind.value] = kinds.get(m.kind.value, 0) + 1
+    if log.imu is not None:
+        for (kind, inst), s in log.imu.series.items():
+            kinds[f"{kind.value}[{inst}]"] = len(s)
+    print("  measurements by kind: " + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])))
+    print(f"  parameters: {len(log.tables.params)}; records by type:")
+    for name, tb in sorted(log.tables.tables.items(), key=lambda kv: -len(kv[1])):
+        print(f"  {name:<28} {len(tb):>8}")
     return 0
 
 

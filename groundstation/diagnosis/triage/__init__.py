@@ -52,15 +52,40 @@ class Triage:
         return [f.as_json() for f in self.findings]
 
     def summary(self, limit: int = 12) -> str:
-        """The findings as lines, worst first (info-level mode changes only when nothing else)."""
-        shown = [f for f in self.findings if f.severity != "info"] or self.findings
-        lines = [f.line() for f in shown[:limit]]
-        if len(shown) > limit:
-            lines.append(f"... and {len(shown) - limit} more (report.json)")
+        """Every finding, worst first: the repeats of one kind folded into its worst instance with
+        their count and span (80 imu_mismatch lines on one log were one story), the info-level ones
+        last, a line per kind. With ``limit`` groups shown, the rest are counted and named."""
+        lines, groups = [], _folded([f for f in self.findings if f.severity != "info"])
+        for worst, same in groups[:limit]:
+            line = worst.line()
+            if len(same) > 1:
+                a, b = min(f.t_start for f in same), max(f.t_end for f in same)
+                line += f"  (and {len(same) - 1} more like it, {a:.1f}-{b:.1f} s)"
+            lines.append(line)
+        if len(groups) > limit:
+            rest = groups[limit:]
+            names = ", ".join(dict.fromkeys(w.name for w, _ in rest))
+            lines.append(f"... and {sum(len(s) for _, s in rest)} more findings ({names}): report.json")
+        info: dict[str, list[TriageFinding]] = {}
+        for f in self.findings:
+            if f.severity == "info":
+                info.setdefault(f.name, []).append(f)
+        for name, same in info.items():
+            first = same[0]
+            more = f" (x{len(same)}, {first.t_start:.1f}-{same[-1].t_end:.1f} s)" if len(same) > 1 else ""
+            lines.append(f"{'INFO':8s} {name:16s} {first.t_start:>14.1f} s  {first.evidence}{more}")
         clock = "seconds since the recording began" if self.clock == "recording" else "seconds of the vehicle's clock"
         head = f"triage ({len(self.findings)} findings, {self.seconds:.1f} s; times in {clock}):"
         empty = "nothing wrong found in the log's own records" if self.records else "the log has no records to check"
         return "\n".join([head] + (lines or [empty]))
+
+
+def _folded(findings: list[TriageFinding]) -> list[tuple[TriageFinding, list[TriageFinding]]]:
+    """Findings (worst first) grouped by severity and kind: each group's first is its worst."""
+    groups: dict[tuple[str, str], list[TriageFinding]] = {}
+    for f in findings:
+        groups.setdefault((f.severity, f.name), []).append(f)
+    return [(same[0], same) for same in groups.values()]
 
 
 def triage(tables: LogTables, ms: Sequence[Measurement], imu: ImuColumns | None = None) -> Triage:
@@ -74,13 +99,13 @@ def triage(tables: LogTables, ms: Sequence[Measurement], imu: ImuColumns | None 
         t0, t1 = min(t0, ms[0].t) if tables.tables else ms[0].t, max(t1, ms[-1].t) if tables.tables else ms[-1].t
     found: list[TriageFinding] = []
     found += check_events(tables, t1)
-    found += check_attitude(tables, t1)
-    crashed = min((f.t_start for f in found if f.name in ("crash", "flip")), default=np.inf)
+    if tables.clock == "recording":  # the raw IMU on the tables' clock: its receive times
+        imu = imu.on_receive_clock(tables.origin)
+    found += check_attitude(tables, t1, imu)
+    crashed = min((f.t_start for f in found if f.name in ("crash", "flip", "estimator_divergence")), default=np.inf)
     found += check_gaps(tables)
     found += check_battery(tables, t1)
     found += check_gps(tables)
-    if tables.clock == "recording":  # the raw IMU on the tables' clock: its receive times
-        imu = imu.on_receive_clock(tables.origin)
     found += check_vibration(tables, imu)
     found += check_imu_mismatch(tables, imu)
     found += check_motors(tables, until=crashed)

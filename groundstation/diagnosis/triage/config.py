@@ -5,6 +5,8 @@ what it found.
 
 from __future__ import annotations
 
+import math
+
 from drivers.logs.tables import LogTables
 
 from .finding import DOCS, PX4_DOCS, TriageFinding
@@ -41,4 +43,18 @@ def check_config(tables: LogTables, t0: float) -> list[TriageFinding]:
             risks.append("CAL_ACC0_ID = 0: the accelerometer was never calibrated")
     doc = (PX4_DOCS if tables.autopilot == "px4" else DOCS)["config_risk"]
     sev = {True: "warning", False: "info"}
-    return [TriageFinding("config_risk", t0, t0, sev["ARMING_CHECK" in r or "never" in r], r, doc) for r in risks]
+    found = [TriageFinding("config_risk", t0, t0, sev["ARMING_CHECK" in r or "never" in r], r, doc) for r in risks]
+    bad = sorted(k for k, v in p.items() if not math.isfinite(v))
+    if bad:
+        found.append(
+            TriageFinding(
+                "bad_parameter",
+                t0,
+                t0,
+                "error",
+                f"{len(bad)} parameter(s) not a number: {', '.join(bad[:8])}{' ...' if len(bad) > 8 else ''} "
+                "(an estimator that computes with one diverges; set them again, or reset them to defaults)",
+                DOCS["bad_parameter"],
+            )
+        )
+    return found

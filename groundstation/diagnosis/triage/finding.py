@@ -26,6 +26,8 @@ DOCS = {
     "config_risk": "https://ardupilot.org/copter/docs/common-prearm-safety-checks.html",
     "battery": "https://ardupilot.org/copter/docs/failsafe-battery.html",
     "mode_change": "https://ardupilot.org/copter/docs/flight-modes.html",
+    "estimator_divergence": "https://ardupilot.org/copter/docs/common-apm-navigation-extended-kalman-filter-overview.html",
+    "bad_parameter": "https://ardupilot.org/copter/docs/parameters.html",
 }
 PX4_DOCS = {
     "vibration": "https://docs.px4.io/main/en/assembly/vibration_isolation.html",

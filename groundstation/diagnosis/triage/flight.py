@@ -9,9 +9,13 @@ advice per cell) and low below 3.5 V, or at the log's own ``BATT_LOW_VOLT`` / ``
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from drivers.logs.tables import LogTables
+from groundstation.core.imu import ImuColumns
+from groundstation.core.measurement import Kind
 
 from .events import end_of_flight, flights
 from .finding import DOCS, TriageFinding, cell_count, runs
@@ -53,7 +57,78 @@ def _wrap(a: np.ndarray) -> np.ndarray:
     return (a + 180.0) % 360.0 - 180.0
 
 
-def check_attitude(tables: LogTables, t_end: float) -> list[TriageFinding]:
+def check_attitude(tables: LogTables, t_end: float, imu: ImuColumns | None = None) -> list[TriageFinding]:
+    """Flip and crash as the autopilot's attitude shows them; where the raw IMU says the vehicle sat
+    level and still through it, an estimator that diverged instead (:func:`diverged`)."""
+    found = _attitude_findings(tables, t_end)
+    if imu is None:
+        return found
+    out: list[TriageFinding] = []
+    for f in found:
+        d = diverged(f, imu, tables)
+        if d is None:
+            out.append(f)
+        elif not any(o.name == d.name and o.t_start <= d.t_end and d.t_start <= o.t_end for o in out):
+            out.append(d)  # a flip and a crash over one divergence are one finding
+    return out
+
+
+#: the raw IMU says "level and still": gravity within this of the body's z axis, rotation below this
+LEVEL_DEG = 10.0
+STILL_RAD_S = 0.2
+#: ... for this share of the stretch's samples, with at least this many of them
+HELD_SHARE = 0.9
+MIN_SAMPLES = 20
+
+
+def diverged(f: TriageFinding, imu: ImuColumns, tables: LogTables) -> TriageFinding | None:
+    """An estimator divergence in place of flip or crash ``f``, when the raw sensors contradict the
+    attitude it rests on: through the stretch the accelerometer reads gravity along the body's z axis
+    (within :data:`LEVEL_DEG`) and the gyros no rotation (below :data:`STILL_RAD_S`). A vehicle does not
+    turn over without turning; an estimate fed a bad calibration does (an ArduCopter 3.1 log sat at
+    idle on the ground, its baro within 0.3 m, while its roll estimate ran to 95 deg and its altitude
+    to -54 m: the triage had called it a flip and a crash). The parameters that are not numbers, if
+    any, are named as the likely cause. None: the raw sensors agree with the estimate, or say nothing."""
+    acc, gyr = imu.get(Kind.ACCEL, 0), imu.get(Kind.GYRO, 0)
+    if acc is None or f.name not in ("flip", "crash"):
+        return None
+    a = (acc.t >= f.t_start) & (acc.t <= f.t_end)
+    if a.sum() < MIN_SAMPLES:
+        return None
+    fa = acc.values(a)
+    norm = np.linalg.norm(fa, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        off_z = np.degrees(np.arccos(np.clip(-fa[:, 2] / norm, -1.0, 1.0)))
+    level = float(np.mean(off_z < LEVEL_DEG))
+    still = 1.0
+    if gyr is not None:
+        g = (gyr.t >= f.t_start) & (gyr.t <= f.t_end)
+        if g.sum() >= MIN_SAMPLES:
+            still = float(np.mean(np.linalg.norm(gyr.values(g), axis=1) < STILL_RAD_S))
+    if level < HELD_SHARE or still < HELD_SHARE:
+        return None
+    bad = sorted(k for k, v in tables.params.items() if not math.isfinite(v))
+    cause = (
+        f"; the log's parameters {', '.join(bad[:6])}{' and more' if len(bad) > 6 else ''} are not numbers, "
+        "which the estimator computes with: the likely cause"
+        if bad
+        else ""
+    )
+    return TriageFinding(
+        "estimator_divergence",
+        f.t_start,
+        f.t_end,
+        "error",
+        f"the autopilot's attitude says {f.name} ({f.evidence}), but the accelerometer read gravity along the "
+        f"body's z axis within {LEVEL_DEG:.0f} deg and the gyros below {STILL_RAD_S} rad/s for "
+        f"{min(level, still):.0%} of the stretch: the vehicle sat level and still, and its attitude estimate "
+        f"diverged{cause}",
+        DOCS["estimator_divergence"],
+        cuts=True,
+    )
+
+
+def _attitude_findings(tables: LogTables, t_end: float) -> list[TriageFinding]:
     t, r, p, dr, dp = _attitude(tables)
     out: list[TriageFinding] = []
     if not len(t):
