@@ -335,3 +335,32 @@ async def test_254_forged_system_ids_are_counted_not_followed():
     finally:
         tx.close()
         await link.close()
+
+
+@async_test(timeout=30)
+async def test_what_the_vehicle_says_is_on_the_event_line():
+    """STATUSTEXT ("PreArm: Need 3D Fix", "Low Battery!") had been shown nowhere live."""
+    port = free_udp_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}")
+    events = link.events()
+    await link.open()
+    tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        enc = mavlink.MAVLink(None, 1, 1)
+        tx.sendto(bytes(mavlink.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(enc)), ("127.0.0.1", port))
+        tx.sendto(
+            bytes(mavlink.MAVLink_statustext_message(mavlink.MAV_SEVERITY_WARNING, b"PreArm: Need 3D Fix").pack(enc)),
+            ("127.0.0.1", port),
+        )
+
+        async def said():
+            async for ev in events:
+                if "says" in ev.reason:
+                    return ev.reason
+
+        reason = await asyncio.wait_for(said(), 10.0)
+        assert reason == "vehicle 1 says (warning): PreArm: Need 3D Fix"
+        assert list(link.status_texts) == [reason]
+    finally:
+        tx.close()
+        await link.close()

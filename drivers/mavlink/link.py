@@ -26,6 +26,7 @@ Measurements reach the consumers a burst at a time: all a UDP wake-up drained
 from __future__ import annotations
 
 import asyncio
+import collections
 import sys
 import time
 from collections.abc import Callable
@@ -84,6 +85,17 @@ _GCS_TYPES = {mavlink.MAV_TYPE_GCS, mavlink.MAV_TYPE_ONBOARD_CONTROLLER}
 
 #: the vehicles one link follows (asks for streams, answers); further system ids are counted
 MAX_VEHICLES = 16
+#: MAV_SEVERITY, as a person reads it
+STATUS_SEVERITY = {
+    0: "emergency",
+    1: "alert",
+    2: "critical",
+    3: "error",
+    4: "warning",
+    5: "notice",
+    6: "info",
+    7: "debug",
+}
 
 
 class MavlinkLink:
@@ -154,6 +166,7 @@ class MavlinkLink:
             check_every=check_every,
             budget=max_rate,
             fallback=FALLBACK_DATA_STREAMS,
+            on_note=self._stream_note,
         )
         self._sink_faults: set[str] = set()
         self._command_acks: dict[tuple[int, int], asyncio.Future] = {}  # (sysid, command) -> its ACK
@@ -161,6 +174,10 @@ class MavlinkLink:
         self._clock_restarts: dict[int, int] = {}  # sysid -> its clock's restarts at its last heartbeat
         #: system ids heard past MAX_VEHICLES, not followed
         self.vehicles_ignored: set[int] = set()
+        #: what the stream requests noticed (streams fallen below their rates), newest last
+        self.stream_notes: collections.deque[str] = collections.deque(maxlen=20)
+        #: what the vehicles said (STATUSTEXT), newest last
+        self.status_texts: collections.deque[str] = collections.deque(maxlen=50)
         self._burst: list[Measurement] = []  # measurements of the transport's current burst
         self._bursts = False  # the transport calls on_burst_end (UDP)
 
@@ -308,6 +325,8 @@ class MavlinkLink:
         mtype = m.get_type()
         if mtype == "HEARTBEAT":
             self._heartbeat_in(m)
+        elif mtype == "STATUSTEXT":
+            self._status_text_in(m)
         elif mtype == "COMMAND_ACK":
             self.requester.ack(m._header.srcSystem, m.command, m.result)
             fut = self._command_acks.pop((m._header.srcSystem, m.command), None)
@@ -318,6 +337,27 @@ class MavlinkLink:
                 hook(m, t_rx)
             except Exception as e:  # noqa: BLE001 - one consumer's fault must not stop the others
                 self._sink_failed(hook, e)
+
+    def _status_text_in(self, m) -> None:
+        """What the vehicle says (STATUSTEXT: "PreArm: Need 3D Fix", "Low Battery!"), kept and on the
+        event stream, so the event line and the dashboard show it as it comes."""
+        sysid = m._header.srcSystem
+        if sysid in self._ground_stations:
+            return
+        text = m.text if isinstance(m.text, str) else bytes(m.text).split(b"\0", 1)[0].decode("latin-1")
+        text = "".join(c for c in text.strip() if c.isprintable())[:200]
+        if not text:
+            return
+        severity = STATUS_SEVERITY.get(int(getattr(m, "severity", 6)), "info")
+        line = f"vehicle {sysid} says ({severity}): {text}"
+        self.status_texts.append(line)
+        self._events.publish(LinkEvent(self.state, time.time(), line))
+
+    def _stream_note(self, line: str) -> None:
+        """What the stream requests found (streams overridden by another ground station), on the
+        event stream: the event line and the dashboard say it."""
+        self.stream_notes.append(line)
+        self._events.publish(LinkEvent(self.state, time.time(), line))
 
     def _heartbeat_in(self, m) -> None:
         hdr = m._header

@@ -5,9 +5,15 @@ acknowledgements alike. So each SET_MESSAGE_INTERVAL is sent until its COMMAND_A
 with an exponential backoff (:data:`RETRIES` tries); a vehicle that answers none of the first
 stream's tries does not take the command and gets REQUEST_DATA_STREAM instead. Then every
 ``check_every`` seconds the rate each message arrives at is compared with the rate asked, and a
-stream arriving at less than :data:`SHORT` of it is asked again (at most :data:`REASKS` times:
-a vehicle without that sensor never sends it). When the vehicle restarts (its clock goes back, or
-it is heard again after the link was lost) everything is asked again.
+stream arriving at less than :data:`SHORT` of it is asked again, for as long as the link lives,
+with the wait before the next ask doubling while it stays short (up to :data:`MAX_BACKOFF_S`; a
+vehicle without that sensor never sends it, and is asked once a minute) and starting over once it
+comes. A stream that had come at its rate and then fell (another ground station's requests: a
+MAVProxy router left at its default ``streamrate`` asks every stream at 4 Hz again and again, and
+had silently taken the telemetry to a tenth; QGroundControl's, a companion's) is said, with its
+rate, through ``on_note`` (the link's event line and the dashboard), and asked again. When the
+vehicle restarts (its clock goes back, or it is heard again after the link was lost) everything is
+asked again.
 
 A **link budget** (bytes per second: a serial link's baud / 10, or ``--max-rate``) scales the
 rates down to fit, the estimator's needs first: the streams are asked in priority order, and the
@@ -25,8 +31,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 RETRIES = 5  # tries of one SET_MESSAGE_INTERVAL before it counts as unanswered
 BACKOFF = 1.5  # each try waits this much longer for its ACK
-SHORT = 0.5  # a stream below this share of its asked rate is asked again
-REASKS = 3  # ... at most this many times
+SHORT = 0.5  # a stream below this share of its asked rate is asked again ...
+MAX_BACKOFF_S = 60.0  # ... after a wait that doubles while it stays short, up to this
+HELD = 0.9  # a stream at this share of its rate or more has come: a fall after it is said
+NOTE_EVERY_S = 60.0  # [s] a fall is said at most this often (a router's asks again every 10-20 s)
+QUICK_S = 0.5  # [s] the fast streams' watch ...
+QUICK_COUNT = 10  # ... of those that send this many frames in it
 MIN_RATE = 0.5  # [Hz] no stream is slowed below this by the budget
 PRIORITY = 6  # the first streams (the estimators' sensors) are slowed last
 #: MAVLink 2 framing around a payload: header 10, checksum 2 [bytes]
@@ -82,6 +92,11 @@ class VehicleStreams:
     reasked: dict = field(default_factory=dict)  # message -> times asked again for being short
     rates: dict = field(default_factory=dict)  # message -> rate received at the last check [Hz]
     requests: int = 0  # request rounds (the first, and one per restart)
+    next_ask: dict = field(default_factory=dict)  # message -> monotonic time it may be asked again
+    came: set = field(default_factory=set)  # messages that have come at their rate since last asked
+    overridden: int = 0  # times streams that had come fell below their rate (someone else asked)
+    noted_at: float | None = None  # when that was last said, and how many times it had been by then
+    noted_count: int = 0
 
 
 class StreamRequester:
@@ -97,7 +112,10 @@ class StreamRequester:
         check_every: float = 5.0,
         budget: float | None = None,
         fallback: dict[int, float] | None = None,
+        on_note: Callable[[str], None] | None = None,
     ) -> None:
+        """``on_note(line)``: told when streams that had come fall below their rates."""
+        self.on_note = on_note or (lambda _line: None)
         self.send = send
         self.counts = counts  # message name -> frames received so far (the link's counters)
         self.streams = fit_budget(streams, budget)
@@ -180,20 +198,64 @@ class StreamRequester:
             for stream_id, hz in self.fallback.items():
                 self.send(mavlink.MAVLink_request_data_stream_message(v.sysid, v.compid, stream_id, int(hz), 1))
             return
+        v.came.clear()
+        v.next_ask.clear()
+        # the fast streams are also watched over QUICK_S: one that had come and falls is asked again
+        # within a second, not at the next check (a router's 4 Hz came every 10-20 s)
+        quick = min(QUICK_S, self.check_every)
+        fast = [n for n, hz in v.asked.items() if hz * quick >= QUICK_COUNT]
         before, t0 = dict(self.counts()), time.monotonic()
+        q_before, q_t0 = before, t0
         while True:
-            await asyncio.sleep(self.check_every)
+            await asyncio.sleep(quick)
             now, t1 = dict(self.counts()), time.monotonic()
+            q_rates = {n: (now.get(n, 0) - q_before.get(n, 0)) / max(t1 - q_t0, 1e-6) for n in fast}
+            q_before, q_t0 = now, t1
+            fell = [n for n in fast if n in v.came and q_rates[n] < SHORT * v.asked[n]]
+            if not fell and t1 - t0 < self.check_every:
+                continue
             dt = max(t1 - t0, 1e-6)
             v.rates = {n: (now.get(n, 0) - before.get(n, 0)) / dt for n in v.asked}
-            short = [
-                n
-                for n in v.asked
-                if n not in v.refused and v.rates[n] < SHORT * v.asked[n] and v.reasked.get(n, 0) < REASKS
-            ]
-            for n in short:
-                v.reasked[n] = v.reasked.get(n, 0) + 1
+            v.rates.update({n: q_rates[n] for n in fell})  # as it is now, not as it was on average
+            short = self._short(v, t1)
             if short:
                 await self._ask(v, short)
                 now, t1 = dict(self.counts()), time.monotonic()  # the asking took time: measure afresh
+                q_before, q_t0 = now, t1
             before, t0 = now, t1
+
+    def _short(self, v: VehicleStreams, now: float) -> list[str]:
+        """The streams to ask again now (the module's docstring), and the note of any that fell."""
+        fell, out = [], []
+        for n, asked in v.asked.items():
+            rate = v.rates[n]
+            if n in v.refused:
+                continue
+            if rate >= HELD * asked:
+                v.came.add(n)
+                v.reasked[n] = 0
+                v.next_ask.pop(n, None)
+                continue
+            if rate >= SHORT * asked:
+                continue
+            if n in v.came:
+                fell.append(f"{n} {rate:.1f} Hz of {asked:g}")
+                v.came.discard(n)
+                v.next_ask.pop(n, None)  # fallen: asked at once
+            if now < v.next_ask.get(n, 0.0):
+                continue
+            k = v.reasked.get(n, 0) + 1
+            v.reasked[n] = k
+            v.next_ask[n] = now + min(self.check_every * 2.0 ** (k - 1), MAX_BACKOFF_S)
+            out.append(n)
+        if fell:
+            v.overridden += 1
+            if v.noted_at is None or now - v.noted_at >= NOTE_EVERY_S:
+                again = v.overridden - v.noted_count
+                v.noted_at, v.noted_count = now, v.overridden
+                self.on_note(
+                    f"vehicle {v.sysid}: streams fell below their rates ({', '.join(fell)}): another ground "
+                    "station's requests (a router's streamrate, QGroundControl's) may have changed them; asking "
+                    "again" + (f" ({again} falls since this was last said)" if again > 1 else "")
+                )
+        return out

@@ -311,8 +311,9 @@ def print_control_address(dash) -> None:
     print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
 
 
-def link_markdown(state: str, counters, rates: dict[str, float], shed: int = 0) -> str:
-    """The dashboard's link panel: state, loss, errors, what was dropped or shed, rates by message."""
+def link_markdown(state: str, counters, rates: dict[str, float], shed: int = 0, notes=()) -> str:
+    """The dashboard's link panel: state, loss, errors, what was dropped or shed, what the vehicle
+    and the stream requests said last (``notes``), rates by message."""
     top = sorted(rates.items(), key=lambda kv: -kv[1])[:8]
     lines = "\n".join(f"| {k} | {v:.1f} |" for k, v in top)
     load = "".join(
@@ -324,9 +325,10 @@ def link_markdown(state: str, counters, rates: dict[str, float], shed: int = 0) 
         )
         if n
     )
+    said = "".join(f"\n\n{n}" for n in notes)
     return (
         f"**{state}** · loss {counters.loss_percent:.1f} % · CRC errors {counters.crc_errors} · "
-        f"garbage {counters.bad_data}{load}\n\n| message | Hz |\n|---|---|\n{lines}"
+        f"garbage {counters.bad_data}{load}{said}\n\n| message | Hz |\n|---|---|\n{lines}"
     )
 
 
@@ -412,7 +414,10 @@ async def run_connect(args) -> int:
             shown = outs.by_id.get(outs.shown) if outs.shown is not None else outs.first
             if dash is not None:
                 shed = shown.loop.counters.shed if shown is not None else 0
-                dash.set_link_status(link_markdown(link.state.value, link.counters, rates(link.counters.by_type), shed))
+                notes = [*list(link.status_texts)[-3:], *list(link.stream_notes)[-1:]]
+                dash.set_link_status(
+                    link_markdown(link.state.value, link.counters, rates(link.counters.by_type), shed, notes)
+                )
             if not args.quiet:
                 outs.print_status(link.state.value, link.counters)
 

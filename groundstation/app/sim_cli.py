@@ -280,7 +280,9 @@ async def run_demo(args) -> int:
             flush=True,
         )
     print(
-        f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}", flush=True
+        f"demo: simulated {args.vehicle} -> udp 127.0.0.1:{port} -> ground station; recording {args.record}; "
+        f"runs {args.duration:g} s of flight (--duration; Ctrl-C stops it sooner)",
+        flush=True,
     )
     status = StatusLine()
 
