@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from groundstation.diagnosis.trials import available_cores  # noqa: E402
+from groundstation.core.cores import available_cores  # noqa: E402
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA") or ROOT.parent / "shared" / "data")
 

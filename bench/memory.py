@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnosis_speed import simulated  # noqa: E402
 
-from groundstation.diagnosis.trials import available_cores  # noqa: E402
+from groundstation.core.cores import available_cores  # noqa: E402
 
 
 def _tree(pid: int) -> list[int]:

@@ -32,9 +32,9 @@ from groundstation.core.broadcast import Broadcast, Subscription
 from groundstation.core.measurement import Measurement
 
 from .mavlink.receiver import LinkCounters, MavlinkReceiver
+from .speed import check_speed
 from .tlog import TlogIndex
 
-MIN_SPEED, MAX_SPEED = 0.1, 100.0
 #: the mapped file's pages behind the playhead are given back every 65,536 records (``TlogIndex.release``)
 _RELEASE_MASK = (1 << 16) - 1
 
@@ -51,14 +51,6 @@ class ReplayStatus:
     position: float  # seconds into the recording
     duration: float
     speed: float
-
-
-def check_speed(speed: float) -> float:
-    if speed == math.inf:
-        return speed
-    if not MIN_SPEED <= speed <= MAX_SPEED:
-        raise ValueError(f"speed {speed:g} outside {MIN_SPEED:g}..{MAX_SPEED:g} (or 'max')")
-    return float(speed)
 
 
 class _MeasurementIndex:

@@ -2,6 +2,6 @@
 
 import sys
 
-from groundstation.app.cli import main
+from groundstation.app.main import main
 
 sys.exit(main())

@@ -46,6 +46,7 @@ from groundstation.core.measurement import Kind
 from .board_out import BoardEncoder
 from .fast import EPOCH
 from .mavlink_out import DERIVED_FROM, STREAM_OF_MESSAGE, MavlinkEncoder
+from .names import UNASKED_RATE
 from .profile import CoaxAutopilot
 from .pty_port import PtyPort
 from .scenario import Scenario
@@ -68,10 +69,6 @@ DATA_STREAM_GROUPS = {
     mavlink.MAV_DATA_STREAM_EXTRA3: ("range",),
 }
 MAX_TILT = math.radians(30.0)
-#: [Hz] each stream's rate over MAVLink until a ground station asks for it (SET_MESSAGE_INTERVAL
-#: or REQUEST_DATA_STREAM), as an autopilot starts at its low default stream rates (ArduPilot's
-#: SRn_* parameters: 0-4 Hz); the sensors themselves sample at their own rates all along
-UNASKED_RATE = 2.0
 
 
 def is_loopback(host: str) -> bool:

@@ -35,6 +35,7 @@ import numpy as np
 
 from groundstation.core.frames import euler_from_matrix
 
+from .names import FLIGHTS
 from .vehicles.base import G
 from .vehicles.coax import Coax, CoaxCommand
 from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
@@ -51,9 +52,6 @@ class Setpoint:
     accel: float = 0.0  # [m/s^2] acceleration, fed forward (only the ramps set them: FlightProfile._ramp)
     north: float = 0.0  # [m] the position held, from where the vehicle was switched on
     east: float = 0.0
-
-
-FLIGHTS = ("standard", "thrust_test", "high", "guided")
 
 
 class FlightProfile:

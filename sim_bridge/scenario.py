@@ -21,10 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .effects import Effect, parse_effect
-from .profile import FLIGHTS
+from .names import FLIGHTS, VEHICLES
 from .sensors import SensorConfig
-
-VEHICLES = ("quad", "coax", "heli3dof")
 
 
 class ScenarioError(ValueError):

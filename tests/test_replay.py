@@ -90,7 +90,7 @@ async def test_loop_plays_again(two_seconds):
 
 def test_speed_limits():
     with pytest.raises(ValueError):
-        from drivers.replay import check_speed
+        from drivers.speed import check_speed
 
         check_speed(1000)
 

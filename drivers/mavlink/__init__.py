@@ -1,7 +1,5 @@
-"""MAVLink vehicles: live links (UDP, TCP, serial) and the message-to-measurement decoder."""
+"""MAVLink vehicles: live links (UDP, TCP, serial) and the message-to-measurement decoder.
 
-from .decode import MavlinkDecoder
-from .link import LinkEvent, LinkState, MavlinkLink
-from .receiver import LinkCounters, MavlinkReceiver
-
-__all__ = ["MavlinkDecoder", "MavlinkLink", "MavlinkReceiver", "LinkCounters", "LinkEvent", "LinkState"]
+The modules are imported by name (``drivers.mavlink.link``, ``.signing``, ...): the package itself
+loads none of them, so a light one (the signing key, the connection string) costs no decoder.
+"""

@@ -14,7 +14,6 @@ never a traceback.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import datetime as _dt
 import json
@@ -33,7 +32,7 @@ from drivers.logs.ulog import ULogError, is_ulog
 from drivers.mavlink.commands import CommandError
 from drivers.mavlink.link import GCS_SYSTEM_ID, LinkState, MavlinkLink
 from drivers.mavlink.params import ParamError
-from drivers.replay import Replay, check_speed
+from drivers.replay import Replay
 from drivers.tlog import TlogError, TlogIndex
 from drivers.transports import TransportError
 from groundstation.control.station import ControlStation
@@ -41,24 +40,21 @@ from groundstation.estimation.evaluate import evaluate
 from groundstation.estimation.identity import identify
 from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_log, load_measurements
 from groundstation.estimation.noise import stationary_noise
-from groundstation.estimation.registry import CLI_MODELS, build_estimator, vehicle_config
+from groundstation.estimation.registry import build_estimator, vehicle_config
 from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
-from .command_cli import add_parser as add_command_parser
 from .command_cli import run_command_cli
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
-from .diagnose_cli import add_parser as add_diagnose_parser
-from .diagnose_cli import add_triage_parser, cmd_diagnose, cmd_triage
-from .fleet_cli import add_parser as add_fleet_parser
+from .diagnose_cli import cmd_diagnose, cmd_triage
 from .fleet_cli import cmd_fleet
-from .options import add_signing_option, add_web_options, key_of
+from .options import key_of
 from .outputs import Outputs, VehicleOutputs
-from .param_cli import add_parser as add_param_parser
 from .param_cli import run_param
+from .parser import build_parser
 from .signals import on_stop_signal
-from .sim_cli import add_sim_parser, cmd_sim, run_demo
+from .sim_cli import cmd_sim, run_demo
 from .supervise import Supervisor
 
 
@@ -66,101 +62,13 @@ class UsageError(Exception):
     """A user error reported as one line."""
 
 
-def _speed(text: str) -> float:
-    if text.lower() in ("max", "inf"):
-        return math.inf
-    try:
-        return check_speed(float(text.rstrip("x")))
-    except ValueError as e:
-        raise argparse.ArgumentTypeError(str(e)) from None
-
-
-def _add_output_options(p: argparse.ArgumentParser) -> None:
-    add_web_options(p)
-    p.add_argument("--model", default="altitude", choices=CLI_MODELS, help="the estimator to run (default altitude)")
-    p.add_argument(
-        "--vehicle",
-        help="vehicle parameter file (groundstation/vehicles/NAME.json): the estimator's "
-        "noise, thrust curve and sensor limits for this airframe; default: what the "
-        "log implies (a Crazyflie log: crazyflie)",
-    )
-    p.add_argument("--noise", type=Path, help="measurement covariances from 'groundstation noise'")
-    p.add_argument(
-        "--declared",
-        type=Path,
-        help="declared effects (JSON); default: FILE.declared.json beside a replayed file, if any",
-    )
-    p.add_argument(
-        "--export",
-        metavar="OUT.csv",
-        type=Path,
-        help="write the estimates: t, states, sigma_<state> (one row per estimate)",
-    )
-    p.add_argument(
-        "--export-measurements", metavar="M.csv", type=Path, help="write the decoded measurements (long format)"
-    )
-    p.add_argument("--quiet", action="store_true", help="no status lines")
-
-
-def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="groundstation", description=__doc__.split("\n\n")[0])
-    sub = ap.add_subparsers(dest="command", required=True)
-
-    c = sub.add_parser("connect", help="connect to a vehicle (UDP, TCP or serial) and record the session")
-    c.add_argument(
-        "url", help="udpin:0.0.0.0:14550, udpout:HOST:PORT, tcp:HOST:PORT, tcpin:HOST:PORT, /dev/ttyUSB0,57600"
-    )
-    c.add_argument("--record", type=Path, help="tlog path (default sessions/<date-time>.tlog)")
-    c.add_argument("--no-record", action="store_true", help="do not record the session")
-    c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
-    c.add_argument("--duration", type=float, help="stop after this many seconds")
-    c.add_argument(
-        "--max-rate", type=float, help="the link's budget [bytes/s] the streams are fitted to (serial: baud/10)"
-    )
-    add_signing_option(c)
-    c.add_argument(
-        "--control",
-        choices=("quad", "coax"),
-        help="offer altitude hold for this vehicle in the dashboard's Control panel (armed only there)",
-    )
-    _add_output_options(c)
-
-    r = sub.add_parser("replay", help="play a recorded .tlog through the live path")
-    r.add_argument("file", type=Path)
-    r.add_argument("--speed", type=_speed, default=1.0, help="0.1 to 100, or 'max' (default 1)")
-    r.add_argument("--start", type=float, default=0.0, help="start this many seconds into the file")
-    r.add_argument("--loop", action="store_true")
-    _add_output_options(r)
-
-    i = sub.add_parser("info", help="summarise a log (tlog, DataFlash, ULog, Crazyflie): duration, contents, damage")
-    i.add_argument("file", type=Path)
-    n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
-    n.add_argument("file", type=Path)
-    n.add_argument("--model", default="heli3dof", choices=CLI_MODELS)
-    n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
-    n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
-    n.add_argument("--out", type=Path, help="write the JSON for --noise here")
-    e = sub.add_parser("evaluate", help="run the estimators on a log; errors vs truth, NIS, whiteness")
-    e.add_argument("file", type=Path)
-    e.add_argument("--model", default="altitude", choices=CLI_MODELS)
-    e.add_argument("--vehicle", help="vehicle parameter file (groundstation/vehicles/NAME.json)")
-    e.add_argument(
-        "--truth",
-        type=Path,
-        help="truth CSV (t, h or z) to score against (default: motion capture in the log, else LOG.csv or"
-        " LOG_truth.csv)",
-    )
-    add_sim_parser(sub)
-    add_diagnose_parser(sub)
-    add_triage_parser(sub)
-    add_fleet_parser(sub)
-    add_param_parser(sub)
-    add_command_parser(sub)
-    return ap
-
-
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """The command line (as the script's :func:`~.main.main`, with the commands loaded at once)."""
+    return run(build_parser().parse_args(argv))
+
+
+def run(args) -> int:
+    """Run the parsed command: its one-line errors as exit status 2."""
     try:
         return _run(args)
     except BrokenPipeError:  # output piped into `head` and closed: not an error

@@ -8,21 +8,11 @@ from __future__ import annotations
 from drivers.mavlink.commands import CommandError, run_command
 from drivers.mavlink.link import MavlinkLink
 
-from .options import add_signing_option, key_of
+from .options import key_of
 from .param_cli import wait_for_vehicle
 
 #: commands that start the motors: only with --yes
 STARTS_MOTORS = {"arm", "takeoff"}
-
-
-def add_parser(sub) -> None:
-    c = sub.add_parser("command", help="arm, disarm, mode NAME, takeoff ALT, land: each with the vehicle's ACK")
-    c.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
-    c.add_argument("what", choices=("arm", "disarm", "mode", "takeoff", "land"))
-    c.add_argument("arg", nargs="?", help="the mode's name (mode), the altitude in metres (takeoff)")
-    c.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
-    c.add_argument("--yes", action="store_true", help="confirm a command that starts the motors (arm, takeoff)")
-    add_signing_option(c)
 
 
 async def run_command_cli(args) -> int:

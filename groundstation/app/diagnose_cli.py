@@ -4,74 +4,15 @@ the effects found translated into autopilot parameters; ``groundstation triage L
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
 
 from groundstation.diagnosis import pipeline
-from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.diagnosis.triage import triage
-from groundstation.diagnosis.trials import available_cores
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.vehicles import declared_beside, declared_effects
-
-
-def add_parser(sub) -> None:
-    d = sub.add_parser("diagnose", help="find the effects the model lacks, add them, report before/after")
-    d.add_argument("file", type=Path)
-    d.add_argument(
-        "--model",
-        default="auto",
-        choices=("auto", *DIAGNOSABLE),
-        help="; ".join(f"{name}: {spec.help}" for name, spec in DIAGNOSABLE.items())
-        + " (default auto: the one the vehicle and the log's readings allow, the altitude model first; "
-        "with a throttle and a battery voltage, thrust lost with the battery is traced beside it)",
-    )
-    d.add_argument("--out", type=Path, help="report directory (default: LOG.diagnosis/)")
-    d.add_argument("--declared", type=Path, help="effects the model is told of (default: LOG.declared.json)")
-    d.add_argument(
-        "--vehicle",
-        help="vehicle parameter file for the noise (its known effects are NOT applied: finding them is the point)",
-    )
-    d.add_argument(
-        "--truth",
-        type=Path,
-        help="truth CSV (t, h) for the error before/after (default: LOG.csv "
-        "when it is a simulator sidecar; motion capture in the log is used)",
-    )
-    d.add_argument(
-        "--no-truth-veto",
-        action="store_true",
-        help="keep an effect even when its fix makes the error against truth worse (default: rejected)",
-    )
-    d.add_argument(
-        "--jobs",
-        type=positive_int,
-        default=available_cores(),
-        help="processes the candidates' filter runs are spread over (default: every core, here "
-        f"{available_cores()}; the findings do not depend on it)",
-    )
-
-
-def positive_int(text: str) -> int:
-    """A count of 1 or more, for argparse (its one-line error otherwise)."""
-    try:
-        n = int(text)
-    except ValueError:
-        n = 0
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number of 1 or more, got {text!r}")
-    return n
-
-
-def add_triage_parser(sub) -> None:
-    t = sub.add_parser(
-        "triage", help="what the log says happened (crash, failsafes, vibration, motors, EKF), in seconds"
-    )
-    t.add_argument("file", type=Path)
-    t.add_argument("--json", action="store_true", help="the findings as JSON on stdout")
 
 
 def cmd_triage(args) -> int:

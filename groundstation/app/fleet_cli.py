@@ -13,23 +13,8 @@ from __future__ import annotations
 import os
 import sys
 import time
-from pathlib import Path
 
 from groundstation.diagnosis import fleet
-from groundstation.diagnosis.models import DIAGNOSABLE
-
-
-def add_parser(sub) -> None:
-    f = sub.add_parser("fleet", help="diagnose every log of an archive on Dask; what recurs across flights")
-    fsub = f.add_subparsers(dest="fleet_command", required=True)
-    d = fsub.add_parser("diagnose", help="every log under ARCHIVE_DIR, resumable, one table and a fleet report")
-    d.add_argument("archive", type=Path)
-    d.add_argument("--out", type=Path, required=True, help="the fleet's folder: a report folder per log, the table")
-    d.add_argument(
-        "--model", default="auto", choices=("auto", *DIAGNOSABLE), help="as diagnose's (default auto: by each log)"
-    )
-    d.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)")
-    d.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")
 
 
 class _Bar:

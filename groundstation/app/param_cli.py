@@ -6,32 +6,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import sys
-from pathlib import Path
 
 from drivers.mavlink.link import MavlinkLink
 from drivers.mavlink.params import ParamClient, load, save
 
-from .options import add_signing_option, key_of
+from .options import key_of
 
 WAIT_FOR_VEHICLE_S = 10.0
-
-
-def add_parser(sub) -> None:
-    p = sub.add_parser("param", help="a vehicle's parameters: fetch all (to a file), get, set with verification, load")
-    p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
-    p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
-    add_signing_option(p)
-    a = p.add_subparsers(dest="param_command", required=True)
-    f = a.add_parser("fetch", help="every parameter; printed, or written to --out")
-    f.add_argument("--out", type=Path, help="write them here (MAVProxy's format; --qgc for QGroundControl's)")
-    f.add_argument("--qgc", action="store_true")
-    g = a.add_parser("get", help="read parameters by name")
-    g.add_argument("names", nargs="+")
-    s = a.add_parser("set", help="set one and verify the vehicle's echo")
-    s.add_argument("name")
-    s.add_argument("value", type=float)
-    ld = a.add_parser("load", help="set every parameter of a file (MAVProxy, QGroundControl or Mission Planner format)")
-    ld.add_argument("file", type=Path)
 
 
 async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, int]:

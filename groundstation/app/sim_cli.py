@@ -14,100 +14,18 @@ from drivers.mavlink.link import MavlinkLink
 from groundstation.control.station import ControlStation
 from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.registry import build_estimator
-from sim_bridge.bridge import UNASKED_RATE, LinkFaults, SimBridge
+from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
-from sim_bridge.profile import FLIGHTS
 from sim_bridge.pty_port import PtyPort
-from sim_bridge.scenario import VEHICLES, Scenario
+from sim_bridge.scenario import Scenario
 from sim_bridge.simulator import truth_pose
 from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
-from .options import add_signing_option, add_web_options, key_of
+from .options import key_of
 from .signals import on_stop_signal
 from .supervise import Supervisor
-
-
-def add_sim_parser(sub) -> None:
-    s = sub.add_parser("sim", help="run a simulated vehicle (real time on UDP/serial, or --fast into a tlog)")
-    s.add_argument("--vehicle", choices=VEHICLES, default="quad")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument(
-        "--flight",
-        choices=FLIGHTS,
-        default="standard",
-        help="the built-in flight: standard; thrust_test (a low hover in ground effect and "
-        "throttle steps instead of the altitude sine); or high (a climb to 5-8 m, above the "
-        "range sensor's 4 m, where the barometer alone carries the height); or guided (on the ground "
-        "until armed and commanded: take-off, land, GUIDED and AUTO with a mission, as ArduCopter SITL)",
-    )
-    s.add_argument("--scenario", type=Path, help="JSON scenario file (see sim_bridge/scenario.py)")
-    s.add_argument(
-        "--effect",
-        action="append",
-        default=[],
-        metavar="NAME:k=v,...",
-        help="a declared effect (the ground station may be told); repeatable",
-    )
-    s.add_argument(
-        "--undeclared",
-        action="append",
-        default=[],
-        metavar="NAME:k=v,...",
-        help="an effect that acts but is told to nobody; repeatable",
-    )
-    s.add_argument(
-        "--duration", type=float, help="seconds of simulated time (default: run until stopped; 60 with --fast)"
-    )
-    s.add_argument(
-        "--udp",
-        default="127.0.0.1:14550",
-        metavar="HOST:PORT",
-        help="send MAVLink to the ground station here (default 127.0.0.1:14550); 'none' for no UDP",
-    )
-    s.add_argument("--serial", action="store_true", help="also speak MAVLink on a pseudo-terminal (path printed)")
-    s.add_argument("--serial-link", type=Path, help="keep a stable symlink to the pty here (like /dev/serial/by-id)")
-    s.add_argument(
-        "--board",
-        action="store_true",
-        help="a sensor board on its own pty: binary frames (heli3dof) or NMEA GPS (quad, coax)",
-    )
-    s.add_argument("--sysid", type=int, default=1, help="the vehicle's MAVLink system id (1-255; default 1)")
-    s.add_argument(
-        "--unasked-rate",
-        type=float,
-        default=UNASKED_RATE,
-        metavar="HZ",
-        help=f"each stream's rate until a ground station asks for it (default {UNASKED_RATE:g}, as an "
-        "autopilot's default stream rates; 0: every stream at its sensor's rate from the start)",
-    )
-    add_signing_option(s)
-    s.add_argument("--loss", type=float, default=0.0, help="frame loss [%%]")
-    s.add_argument("--corrupt", type=float, default=0.0, help="frames with a flipped bit [%%]")
-    s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
-    s.add_argument("--fast", action="store_true", help="as fast as possible into --log (no transport)")
-    s.add_argument("--log", type=Path, help="with --fast: the tlog to write")
-    s.add_argument("--truth", type=Path, help="truth sidecar CSV (every state at 100 Hz)")
-    s.add_argument("--list-effects", action="store_true", help="print the effect catalogue and exit")
-
-    d = sub.add_parser("demo", help="simulated quadcopter + ground station on loopback, no hardware")
-    d.add_argument("--duration", type=float, default=60.0)
-    d.add_argument("--vehicle", choices=VEHICLES, default="quad")
-    d.add_argument("--seed", type=int, default=1)
-    d.add_argument(
-        "--record",
-        type=Path,
-        help="tlog path (default out/demo-<date-time>.tlog: a fresh file per run, as connect does; "
-        "an existing file is appended to)",
-    )
-    add_web_options(d)
-    d.add_argument(
-        "--control",
-        action="store_true",
-        help="fly it from the ground station: the dashboard's Control panel arms the vehicle's controllers "
-        "(the 3-DOF rig's motor board on a pseudo-terminal)",
-    )
 
 
 def scenario_from(args) -> Scenario:

@@ -30,6 +30,7 @@ from groundstation.estimation.stated import RangeClearance, Stated
 
 from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
 from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .model_names import MODEL_HELP
 from .noise_match import GPS_SLOW
 from .outputs import interval_means
 from .run import CONTEXT_KINDS, Prepared, prepare, run_model
@@ -187,7 +188,7 @@ def with_vertical_velocity(prep: Prepared, names: set, vehicle: str | None) -> P
 DIAGNOSABLE: dict[str, DiagnosisSpec] = {
     "altitude": DiagnosisSpec(
         MODELS["altitude"],
-        "accelerometer as input: baro, range and accelerometer effects, sensor delays",
+        MODEL_HELP["altitude"],
         _altitude,
         altitude_estimator,
         altitude_catalogue,
@@ -198,7 +199,7 @@ DIAGNOSABLE: dict[str, DiagnosisSpec] = {
     ),
     "quad_thrust": DiagnosisSpec(
         MODELS["quad_thrust"],
-        "throttle as input: thrust-side effects (voltage, ground effect, actuator lag) and the baro's",
+        MODEL_HELP["quad_thrust"],
         _quad_thrust,
         thrust_estimator,
         thrust_catalogue,
@@ -212,7 +213,7 @@ DIAGNOSABLE: dict[str, DiagnosisSpec] = {
     ),
     "attitude": DiagnosisSpec(
         MODELS["attitude"],
-        "raw IMU of a multirotor: gyro bias, IMU mounting",
+        MODEL_HELP["attitude"],
         _attitude,
         attitude_estimator,
         attitude_catalogue,

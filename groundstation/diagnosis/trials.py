@@ -48,14 +48,6 @@ SIGNATURE = "signature"
 SIGNATURE_SIZE = 0.01
 
 
-def available_cores() -> int:
-    """The cores this process may run on (a container's or a ``taskset``'s share, not the machine's)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def first_keys(cand: Candidate) -> list[Hashable]:
     """The trials a candidate needs whatever its runs show: its grid or its shapes (``None``: its
     one augmented model), and its signature."""

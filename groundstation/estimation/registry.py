@@ -20,6 +20,7 @@ import numpy as np
 from groundstation.core.measurement import Kind
 
 from .estimator import KalmanEstimator
+from .model_names import CLI_MODELS
 from .models.altitude import altitude_model
 from .models.attitude_drag import attitude_drag_model
 from .models.base import LinearModel
@@ -150,8 +151,9 @@ MODELS: dict[str, ModelSpec] = {
     )
 }
 
-#: the names ``--model`` offers for a live estimator
-CLI_MODELS = tuple(name for name, spec in MODELS.items() if spec.cli)
+#: the names ``--model`` offers for a live estimator (model_names.py holds them for the command line,
+#: which reads them before anything numerical is loaded)
+assert CLI_MODELS == tuple(name for name, spec in MODELS.items() if spec.cli), "model_names.CLI_MODELS"
 
 
 def spec(name: str) -> ModelSpec:

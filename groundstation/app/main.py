@@ -1,0 +1,51 @@
+"""The ``groundstation`` script's entry: the arguments are read (:mod:`.parser`, which imports
+nothing numerical), and only then the command's code. ``groundstation --help`` and a usage error
+answer before numpy, scipy, filterpy or viser are loaded (they had made every one-line error wait
+for 4 s of imports); so does a file that is missing or is no log, checked here by its first bytes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+from pathlib import Path
+
+from .parser import build_parser
+
+#: the commands that read a log file given as ``file``
+READS_A_LOG = frozenset({"replay", "info", "noise", "evaluate", "diagnose", "triage"})
+#: a log's first bytes, by format: a DataFlash record header, a ULog magic, a Crazyflie uSD log's
+#: magic; a tlog begins with a big-endian UNIX time [us] (its first byte 0x00 until 2106)
+MAGIC = (b"\xa3\x95", b"ULog\x01\x12\x35", b"\xbc")
+
+
+def problem_with(path: Path) -> str | None:
+    """Why ``path`` cannot be a log (one line), read from its first bytes; None: it may be one."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except IsADirectoryError:
+        return f"{path}: is a folder, not a log"
+    except OSError as e:
+        return f"{path}: cannot read: {e.strerror or e}"
+    if not head:
+        return f"{path}: empty: not a MAVLink tlog, nor any log"
+    text_dataflash = b"FMT," in head  # a text DataFlash log: FMT lines near the top
+    if head.startswith(MAGIC) or head[0] == 0x00 or text_dataflash:
+        return None
+    return f"{path}: not a MAVLink tlog, nor an ArduPilot DataFlash, PX4 ULog or Crazyflie log (by its first bytes)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.command in READS_A_LOG and getattr(args, "file", None) is not None:
+        why = problem_with(args.file)
+        if why is not None:
+            print(f"groundstation: error: {why}", file=sys.stderr)
+            return 2
+    cli = importlib.import_module("groundstation.app.cli")  # the commands, loaded once they are asked for
+    return cli.run(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+"""The command line answers at once: ``--help``, a usage error and a file that is no log are
+answered before anything numerical is loaded (groundstation/app/main.py, parser.py)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+HEAVY = ("numpy", "scipy", "filterpy", "viser", "pymavlink", "matplotlib", "dask", "pyulog")
+
+
+def _loaded_after(code: str) -> set[str]:
+    r = subprocess.run(
+        [sys.executable, "-c", code + "\nimport sys; print(' '.join(sorted(sys.modules)))"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    return set(r.stdout.split())
+
+
+def test_the_entry_and_its_parser_load_nothing_numerical():
+    mods = _loaded_after(
+        "from groundstation.app.main import build_parser\n"
+        "p = build_parser()\n"
+        "p.parse_args(['diagnose', 'x.bin', '--model', 'auto'])"
+    )
+    assert not {m for m in mods if m.split(".")[0] in HEAVY}, sorted(m for m in mods if m.split(".")[0] in HEAVY)
+
+
+def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path):
+    gs = [sys.executable, "-m", "groundstation"]
+    r = subprocess.run([*gs, "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "diagnose" in r.stdout
+    r = subprocess.run([*gs, "diagnose"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "the following arguments are required: file" in r.stderr
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a log\n")
+    for f, why in (
+        (notes, "not a MAVLink tlog"),
+        (tmp_path / "gone.bin", "No such file"),
+        (tmp_path, "folder"),
+    ):
+        r = subprocess.run([*gs, "triage", str(f)], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and why in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+
+
+def test_the_entrys_start_up_is_a_small_multiple_of_a_bare_interpreters():
+    """``python -m groundstation --help`` against ``python -c pass``, the best of five each (one run
+    measures the machine's load as much as the code): it had been 4 s of imports, about 200 times."""
+
+    def best(cmd: list[str]) -> float:
+        times = []
+        for _ in range(5):
+            t0 = time.perf_counter()
+            subprocess.run(cmd, capture_output=True, timeout=60, check=True)
+            times.append(time.perf_counter() - t0)
+        return min(times)
+
+    bare = best([sys.executable, "-c", "pass"])
+    entry = best([sys.executable, "-m", "groundstation", "--help"])
+    assert entry < 5.0 * bare + 0.05, (entry, bare)
+
+
+def test_the_light_lists_name_what_the_registries_hold():
+    from groundstation.diagnosis.model_names import MODEL_HELP
+    from groundstation.diagnosis.models import DIAGNOSABLE
+    from groundstation.estimation.model_names import CLI_MODELS
+    from groundstation.estimation.registry import MODELS
+
+    assert tuple(MODEL_HELP) == tuple(DIAGNOSABLE)
+    assert CLI_MODELS == tuple(n for n, s in MODELS.items() if s.cli)
