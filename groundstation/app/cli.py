@@ -47,7 +47,7 @@ from web.dashboard import Dashboard
 
 from .command_cli import run_command_cli
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
-from .diagnose_cli import cmd_diagnose, cmd_triage
+from .diagnose_cli import cmd_diagnose
 from .fleet_cli import cmd_fleet
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
@@ -89,8 +89,6 @@ def _run(args) -> int:
             return cmd_noise(args)
         if args.command == "diagnose":
             return cmd_diagnose(args)
-        if args.command == "triage":
-            return cmd_triage(args)
         if args.command == "fleet":
             return cmd_fleet(args)
         if args.command == "param":

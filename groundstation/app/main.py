@@ -7,6 +7,7 @@ for 4 s of imports); so does a file that is missing or is no log, checked here b
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from pathlib import Path
 
@@ -43,8 +44,25 @@ def main(argv: list[str] | None = None) -> int:
         if why is not None:
             print(f"groundstation: error: {why}", file=sys.stderr)
             return 2
+    if args.command == "triage":  # about a second a log: the reader and the checks, nothing else
+        return one_line_errors(importlib.import_module("groundstation.app.triage_cli").cmd_triage, args)
     cli = importlib.import_module("groundstation.app.cli")  # the commands, loaded once they are asked for
     return cli.run(args)
+
+
+def one_line_errors(command, args) -> int:
+    """``command(args)``, its errors a user can cause (every reader's is a ValueError or an
+    OSError) as one line and exit status 2."""
+    try:
+        return command(args)
+    except BrokenPipeError:  # output piped into `head` and closed: not an error
+        sys.stdout = open(os.devnull, "w")
+        return 0
+    except (ValueError, OSError) as e:
+        print(f"groundstation: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
 
 
 if __name__ == "__main__":
