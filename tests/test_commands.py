@@ -20,7 +20,7 @@ def test_commands_and_their_one_line_results():
     def run(*args):
         return subprocess.run(gs + list(args), capture_output=True, text=True, timeout=60)
 
-    with simulated_vehicle(port, "--sysid", "4", "--duration", "60"):
+    with simulated_vehicle(port, "--sysid", "4", "--duration", "600"):  # stopped by the test: not a deadline
         r = run("arm")
         assert r.returncode == 2 and "arm starts the motors: add --yes to confirm" in r.stderr
         assert run("arm", "--yes").stdout.strip() == "arm: accepted by vehicle 4"

@@ -398,10 +398,11 @@ def test_a_dataflash_fmt_of_length_zero_is_damage_not_a_loop(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_hundred_thousand_mutants_of_every_format_give_no_traceback_hang_or_blowup(tmp_path):
-    """bench/fuzz.py in a process of its own, capped at 1.5 GB, each mutant at 5 s: 20,000 mutants of
+def test_fifty_thousand_mutants_of_the_five_formats_give_no_traceback_hang_or_blowup(tmp_path):
+    """bench/fuzz.py in a process of its own, capped at 1.5 GB, each mutant at 5 s: 10,000 mutants of
     each of the five formats (tlog, binary and text DataFlash, ULog, Crazyflie) through ``load_log``,
-    the reading ``info``, ``triage``, ``replay`` and ``diagnose`` all do. The benchmark runs 1,000,000."""
+    the reading ``info``, ``triage``, ``replay`` and ``diagnose`` all do. The benchmark runs 200,000 a
+    format; 100,000 a format here would take 10 of the suite's minutes."""
     import json
     import subprocess
     import sys
@@ -413,9 +414,9 @@ def test_a_hundred_thousand_mutants_of_every_format_give_no_traceback_hang_or_bl
             sys.executable,
             str(REPO / "bench" / "fuzz.py"),
             "--n",
-            "20000",
+            "10000",
             "--jobs",
-            "2",
+            "1",
             "--json",
             "--seed",
             "7",
@@ -428,7 +429,7 @@ def test_a_hundred_thousand_mutants_of_every_format_give_no_traceback_hang_or_bl
     )
     assert r.returncode == 0, r.stderr[-2000:]
     rows = json.loads(r.stdout.splitlines()[-1])
-    assert sum(row["n"] for row in rows) == 100_000
+    assert sum(row["n"] for row in rows) == 50_000
     for row in rows:
         assert row["traceback"] == row["hang"] == row["blowup"] == 0, row
         assert row["read"] > 0 and row["read"] + row["refused"] == row["n"], row
