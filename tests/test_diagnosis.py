@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from drivers.replay import Replay
+from groundstation.core.measurement import Kind
 from groundstation.diagnosis.detect import detect
 from groundstation.diagnosis.engine import diagnose
 from groundstation.estimation.truth import truth_from
@@ -843,3 +844,23 @@ def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     assert "reason" in found.evidence and found.evidence["terms"][1] == {"regressor": "time", "coefficient": -0.002}
     page = _evidence_html("discovered", found.evidence)
     assert "2% of the innovations&#x27; variance: 0.01 noise + -0.002 time" in page and "not claimed" in page
+
+
+@pytest.mark.parametrize("delay", [0.2, 0.0])
+def test_a_late_gps_height_is_named_as_its_delay_and_an_on_time_one_is_not(tmp_path, delay):
+    """Outdoors (no range sensor: the GPS is the height the baro is seen against) a GPS whose height
+    comes late is a candidate like the range's and the baro's delay."""
+    undeclared = [f"sensor_delay:sensor=gps,seconds={delay}"] if delay else []
+    sc = Scenario.from_args("quad", 5, 90.0, [], undeclared)
+    sc.sensors.rates["gps"] = 10.0
+    sc.sensors.gps_v_sigma, sc.sensors.gps_white = 0.3, 0.15  # a receiver with RTK-like height
+    log = tmp_path / "outdoor.tlog"
+    run_fast(sc, log)
+    ms = [m for m in Replay(log).iter_measurements() if m.kind is not Kind.RANGE]
+    d = diagnose(ms, source=str(log))
+    found = [(e.name, e.evidence["sensor"], e.params.get("seconds")) for e in d.effects]
+    if delay:
+        assert [f[:2] for f in found] == [("sensor_delay", "gps")], found
+        assert abs(found[0][2] - delay) < 0.05, found
+    else:
+        assert found == [], found

@@ -374,6 +374,15 @@ def _thermal_columns(model: LinearModel) -> list[Column]:
 #: [s] the delays a range sensor's and a baro's profiles are scanned over
 RANGE_DELAYS = (0.0, 0.04, 0.08, 0.12, 0.16, 0.2)
 BARO_DELAYS = (0.0, 0.06, 0.12, 0.18, 0.24, 0.3)
+#: [s] a GPS receiver's height lag: the autopilots' own ranges (GPS_DELAY_MS 0-250 ms, EKF2_GPS_DELAY
+#: 0-300 ms) and a little beyond
+GPS_DELAYS = (0.0, 0.08, 0.16, 0.24, 0.32, 0.4)
+
+
+def gps_in_altitude(kinds: set) -> bool:
+    """Whether the altitude model measures the GPS's height: only where no range sensor is (with
+    one, the GPS's slow wander would only hide the baro's effects from the range)."""
+    return Kind.GPS in kinds and Kind.RANGE not in kinds
 
 
 def altitude_catalogue(kinds: set) -> list[Candidate]:
@@ -397,6 +406,8 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
         ),
         sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}),
     ]
+    if gps_in_altitude(kinds):
+        cands.append(sensor_delay("gps", GPS_DELAYS, {Kind.GPS}))
     if has_baro and kinds & BARO_REFERENCES:
         cands += [
             Candidate(

@@ -29,7 +29,7 @@ from groundstation.estimation.routing import altitude_estimator, attitude_estima
 from groundstation.estimation.stated import RangeClearance, Stated
 
 from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero
+from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero, gps_in_altitude
 from .model_names import MODEL_HELP
 from .noise_match import GPS_SLOW
 from .outputs import interval_means
@@ -102,10 +102,9 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
     """The altitude model a diagnosis starts from: the vehicle's noise, the declared slant, and what a
     person would set right before suspecting any effect (the ground, the baro's zero)."""
     config = vehicle_config(vehicle, "altitude")
-    if Kind.GPS in prep.kinds and Kind.RANGE not in prep.kinds and "use_gps" not in config:
+    if gps_in_altitude(prep.kinds) and "use_gps" not in config:
         # the GPS is the absolute height the baro is seen against when no range sensor is: with its
-        # slow error as a state. With a range sensor it is left out: its wander (a simulated
-        # receiver's 2 m over 20 s) then only hides the baro's effects from the range
+        # slow error as a state
         config = {**config, "use_gps": True, "gps_error": GPS_ERROR}
     model = altitude_model(range_tilt="range_tilt" in names, **config)
     if prep.logged_throttle:
