@@ -10,7 +10,8 @@ the wall clock and speaks MAVLink 2 over
 
 Towards the ground station it behaves like an ArduPilot vehicle: HEARTBEAT and
 EXTENDED_SYS_STATE at 1 Hz; parameters, commands with addressed ACKs, modes,
-arming, AUTOPILOT_VERSION, PING and the mission list (:mod:`.vehicle_protocol`);
+arming, AUTOPILOT_VERSION, PING and the mission list (:mod:`.vehicle_protocol`); a DataFlash
+log of each flight, listed and downloaded over MAVLink's log protocol (:mod:`.log_server`);
 ``SET_MESSAGE_INTERVAL`` changes a stream's rate (COMMAND_ACK ACCEPTED, or
 UNSUPPORTED for a message it does not send); ``REQUEST_DATA_STREAM`` sets the
 rates of the ArduPilot stream groups; ``MANUAL_CONTROL`` and
@@ -45,6 +46,8 @@ from groundstation.core.measurement import Kind
 
 from .board_out import BoardEncoder
 from .fast import EPOCH
+from .flight_log import FlightLogs
+from .log_server import LogServer
 from .mavlink_out import DERIVED_FROM, STREAM_OF_MESSAGE, MavlinkEncoder
 from .names import UNASKED_RATE
 from .profile import CoaxAutopilot
@@ -129,6 +132,14 @@ class SimBridge:
             rate = unasked_rate or self.sim.sensors.rates["gps"]
             self._periodic[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] = [1.0 / rate, 0.0]
         self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid)
+        #: a DataFlash log of each flight, served over MAVLink's log protocol
+        self.flight_logs = FlightLogs(
+            scenario.vehicle,
+            EPOCH,
+            lambda: ((p.name, p.get()) for p in self.protocol.params),
+            lambda: self.protocol.mode,
+        )
+        self.log_server = LogServer(self.flight_logs, self.encoder.packer, self._send, sysid)
         self.udp_to = udp_to
         self.pty = pty
         #: the sensor board's own serial port: binary frames (3-DOF helicopter)
@@ -192,6 +203,7 @@ class SimBridge:
 
     def close(self) -> None:
         self._stop.set()
+        self.flight_logs.close()
         if self.signing is not None:
             self.signing.state.save()  # the timestamps seen, for the next start to refuse replays
         close_watched_socket(self._sock)
@@ -341,6 +353,18 @@ class SimBridge:
     def _on_file_transfer_protocol(self, m) -> None:
         self.protocol.on_file_transfer(m)
 
+    def _on_log_request_list(self, m) -> None:
+        self.log_server.on_log_request_list(m)
+
+    def _on_log_request_data(self, m) -> None:
+        self.log_server.on_log_request_data(m)
+
+    def _on_log_request_end(self, m) -> None:
+        self.log_server.on_log_request_end(m)
+
+    def _on_log_erase(self, m) -> None:
+        self.log_server.on_log_erase(m)
+
     def _on_request_data_stream(self, m) -> None:
         groups = DATA_STREAM_GROUPS.values() if m.req_stream_id == mavlink.MAV_DATA_STREAM_ALL else ()
         streams = [n for g in groups for n in g] or DATA_STREAM_GROUPS.get(m.req_stream_id, ())
@@ -393,6 +417,7 @@ class SimBridge:
         sim, enc = self.sim, self.encoder
         while sim.t + 0.5 * sim.dt < target_t:
             samples = sim.step()
+            self.flight_logs.step(sim.t, samples, self.protocol.armed)
             if sim.step_count % int(round(1.0 / sim.dt)) == 1:
                 self._send(enc.heartbeat(self.protocol.armed, self.protocol.mode))
                 self._send(self.protocol.extended_sys_state())
@@ -414,6 +439,7 @@ class SimBridge:
             if self.truth_sink is not None and sim.step_count % sim.truth_every == 0:
                 self.truth_sink(sim.truth())
         self.protocol.tick()
+        self.log_server.pump()
         if self.faults.burst_every > 0 and sim.t >= self._next_burst:
             self._burst_until = time.monotonic() + self.faults.burst_len
             self._next_burst = sim.t + self._rng.expovariate(1.0 / self.faults.burst_every)

@@ -31,6 +31,7 @@ from drivers.logs.dataflash import DataFlashError, is_dataflash
 from drivers.logs.ulog import ULogError, is_ulog
 from drivers.mavlink.commands import CommandError
 from drivers.mavlink.link import GCS_SYSTEM_ID, LinkState, MavlinkLink
+from drivers.mavlink.log_transfer import LogTransferError
 from drivers.mavlink.params import ParamError
 from drivers.replay import Replay
 from drivers.tlog import TlogError, TlogIndex
@@ -49,6 +50,7 @@ from .command_cli import run_command_cli
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import cmd_diagnose
 from .fleet_cli import cmd_fleet
+from .logs_cli import run_logs
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
 from .param_cli import run_param
@@ -93,6 +95,8 @@ def _run(args) -> int:
             return cmd_fleet(args)
         if args.command == "param":
             return asyncio.run(run_param(args))
+        if args.command == "logs":
+            return asyncio.run(run_logs(args))
         if args.command == "command":
             return asyncio.run(run_command_cli(args))
         if args.command == "sim":
@@ -117,6 +121,7 @@ def _run(args) -> int:
         DataFlashError,
         ULogError,
         ParamError,
+        LogTransferError,
         CommandError,
         OSError,
         ValueError,

@@ -130,6 +130,22 @@ def add_param_parser(sub) -> None:
     ld.add_argument("file", type=Path)
 
 
+def add_logs_parser(sub) -> None:
+    p = sub.add_parser("logs", help="a vehicle's onboard logs over MAVLink: list, download N, latest, erase")
+    p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
+    p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
+    add_signing_option(p)
+    a = p.add_subparsers(dest="logs_command", required=True)
+    a.add_parser("list", help="the logs on the vehicle: number, time, size")
+    d = a.add_parser("download", help="download log N (lost packets asked for again)")
+    d.add_argument("number", type=int)
+    d.add_argument("--out", type=Path, help="write it here (default: logN-DATE-TIME.bin)")
+    la = a.add_parser("latest", help="download the last log (the last flight)")
+    la.add_argument("--out", type=Path, help="write it here (default: logN-DATE-TIME.bin)")
+    e = a.add_parser("erase", help="remove every log on the vehicle")
+    e.add_argument("--yes", action="store_true", help="confirm")
+
+
 def add_command_parser(sub) -> None:
     c = sub.add_parser("command", help="arm, disarm, mode NAME, takeoff ALT, land: each with the vehicle's ACK")
     c.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
@@ -310,5 +326,6 @@ def build_parser() -> argparse.ArgumentParser:
     add_triage_parser(sub)
     add_fleet_parser(sub)
     add_param_parser(sub)
+    add_logs_parser(sub)
     add_command_parser(sub)
     return ap
