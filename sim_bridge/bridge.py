@@ -44,17 +44,19 @@ from drivers.mavlink.signing import SignatureCheck, SigningState
 from drivers.transports import close_watched_socket
 from groundstation.core.measurement import Kind
 
+from .autopilot_params import AutopilotParams
 from .board_out import BoardEncoder
 from .fast import EPOCH
 from .flight_log import FlightLogs
 from .log_server import LogServer
 from .mavlink_out import DERIVED_FROM, STREAM_OF_MESSAGE, MavlinkEncoder
 from .names import UNASKED_RATE
+from .onboard_height import OnboardHeight
 from .profile import CoaxAutopilot
 from .pty_port import PtyPort
 from .scenario import Scenario
 from .sensors import M_PER_DEG
-from .simulator import Simulator
+from .simulator import Sample, Simulator
 from .vehicle_protocol import VehicleProtocol
 from .vehicles.heli3dof import Heli3dof, Heli3dofCommand
 from .vehicles.quad import QuadCommand
@@ -131,13 +133,17 @@ class SimBridge:
         if "gps" in self.sim.sensors.rates:
             rate = unasked_rate or self.sim.sensors.rates["gps"]
             self._periodic[mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT] = [1.0 / rate, 0.0]
-        self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid)
+        #: the autopilot's own: its parameters, and the height estimate it makes with them and sends
+        self.autopilot = AutopilotParams()
+        self.onboard = OnboardHeight(self.autopilot) if "baro" in self.sim.sensors.rates else None
+        self.protocol = VehicleProtocol(self.sim, self.encoder.packer, self._send, sysid, self.autopilot)
         #: a DataFlash log of each flight, served over MAVLink's log protocol
         self.flight_logs = FlightLogs(
             scenario.vehicle,
             EPOCH,
             lambda: ((p.name, p.get()) for p in self.protocol.params),
             lambda: self.protocol.mode,
+            height=self._onboard_heights if self.onboard is not None else None,
         )
         self.log_server = LogServer(self.flight_logs, self.encoder.packer, self._send, sysid)
         self.udp_to = udp_to
@@ -416,7 +422,7 @@ class SimBridge:
     def _tick(self, target_t: float) -> None:
         sim, enc = self.sim, self.encoder
         while sim.t + 0.5 * sim.dt < target_t:
-            samples = sim.step()
+            samples = [self._onboard(s) for s in sim.step()]
             self.flight_logs.step(sim.t, samples, self.protocol.armed)
             if sim.step_count % int(round(1.0 / sim.dt)) == 1:
                 self._send(enc.heartbeat(self.protocol.armed, self.protocol.mode))
@@ -444,18 +450,40 @@ class SimBridge:
             self._burst_until = time.monotonic() + self.faults.burst_len
             self._next_burst = sim.t + self._rng.expovariate(1.0 / self.faults.burst_every)
 
+    def _onboard(self, s: Sample) -> Sample:
+        """What the autopilot makes of a sample: the IMU's z calibrated (``INS_ACCOFFS_Z``,
+        ``INS_ACCSCAL_Z``: what it logs and sends), and its height estimate fed."""
+        if s.sensor == "imu":
+            v = list(s.values)
+            v[2] = (v[2] - self.autopilot["INS_ACCOFFS_Z"]) * self.autopilot["INS_ACCSCAL_Z"]
+            s = Sample(s.t, s.sensor, tuple(v))
+            if self.onboard is not None:
+                self.onboard.imu(s.t, v[:3], self.sim.vehicle.kin.R)
+        elif s.sensor == "baro" and self.onboard is not None:
+            self.onboard.baro(s.t, s.values[0], float(getattr(self.sim.vehicle, "throttle", 0.0)))
+        return s
+
+    def _onboard_heights(self) -> tuple[float, float]:
+        assert self.onboard is not None
+        return self.onboard.height, self.onboard.baro_height
+
     def _global_position(self) -> bytes:
-        """The autopilot's position estimate: the true state, which the simulator's autopilot flies
-        on (profile.py), about the GPS model's origin, where it was switched on: home, set with
-        the first estimate it sends."""
+        """The autopilot's position estimate: north and east the true state, which the simulator's
+        autopilot flies on (profile.py), about the GPS model's origin, where it was switched on:
+        home, set with the first estimate it sends; the height its own estimate
+        (:mod:`.onboard_height`). LOCAL_POSITION_NED goes with it."""
         kin, cfg = self.sim.vehicle.kin, self.sim.sensors.cfg
         lat0, lon0 = cfg.gps_origin
         if self.protocol.home is None:
             self.protocol.home = (lat0, lon0, cfg.ground_alt)
         n, e, d = (float(v) for v in kin.pos)
+        vel = [float(v) for v in kin.vel]
+        if self.onboard is not None:
+            d, vel[2] = -self.onboard.height, -self.onboard.climb_rate
         lat = lat0 + n / M_PER_DEG
         lon = lon0 + e / (M_PER_DEG * math.cos(math.radians(lat0)))
-        return self.encoder.global_position(self.sim.t, lat, lon, cfg.ground_alt - d, -d, kin.vel)
+        self._send(self.encoder.local_position(self.sim.t, (n, e, d), vel))
+        return self.encoder.global_position(self.sim.t, lat, lon, cfg.ground_alt - d, -d, vel)
 
     def _due(self, key: str, t: float) -> bool:
         """Whether a stream's sample, or a derived message, goes out at ``t`` (:attr:`_every`)."""

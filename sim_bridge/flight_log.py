@@ -17,7 +17,9 @@ GPS        TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,   gps (3-D fix)
 RFND       TimeUS,Instance,Dist,Stat,Orient                  range (downward, good)
 BAT        TimeUS,Inst,Volt,Curr                             battery
 RCOU       TimeUS,C1..Cn                                     actuators (1000 + 1000·u µs)
-CTUN       TimeUS,ThO                                        actuators (the throttle)
+CTUN       TimeUS,ThO,Alt,BAlt                               actuators (the throttle); the
+                                                             autopilot's height estimate and
+                                                             its corrected baro height
 ATT        TimeUS,Roll,Pitch,Yaw                             attitude (the autopilot's
                                                              estimate, degrees)
 PARM       TimeUS,Name,Value                                 the vehicle's parameters at
@@ -52,7 +54,7 @@ RECORDS = {
     "GPS": ("QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
     "RFND": ("QBCBB", "TimeUS,Instance,Dist,Stat,Orient"),
     "BAT": ("QBff", "TimeUS,Inst,Volt,Curr"),
-    "CTUN": ("Qf", "TimeUS,ThO"),
+    "CTUN": ("Qfff", "TimeUS,ThO,Alt,BAlt"),
     "ATT": ("Qfff", "TimeUS,Roll,Pitch,Yaw"),
     "PARM": ("QNf", "TimeUS,Name,Value"),
     "MSG": ("QZ", "TimeUS,Message"),
@@ -86,12 +88,15 @@ class FlightLogs:
         parameters: Callable[[], Iterable[tuple[str, float]]],
         mode: Callable[[], int],
         *,
+        height: Callable[[], tuple[float, float]] | None = None,
         card_bytes: int = CARD_BYTES,
     ) -> None:
+        """``height``: the autopilot's height estimate and its baro's height [m] (CTUN.Alt, .BAlt)."""
         self.vehicle = vehicle
         self.epoch = epoch
         self.parameters = parameters
         self.mode = mode
+        self.height = height
         self.card_bytes = card_bytes
         self.logs: dict[int, FlightLog] = {}
         self._next = 1
@@ -197,7 +202,8 @@ class FlightLogs:
             w.define("RCOU", "Q" + "H" * n, "TimeUS," + ",".join(f"C{k}" for k in range(1, n + 1)))
         w.write("RCOU", us, *(int(round(1000 + 1000 * min(1.0, max(0.0, u)))) for u in v[:14]))
         thr = v[0] if self.vehicle == "quad" else sum(v[:2]) / 2
-        w.write("CTUN", us, min(1.0, max(0.0, thr)))
+        alt, baro_alt = self.height() if self.height is not None else (math.nan, math.nan)
+        w.write("CTUN", us, min(1.0, max(0.0, thr)), alt, baro_alt)
 
 
 def _us(t: float) -> int:

@@ -248,6 +248,13 @@ class MavlinkEncoder:
             hdg=int(round(math.degrees(math.atan2(ve, vn)) % 360 * 100)) if math.hypot(vn, ve) > 0.5 else 65535,
         )
 
+    def local_position(self, t: float, ned, vel) -> bytes:
+        """LOCAL_POSITION_NED: the autopilot's estimate about its origin [m, m/s]."""
+        (x, y, z), (vx, vy, vz) = ned, vel
+        return self.packer.pack(
+            "LOCAL_POSITION_NED", time_boot_ms=int(round(t * 1e3)) & 0xFFFFFFFF, x=x, y=y, z=z, vx=vx, vy=vy, vz=vz
+        )
+
     def _attitude(self, s):
         r, p, y, wx, wy, wz = s.values
         return [

@@ -3,7 +3,9 @@ vehicle does: parameters, commands with addressed acknowledgements, flight modes
 its version, ping and the mission (:mod:`.mission`).
 
 * **Parameters**: the vehicle model's physical constants and the sensors' noise and rates, as
-  ``SIM_*`` parameters (REAL32), plus ``SYSID_THISMAV``; PARAM_REQUEST_LIST streams them all,
+  ``SIM_*`` parameters (REAL32), plus ``SYSID_THISMAV`` and the ArduPilot parameters a diagnosis
+  writes (:mod:`.autopilot_params`: a value outside its documented range is refused, the echo
+  carrying the value kept); PARAM_REQUEST_LIST streams them all,
   PARAM_REQUEST_READ reads one by name or index, PARAM_SET changes the running simulation and
   echoes the new value (an unknown name gets no answer, as ArduPilot gives none).
 * **Commands** (COMMAND_LONG and COMMAND_INT), each answered with a COMMAND_ACK addressed to the
@@ -31,6 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.mavlink.commands import MODE_NUMBERS
 
+from .autopilot_params import AutopilotParams
 from .mavlink_out import FramePacker
 from .mission import Mission
 from .profile import GuidedProfile
@@ -58,8 +61,17 @@ class _Param:
 
 
 class VehicleProtocol:
-    def __init__(self, sim, packer: FramePacker, send: Callable[[bytes], None], sysid: int) -> None:
+    def __init__(
+        self,
+        sim,
+        packer: FramePacker,
+        send: Callable[[bytes], None],
+        sysid: int,
+        autopilot: AutopilotParams | None = None,
+    ) -> None:
         self.sim = sim
+        #: the ArduPilot parameters a diagnosis writes, kept within their documented ranges
+        self.autopilot = autopilot or AutopilotParams()
         self.packer = packer
         self.send = send
         self.sysid = sysid
@@ -86,6 +98,8 @@ class VehicleProtocol:
         for stream in sorted(self.sim.sensors.rates):
             name = f"SIM_RATE_{stream.upper()}"[:16]
             out.append(_Param(name, _rate_getter(self.sim, stream), _rate_setter(self.sim, stream)))
+        for name in sorted(self.autopilot.values):
+            out.append(_Param(name, _autopilot_getter(self.autopilot, name), _autopilot_setter(self.autopilot, name)))
         return out
 
     def _param_value(self, k: int) -> bytes:
@@ -379,6 +393,17 @@ def _getter(owner, field: str) -> Callable[[], float]:
 def _setter(owner, field: str, kind: type) -> Callable[[float], None]:
     def set_(v: float) -> None:
         setattr(owner, field, kind(round(v)) if kind is int else kind(v))
+
+    return set_
+
+
+def _autopilot_getter(params: AutopilotParams, name: str) -> Callable[[], float]:
+    return lambda: params[name]
+
+
+def _autopilot_setter(params: AutopilotParams, name: str) -> Callable[[float], None]:
+    def set_(v: float) -> None:
+        params.set(name, v)  # refused outside its documented range: the echo carries the value kept
 
     return set_
 

@@ -64,3 +64,13 @@ def test_05_the_live_link_streams_and_estimates():
     out = run("05_live_link_on_loopback.py", 5)
     (loss,) = numbers(r"loss ([0-9.]+) %", out)
     assert loss < 5.0 and "streams via SET_MESSAGE_INTERVAL" in out and "altitude at t =" in out
+
+
+@pytest.mark.slow
+def test_06_the_parameters_a_diagnosis_loads_make_the_vehicles_own_estimate_better():
+    out = run("06_the_loop_closed_on_the_vehicle.py", 30)
+    assert "diagnosis: added baro_thrust" in out and "(confirmed by the vehicle)" in out
+    (scale,) = numbers(r"loaded BARO1_THST_SCALE = (-[0-9.]+)", out)
+    assert -45.0 < scale < -27.0  # -rho*g*k: about 12 Pa/m times the 3 m per unit throttle hidden
+    before, after = numbers(r"([0-9.]+) cm before, ([0-9.]+) cm after", out)
+    assert before > 80.0 and after < 0.35 * before

@@ -41,6 +41,10 @@ async def test_fetch_all_set_and_get_at_twenty_percent_loss(tmp_path):
         assert await client.get("SIM_DRAG") == pytest.approx(0.42)
         with pytest.raises(ParamError, match="NO_SUCH_PARAM: no answer"):
             await client.get("NO_SUCH_PARAM")
+        assert await client.set("BARO1_THST_SCALE", -35.5) == pytest.approx(-35.5)  # what a diagnosis writes
+        assert br.autopilot["BARO1_THST_SCALE"] == pytest.approx(-35.5)
+        with pytest.raises(ParamError, match=r"BARO1_THST_SCALE: set to 500 not confirmed \(the vehicle says -35.5"):
+            await client.set("BARO1_THST_SCALE", 500.0)  # outside ArduPilot's documented -300..300: refused
         for qgc in (False, True):
             f = tmp_path / f"p{qgc}.params"
             save(f, values, qgc=qgc, types=client.types)

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from groundstation.diagnosis.param_limits import outside
+from drivers.mavlink.param_ranges import outside
 
 from .conftest import real_file
 

@@ -1,11 +1,11 @@
 """Thrust lost as the battery sags, traced beside the altitude model from the accelerometer's thrust
 curve (diagnosis/thrust_side.py), and the parameters a diagnosis never writes outside the ranges their
-autopilots document (diagnosis/param_limits.py)."""
+autopilots document (drivers/mavlink/param_ranges.py)."""
 
 import pytest
 
+from drivers.mavlink.param_ranges import outside
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.param_limits import outside
 from groundstation.diagnosis.run import run_model
 from groundstation.diagnosis.thrust_side import voltage_effect
 from groundstation.estimation.logs import load_log

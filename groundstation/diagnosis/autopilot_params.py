@@ -26,7 +26,7 @@ noise (sensor)      EK3_ALT_M_NSE (baro), EK3_RNG_M_NSE,    EKF2_BARO_NOISE, EKF
                     EK3_POSNE_M_NSE (GPS) [m]               EKF2_GPS_P_NOISE [m]
 ==================  ======================================  ======================================
 
-No value outside the range its autopilot documents is written (:mod:`.param_limits`).
+No value outside the range its autopilot documents is written (:mod:`drivers.mavlink.param_ranges`).
 
 Signs: the catalogue's effects add to the reading (a baro ``k`` > 0 reads high as throttle
 rises); ArduPilot subtracts ``BARO1_THST_SCALE`` times throttle from the pressure, so a baro
@@ -43,11 +43,11 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.mavlink.param_ranges import outside
 from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 
 from .engine import Diagnosis
-from .param_limits import outside
 from .triage.finding import cell_count
 
 G = 9.80665

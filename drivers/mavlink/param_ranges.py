@@ -1,4 +1,5 @@
-"""The ranges the autopilots document for the parameters a diagnosis writes.
+"""The ranges the autopilots document for the parameters a diagnosis writes (and the simulated
+vehicle keeps, refusing a value outside them).
 
 A value outside its parameter's documented range is never written to a parameter file: the
 autopilot would refuse or clamp it, and a fix that large says more about the model than about the
