@@ -276,12 +276,12 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
                         offset = stamp - t
                 else:
                     t = n_ctun / CONTROL_RATE
-                _convert(typ, m, t, source, has_baro, has_rfnd, log.range_limits, out, log.skipped)
-                if tables and typ not in _NOT_TABLED:
+                if tables and typ not in _NOT_TABLED:  # (first: a record the conversion cannot use is still one)
                     cols = rows.get(typ)
                     if cols is None:
                         cols = rows[typ] = _Columns()
                     cols.add(t, m.to_dict())
+                _convert(typ, m, t, source, has_baro, has_rfnd, log.range_limits, out, log.skipped)
             except (ValueError, TypeError, AttributeError, IndexError, OverflowError):
                 # a record whose fields do not read as their format says (a damaged line or block):
                 # skipped and counted, the rest of the log kept
@@ -432,7 +432,9 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
             add(Kind.BARO_ALTITUDE, [bar])
         if has_rfnd:  # the rangefinder's own records carry it (RFND), with its status
             return
-        son = getattr(m, "SonAlt", getattr(m, "SAlt", 0.0))
+        son = getattr(m, "SonAlt", getattr(m, "SAlt", None))
+        if son is None:
+            return  # no sonar column: this CTUN says nothing of a range
         if not son or son <= 0:
             skipped["range_invalid"] += 1
         elif range_limits is not None and not range_limits[0] < son < range_limits[1]:
@@ -449,7 +451,7 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
         else:
             skipped["battery_not_connected"] += 1
     elif typ == "ATT":
-        add(Kind.ATTITUDE, np.radians([m.Roll, m.Pitch, m.Yaw]))
+        add(Kind.ATTITUDE, np.radians([m.Roll, m.Pitch, getattr(m, "Yaw", math.nan)]))
     elif typ == "GPS":
         if getattr(m, "Status", 0) >= 3:
             add(Kind.GPS, [m.Lat, m.Lng, m.Alt], int(getattr(m, "I", 0)))

@@ -10,7 +10,10 @@ where the model does not hold out of the fit, and lists what it cut.
 
 Each check is a module: :mod:`.events` (ERR, EV, MODE, MSG/STATUSTEXT, PX4 status),
 :mod:`.flight` (attitude, gaps, battery, GPS fix), :mod:`.sensors` (vibration, clipping, IMU
-mismatch), :mod:`.motors`, :mod:`.ekf`, :mod:`.config`.
+mismatch), :mod:`.motors`, :mod:`.ekf`, :mod:`.config`, :mod:`.power` (a log that ends in the air,
+the board's supply), :mod:`.records` (NaN, duplicated blocks, slow loops, no flight),
+:mod:`.handling` (lean angle, thrust margin, autotune), :mod:`.navigation` (GPS quality, compass,
+baro glitch). docs/triage.md maps each of ArduPilot's LogAnalyzer tests to these.
 """
 
 from __future__ import annotations
@@ -31,7 +34,11 @@ from .ekf import check_ekf
 from .events import check_events
 from .finding import SEVERITIES, TriageFinding
 from .flight import check_attitude, check_battery, check_gaps, check_gps
+from .handling import check_handling
 from .motors import check_motors
+from .navigation import check_navigation
+from .power import check_power
+from .records import check_records
 from .sensors import check_imu_mismatch, check_vibration
 
 
@@ -111,6 +118,10 @@ def triage(tables: LogTables, ms: Sequence[Measurement], imu: ImuColumns | None 
     found += check_motors(tables, until=crashed)
     found += check_ekf(tables)
     found += check_config(tables, t0)
+    found += check_power(tables, t1, crashed)
+    found += check_records(tables, t0, t1)
+    found += check_handling(tables, until=crashed)
+    found += check_navigation(tables, t1)
     found.sort(key=lambda f: f.rank)
     records = len(ms) + counted + sum(len(tb) for tb in tables.tables.values())
     return Triage(found, tables.clock, (t0, t1), time.monotonic() - start, tables.origin, records)

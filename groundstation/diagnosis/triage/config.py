@@ -33,6 +33,13 @@ def check_config(tables: LogTables, t0: float) -> list[TriageFinding]:
         risks.append("FS_THR_ENABLE = 0: no radio failsafe (the vehicle keeps its last input if the radio is lost)")
     if p.get("BATT_MONITOR", 0) > 0 and (p.get("FS_BATT_ENABLE") == 0 or p.get("BATT_FS_LOW_ACT") == 0):
         risks.append("battery monitored but its failsafe off (FS_BATT_ENABLE / BATT_FS_LOW_ACT = 0)")
+    # LogAnalyzer's TestParams (copter): the compass on, THR_MIN < 200, THR_MID within 300..700 (3.x)
+    if p.get("MAG_ENABLE") == 0:
+        risks.append("MAG_ENABLE = 0: no compass (a copter's heading then drifts)")
+    if p.get("THR_MIN", 0) >= 200:
+        risks.append(f"THR_MIN = {p['THR_MIN']:g}: the motors' idle at or above 20 % (a copter may not descend)")
+    if "THR_MID" in p and not 300 <= p["THR_MID"] <= 700:
+        risks.append(f"THR_MID = {p['THR_MID']:g}: the hover throttle outside 30-70 % (the vehicle's power is off)")
     if tables.autopilot == "px4":
         for name, off in PX4_BREAKERS.items():
             if p.get(name) == off:

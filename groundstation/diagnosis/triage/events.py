@@ -92,7 +92,7 @@ def is_copter(tables: LogTables) -> bool:
 
 
 def flights(tables: LogTables, t_end: float) -> list[tuple[float, float]]:
-    """The armed stretches [s]: EV ARMED..DISARMED (ArduPilot), HEARTBEAT's armed bit (MAVLink),
+    """The armed stretches [s]: EV ARMED..DISARMED or ARM.ArmState (ArduPilot), HEARTBEAT's armed bit (MAVLink),
     ``vehicle_status.arming_state`` (PX4); empty when the log does not say (callers then take the
     whole log as one flight)."""
     ev = tables.get("EV")
@@ -108,6 +108,10 @@ def flights(tables: LogTables, t_end: float) -> list[tuple[float, float]]:
             out.append((float(start), t_end))
         if out:
             return out
+    arm = tables.get("ARM")  # ArduPilot 4.x: a record at each arming and disarming
+    if arm is not None and (state := arm.numeric("ArmState")) is not None:
+        t = np.append(arm.t, t_end)
+        return [(float(t[i]), float(t[i + 1])) for i in range(len(state)) if state[i] == 1]
     hb = autopilot_heartbeats(tables)
     if hb is not None and (bm := hb.numeric("base_mode")) is not None:
         return [(a, b) for a, b, _, _ in runs((bm.astype(int) & 128) > 0, hb.t, join=3.0)]
@@ -115,6 +119,25 @@ def flights(tables: LogTables, t_end: float) -> list[tuple[float, float]]:
     if vs is not None and (st := vs.numeric("arming_state")) is not None:
         return [(a, b) for a, b, _, _ in runs(st == 2, vs.t)]
     return []
+
+
+def armed_at_end(tables: LogTables) -> bool | None:
+    """Whether the last arming state the log states is armed (None: it states none)."""
+    ev = tables.get("EV")
+    if ev is not None and (ids := ev.numeric("Id")) is not None:
+        last = ids[np.isin(ids, (EV_ARMED, EV_DISARMED))]
+        if len(last):
+            return bool(last[-1] == EV_ARMED)
+    arm = tables.get("ARM")
+    if arm is not None and (state := arm.numeric("ArmState")) is not None and len(state):
+        return bool(state[-1] == 1)
+    hb = autopilot_heartbeats(tables)
+    if hb is not None and (bm := hb.numeric("base_mode")) is not None and len(bm):
+        return bool(int(bm[-1]) & 128)
+    vs = tables.get("vehicle_status")
+    if vs is not None and (st := vs.numeric("arming_state")) is not None and len(st):
+        return bool(st[-1] == 2)
+    return None
 
 
 def check_events(tables: LogTables, t_end: float) -> list[TriageFinding]:

@@ -28,6 +28,18 @@ DOCS = {
     "mode_change": "https://ardupilot.org/copter/docs/flight-modes.html",
     "estimator_divergence": "https://ardupilot.org/copter/docs/common-apm-navigation-extended-kalman-filter-overview.html",
     "bad_parameter": "https://ardupilot.org/copter/docs/parameters.html",
+    "log_ends_in_flight": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
+    "board_voltage": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
+    "nan_in_records": "https://ardupilot.org/copter/docs/common-logs.html",
+    "duplicate_data": "https://ardupilot.org/copter/docs/common-logs.html",
+    "slow_loops": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
+    "no_flight": "https://ardupilot.org/copter/docs/common-logs.html",
+    "lean_angle": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
+    "thrust_margin": "https://ardupilot.org/copter/docs/thrust-loss-yaw-imbalance.html",
+    "autotune": "https://ardupilot.org/copter/docs/autotune.html",
+    "gps_quality": "https://ardupilot.org/copter/docs/gps-failsafe-glitch-protection.html",
+    "compass": "https://ardupilot.org/copter/docs/common-compass-setup-advanced.html",
+    "baro_glitch": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
 }
 PX4_DOCS = {
     "vibration": "https://docs.px4.io/main/en/assembly/vibration_isolation.html",
