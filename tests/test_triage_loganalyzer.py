@@ -179,3 +179,11 @@ def test_a_baro_jump_the_gps_and_the_accelerometer_do_not_share_is_a_glitch(tmp_
     assert len(got) == 2 and "+6.0 m" in got[0].evidence and "the GPS moved +0.0 m" in got[0].evidence
     rows["GPS"] = [(ti, 3, 12, 0.8, 47.0, 8.0, 505.0 + (6.0 if 10 < ti < 12 else 0.0)) for ti in np.arange(0, 20, 0.2)]
     assert not _named(_triage(tmp_path, rows), "baro_glitch")  # the GPS climbed with it: a real motion
+
+
+def test_calibrations_outside_their_documented_ranges(tmp_path):
+    params = {"INS_ACCSCAL_Y": 1.35, "COMPASS_MOT_Z": -1500.0, "INS_ACCOFFS_X": 0.2}
+    risks = [f for f in _named(_triage(tmp_path, _flight(5.0, lambda t: 0.0, disarm=True), params), "config_risk")]
+    said = " | ".join(f.evidence for f in risks)
+    assert "INS_ACCSCAL_Y = 1.35" in said and "COMPASS_MOT_Z = -1500" in said and "INS_ACCOFFS_X" not in said
+    assert all(f.severity == "warning" for f in risks if "calibration" in f.evidence)

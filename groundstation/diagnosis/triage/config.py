@@ -8,9 +8,12 @@ from __future__ import annotations
 import math
 
 from drivers.logs.tables import LogTables
+from drivers.mavlink.param_ranges import DOCUMENTED, outside
 
 from .finding import DOCS, PX4_DOCS, TriageFinding
 
+#: calibration results that have a documented range (a value outside it is a calibration gone wrong)
+CALIBRATIONS = [f"{kind}_{a}" for kind in ("INS_ACCSCAL", "INS_ACCOFFS", "COMPASS_MOT") for a in "XYZ"]
 #: PX4's circuit breaker "disabled" magic numbers (``circuit_breaker.h``)
 PX4_BREAKERS = {"CBRK_SUPPLY_CHK": 894281, "CBRK_IO_SAFETY": 22027, "CBRK_USB_CHK": 197848}
 
@@ -48,9 +51,19 @@ def check_config(tables: LogTables, t0: float) -> list[TriageFinding]:
             risks.append("CAL_MAG0_ID = 0: the magnetometer was never calibrated")
         if p.get("CAL_ACC0_ID") == 0:
             risks.append("CAL_ACC0_ID = 0: the accelerometer was never calibrated")
+    for name in CALIBRATIONS:
+        v = p.get(name)
+        if v is not None and math.isfinite(v) and outside(name, v):
+            lo, hi, _ = DOCUMENTED[name]
+            risks.append(
+                f"{name} = {v:g}: a calibration outside its documented range {lo:g} to {hi:g} (calibrate again)"
+            )
     doc = (PX4_DOCS if tables.autopilot == "px4" else DOCS)["config_risk"]
     sev = {True: "warning", False: "info"}
-    found = [TriageFinding("config_risk", t0, t0, sev["ARMING_CHECK" in r or "never" in r], r, doc) for r in risks]
+    found = [
+        TriageFinding("config_risk", t0, t0, sev["ARMING_CHECK" in r or "never" in r or "calibrat" in r], r, doc)
+        for r in risks
+    ]
     bad = sorted(k for k, v in p.items() if not math.isfinite(v))
     if bad:
         found.append(
