@@ -53,3 +53,9 @@ def test_every_real_log_diagnoses_end_to_end(rel, tmp_path):
             assert p["value"] is None or outside(p["name"], p["value"]) is None, p
     if effect is not None:
         assert effect in [e["name"] for e in j["effects"]], j["conclusion"][:1500]
+    if rel.startswith("crazyflie_util/") and j["effects"]:
+        # evidence a pilot without motion capture can read, checked here against the motion capture:
+        # the baro-and-IMU height with the range left out improves where the baro effects are real
+        (rng,) = [lo for lo in j["left_out"] if lo["sensor"] == "range"]
+        assert rng["rms_after"] < rng["rms_before"]
+        assert rng["height_rmse_after"] < 0.7 * rng["height_rmse_before"], rng

@@ -33,6 +33,7 @@ from .detect import Finding, detect
 from .discover import Discovery, discover, library
 from .effect import Effect
 from .gains import CatalogueColumns, fit, profile_shape, run_signatures, virtual_run
+from .leave_one_out import LeftOut, leave_one_out
 from .models import setup
 from .noise_match import NoiseLevel, match_gps_slow, match_noise
 from .run import SETTLE_S, Prepared, Run, hold_zeros, run_model
@@ -90,6 +91,8 @@ class Diagnosis:
     #: effects found beside the model, where it cannot show them (thrust_side: thrust lost with the
     #: battery, from the accelerometer's thrust curve); each one's evidence names how it was found
     beside: list[Effect] = field(default_factory=list)
+    #: each absolute sensor predicted by the others, before and after (leave_one_out.py)
+    left_out: list[LeftOut] = field(default_factory=list)
 
     @staticmethod
     def passes(findings: list[Finding]) -> bool:
@@ -462,15 +465,16 @@ def diagnose(
             say("applying the range offset measured against truth")
             base = run_model(model, prep, make, measurements=stream)
             findings1 = sensor_findings(base)
+    found_model = model
     if model.f is None and model.n > model0.n:
         say("running the model with the effects as found")
-        base = run_model(
-            holdout.fixed(model, model0.n, holdout.carried_back(model, model0.n, base, prep.t0)),
-            prep,
-            make,
-            measurements=stream,
-        )
+        found_model = holdout.fixed(model, model0.n, holdout.carried_back(model, model0.n, base, prep.t0))
+        base = run_model(found_model, prep, make, measurements=stream)
         findings1 = sensor_findings(base)
+    left_out: list[LeftOut] = []
+    if model.f is None and model0.f is None:
+        say("predicting each absolute sensor from the others")
+        left_out = leave_one_out(model0, found_model, prep, make, stream, truth)
     beside: list[Effect] = []
     detectable = _detectable(scored, added, rejected)
     if model_name == "altitude":
@@ -508,6 +512,7 @@ def diagnose(
         prep.unusable,
         su.clearance,
         beside,
+        left_out,
     )
 
 

@@ -162,6 +162,7 @@ def as_json(d: Diagnosis) -> dict:
         "unusable_readings": d.unusable,
         "range_clearance": d.clearance.as_dict() if d.clearance is not None else None,
         "detectable": d.detectable,
+        "left_out": [lo.as_dict() for lo in d.left_out],
         "ranking": [[[n, b] for n, b in it] for it in d.ranking],
         "before": _summary(d.before, d.findings_before, d.truth, t0, t1),
         "after": _summary(
@@ -331,6 +332,12 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         parts.append(
             f"Roll and pitch error against the {b['truth']}: {math.degrees(b['rmse_vs_truth']):.2f} deg "
             f"before, {math.degrees(a['rmse_vs_truth']):.2f} deg after."
+        )
+    if d.left_out and (d.effects or d.beside):
+        parts.append(
+            "Each absolute sensor predicted by the others (left out of the filter, before -> after): "
+            + "; ".join(lo.line() for lo in d.left_out)
+            + "."
         )
     if "nees" in b and "nees" in a:
         parts.append(
@@ -596,6 +603,19 @@ def write(
         ["effect", "size", "Delta BIC on this log"],
     )
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
+    left_out = _table(
+        [
+            [lo["sensor"], f"{lo['rms_before']:.4f}", f"{lo['rms_after']:.4f}", lo["n"]]
+            + (
+                [f"{lo['height_rmse_before']:.4f}", f"{lo['height_rmse_after']:.4f}"]
+                if "height_rmse_before" in lo
+                else ["", ""]
+            )
+            for lo in j["left_out"]
+        ]
+        or [["(none)", "", "", "", "", ""]],
+        ["left out", "RMS before", "RMS after", "readings", "height vs truth before [m]", "after [m]"],
+    )
     truth = ""
     if "rmse_vs_truth" in j["before"]:
         b, a = j["before"], j["after"]
@@ -621,6 +641,7 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{_triage_html(triage, j)}{truth}
 <h2>Effects found</h2>{effects}{_parameters_html(parameters)}
 <h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
+<h2>Each absolute sensor predicted by the others (left out of the filter; its unit, m)</h2>{left_out}
 <h2>Residuals before and after</h2>{sensors}{_figures(d)}
 <h2>Tests that failed before</h2>{failed}
 <h2>Tests that still fail after</h2>{still}

@@ -1,0 +1,117 @@
+"""Evidence from the log alone: each absolute sensor predicted by the others, before and after the
+effects.
+
+A pilot without motion capture cannot score the height; the log can still say whether the effects
+describe it better. Each absolute sensor (range, baro, GPS) is left out of the filter in turn: its
+readings correct no state (a Schmidt update of no state, ``MeasurementModel.corrects = ()``), so
+each of its innovations is the reading less the prediction the *other* sensors and the
+accelerometer made of it, through its own measurement function. The RMS of those innovations,
+with the base model and with the model as found (the effects fixed at their fitted values), is the
+evidence: where the effects are real, the others predict the left-out sensor better. Where the log
+has truth, the height of the same runs is scored against it too (on the Crazyflie logs: the
+baro-and-IMU height with the range left out, against the motion capture).
+
+The effects' parameters are those fitted on the whole log (a handful of numbers against thousands
+of readings); the left-out sensor's readings move no state in either run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.estimation.estimator import KalmanEstimator
+from groundstation.estimation.models.base import LinearModel
+
+from .run import Prepared, run_model
+
+#: the sensors that measure the height itself (the accelerometer is the model's input)
+ABSOLUTE = {Kind.RANGE, Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE, Kind.GPS}
+SETTLE_S = 5.0  # [s] from the log's start not scored: the filter converging without the sensor
+
+
+@dataclass(frozen=True)
+class LeftOut:
+    """One sensor left out: its readings' RMS prediction error from the others [its unit, m]."""
+
+    sensor: str
+    before: float
+    after: float
+    n: int
+    truth_before: float | None = None  # the height's RMSE against truth in the same runs [m]
+    truth_after: float | None = None
+
+    def as_dict(self) -> dict:
+        d = {"sensor": self.sensor, "rms_before": _r(self.before), "rms_after": _r(self.after), "n": self.n}
+        if self.truth_before is not None and self.truth_after is not None:
+            d |= {"height_rmse_before": _r(self.truth_before), "height_rmse_after": _r(self.truth_after)}
+        return d
+
+    def line(self) -> str:
+        s = f"{self.sensor} {100 * self.before:.1f} -> {100 * self.after:.1f} cm RMS"
+        if self.truth_before is not None and self.truth_after is not None:
+            s += f" (the height without it: {100 * self.truth_before:.1f} -> {100 * self.truth_after:.1f} cm vs truth)"
+        return s
+
+
+def _r(v: float) -> float:
+    return round(v, 5) if math.isfinite(v) else v
+
+
+def without(model: LinearModel, name: str) -> LinearModel:
+    """``model`` with sensor ``name``'s readings scored and correcting nothing."""
+    meas = {k: dataclasses.replace(mm, corrects=(), reset=False) if mm.name == name else mm
+            for k, mm in model.measurements.items()}  # fmt: skip
+    return dataclasses.replace(model, measurements=meas)
+
+
+def _rms(run, name: str, t_from: float) -> tuple[float, int]:
+    tr = run.sensors.get(name)
+    if tr is None:
+        return math.nan, 0
+    keep = tr.t >= t_from
+    nu = np.asarray(tr.nu, dtype=float)[keep]
+    if not nu.size:
+        return math.nan, 0
+    nu = nu.reshape(len(nu), -1)
+    return float(np.sqrt(np.mean(np.sum(nu * nu, axis=1)))), int(len(nu))
+
+
+def leave_one_out(
+    before: LinearModel,
+    after: LinearModel,
+    prep: Prepared,
+    make: Callable[[LinearModel], KalmanEstimator],
+    after_stream: Sequence[Measurement],
+    truth=None,
+) -> list[LeftOut]:
+    """Each absolute sensor both models have, left out of each (the after model's readings: its
+    delays applied, ``after_stream``)."""
+    out = []
+    t_from = prep.t0 + SETTLE_S
+    names_before = {mm.name for mm in before.measurements.values()}
+    done: set[str] = set()
+    for mm in after.measurements.values():
+        if mm.kind not in ABSOLUTE or mm.name not in names_before or mm.name in done:
+            continue
+        if not dataclasses.is_dataclass(mm):
+            continue
+        done.add(mm.name)
+        run_b = run_model(without(before, mm.name), prep, make)
+        run_a = run_model(without(after, mm.name), prep, make, measurements=after_stream)
+        b, n = _rms(run_b, mm.name, t_from)
+        a, _ = _rms(run_a, mm.name, t_from)
+        if not n:
+            continue
+        tb = ta = None
+        if truth is not None:
+            eb, ea = truth.error(run_b, prep.t0, prep.t1), truth.error(run_a, prep.t0, prep.t1)
+            if math.isfinite(eb) and math.isfinite(ea):
+                tb, ta = eb, ea
+        out.append(LeftOut(mm.name, b, a, n, tb, ta))
+    return out
