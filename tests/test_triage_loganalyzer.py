@@ -24,6 +24,7 @@ FORMATS = {
     "BARO": ("Qf", "TimeUS,Alt"),
     "IMU": ("Qfff", "TimeUS,AccX,AccY,AccZ"),
     "PARM": ("QNf", "TimeUS,Name,Value"),
+    "OF": ("QBffff", "TimeUS,Qual,flowX,flowY,bodyX,bodyY"),
 }
 
 
@@ -187,3 +188,18 @@ def test_calibrations_outside_their_documented_ranges(tmp_path):
     said = " | ".join(f.evidence for f in risks)
     assert "INS_ACCSCAL_Y = 1.35" in said and "COMPASS_MOT_Z = -1500" in said and "INS_ACCOFFS_X" not in said
     assert all(f.severity == "warning" for f in risks if "calibration" in f.evidence)
+
+
+def test_optical_flow_scale_from_rocking_it(tmp_path):
+    t = np.arange(0, 20, 0.01)
+    rate = 1.2 * np.sin(2 * np.pi * 0.5 * t)  # rocked +-1.2 rad/s about each axis
+    rng = np.random.default_rng(3)
+    rows = _flight(20.0, lambda t: 0.0, disarm=True)
+    rows["OF"] = [(ti, 200, 0.85 * r + rng.normal(0, 0.02), 1.01 * r, r, r) for ti, r in zip(t, rate)]
+    (f,) = _named(_triage(tmp_path, rows, {"FLOW_FXSCALER": 0.0}), "flow_scale")
+    assert f.severity == "warning" and "0.850 x" in f.evidence and "FLOW_FXSCALER to 17" in f.evidence  # 1000 (1 / 0.85 - 1) = 176
+    rows["OF"] = [(ti, 200, 0.7 * r, r, r, r) for ti, r in zip(t, rate)]
+    (f,) = _named(_triage(tmp_path, rows, {"FLOW_FXSCALER": 0.0}), "flow_scale")
+    assert f.severity == "error" and "beyond" in f.evidence  # 429: the setup, not a scale
+    rows["OF"] = [(ti, 50, 0.7 * r, r, r, r) for ti, r in zip(t, rate)]  # poor quality: not used
+    assert not _named(_triage(tmp_path, rows), "flow_scale")

@@ -11,9 +11,11 @@ vehicle without that sensor never sends it, and is asked once a minute) and star
 comes. A stream that had come at its rate and then fell (another ground station's requests: a
 MAVProxy router left at its default ``streamrate`` asks every stream at 4 Hz again and again, and
 had silently taken the telemetry to a tenth; QGroundControl's, a companion's) is said, with its
-rate, through ``on_note`` (the link's event line and the dashboard), and asked again. When the
-vehicle restarts (its clock goes back, or it is heard again after the link was lost) everything is
-asked again.
+rate, through ``on_note`` (the link's event line and the dashboard), and asked again. One that
+had come and runs a little under its rate (between :data:`SHORT` and :data:`HELD`: a router's
+4 Hz for a 5 Hz stream, which had held the GPS and the battery at 80 % behind a default MAVProxy
+for ten minutes) is asked again quietly every :data:`TOP_UP_EVERY_S`. When the vehicle restarts
+(its clock goes back, or it is heard again after the link was lost) everything is asked again.
 
 A **link budget** (bytes per second: a serial link's baud / 10, or ``--max-rate``) scales the
 rates down to fit, the estimator's needs first: the streams are asked in priority order, and the
@@ -35,6 +37,7 @@ SHORT = 0.5  # a stream below this share of its asked rate is asked again ...
 MAX_BACKOFF_S = 60.0  # ... after a wait that doubles while it stays short, up to this
 HELD = 0.9  # a stream at this share of its rate or more has come: a fall after it is said
 NOTE_EVERY_S = 60.0  # [s] a fall is said at most this often (a router's asks again every 10-20 s)
+TOP_UP_EVERY_S = 5.0  # [s] a stream that had come and runs between SHORT and HELD of it is asked again this often
 QUICK_S = 0.5  # [s] the fast streams' watch ...
 QUICK_COUNT = 10  # ... of those that send this many frames in it
 MIN_RATE = 0.5  # [Hz] no stream is slowed below this by the budget
@@ -94,6 +97,7 @@ class VehicleStreams:
     requests: int = 0  # request rounds (the first, and one per restart)
     next_ask: dict = field(default_factory=dict)  # message -> monotonic time it may be asked again
     came: set = field(default_factory=set)  # messages that have come at their rate since last asked
+    topped_up: dict = field(default_factory=dict)  # message -> when it may next be asked again while a little short
     overridden: int = 0  # times streams that had come fell below their rate (someone else asked)
     noted_at: float | None = None  # when that was last said, and how many times it had been by then
     noted_count: int = 0
@@ -237,6 +241,12 @@ class StreamRequester:
                 v.next_ask.pop(n, None)
                 continue
             if rate >= SHORT * asked:
+                # had its rate and now a little under it: another asker's lower rate (a router's 4 Hz for
+                # a 5 Hz stream) or loss; asked again quietly, at most every TOP_UP_EVERY_S (loss alone
+                # then costs a command a stream every few seconds)
+                if n in v.came and now >= v.topped_up.get(n, 0.0):
+                    v.topped_up[n] = now + TOP_UP_EVERY_S
+                    out.append(n)
                 continue
             if n in v.came:
                 fell.append(f"{n} {rate:.1f} Hz of {asked:g}")

@@ -40,6 +40,7 @@ DOCS = {
     "gps_quality": "https://ardupilot.org/copter/docs/gps-failsafe-glitch-protection.html",
     "compass": "https://ardupilot.org/copter/docs/common-compass-setup-advanced.html",
     "baro_glitch": "https://ardupilot.org/copter/docs/common-diagnosing-problems-using-logs.html",
+    "flow_scale": "https://ardupilot.org/copter/docs/common-optical-flow-sensor-setup.html",
 }
 PX4_DOCS = {
     "vibration": "https://docs.px4.io/main/en/assembly/vibration_isolation.html",

@@ -1,5 +1,5 @@
 """The navigation sensors' quality: the GPS's satellites and HDOP in flight, the compass's
-offsets and field, and a barometer that jumps where nothing else moved.
+offsets and field, the optical flow's scale, and a barometer that jumps where nothing else moved.
 
 GPS and compass thresholds are LogAnalyzer's (ArduPilot ``Tools/LogAnalyzer/tests``):
 ``TestGPSGlitch`` warns under 6 satellites or above HDOP 3 and fails under 5 or above HDOP 10 (here
@@ -27,10 +27,56 @@ SATS_WARN, SATS_FAIL, HDOP_WARN, HDOP_FAIL = 6, 5, 3.0, 10.0  # (TestGPSGlitch)
 OFS_WARN, OFS_FAIL = 300.0, 500.0  # [mGauss] (TestCompass)
 FIELD_WARN, FIELD_FAIL = 0.25, 0.35  # (TestCompass)
 BARO_STEP_M, BARO_STEP_S, G = 3.0, 0.3, 9.80665
+FLOW_QUALITY, FLOW_MAX_RATE, FLOW_MIN_POINTS, FLOW_MAX_SE, FLOW_MAX_SCALER = 124, 2.0, 100, 0.005, 200.0  # (TestFlow)
+FLOW_TOLERANCE = 0.05  # a slope within 5 % of 1 needs no change
 
 
 def check_navigation(tables: LogTables, t_end: float) -> list[TriageFinding]:
-    return [*_gps_quality(tables, t_end), *_compass(tables), *_baro_glitch(tables)]
+    return [*_gps_quality(tables, t_end), *_compass(tables), *_baro_glitch(tables), *_optical_flow(tables)]
+
+
+def _optical_flow(tables: LogTables) -> list[TriageFinding]:
+    """The flow sensor's scale against the gyro, as LogAnalyzer's TestFlow fits it: flow rate against
+    body rate where the quality is over 124 and the rate between 0 and 2 rad/s, a slope per axis
+    (at least 100 points, its standard error under 0.005); the scaler that makes it 1 is
+    ``1000 ((1 + FLOW_FXSCALER/1000) / slope - 1)``, and beyond ±200 the sensor is set up wrong."""
+    of = tables.get("OF")
+    if of is None or (q := of.numeric("Qual")) is None:
+        return []
+    out = []
+    for axis in "XY":
+        flow, body = of.numeric(f"flow{axis}"), of.numeric(f"body{axis}")
+        if flow is None or body is None:
+            continue
+        use = (q > FLOW_QUALITY) & (np.abs(body) > 0.0) & (np.abs(body) < FLOW_MAX_RATE) & np.isfinite(flow)
+        if use.sum() < FLOW_MIN_POINTS:
+            continue
+        (slope, _), cov = np.polyfit(body[use], flow[use], 1, cov=True)
+        if not slope or np.sqrt(cov[0, 0]) > FLOW_MAX_SE:
+            continue  # too little rocking to say
+        old = tables.params.get(f"FLOW_F{axis}SCALER", 0.0)
+        new = 1000.0 * ((1.0 + 0.001 * old) / slope - 1.0)
+        if abs(slope - 1.0) <= FLOW_TOLERANCE:
+            continue
+        bad = abs(new) > FLOW_MAX_SCALER
+        t = of.t[use]
+        out.append(
+            TriageFinding(
+                "flow_scale",
+                float(t[0]),
+                float(t[-1]),
+                "error" if bad else "warning",
+                f"the optical flow reads {slope:.3f} x the gyro's rate on {axis} ({int(use.sum())} readings): "
+                + (
+                    f"the scaler it needs ({new:.0f}) is beyond +-{FLOW_MAX_SCALER:g}: the sensor's setup (its "
+                    "orientation, its focus) is wrong"
+                    if bad
+                    else f"set FLOW_F{axis}SCALER to {new:.0f} (it is {old:g})"
+                ),
+                DOCS["flow_scale"],
+            )
+        )
+    return out
 
 
 def _gps_quality(tables: LogTables, t_end: float) -> list[TriageFinding]:
