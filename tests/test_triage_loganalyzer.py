@@ -197,7 +197,8 @@ def test_optical_flow_scale_from_rocking_it(tmp_path):
     rows = _flight(20.0, lambda t: 0.0, disarm=True)
     rows["OF"] = [(ti, 200, 0.85 * r + rng.normal(0, 0.02), 1.01 * r, r, r) for ti, r in zip(t, rate)]
     (f,) = _named(_triage(tmp_path, rows, {"FLOW_FXSCALER": 0.0}), "flow_scale")
-    assert f.severity == "warning" and "0.850 x" in f.evidence and "FLOW_FXSCALER to 17" in f.evidence  # 1000 (1 / 0.85 - 1) = 176
+    # 1000 (1 / 0.85 - 1) = 176
+    assert f.severity == "warning" and "0.850 x" in f.evidence and "FLOW_FXSCALER to 17" in f.evidence
     rows["OF"] = [(ti, 200, 0.7 * r, r, r, r) for ti, r in zip(t, rate)]
     (f,) = _named(_triage(tmp_path, rows, {"FLOW_FXSCALER": 0.0}), "flow_scale")
     assert f.severity == "error" and "beyond" in f.evidence  # 429: the setup, not a scale
