@@ -21,6 +21,8 @@ from dataclasses import dataclass
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from .exchange import Exchange
+
 CHUNK = 90
 ALL = 0xFFFFFFFF
 RETRIES = 5
@@ -45,23 +47,15 @@ class LogEntry:
     size: int
 
 
-class LogClient:
+class LogClient(Exchange):
     """The logs of one vehicle over a :class:`~drivers.mavlink.link.MavlinkLink`."""
 
     def __init__(self, link, sysid: int, compid: int = 1, *, timeout: float = 1.0) -> None:
-        self.link = link
-        self.sysid, self.compid = sysid, compid
-        self.timeout = timeout
         self.entries: dict[int, LogEntry] = {}
         self.num_logs: int | None = None
         self.last_log_num = 0
-        self._changed = asyncio.Event()
         self._download: _Download | None = None
-        link.message_hooks.append(self._on_message)
-
-    def close(self) -> None:
-        if self._on_message in self.link.message_hooks:
-            self.link.message_hooks.remove(self._on_message)
+        super().__init__(link, sysid, compid, timeout=timeout)
 
     def _on_message(self, m, _t_rx: float) -> None:
         t = m.get_type()
@@ -73,15 +67,7 @@ class LogClient:
                 self.entries[int(m.id)] = LogEntry(int(m.id), int(m.time_utc), int(m.size))
         elif self._download is not None:
             self._download.take(m)
-        self._changed.set()
-
-    async def _wait_change(self, timeout: float) -> bool:
-        self._changed.clear()
-        try:
-            await asyncio.wait_for(self._changed.wait(), timeout)
-            return True
-        except TimeoutError:
-            return False
+        self._changed_now()
 
     # -- the list --------------------------------------------------------------------------------
     async def list(self) -> list[LogEntry]:

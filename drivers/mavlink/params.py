@@ -17,6 +17,8 @@ from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from .exchange import Exchange
+
 RETRIES = 5
 INTEGER_TYPES = {
     mavlink.MAV_PARAM_TYPE_UINT8,
@@ -40,23 +42,15 @@ def _name(raw) -> str:
     return (raw.decode("latin-1") if isinstance(raw, bytes) else str(raw)).split("\0", 1)[0]
 
 
-class ParamClient:
+class ParamClient(Exchange):
     """Parameters of one vehicle over a :class:`~drivers.mavlink.link.MavlinkLink`."""
 
     def __init__(self, link, sysid: int, compid: int = 1, *, timeout: float = 1.0) -> None:
-        self.link = link
-        self.sysid, self.compid = sysid, compid
-        self.timeout = timeout
         self.values: dict[str, float] = {}
         self.types: dict[str, int] = {}
         self.count: int | None = None
         self._by_index: dict[int, str] = {}
-        self._changed = asyncio.Event()
-        link.message_hooks.append(self._on_message)
-
-    def close(self) -> None:
-        if self._on_message in self.link.message_hooks:
-            self.link.message_hooks.remove(self._on_message)
+        super().__init__(link, sysid, compid, timeout=timeout)
 
     def _on_message(self, m, _t_rx: float) -> None:
         if m.get_type() != "PARAM_VALUE" or m._header.srcSystem != self.sysid:
@@ -67,15 +61,7 @@ class ParamClient:
         self.count = int(m.param_count)
         if 0 <= m.param_index < 65535:
             self._by_index[int(m.param_index)] = name
-        self._changed.set()
-
-    async def _wait_change(self, timeout: float) -> bool:
-        self._changed.clear()
-        try:
-            await asyncio.wait_for(self._changed.wait(), timeout)
-            return True
-        except TimeoutError:
-            return False
+        self._changed_now()
 
     async def fetch_all(self, progress: Callable[[int, int], None] | None = None) -> dict[str, float]:
         """Every parameter; ParamError naming how many came if some never did."""
