@@ -111,6 +111,38 @@ async def test_a_log_downloads_byte_for_byte_at_twenty_percent_loss():
 
 
 @async_test(timeout=60)
+async def test_a_download_the_vehicle_stops_serving_keeps_what_came_before_the_first_gap():
+    link = MavlinkLink("udpin:127.0.0.1:0", streams={})
+    await link.open()
+    br = _flown(10.0, loss=0.2)
+    br.udp_to = ("127.0.0.1", link.transport.local_address[1])
+    serve, asked = br.log_server.on_log_request_data, []
+
+    def first_only(m):  # the vehicle serves the first request and then goes quiet (its logging busy)
+        asked.append(m)
+        if len(asked) == 1:
+            serve(m)
+
+    br.log_server.on_log_request_data = first_only
+    await br.open()
+    task = asyncio.get_running_loop().create_task(br.run())
+    try:
+        while 1 not in link.vehicles:
+            await asyncio.sleep(0.02)
+        client = LogClient(link, 1, timeout=0.5)
+        (entry, *_) = await client.list()
+        with pytest.raises(LogTransferError, match=f"log 1: [0-9]+ of {entry.size} bytes received") as e:
+            await client.download(entry)
+        want = bytes(br.flight_logs.logs[1].data)
+        assert want.startswith(e.value.partial) and len(e.value.partial) < len(want) and len(asked) > 1
+    finally:
+        br.close()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await link.close()
+
+
+@async_test(timeout=60)
 async def test_a_vehicle_that_keeps_no_logs_is_a_one_line_error():
     link = MavlinkLink("udpin:127.0.0.1:0", streams={})
     await link.open()

@@ -35,7 +35,12 @@ MERGE_BLOCKS = 16
 
 
 class LogTransferError(RuntimeError):
-    """A list or download that did not complete (one line: what, and how far it got)."""
+    """A list or download that did not complete (one line: what, and how far it got); ``partial``:
+    a download's bytes up to its first missing block."""
+
+    def __init__(self, message: str, partial: bytes = b"") -> None:
+        super().__init__(message)
+        self.partial = partial
 
 
 @dataclass(frozen=True)
@@ -99,8 +104,8 @@ class LogClient(Exchange):
 
     # -- a download --------------------------------------------------------------------------------
     async def download(self, entry: LogEntry, progress: Callable[[int, int], None] | None = None) -> bytes:
-        """The log's bytes, complete; LogTransferError (with the bytes received so far in its
-        ``partial`` attribute) if it cannot be completed."""
+        """The log's bytes, complete; LogTransferError (with the bytes up to the first gap as its
+        ``partial``) if it cannot be completed."""
         d = self._download = _Download(entry.id, entry.size)
         try:
             if entry.size == 0:
@@ -113,8 +118,7 @@ class LogClient(Exchange):
                 quiet = QUIET_S if rtt is None else min(QUIET_S, max(MIN_QUIET_S, 3.0 * rtt))
                 if await self._wait_change(quiet):
                     idle = 0
-                    if d.replied:
-                        d.replied = False
+                    if d.replied and math.isfinite(asked_at):  # the first block since the request
                         sample = loop.time() - asked_at
                         rtt = sample if rtt is None else 0.8 * rtt + 0.2 * sample
                         asked_at = math.inf  # (one sample a request)
@@ -129,9 +133,9 @@ class LogClient(Exchange):
                 self._ask(d, *d.next_stretch())
                 asked_at = loop.time()
             if not d.complete():
-                err = LogTransferError(f"log {entry.id}: {d.received} of {d.size} bytes received; the rest never came")
-                err.partial = d.contiguous()  # type: ignore[attr-defined]
-                raise err
+                raise LogTransferError(
+                    f"log {entry.id}: {d.received} of {d.size} bytes received; the rest never came", d.contiguous()
+                )
             if progress is not None:
                 progress(d.size, d.size)
             return bytes(d.data)
@@ -161,7 +165,7 @@ class _Download:
         self.refused = 0  # LOG_DATA that cannot be this log's (a bad offset or count)
         self._asked_end = 0  # [bytes] the end of the stretch asked for
         self._served = False
-        self.replied = False  # a block has come since the last request
+        self.replied = False  # a block has come since the last request (the round trip's end)
 
     def asked(self, ofs: int, count: int) -> None:
         self._asked_end = min(self.size, ofs + count)

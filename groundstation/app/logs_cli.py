@@ -103,7 +103,7 @@ async def _download(client: LogClient, entry: LogEntry, out: Path) -> None:
         data = await client.download(entry, progress)
     except LogTransferError as e:
         progress.done()
-        partial = getattr(e, "partial", b"")
+        partial = e.partial
         if partial:
             part = out.with_name(out.name + ".part")
             part.write_bytes(partial)
