@@ -12,6 +12,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from groundstation.estimation.logs import load_blocked
 from sim_bridge.fast import run_fast
@@ -37,6 +38,7 @@ def _estimates(path) -> dict[str, np.ndarray]:
     return {k: np.array([float(r[k]) for r in rows]) for k in rows[0]}
 
 
+@pytest.mark.slow
 def test_blocks_give_the_estimate_of_every_sample(tmp_path):
     """A 30 s quad flight with a 1 kHz IMU: the height and its sigma from the blocks against the
     reading-by-reading replay's (asked for by exporting every measurement), after the filter settles."""
@@ -80,6 +82,7 @@ def test_a_damaged_log_is_blocked_with_its_damage_named(tmp_path):
     assert "10 ms blocks" in last and "truncated last record" in last, out
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_a_batch_replay_with_what_was_estimated_written(tmp_path):
     """A max-speed replay runs outside an event loop: Ctrl-C stops it at once (inside one, the first
     SIGINT only marked the run cancelled and was lost), the estimates so far are in the file, and the

@@ -31,6 +31,7 @@ def assert_one_line_error(r, text):
     assert len(lines) == 1 and text in lines[0], r.stderr
 
 
+@pytest.mark.slow
 def test_replay_export_of_a_real_tlog(tmp_path):
     src = real_file("mavlink_tlog/ardusub_small.tlog")
     out = tmp_path / "out.csv"
@@ -52,6 +53,7 @@ def test_replay_export_of_a_real_tlog(tmp_path):
     assert all(b >= a for a, b in zip(ts, ts[1:]))
 
 
+@pytest.mark.slow
 def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
     """``--vehicle`` gives the live estimator an airframe's constants, as ``diagnose`` and
     ``evaluate`` take them: the simulated quad's thrust curve (alpha 22, beta -1.2) instead of the
@@ -319,6 +321,7 @@ def _sigma_line(stdout: str) -> tuple[float, float]:
     return float(line.split()[2].rstrip("%")) / 100, float(line.split("NEES ")[1].split()[0])
 
 
+@pytest.mark.slow
 def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     """``evaluate --truth`` reads a truth CSV by any name (a foreign flight's NAME_truth.csv is found
     beside its log); a missing or unreadable one is a one-line error."""

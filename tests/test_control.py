@@ -234,6 +234,7 @@ class Live3dof(_Live):
         await asyncio.wait_for(self.measurements(1), 5.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("stall", [None, 0.5])
 @async_test(timeout=60)
 async def test_live_pd_step_response_matches_the_designed_omega_and_zeta(tmp_path, stall):
@@ -294,6 +295,7 @@ async def test_live_integral_action_removes_a_constant_disturbance(tmp_path):
     assert abs(c.z[0]) > 0.05  # the integrator holds what the model lacks
 
 
+@pytest.mark.slow
 @async_test(timeout=60)
 async def test_live_link_loss_stops_commanding_within_half_a_second(tmp_path):
     async with Live3dof(tmp_path, LQRFeedForward(), KalmanFeedback()) as live:
@@ -339,6 +341,7 @@ class LiveQuad(_Live):
         return self
 
 
+@pytest.mark.slow
 @async_test(timeout=40)
 async def test_live_nothing_is_sent_to_a_vehicle_nobody_armed():
     async with LiveQuad() as live:

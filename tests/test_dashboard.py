@@ -183,6 +183,7 @@ async def test_dashboard_panels_and_plots_are_drawn(tmp_path):
             await proc.wait()
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
 @async_test(timeout=120)
 async def test_a_replay_with_motion_capture_shows_the_height_against_it():
@@ -194,6 +195,7 @@ async def test_a_replay_with_motion_capture_shows_the_height_against_it():
     assert AGAINST_TRUTH.search(line), line
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
 @async_test(timeout=120)
 async def test_the_demo_shows_the_simulators_truth_and_scores_the_height_against_it():
@@ -206,6 +208,7 @@ async def test_the_demo_shows_the_simulators_truth_and_scores_the_height_against
     assert m and float(m.group(1)) < 10.0 and float(m.group(3)) < 3.0, line
 
 
+@pytest.mark.slow
 @async_test(timeout=60)
 async def test_websocket_updates_arrive_at_the_configured_rates():
     """What a tab receives, at the protocol level: the scene at scene_hz, the plots at plot_hz,

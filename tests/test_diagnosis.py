@@ -846,6 +846,7 @@ def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     assert "2% of the innovations&#x27; variance: 0.01 noise + -0.002 time" in page and "not claimed" in page
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("delay", [0.2, 0.0])
 def test_a_late_gps_height_is_named_as_its_delay_and_an_on_time_one_is_not(tmp_path, delay):
     """Outdoors (no range sensor: the GPS is the height the baro is seen against) a GPS whose height

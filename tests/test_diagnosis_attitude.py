@@ -48,6 +48,7 @@ def test_the_jacobian_is_the_derivative_of_the_dynamics(v_d):
     assert np.allclose(J, num, atol=1e-6), np.round(J - num, 6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "undeclared,name,expect,seed",
     [
@@ -67,6 +68,7 @@ def test_an_undeclared_imu_effect_is_found_with_its_parameters(tmp_path, undecla
     assert 1.8 < nis.statistic < 2.2, nis  # two components: consistent again
 
 
+@pytest.mark.slow
 def test_a_clean_flight_claims_nothing_in_the_attitude_model(tmp_path):
     log, ms = fly(tmp_path, [], 43)
     d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))
@@ -74,6 +76,7 @@ def test_a_clean_flight_claims_nothing_in_the_attitude_model(tmp_path):
     assert math.degrees(d.truth.error(d.after, 8.0, 50.0)) < 0.1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("imu_hz", [250.0, 1000.0])
 def test_the_accelerometers_noise_follows_the_imu_rate(tmp_path, imu_hz):
     """An update is a 10 ms block mean of the IMU's samples: 3 of them at the live demo's 250 Hz,
@@ -107,6 +110,7 @@ def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_pat
     assert np.corrcoef(acc.nu[ok, 0], noise)[0, 1] > 0.99
 
 
+@pytest.mark.slow
 def test_the_vertical_speed_makes_a_manoeuvring_flights_accelerometer_consistent(tmp_path):
     """The q w and p w terms need the body's vertical velocity; the diagnosis takes v_d from its own
     altitude filter. Without them this clean flight (climbs under tilt manoeuvres) read NIS 2.10
@@ -127,6 +131,7 @@ def test_the_vertical_speed_makes_a_manoeuvring_flights_accelerometer_consistent
     assert np.sqrt(np.mean(err[t > 5.0] ** 2)) < 0.05
 
 
+@pytest.mark.slow
 def test_a_gyro_bias_and_a_mounting_error_at_once_are_both_found(tmp_path):
     log, ms = fly(tmp_path, ["gyro_bias:x=0.01,y=-0.02,z=0", "imu_misalignment:roll=-2,pitch=3,yaw=0"], 31)
     d = diagnose(ms, model_name="attitude", truth=truth_from(ms, log, None))

@@ -60,6 +60,7 @@ def test_04_the_undeclared_effect_is_found_and_the_error_falls():
     assert 2.4 < k < 3.6 and after < 0.5 * before
 
 
+@pytest.mark.slow
 def test_05_the_live_link_streams_and_estimates():
     out = run("05_live_link_on_loopback.py", 5)
     (loss,) = numbers(r"loss ([0-9.]+) %", out)

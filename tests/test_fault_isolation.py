@@ -24,6 +24,7 @@ FULL = "/dev/full"
 needs_dev_full = pytest.mark.skipif(not os.path.exists(FULL), reason="no /dev/full on this system")
 
 
+@pytest.mark.slow
 @needs_dev_full
 @async_test(timeout=60)
 async def test_a_full_disk_stops_the_recording_and_nothing_else():
@@ -56,6 +57,7 @@ async def test_a_full_disk_stops_the_recording_and_nothing_else():
         await link.close()
 
 
+@pytest.mark.slow
 @needs_dev_full
 def test_connect_on_a_full_disk_says_so_in_one_line_and_keeps_estimating(tmp_path):
     """The command line: the recording's failure is one line (no traceback), the session runs to its

@@ -53,6 +53,7 @@ def _run(d, imu_only, noise=None):
     return est, rmse
 
 
+@pytest.mark.slow
 def test_noise_command_and_imu_only_filter(flight):
     out = flight / "noise.json"
     r = subprocess.run(

@@ -81,6 +81,7 @@ async def test_measurements_heartbeats_and_stream_requests(tmp_path):
     assert ("HEARTBEAT", 255) in types and ("COMMAND_LONG", 255) in types
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ack", ["ignore", "deny"])
 @async_test()
 async def test_falls_back_to_request_data_stream(ack):

@@ -70,6 +70,7 @@ def test_each_flight_is_a_dataflash_log_that_reads_as_the_vehicle_flew(tmp_path)
     assert 2.0 <= d.measurements[0].t < 2.1 and d.measurements[-1].t == pytest.approx(20.0, abs=0.05)
 
 
+@pytest.mark.slow
 @async_test(timeout=90)
 async def test_a_log_downloads_byte_for_byte_at_twenty_percent_loss():
     link = MavlinkLink("udpin:127.0.0.1:0", streams={})

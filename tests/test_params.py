@@ -19,6 +19,7 @@ from .conftest import async_test, free_udp_port
 from .helpers import simulated_vehicle
 
 
+@pytest.mark.slow
 @async_test(timeout=60)
 async def test_fetch_all_set_and_get_at_twenty_percent_loss(tmp_path):
     link = MavlinkLink("udpin:127.0.0.1:0", streams={})

@@ -50,6 +50,7 @@ async def test_the_right_key_gets_through_both_ways():
     assert br.signing is not None and br.signing.refused == 0 and br.signature_refused == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", [signing_key("wrong"), None], ids=["wrong key", "no key"])
 @async_test(timeout=60)
 async def test_a_wrong_key_or_none_is_refused(key):

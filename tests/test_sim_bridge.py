@@ -54,6 +54,7 @@ def _rates(ms, t0, t1):
     return {k: counts[k] / (t1 - t0) for k in REQUESTED}
 
 
+@pytest.mark.slow
 @async_test(timeout=60)
 async def test_udp_every_sensor_at_its_requested_rate_and_the_recording_replays(tmp_path):
     link = MavlinkLink("udpin:127.0.0.1:0", record=tmp_path / "s.tlog")

@@ -169,6 +169,7 @@ def test_the_thrust_test_flight_hovers_in_ground_effect_without_touching_down(se
     assert a(20.0) == b(20.0) and a(23.0) != b(23.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("vehicle,seed", [("quad", 8), ("coax", 7)])
 def test_the_high_flight_climbs_above_the_range_sensor_and_the_driver_drops_its_readings(tmp_path, vehicle, seed):
     """flight="high": 10 s and more above the range sensor's 4 m, where DISTANCE_SENSOR reports
@@ -197,6 +198,7 @@ def test_the_high_flight_climbs_above_the_range_sensor_and_the_driver_drops_its_
     assert (a.h1, a.h_hi, a.h_lo, a.tilt) == (prof.h1, prof.h_hi, prof.h_lo, prof.tilt)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("vehicle,imu_hz", [("quad", 250.0), ("quad", 500.0), ("coax", 500.0)])
 def test_the_imu_reads_the_touchdown_the_truth_goes_through(vehicle, imu_hz):
     """Through the landing, the noiseless IMU's vertical specific force integrates to the truth's

@@ -37,6 +37,7 @@ def _ack(c, command: int):
     return _recv(c, "COMMAND_ACK", lambda m: m.command == command)
 
 
+@pytest.mark.slow
 def test_parameters_commands_and_acks_over_real_frames():
     port = free_udp_port()
     c = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=ME_SYS, source_component=ME_COMP)

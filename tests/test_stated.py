@@ -81,6 +81,7 @@ def test_a_sensor_whose_noise_is_clipped_at_zero_reads_no_clearance():
     assert c is not None and c.metres == 0.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["clean_range_s1.bin", "clean_range_s2.ulg"])
 def test_the_second_foreign_sources_lidar_clearance_is_read_from_its_log(name):
     """The generator's lidar sits 5 cm above the floor: the .bin states it (RNGFND1_GNDCLEAR = 5 cm) and both

@@ -75,6 +75,7 @@ class _OnLink:
         await self.link.close()
 
 
+@pytest.mark.slow
 @async_test(timeout=90)
 async def test_every_stream_converges_at_twenty_percent_loss_and_again_after_a_restart():
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
@@ -155,6 +156,7 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
         assert len(got) > 10 and {m.source for m in got} == {"mav/2.1"}
 
 
+@pytest.mark.slow
 @async_test(timeout=60)
 async def test_a_restart_is_a_new_segment_not_loss():
     """The vehicle restarts within a second (its sequence numbers and clock start over): the link

@@ -20,6 +20,7 @@ def traced(name: str):
     return voltage_effect(su.prep, run_model(su.model, su.prep, su.make))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["thrust_voltage_s1.bin", "thrust_voltage_s2.ulg"])
 def test_open_loop_escs_thrust_loss_is_claimed_with_its_exponent(name):
     """Another generator's hexacopter on open-loop ESCs: thrust goes with (V / V_ref)^2."""
@@ -30,6 +31,7 @@ def test_open_loop_escs_thrust_loss_is_claimed_with_its_exponent(name):
     assert all(g > 0 for g in e.evidence["held_out_gain_by_block"])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["clean_range_s1.bin", "clean_range_s2.ulg", "clean_s1.bin", "baro_thrust_s2.ulg"])
 def test_closed_loop_escs_claim_nothing(name):
     """The same airframe on ESCs that hold the rotor speed whatever the voltage: no claim (a thrust

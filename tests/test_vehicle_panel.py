@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
+
 from drivers.mavlink.link import MavlinkLink
 from sim_bridge.bridge import SimBridge
 from sim_bridge.scenario import Scenario
@@ -46,6 +48,7 @@ class _Session:
         await probe.until_markdown(gui_id(self.panel.status_md), text)
 
 
+@pytest.mark.slow
 @async_test(timeout=90)
 async def test_the_holder_sets_the_mode_arms_and_takes_off_and_another_tab_cannot():
     async with _Session() as s:
