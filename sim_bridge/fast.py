@@ -3,7 +3,8 @@
 ``run_fast(scenario, log=OUT.tlog, truth=OUT.csv)`` writes
 
 * ``OUT.tlog``: the MAVLink stream the vehicle would have sent, with receive
-  timestamps ``epoch + t`` (deterministic for a seed);
+  timestamps ``epoch + t`` (deterministic for a seed); or, named ``OUT.bin``, the DataFlash log
+  the vehicle itself would have kept from boot (:mod:`.flight_log`);
 * ``OUT.csv``: the truth sidecar, every state at 100 Hz (``t`` is vehicle time);
 * ``OUT.truth.json``: the whole scenario, undeclared effects included (scoring only);
 * ``OUT.declared.json`` beside the log: what the ground station may be told.
@@ -18,6 +19,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from .flight_log import FlightLogs
 from .mavlink_out import MavlinkEncoder
 from .scenario import Scenario
 from .simulator import Simulator
@@ -59,6 +61,26 @@ def run_fast(
     sim.keep_truth = truth is not None
     enc = MavlinkEncoder(scenario.vehicle, sysid=sysid, ground_alt=scenario.sensors.ground_alt)
     t0 = time.perf_counter()
+    if log.suffix.lower() == ".bin":
+        frames = _dataflash(sim, scenario.vehicle, log, seconds)
+    else:
+        frames = _tlog(sim, enc, log, seconds)
+    wall = time.perf_counter() - t0
+    truth_path = None
+    if truth is not None:
+        truth_path = Path(truth)
+        rows = sim.truth_rows
+        with open(truth_path, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["t"])
+            w.writeheader()
+            w.writerows(rows)
+        truth_path.with_suffix(".truth.json").write_text(json.dumps(scenario.truth_json(), indent=2))
+    declared_path(log).write_text(json.dumps(scenario.declared_json(), indent=2))
+    return FastResult(frames, seconds, wall, log, truth_path)
+
+
+def _tlog(sim: Simulator, enc: MavlinkEncoder, log: Path, seconds: float) -> int:
+    """The MAVLink stream the vehicle would send, as a tlog; the frames written."""
     frames = 0
     next_hb = 0.0
     pack_ts = _TS.pack
@@ -75,15 +97,18 @@ def run_fast(
                 for fr in enc.encode(s):
                     write(stamp + fr)
                     frames += 1
-    wall = time.perf_counter() - t0
-    truth_path = None
-    if truth is not None:
-        truth_path = Path(truth)
-        rows = sim.truth_rows
-        with open(truth_path, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["t"])
-            w.writeheader()
-            w.writerows(rows)
-        truth_path.with_suffix(".truth.json").write_text(json.dumps(scenario.truth_json(), indent=2))
-    declared_path(log).write_text(json.dumps(scenario.declared_json(), indent=2))
-    return FastResult(frames, seconds, wall, log, truth_path)
+    return frames
+
+
+def _dataflash(sim: Simulator, vehicle: str, log: Path, seconds: float) -> int:
+    """What the vehicle itself would log from boot (``LOG_DISARMED`` 1), as a DataFlash ``.bin``
+    (:mod:`.flight_log`); the records written."""
+    logs = FlightLogs(vehicle, EPOCH, lambda: (), lambda: 0, log_disarmed=True, card_bytes=1 << 62)
+    n = 0
+    for _ in range(int(round(seconds / sim.dt))):
+        samples = sim.step()
+        n += len(samples)
+        logs.step(sim.t, samples, True)
+    logs.close()
+    log.write_bytes(logs.logs[1].data if logs.logs else b"")
+    return n

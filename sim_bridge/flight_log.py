@@ -90,14 +90,17 @@ class FlightLogs:
         *,
         height: Callable[[], tuple[float, float]] | None = None,
         card_bytes: int = CARD_BYTES,
+        log_disarmed: bool = False,
     ) -> None:
-        """``height``: the autopilot's height estimate and its baro's height [m] (CTUN.Alt, .BAlt)."""
+        """``height``: the autopilot's height estimate and its baro's height [m] (CTUN.Alt, .BAlt).
+        ``log_disarmed``: one log from boot, armed or not (ArduPilot's ``LOG_DISARMED`` 1)."""
         self.vehicle = vehicle
         self.epoch = epoch
         self.parameters = parameters
         self.mode = mode
         self.height = height
         self.card_bytes = card_bytes
+        self.log_disarmed = log_disarmed
         self.logs: dict[int, FlightLog] = {}
         self._next = 1
         self._writer: DataFlashWriter | None = None
@@ -111,6 +114,7 @@ class FlightLogs:
         return self._current
 
     def step(self, t: float, samples: Iterable[Sample], armed: bool) -> None:
+        armed = armed or self.log_disarmed
         if armed and self._current is None:
             self._begin(t)
         elif not armed and self._current is not None:
@@ -147,7 +151,7 @@ class FlightLogs:
         w.write("MSG", _us(t), f"Frame: {self.vehicle.upper()}")
         lo, hi = RANGE_LIMITS_CM
         for name, value in [*self.parameters(), ("RNGFND1_MIN_CM", lo), ("RNGFND1_MAX_CM", hi),
-                            ("RNGFND1_ORIENT", 25.0), ("LOG_DISARMED", 0.0)]:  # fmt: skip
+                            ("RNGFND1_ORIENT", 25.0), ("LOG_DISARMED", float(self.log_disarmed))]:  # fmt: skip
             w.write("PARM", _us(t), name, float(value))
         self._mode = None
         self._make_room()

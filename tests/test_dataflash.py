@@ -212,3 +212,24 @@ def test_an_arducopter_30_text_log_whose_gps_has_no_week_is_read(tmp_path):
     loaded = load_log(p, imu_columns=True)
     tr = triage(loaded.tables, loaded.measurements, loaded.imu)
     assert tr.records > 0 and "mode STABILIZE" in tr.summary()
+
+
+@pytest.mark.slow
+def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_tlog(tmp_path):
+    """``sim --fast --log X.bin`` writes what the vehicle itself would log (flight_log.py): the same
+    flight as a tlog and as a .bin, each diagnosed from the log alone, name the same hidden effect
+    with the same size."""
+    from groundstation.diagnosis.engine import diagnose
+    from groundstation.estimation.logs import load_log
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    found = {}
+    for suffix in (".tlog", ".bin"):
+        log = tmp_path / f"f{suffix}"
+        run_fast(Scenario.from_args("quad", 7, 60.0, ["range_tilt"], ["baro_thrust:k=3"], flight="high"), log)
+        ms = load_log(log).measurements
+        d = diagnose(ms, source=str(log), declared=[{"name": "range_tilt"}])
+        found[suffix] = [(e.name, round(e.params["k"], 2)) for e in d.effects]
+    assert found[".bin"] == found[".tlog"] and found[".bin"][0][0] == "baro_thrust", found
+    assert found[".bin"][0][1] == pytest.approx(3.0, abs=0.2)
