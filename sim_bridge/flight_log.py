@@ -17,9 +17,10 @@ GPS        TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,   gps (3-D fix)
 RFND       TimeUS,Instance,Dist,Stat,Orient                  range (downward, good)
 BAT        TimeUS,Inst,Volt,Curr                             battery
 RCOU       TimeUS,C1..Cn                                     actuators (1000 + 1000·u µs)
-CTUN       TimeUS,ThO,Alt,BAlt                               actuators (the throttle); the
+CTUN       TimeUS,ThO(,Alt,BAlt)                             actuators (the throttle); the
                                                              autopilot's height estimate and
-                                                             its corrected baro height
+                                                             its corrected baro height, where
+                                                             it makes one
 ATT        TimeUS,Roll,Pitch,Yaw                             attitude (the autopilot's
                                                              estimate, degrees)
 PARM       TimeUS,Name,Value                                 the vehicle's parameters at
@@ -54,7 +55,6 @@ RECORDS = {
     "GPS": ("QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U"),
     "RFND": ("QBCBB", "TimeUS,Instance,Dist,Stat,Orient"),
     "BAT": ("QBff", "TimeUS,Inst,Volt,Curr"),
-    "CTUN": ("Qfff", "TimeUS,ThO,Alt,BAlt"),
     "ATT": ("Qfff", "TimeUS,Roll,Pitch,Yaw"),
     "PARM": ("QNf", "TimeUS,Name,Value"),
     "MSG": ("QZ", "TimeUS,Message"),
@@ -147,6 +147,10 @@ class FlightLogs:
         w = self._writer = DataFlashWriter(log.data)
         for name, (fmt, cols) in RECORDS.items():
             w.define(name, fmt, cols)
+        if self.height is not None:  # the autopilot's estimate, where it makes one
+            w.define("CTUN", "Qfff", "TimeUS,ThO,Alt,BAlt")
+        else:
+            w.define("CTUN", "Qf", "TimeUS,ThO")
         w.write("MSG", _us(t), FIRMWARE)
         w.write("MSG", _us(t), f"Frame: {self.vehicle.upper()}")
         lo, hi = RANGE_LIMITS_CM
@@ -206,8 +210,10 @@ class FlightLogs:
             w.define("RCOU", "Q" + "H" * n, "TimeUS," + ",".join(f"C{k}" for k in range(1, n + 1)))
         w.write("RCOU", us, *(int(round(1000 + 1000 * min(1.0, max(0.0, u)))) for u in v[:14]))
         thr = v[0] if self.vehicle == "quad" else sum(v[:2]) / 2
-        alt, baro_alt = self.height() if self.height is not None else (math.nan, math.nan)
-        w.write("CTUN", us, min(1.0, max(0.0, thr)), alt, baro_alt)
+        if self.height is not None:
+            w.write("CTUN", us, min(1.0, max(0.0, thr)), *self.height())
+        else:
+            w.write("CTUN", us, min(1.0, max(0.0, thr)))
 
 
 def _us(t: float) -> int:

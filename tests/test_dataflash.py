@@ -220,6 +220,7 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
     flight as a tlog and as a .bin, each diagnosed from the log alone, name the same hidden effect
     with the same size."""
     from groundstation.diagnosis.engine import diagnose
+    from groundstation.diagnosis.triage import triage
     from groundstation.estimation.logs import load_log
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
@@ -228,7 +229,10 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
     for suffix in (".tlog", ".bin"):
         log = tmp_path / f"f{suffix}"
         run_fast(Scenario.from_args("quad", 7, 60.0, ["range_tilt"], ["baro_thrust:k=3"], flight="high"), log)
-        ms = load_log(log).measurements
+        loaded = load_log(log)
+        ms = loaded.measurements
+        said = triage(loaded.tables, ms).findings
+        assert [f.severity for f in said if f.severity != "info"] == [], [f.line() for f in said]
         d = diagnose(ms, source=str(log), declared=[{"name": "range_tilt"}])
         found[suffix] = [(e.name, round(e.params["k"], 2)) for e in d.effects]
     assert found[".bin"] == found[".tlog"] and found[".bin"][0][0] == "baro_thrust", found
