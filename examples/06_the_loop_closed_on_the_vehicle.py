@@ -119,8 +119,11 @@ async def main(seconds: float, speed: float) -> None:
             if r.returncode != 0:
                 raise SystemExit(f"diagnose failed: {r.stderr.strip()}")
             said = (r.stdout + r.stderr).splitlines()
-            print("diagnosis: " + ", ".join(ln.strip() for ln in said if ln.strip().startswith("added")) or "nothing")
-            wanted = load(report / "params_ardupilot.param")
+            print("diagnosis: " + (", ".join(ln.strip() for ln in said if ln.strip().startswith("added")) or "nothing"))
+            param_file = report / "params_ardupilot.param"
+            wanted = load(param_file) if param_file.exists() else {}  # nothing to set: nothing written
+            if not wanted:
+                print("nothing to load: the diagnosis wrote no parameter")
             params = ParamClient(link, 1)
             for name, value in wanted.items():
                 await params.set(name, value)
