@@ -219,6 +219,7 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
     """``sim --fast --log X.bin`` writes what the vehicle itself would log (flight_log.py): the same
     flight as a tlog and as a .bin, each diagnosed from the log alone, name the same hidden effect
     with the same size."""
+    from groundstation.diagnosis.autopilot_params import suggest
     from groundstation.diagnosis.engine import diagnose
     from groundstation.diagnosis.triage import triage
     from groundstation.estimation.logs import load_log
@@ -235,5 +236,7 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
         assert [f.severity for f in said if f.severity != "info"] == [], [f.line() for f in said]
         d = diagnose(ms, source=str(log), declared=[{"name": "range_tilt"}])
         found[suffix] = [(e.name, round(e.params["k"], 2)) for e in d.effects]
+        (scale,) = [p for p in suggest(d, ms, loaded.tables.params, "ardupilot") if p.name == "BARO1_THST_SCALE"]
+        assert -40.0 < scale.value < -30.0 and "lags the throttle by 0.4" in scale.why  # (the simulator's 0.5 s)
     assert found[".bin"] == found[".tlog"] and found[".bin"][0][0] == "baro_thrust", found
     assert found[".bin"][0][1] == pytest.approx(3.0, abs=0.2)
