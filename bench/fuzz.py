@@ -42,7 +42,7 @@ BLOWUP_MB = 300.0
 
 
 class _Hang(Exception):
-    pass
+    """A reader still at work when its mutant's time limit rang (raised by the alarm's handler)."""
 
 
 def _on_alarm(_sig, _frame):

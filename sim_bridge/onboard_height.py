@@ -25,6 +25,7 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+from filterpy.kalman import KalmanFilter
 
 from groundstation.core.atmosphere import altitude_at
 
@@ -40,10 +41,17 @@ ZERO_SAMPLES = 20
 
 
 class OnboardHeight:
+    """The filter is filterpy's :class:`~filterpy.kalman.KalmanFilter` (``kf``: x, P, F, B, Q, H, R
+    as the document writes them). It is not the ground station's altitude estimator
+    (``groundstation.estimation``): the simulator may not import it (the layer contract), and an
+    autopilot's estimator is its own."""
+
     def __init__(self, params: AutopilotParams) -> None:
         self.params = params
-        self.x = np.zeros(3)
-        self.P = np.diag([1.0, 0.25, 0.01])
+        self.kf = KalmanFilter(dim_x=3, dim_z=1, dim_u=1)
+        self.kf.P = np.diag([1.0, 0.25, 0.01])
+        self.kf.H = np.array([[1.0, 0.0, 0.0]])
+        self._dt = 0.0  # the step F, B and Q were made for
         self.t: float | None = None
         self.baro_zero: float | None = None  # [m] the pressure altitude where it booted
         self._zero_n = 0
@@ -52,11 +60,20 @@ class OnboardHeight:
 
     @property
     def height(self) -> float:
-        return float(self.x[0])
+        return float(self.kf.x[0, 0])
 
     @property
     def climb_rate(self) -> float:
-        return float(self.x[1])
+        return float(self.kf.x[1, 0])
+
+    def _step(self, dt: float) -> None:
+        """F, B and Q for a step of ``dt`` (the IMU's period: made again only when it changes)."""
+        kf = self.kf
+        kf.F = np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]])
+        kf.B = np.array([[0.5 * dt * dt], [dt], [0.0]])
+        q_a, q_b = (ACC_P_NSE**2) * dt, (ABIAS_P_NSE**2) * dt
+        kf.Q = np.array([[0.25 * dt**2 * q_a, 0.5 * dt * q_a, 0.0], [0.5 * dt * q_a, q_a, 0.0], [0.0, 0.0, q_b]])
+        self._dt = dt
 
     def imu(self, t: float, specific_force, R) -> None:
         """A calibrated IMU sample: the specific force in FRD [m/s²] and the attitude (body to NED)."""
@@ -67,15 +84,11 @@ class OnboardHeight:
         self.t = t
         if not 0.0 < dt < 0.1:
             return
+        if abs(dt - self._dt) > 1e-9:
+            self._step(dt)
         a = -float(R[2] @ np.asarray(specific_force, dtype=float)) - G
-        h, v, b = self.x
-        u = a - b
-        self.x = np.array([h + v * dt + 0.5 * u * dt * dt, v + u * dt, b])
-        F = np.array([[1.0, dt, -0.5 * dt * dt], [0.0, 1.0, -dt], [0.0, 0.0, 1.0]])
-        q_a, q_b = (ACC_P_NSE**2) * dt, (ABIAS_P_NSE**2) * dt
-        Q = np.array([[0.25 * dt**2 * q_a, 0.5 * dt * q_a, 0.0], [0.5 * dt * q_a, q_a, 0.0], [0.0, 0.0, q_b]])
-        self.P = F @ self.P @ F.T + Q
-        self._past.append((t, float(self.x[0])))
+        self.kf.predict(u=np.array([[a]]))
+        self._past.append((t, self.height))
         while self._past and self._past[0][0] < t - HISTORY_S:
             self._past.popleft()
 
@@ -89,15 +102,12 @@ class OnboardHeight:
         assert self.baro_zero is not None
         self.baro_height = z = alt - self.baro_zero
         delay = self.params["EK3_HGT_DELAY"] * 1e-3
-        then = self._height_at(t - delay) if delay > 0 else float(self.x[0])
-        H = np.array([1.0, 0.0, 0.0])
-        S = float(H @ self.P @ H) + self.params["EK3_ALT_M_NSE"] ** 2
-        K = self.P @ H / S
-        self.x = self.x + K * (z - then)
-        self.P = self.P - np.outer(K, H @ self.P)
+        # against the height ``delay`` ago: the reading moved by what the height did since then
+        lag = self.height - self._height_at(t - delay) if delay > 0 else 0.0
+        self.kf.update(np.array([[z + lag]]), R=self.params["EK3_ALT_M_NSE"] ** 2)
 
     def _height_at(self, t: float) -> float:
         for tp, h in reversed(self._past):
             if tp <= t:
                 return h
-        return self._past[0][1] if self._past else float(self.x[0])
+        return self._past[0][1] if self._past else self.height

@@ -6,6 +6,7 @@ vehicle's frames, and the log reads, triages and diagnoses like any other."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import subprocess
 import sys
 
@@ -53,6 +54,26 @@ def _flown(seconds: float, **faults) -> SimBridge:
     return br
 
 
+@contextlib.asynccontextmanager
+async def _on_link(br: SimBridge):
+    """A link on a free port with ``br`` sending to it and running, once its first heartbeat has
+    come; the vehicle stopped and the link closed on the way out, also when the test fails."""
+    link = MavlinkLink("udpin:127.0.0.1:0", streams={})
+    await link.open()
+    br.udp_to = ("127.0.0.1", link.transport.local_address[1])
+    await br.open()
+    task = asyncio.get_running_loop().create_task(br.run())
+    try:
+        while 1 not in link.vehicles:  # (the heartbeat goes out with the first step)
+            await asyncio.sleep(0.02)
+        yield link
+    finally:
+        br.close()
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+        await link.close()
+
+
 def test_each_flight_is_a_dataflash_log_that_reads_as_the_vehicle_flew(tmp_path):
     br = _flown(20.0)
     log = br.flight_logs.logs[1]
@@ -73,15 +94,8 @@ def test_each_flight_is_a_dataflash_log_that_reads_as_the_vehicle_flew(tmp_path)
 @pytest.mark.slow
 @async_test(timeout=90)
 async def test_a_log_downloads_byte_for_byte_at_twenty_percent_loss():
-    link = MavlinkLink("udpin:127.0.0.1:0", streams={})
-    await link.open()
     br = _flown(25.0, loss=0.2)
-    br.udp_to = ("127.0.0.1", link.transport.local_address[1])
-    await br.open()
-    task = asyncio.get_running_loop().create_task(br.run())
-    try:
-        while 1 not in link.vehicles:
-            await asyncio.sleep(0.02)
+    async with _on_link(br) as link:
         client = LogClient(link, 1, timeout=0.5)
         entries = await client.list()  # the first flight's log, and the one now being written
         assert [e.id for e in entries] == [1, 2] and client.num_logs == 2
@@ -96,27 +110,14 @@ async def test_a_log_downloads_byte_for_byte_at_twenty_percent_loss():
         assert seen[-1] == (len(want), len(want)) and counts == sorted(counts)
         with pytest.raises(LogTransferError, match="log 9: 0 of 900 bytes"):  # nothing comes for a log it lacks
             await client.download(LogEntry(9, 0, 900))
-        await client.erase()
-        await asyncio.sleep(0)  # (the erase is a datagram on loopback; the list below waits on the answer)
-        for _ in range(50):
-            if 1 not in br.flight_logs.logs:
-                break
-            await asyncio.sleep(0.02)
+        await client.erase()  # (its datagram reaches the vehicle before the list's, on loopback in order)
         assert [e.id for e in await client.list()] == [2]  # the open log stays, as ArduPilot's
         client.close()
-    finally:
-        br.close()
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await link.close()
 
 
 @async_test(timeout=60)
 async def test_a_download_the_vehicle_stops_serving_keeps_what_came_before_the_first_gap():
-    link = MavlinkLink("udpin:127.0.0.1:0", streams={})
-    await link.open()
     br = _flown(10.0, loss=0.2)
-    br.udp_to = ("127.0.0.1", link.transport.local_address[1])
     serve, asked = br.log_server.on_log_request_data, []
 
     def first_only(m):  # the vehicle serves the first request and then goes quiet (its logging busy)
@@ -125,43 +126,23 @@ async def test_a_download_the_vehicle_stops_serving_keeps_what_came_before_the_f
             serve(m)
 
     br.log_server.on_log_request_data = first_only
-    await br.open()
-    task = asyncio.get_running_loop().create_task(br.run())
-    try:
-        while 1 not in link.vehicles:
-            await asyncio.sleep(0.02)
+    async with _on_link(br) as link:
         client = LogClient(link, 1, timeout=0.5)
         (entry, *_) = await client.list()
         with pytest.raises(LogTransferError, match=f"log 1: [0-9]+ of {entry.size} bytes received") as e:
             await client.download(entry)
         want = bytes(br.flight_logs.logs[1].data)
         assert want.startswith(e.value.partial) and len(e.value.partial) < len(want) and len(asked) > 1
-    finally:
-        br.close()
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await link.close()
 
 
 @async_test(timeout=60)
 async def test_a_vehicle_that_keeps_no_logs_is_a_one_line_error():
-    link = MavlinkLink("udpin:127.0.0.1:0", streams={})
-    await link.open()
-    br = SimBridge(Scenario("quad", seed=4), udp_to=("127.0.0.1", link.transport.local_address[1]))
+    br = SimBridge(Scenario("quad", seed=4), udp_to=("127.0.0.1", 9))
     br.log_server.on_log_request_list = lambda m: None  # a vehicle without the log protocol: no answer
-    await br.open()
-    task = asyncio.get_running_loop().create_task(br.run())
-    try:
-        while 1 not in link.vehicles:
-            await asyncio.sleep(0.02)
+    async with _on_link(br) as link:
         client = LogClient(link, 1, timeout=0.2)
         with pytest.raises(LogTransferError, match="did not answer LOG_REQUEST_LIST"):
             await client.list()
-    finally:
-        br.close()
-        task.cancel()
-        await asyncio.gather(task, return_exceptions=True)
-        await link.close()
 
 
 @pytest.mark.slow

@@ -181,6 +181,12 @@ SIM_MESSAGES = ("HIGHRES_IMU", "SCALED_PRESSURE", "DISTANCE_SENSOR", "ATTITUDE",
                 "GLOBAL_POSITION_INT", "SERVO_OUTPUT_RAW", "SYS_STATUS", "BATTERY_STATUS")  # fmt: skip
 
 
+def _router(vehicle_port: int, gcs_port: int, state: Path, *options: str) -> list:
+    """A MAVProxy router between the vehicle's port and the ground station's (no console)."""
+    return [MAVPROXY, f"--master=udpin:127.0.0.1:{vehicle_port}", f"--out=udpout:127.0.0.1:{gcs_port}",
+            *options, "--non-interactive", f"--state-basedir={state}", "--default-modules=link"]  # fmt: skip
+
+
 async def _received_rates(link: MavlinkLink, seconds: float) -> dict[str, float]:
     before = dict(link.counters.by_type)
     t0 = time.monotonic()
@@ -197,15 +203,7 @@ async def test_through_a_mavproxy_router_at_twenty_percent_loss_and_after_a_rebo
     vehicle is restarted (a new process: its clock, sequence and default rates start over)."""
     vehicle_port, gcs_port = free_udp_port(), free_udp_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{gcs_port}", ack_timeout=0.5, check_every=2.0)
-    mavproxy = [
-        MAVPROXY,
-        f"--master=udpin:127.0.0.1:{vehicle_port}",
-        f"--out=udpout:127.0.0.1:{gcs_port}",
-        "--streamrate=-1",
-        "--non-interactive",
-        f"--state-basedir={tmp_path}",
-        "--default-modules=link",
-    ]
+    mavproxy = _router(vehicle_port, gcs_port, tmp_path, "--streamrate=-1")
     sim = ("--loss", "20", "--seed", "3", "--duration", "120")
     async with _OnLink(link):
         with running(mavproxy, stdin=subprocess.DEVNULL):
@@ -253,14 +251,7 @@ async def test_behind_a_mavproxy_router_left_at_its_defaults_the_streams_hold(tm
     are then late, not lost), and a rate over the wall clock would count the pause as loss."""
     vehicle_port, gcs_port = free_udp_port(), free_udp_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{gcs_port}", ack_timeout=0.5, check_every=2.0)
-    mavproxy = [
-        MAVPROXY,
-        f"--master=udpin:127.0.0.1:{vehicle_port}",
-        f"--out=udpout:127.0.0.1:{gcs_port}",
-        "--non-interactive",
-        f"--state-basedir={tmp_path}",
-        "--default-modules=link",
-    ]
+    mavproxy = _router(vehicle_port, gcs_port, tmp_path)  # its default stream rate: 4 Hz
     clock: list[float] = []  # the vehicle's time of its latest IMU frame [s]
     imu = link.measurements()
 

@@ -5,10 +5,11 @@ came; :meth:`_wait_change` waits for that, or a timeout."""
 
 from __future__ import annotations
 
+import abc
 import asyncio
 
 
-class Exchange:
+class Exchange(abc.ABC):
     def __init__(self, link, sysid: int, compid: int = 1, *, timeout: float = 1.0) -> None:
         self.link = link
         self.sysid, self.compid = sysid, compid
@@ -20,8 +21,9 @@ class Exchange:
         if self._on_message in self.link.message_hooks:
             self.link.message_hooks.remove(self._on_message)
 
+    @abc.abstractmethod
     def _on_message(self, m, _t_rx: float) -> None:
-        raise NotImplementedError
+        """Take what this exchange waits on from the link's message ``m``; :meth:`_changed_now` if it came."""
 
     def _changed_now(self) -> None:
         self._changed.set()

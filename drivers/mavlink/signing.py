@@ -93,8 +93,8 @@ class SigningState:
             for k, v in d.get("streams", {}).items():
                 link, sysid, compid = (int(x) for x in k.split(","))
                 self.streams[(link, sysid, compid)] = int(v)
-        except FileNotFoundError:
-            pass
+        except FileNotFoundError:  # the key's first use here: nothing stored, the clock alone
+            self.timestamp, self.streams = 0, {}
         except (OSError, ValueError, TypeError, AttributeError) as e:
             self.warning = f"{self.path}: signing state not read ({e}); starting from the clock"
 

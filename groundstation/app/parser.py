@@ -112,11 +112,17 @@ def add_fleet_parser(sub) -> None:
     d.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")
 
 
-def add_param_parser(sub) -> None:
-    p = sub.add_parser("param", help="a vehicle's parameters: fetch all (to a file), get, set with verification, load")
+def _vehicle_parser(sub, name: str, help: str):
+    """A command that talks to one vehicle: its connection, ``--sysid`` and the signing key."""
+    p = sub.add_parser(name, help=help)
     p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
     p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
     add_signing_option(p)
+    return p
+
+
+def add_param_parser(sub) -> None:
+    p = _vehicle_parser(sub, "param", "a vehicle's parameters: fetch all (to a file), get, set with verification, load")
     a = p.add_subparsers(dest="param_command", required=True)
     f = a.add_parser("fetch", help="every parameter; printed, or written to --out")
     f.add_argument("--out", type=Path, help="write them here (MAVProxy's format; --qgc for QGroundControl's)")
@@ -131,10 +137,7 @@ def add_param_parser(sub) -> None:
 
 
 def add_logs_parser(sub) -> None:
-    p = sub.add_parser("logs", help="a vehicle's onboard logs over MAVLink: list, download N, latest, erase")
-    p.add_argument("connection", help="as for connect: udpin:0.0.0.0:14550, tcp:HOST:PORT, /dev/ttyUSB0,57600")
-    p.add_argument("--sysid", type=int, help="the vehicle's system id (default: the first one heard)")
-    add_signing_option(p)
+    p = _vehicle_parser(sub, "logs", "a vehicle's onboard logs over MAVLink: list, download N, latest, erase")
     a = p.add_subparsers(dest="logs_command", required=True)
     a.add_parser("list", help="the logs on the vehicle: number, time, size")
     d = a.add_parser("download", help="download log N (lost packets asked for again)")
