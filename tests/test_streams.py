@@ -11,9 +11,10 @@ import time
 from pathlib import Path
 
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from drivers.mavlink.link import DEFAULT_STREAMS, MavlinkLink
-from drivers.mavlink.streams import MIN_RATE, PRIORITY, fit_budget, frame_bytes
+from drivers.mavlink.streams import MIN_RATE, PRIORITY, RETRIES, StreamRequester, fit_budget, frame_bytes
 from groundstation.core.measurement import Kind
 from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.scenario import Scenario
@@ -274,3 +275,35 @@ async def test_behind_a_mavproxy_router_left_at_its_defaults_the_streams_hold(tm
                 following.cancel()
             for name in SIM_MESSAGES:
                 assert got[name] >= 0.9 * DEFAULT_STREAMS[name], (name, got[name], list(link.stream_notes))
+
+
+@async_test(timeout=20)
+async def test_a_refusal_that_comes_after_five_lost_answers_is_a_refusal_not_unanswered():
+    """A loaded, lossy link loses all five answers to one stream's request; asked again later, the
+    vehicle refuses it (it lacks the sensor). The stream is refused, and no longer unanswered. The
+    loss is chosen here, per command, which a random-loss link cannot do on demand."""
+    tries: dict[int, int] = {}
+    requester: StreamRequester
+
+    def send(msg) -> None:
+        msg_id = int(msg.param1)
+        tries[msg_id] = tries.get(msg_id, 0) + 1
+        if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+            if tries[msg_id] <= RETRIES:
+                return  # the answer lost, every try of the first round
+            result = mavlink.MAV_RESULT_DENIED
+        else:
+            result = mavlink.MAV_RESULT_ACCEPTED
+        asyncio.get_running_loop().call_soon(requester.ack, 1, msg.command, result)
+
+    streams = {"HIGHRES_IMU": 50.0, "ATTITUDE_QUATERNION": 50.0}
+    t0 = time.monotonic()
+    requester = StreamRequester(
+        send, lambda: {"HIGHRES_IMU": int(50 * (time.monotonic() - t0))}, streams, ack_timeout=0.01, check_every=0.2
+    )
+    requester.start(1, 1)
+    v = requester.vehicles[1]
+    await _until(lambda: "ATTITUDE_QUATERNION" in v.refused, 10, "the stream asked again and refused")
+    assert not v.unanswered and v.acked == {"HIGHRES_IMU"}
+    for t in requester.close():
+        t.cancel()

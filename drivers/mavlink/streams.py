@@ -188,6 +188,7 @@ class StreamRequester:
                 v.unanswered.discard(name)
             else:
                 v.refused.add(name)  # a refusal for one message: the vehicle lacks that sensor
+                v.unanswered.discard(name)  # answered at last (a loaded link can lose five tries' answers)
 
     async def _run(self, v: VehicleStreams) -> None:
         v.requests += 1
