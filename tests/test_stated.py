@@ -90,3 +90,44 @@ def test_the_second_foreign_sources_lidar_clearance_is_read_from_its_log(name):
     c = range_clearance(log.tables, log.measurements)
     assert c is not None and c.metres == pytest.approx(0.05, abs=0.005) and c.readings > 100
     assert not c.disagrees
+
+
+def test_a_tlogs_ground_is_read_on_the_recording_clock():
+    """A tlog's records are on the recording's clock, its readings on the vehicle's (booted 300 s before
+    the recording began): the ground stretches are matched on the recording's clock."""
+    boot = 300.0
+    origin = 1.7e9
+    ms = [
+        Measurement(m.t + boot, m.kind, m.value, "mav/1", origin + m.t)  # t on the vehicle's clock, t_rx UNIX
+        for m in flight()
+    ]
+    d = readings(1200, lambda r, n: np.round(0.05 + 0.01 * r.standard_normal(n), 2), lambda r, n: 2.0 + 0 * r.random(n))
+    t = np.linspace(0.0, 60.0, len(d), endpoint=False)
+    cols = {"current_distance": d * 100.0, "orientation": np.full(len(d), 25.0), "id": np.zeros(len(d))}
+    tables = LogTables({"DISTANCE_SENSOR": Table(t, cols)}, {}, fmt="tlog", clock="recording", origin=origin)
+    c = range_clearance(tables, ms)
+    assert c is not None and c.metres == pytest.approx(0.05, abs=0.005)
+
+
+def test_a_declared_offset_is_the_operators_word_over_the_logs_clearance():
+    from groundstation.estimation.registry import effects_used
+    from groundstation.estimation.stated import RangeClearance, clearance_effect
+
+    stated = [clearance_effect(RangeClearance(0.05, "the rangefinder on the ground (900 readings)"))]
+    assert [e["params"]["o"] for e in effects_used((), None, stated)] == [0.05]
+    mine = [{"name": "range_offset", "params": {"o": 0.02}}]
+    assert [e["params"]["o"] for e in effects_used(mine, None, stated)] == [0.02]
+
+
+@pytest.mark.slow
+def test_replay_and_evaluate_take_the_clearance_the_log_states():
+    """The lidar's 5 cm on the ground is taken off its readings in a replay and an evaluation, as the
+    diagnosis takes it: without it every estimate of the flight was 5 cm high (4.2 cm RMS)."""
+    from groundstation.estimation.evaluate import evaluate
+    from groundstation.estimation.logs import load_blocked
+
+    path = foreign2_file("clean_range_s1.bin")
+    blocked = load_blocked(path)
+    assert blocked is not None and blocked.stated and blocked.stated[0]["params"]["o"] == pytest.approx(0.05, abs=0.005)
+    ev = evaluate(path)
+    assert "5.0 cm" in ev.clearance and ev.estimate_rmse < 0.02, ev.table()

@@ -146,12 +146,15 @@ FIRMWARE = re.compile(r"^\s*(Ardu\w+|APM:\w+|APMrover2|AntennaTracker|Blimp)\s+V
 _MAV_TYPE_GCS = 6
 
 
-def tables_from_tlog(path, *, index: TlogIndex | None = None, without: tuple[str, ...] = ()) -> LogTables:
+def tables_from_tlog(
+    path, *, index: TlogIndex | None = None, only: tuple[str, ...] = (), without: tuple[str, ...] = ()
+) -> LogTables:
     """A tlog's messages as tables on the recording's clock (seconds since its first record),
     without the ground stations' own (their HEARTBEATs would read as the vehicle's modes).
     PARAM_VALUE messages give the parameters (the last value of each). ``index``: the file's, if
-    already scanned; ``without``: message types left out."""
-    b = load_tlog(path, index=index, without=without)
+    already scanned; ``only``: just these message types (HEARTBEAT among them, to know the ground
+    stations); ``without``: message types left out."""
+    b = load_tlog(path, index=index, only=tuple(dict.fromkeys((*only, "HEARTBEAT"))) if only else (), without=without)
     t0 = min((float(m.t.min()) for m in b.messages.values() if len(m)), default=0.0)
     gcs: set[int] = set()
     hb = b.messages.get("HEARTBEAT")

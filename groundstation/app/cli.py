@@ -411,8 +411,10 @@ def replay_in_batch(args) -> int:
     reading by reading; a log of several vehicles is read by reading, as the other cases are."""
     log = None if args.start or args.export_measurements else load_blocked(args.file)
     if log is not None:
-        out = _replay_outputs(args, None, log.vehicle, log.ground_stations, in_time_order=True)
+        out = _replay_outputs(args, None, log.vehicle, log.ground_stations, in_time_order=True, stated=log.stated)
         print(f"replaying {args.file} at max speed: {log.description}", flush=True)
+        if log.clearance is not None:
+            print(_clearance_line(log.clearance), flush=True)
         at = _estimate_all(out, log.measurements)
         blocks = f"the IMU's in {IMU_BLOCK_S * 1e3:g} ms blocks"
         count = (
@@ -458,9 +460,20 @@ def _ground_stations(rp: Replay) -> set[int]:
     return decoder.ground_stations if decoder is not None else set()
 
 
-def _replay_outputs(args, dash, vehicle: str | None, stations, *, in_time_order: bool = False) -> VehicleOutputs:
+def _clearance_line(c) -> str:
+    """One line: the range's ground clearance a replay or an evaluation takes off its readings."""
+    return (
+        f"range: its reading on the ground, {c.metres * 100:.1f} cm from {c.source}, taken as its mounting "
+        "offset (a range_offset declared for the session or the vehicle is used instead)"
+    )
+
+
+def _replay_outputs(
+    args, dash, vehicle: str | None, stations, *, in_time_order: bool = False, stated=()
+) -> VehicleOutputs:
     """The outputs of a replay: one estimator per vehicle, none for a ground station (ours or one
-    recorded in the log: its own frames are in a tlog too, some before its first heartbeat)."""
+    recorded in the log: its own frames are in a tlog too, some before its first heartbeat);
+    ``stated``: what the log states of its sensors (the range's ground clearance)."""
     return VehicleOutputs(
         args,
         args.declared or declared_beside(args.file),
@@ -469,6 +482,7 @@ def _replay_outputs(args, dash, vehicle: str | None, stations, *, in_time_order:
         is_vehicle=lambda sysid: sysid not in stations and sysid != GCS_SYSTEM_ID,
         on_new=dash.set_vehicles if dash is not None else None,
         in_time_order=in_time_order,
+        stated=stated,
     )
 
 

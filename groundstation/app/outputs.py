@@ -12,7 +12,7 @@ its own port, a ground station on the link) go to the first vehicle's.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from groundstation.core.counts import counted
@@ -46,14 +46,18 @@ class Outputs:
         *,
         scene: bool = False,
         in_time_order: bool = False,
+        stated: Sequence[dict] = (),
     ) -> None:
         """``dashboard``: shown there from the start; ``scene``: the session has a dashboard (this
         vehicle may be shown there later, :meth:`show_on`); ``in_time_order``: the measurements come
         in vehicle-time order (a log made ready, :func:`~groundstation.estimation.logs.load_blocked`):
-        nothing to roll back, so no checkpoints for it."""
+        nothing to roll back, so no checkpoints for it; ``stated``: what the log states of its
+        sensors (:attr:`~groundstation.estimation.logs.BlockedLog.stated`)."""
         self.declared = declared_effects(declared_path)
         self.model, self.airframe = args.model, vehicle
-        self.estimator = build_estimator(args.model, self.declared, load_noise(args.noise), vehicle=vehicle)
+        self.estimator = build_estimator(
+            args.model, self.declared, load_noise(args.noise), vehicle=vehicle, stated=stated
+        )
         estimators = [self.estimator]
         if dashboard is not None or scene:
             # the 3D view needs a horizontal place and its covariance; none of the
@@ -163,9 +167,10 @@ class VehicleOutputs:
         is_vehicle: Callable[[int], bool] = lambda sysid: True,
         on_new: Callable[[list[int]], None] | None = None,
         in_time_order: bool = False,
+        stated: Sequence[dict] = (),
     ) -> None:
         self.args, self.declared_path, self.dashboard, self.airframe = args, declared_path, dashboard, vehicle
-        self.in_time_order = in_time_order
+        self.in_time_order, self.stated = in_time_order, stated
         self.is_vehicle, self.on_new = is_vehicle, on_new
         self.by_id: dict[int, Outputs] = {}
         #: system ids past :data:`MAX_VEHICLES`, with their measurements (the first vehicle's outputs
@@ -179,7 +184,12 @@ class VehicleOutputs:
     def _new(self, sysid: int | None) -> Outputs:
         if self.first is None:
             out = self.first = Outputs(
-                self.args, self.declared_path, self.dashboard, self.airframe, in_time_order=self.in_time_order
+                self.args,
+                self.declared_path,
+                self.dashboard,
+                self.airframe,
+                in_time_order=self.in_time_order,
+                stated=self.stated,
             )
             self.first_id = self.shown = sysid
         elif self.first_id is None:  # the first outputs had only measurements of no vehicle yet
@@ -195,6 +205,7 @@ class VehicleOutputs:
                 self.airframe,
                 scene=self.dashboard is not None,
                 in_time_order=self.in_time_order,
+                stated=self.stated,
             )
         if sysid is not None:
             self.by_id[sysid] = out

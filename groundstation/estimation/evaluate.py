@@ -24,9 +24,9 @@ from groundstation.core.measurement import Kind
 from .logs import load_blocked, load_measurements
 from .loop import EstimationLoop
 from .models.ground import LANDED
-from .registry import build_estimator
+from .registry import build_estimator, effects_used
 from .truth import truth_from
-from .vehicles import range_offset, vehicle_effects
+from .vehicles import range_offset
 from .whiteness import ljung_box
 
 
@@ -50,12 +50,15 @@ class Evaluation:
     truth: str = ""  # where the truth came from ('' without one)
     within_2sigma: float = float("nan")  # share of the height's errors within its 2 sigma
     nees: float = float("nan")  # the height's mean squared error in sigmas
+    #: the range's ground clearance the log states, taken as its mounting offset ('' if none was)
+    clearance: str = ""
 
     def table(self) -> str:
         out = [
             self.description,
             f"model: {self.model}, {self.estimates} estimates"
-            + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else ""),
+            + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else "")
+            + (f"; range offset {self.clearance}" if self.clearance else ""),
             f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}",
         ]
         for r in self.rows:
@@ -63,7 +66,7 @@ class Evaluation:
             if r.nis == r.nis:
                 out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}{r.nis:>10.2f}{r.whiteness_p:>13.3g}")
             else:
-                out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the vehicle's offset applied)")
+                out.append(f"{r.sensor:<10}{r.n:>7}{raw:>24}   (raw reading with the mounting offset applied)")
         if self.estimate_rmse == self.estimate_rmse:
             est = f"{self.estimate_rmse:.4f}"
         else:  # no truth, or a model with no height to score (the 3-DOF rig's)
@@ -89,22 +92,29 @@ def evaluate(
     vehicle), scored against truth: motion capture in the log, ``truth_csv``, or a truth CSV beside
     the log (``LOG.csv``, ``LOG_truth.csv``; :func:`.truth.truth_from`)."""
     blocked = load_blocked(path)
+    stated: list[dict] = []
     if blocked is not None:
-        ms, desc, implied = blocked.measurements, blocked.description, blocked.vehicle
+        ms, desc, implied, stated = blocked.measurements, blocked.description, blocked.vehicle, blocked.stated
     else:
         ms, desc, implied = load_measurements(path)
-    est = build_estimator(model, vehicle=vehicle or implied)
-    offset = range_offset(vehicle_effects(vehicle or implied))
+    est = build_estimator(model, vehicle=vehicle or implied, stated=stated)
+    used = effects_used((), vehicle or implied, stated)
+    offset = range_offset(used)
+    clearance = next((f"{e['params']['o'] * 100:.1f} cm ({e['stated']})" for e in used if "stated" in e), "")
     loop = EstimationLoop([est], reorder_s=0.0) if blocked is not None else EstimationLoop([est])
     snaps = loop.snapshots.subscribe()
-    raw: dict[str, list[tuple[float, float]]] = {"range": [], "baro": []}
+    raw: dict[str, list[tuple[float, float]]] = {"range": [], "baro": [], "baro_alt": []}
     for m in ms:
         loop.push(m)
         if m.kind is Kind.RANGE:
             raw["range"].append((m.t, float(m.value[0])))
-        elif m.kind in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
-            h = float(m.value[0]) if m.kind is Kind.BARO_ALTITUDE else float(altitude_at(m.value[0]))
-            raw["baro"].append((m.t, h))
+        elif m.kind is Kind.BARO_PRESSURE:
+            raw["baro"].append((m.t, float(altitude_at(m.value[0]))))
+        elif m.kind is Kind.BARO_ALTITUDE:
+            raw["baro_alt"].append((m.t, float(m.value[0])))
+    # one barometer read as the model reads it (models.base.barometer): from its pressure where the
+    # log gives one, its altitude otherwise (a DataFlash BARO record gives both of one sample)
+    raw["baro"] = raw["baro"] or raw.pop("baro_alt")
     s = snaps.get_nowait()
     truth = truth_from(ms, path, truth_csv)
     if truth_csv is not None and truth is None:
@@ -153,4 +163,5 @@ def evaluate(
         truth.source if truth else "",
         within,
         nees,
+        clearance,
     )

@@ -21,10 +21,11 @@ from drivers.mavlink.link import GCS_SYSTEM_ID
 from drivers.replay import Replay
 from groundstation.core.counts import counted
 from groundstation.core.imu import ImuColumns, block_means
-from groundstation.core.measurement import Measurement, source_system
+from groundstation.core.measurement import Kind, Measurement, source_system
 from groundstation.core.readings import Readings
 
 from .derived import with_attitude
+from .stated import GROUND_KINDS, STATED_TABLES, RangeClearance, clearance_effect, range_clearance
 
 
 def _reader_skipped(skipped) -> str:
@@ -46,9 +47,11 @@ class LoadedLog:
     ground_stations: frozenset[int] = frozenset()  #: a tlog's system ids of ground stations
 
 
-def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> LoadedLog:
+def load_log(path: Path, *, tables: bool | tuple[str, ...] = True, imu_columns: bool = False) -> LoadedLog:
     """Any supported log -> its measurements, a description, the vehicle it implies, and (with
-    ``tables``) its other records as tables. ``imu_columns``: the raw IMU as columns
+    ``tables``) its other records as tables: all of them, or a tuple of the message types wanted (a
+    tlog's others are then not read; the other formats' readers make every table or none, and a
+    ULog's are made in any case). ``imu_columns``: the raw IMU as columns
     (:class:`~groundstation.core.imu.ImuColumns`) instead of records, a tenth of the memory of a
     1 kHz log's (a tlog's are never held as records, and its IMU frames are converted as columns:
     :mod:`drivers.logs.tlog_reader`), and the other readings as
@@ -68,7 +71,7 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
         )
         return LoadedLog(ms, desc + _reader_skipped(log.skipped), "crazyflie", LogTables(fmt="crazyflie"), imu)
     if is_dataflash(path):
-        df = read_dataflash(path, tables=tables)
+        df = read_dataflash(path, tables=bool(tables))
         desc = (
             f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} measurements (clock: {df.clock})"
             + (f"; {df.damage}" if df.damage else "")
@@ -90,20 +93,23 @@ def load_log(path: Path, *, tables: bool = True, imu_columns: bool = False) -> L
         tl = read_tlog(path)
         desc = f"MAVLink tlog, {tl.duration:.1f} s" + (f"; {tl.damage}" if tl.damage else "")
         # without the IMU's own messages: their samples are the columns
-        tab = (
-            tables_from_tlog(path, index=tl.index, without=IMU_MESSAGES)
-            if tables
-            else LogTables(fmt="tlog", clock="recording")
-        )
+        if isinstance(tables, tuple):
+            tab = tables_from_tlog(path, index=tl.index, only=tables)
+        elif tables:
+            tab = tables_from_tlog(path, index=tl.index, without=IMU_MESSAGES)
+        else:
+            tab = LogTables(fmt="tlog", clock="recording")
         return LoadedLog(tl.measurements, desc, None, tab, tl.imu, tl.damage, tl.ground_stations)
     rp = Replay(path)  # every reading a record, as the live receive path gives them
     ms = list(rp.iter_measurements())
     damage = rp.skipped_summary()
     desc = f"MAVLink tlog, {rp.duration:.1f} s" + (f"; {damage}" if damage else "")
     del rp  # the file's bytes and index, before the tables read them again
-    return LoadedLog(
-        ms, desc, None, tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording"), None, damage
-    )
+    if isinstance(tables, tuple):
+        tab = tables_from_tlog(path, only=tables)
+    else:
+        tab = tables_from_tlog(path) if tables else LogTables(fmt="tlog", clock="recording")
+    return LoadedLog(ms, desc, None, tab, None, damage)
 
 
 def load_measurements(path: Path) -> tuple[list[Measurement], str, str | None]:
@@ -127,6 +133,14 @@ class BlockedLog:
     vehicle: str | None
     damage: str
     ground_stations: frozenset[int]
+    #: the downward rangefinder's reading on the ground, as the log states it (:mod:`.stated`)
+    clearance: RangeClearance | None = None
+
+    @property
+    def stated(self) -> list[dict]:
+        """What the log states of its sensors, as effects an estimator is built with
+        (:func:`~groundstation.estimation.registry.build_estimator`'s ``stated``)."""
+        return [clearance_effect(self.clearance)] if self.clearance is not None else []
 
 
 def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
@@ -142,7 +156,7 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
     Readings are in the order of their vehicle time (the order a live loop restores within its
     reorder window), at equal times in the file's; one with no vehicle time (a message whose clock
     never came), which an estimation loop passes over, is left out."""
-    log = load_log(path, tables=False, imu_columns=True)
+    log = load_log(path, tables=STATED_TABLES, imu_columns=True)
     imu = log.imu if log.imu is not None else ImuColumns()
     every = Readings.of(log.measurements)
     sources = {s.source for s in every.streams} | {s.source for s in imu.series.values()}
@@ -152,7 +166,8 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
         return None
     for (kind, inst), s in imu.series.items():
         every = every + block_means(s, kind, inst, imu_dt).readings
+    clearance = range_clearance(log.tables, every.only(GROUND_KINDS)) if Kind.RANGE in every.kinds() else None
     ms = list(every.where(every.t == every.t).in_time_order())
     return BlockedLog(
-        ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations
+        ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations, clearance
     )

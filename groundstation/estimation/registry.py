@@ -82,7 +82,7 @@ def _quad_thrust(names: set, declared: list[dict], noise, params: dict) -> Kalma
     # (as full updates a simulated landing moved alpha, beta from 19.8, 0.4 to 16.0, 3.2); and with the
     # rotors turning, in contact, the ground holds the vehicle up (models.contact): driven by a touchdown's
     # throttle, the model sank 1.5 m below the ground in the 1.5 s after each landing of a simulated quad
-    model = quad_thrust_model(range_tilt="range_tilt" in names, **params)
+    model = quad_thrust_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
     return quad_thrust_estimator(range_gate(contact_range(ground_contact(on_ground(model))), floor=floor))
 
 
@@ -186,6 +186,14 @@ def vehicle_config(vehicle: str | None, model: str) -> dict:
     return params
 
 
+def effects_used(declared: Sequence[dict], vehicle: str | None, stated: Sequence[dict] = ()) -> list[dict]:
+    """The effects an estimator is built with: the session's, the vehicle file's, and those the log
+    states of itself where neither declares one of that name (a declaration is the operator's word)."""
+    out = list(declared) + vehicle_effects(vehicle)
+    named = {e.get("name") for e in out}
+    return out + [e for e in stated if e.get("name") not in named]
+
+
 def build_estimator(
     name: str,
     declared: Sequence[dict] = (),
@@ -193,12 +201,16 @@ def build_estimator(
     vehicle: str | None = None,
     *,
     vehicle_geometry: bool = True,
+    stated: Sequence[dict] = (),
 ) -> KalmanEstimator:
     """The live estimator of model ``name``. ``declared``: effects the session declares;
     ``noise``: measurement covariances by sensor (``groundstation noise``'s output);
     ``vehicle``: a vehicle file (noise densities, sensor noise and, unless
-    ``vehicle_geometry=False``, its known effects such as a range sensor's mounting offset)."""
+    ``vehicle_geometry=False``, its known effects such as a range sensor's mounting offset);
+    ``stated``: effects the log states of itself (the range's ground clearance,
+    :attr:`.logs.BlockedLog.stated`), each taken where neither the session nor the vehicle
+    declares an effect of that name (a declaration is the operator's word on it)."""
     s = spec(name)
-    declared = list(declared) + (vehicle_effects(vehicle) if vehicle_geometry else [])
+    declared = effects_used(declared, vehicle if vehicle_geometry else None, stated)
     names = {e.get("name") for e in declared}
     return s.build(names, declared, noise, vehicle_config(vehicle, name))

@@ -62,6 +62,11 @@ MAX_CLEARANCE = 0.5
 CLAMP_SHARE = 0.8
 #: the data and the parameter agree within this [m]
 AGREE = 0.02
+#: the message types a tlog's clearance is read from: the rangefinder, the parameters (and the
+#: heartbeats that tell a ground station's own from the vehicle's, which the reader adds)
+STATED_TABLES = ("DISTANCE_SENSOR", "PARAM_VALUE")
+#: the readings the ground segments are read from (:func:`ground_segments`)
+GROUND_KINDS = (Kind.THROTTLE, Kind.ACTUATOR)
 
 
 @dataclass(frozen=True)
@@ -154,6 +159,12 @@ class RangeClearance:
         return d
 
 
+def clearance_effect(c: RangeClearance) -> dict:
+    """The clearance as the effect an estimator takes it as: a range mounting offset ``o`` [m]
+    (catalogue ``range_offset``; the altitude model subtracts it from every range reading)."""
+    return {"name": "range_offset", "params": {"o": c.metres}, "stated": c.source}
+
+
 def stated_clearance(params: dict[str, float]) -> tuple[str, float] | None:
     """The clearance the autopilot's parameters state: (name, metres), or None."""
     for name in ("RNGFND1_GNDCLEAR", "RNGFND_GNDCLEAR"):  # ArduPilot [cm]
@@ -216,16 +227,19 @@ def _typical(v: np.ndarray) -> float | None:
     return float(np.median(v)) if len(v) else None
 
 
-def ground_segments(ms: Sequence[Measurement]) -> list[tuple[float, float]]:
+def ground_segments(ms: Sequence[Measurement], recording_origin: float | None = None) -> list[tuple[float, float]]:
     """The log's stretches on the ground by its throttle: from its start to :data:`MARGIN_S` before
     the throttle first carries the vehicle, and from that long after it last did to the end. None
-    without a logged throttle, or one that never carries the vehicle."""
+    without a logged throttle, or one that never carries the vehicle. On the vehicle's clock, or
+    with ``recording_origin`` (a tlog's tables' :attr:`~drivers.logs.tables.LogTables.origin`) on
+    the recording's, where a tlog's records are: its vehicle's clock began at boot, not with it."""
     t, tau = [], []
     for m in ms:
         if m.kind is Kind.THROTTLE or m.kind is Kind.ACTUATOR:
             v = [x for x in m.value[: 8 if m.kind is Kind.ACTUATOR else 1].tolist() if math.isfinite(x)]
-            if v and math.isfinite(m.t):
-                t.append(m.t)
+            at = m.t if recording_origin is None else m.t_rx - recording_origin
+            if v and math.isfinite(at):
+                t.append(at)
                 tau.append(float(np.median(v)))
     if not t:
         return []
@@ -244,7 +258,8 @@ def range_clearance(tables: LogTables, ms: Sequence[Measurement]) -> RangeCleara
     if raw is not None:
         t, d, lo = raw
         on = np.zeros(len(t), bool)
-        for a, b in ground_segments(ms):
+        origin = tables.origin if tables.clock == "recording" else None
+        for a, b in ground_segments(ms, origin):
             on |= (t >= a) & (t <= b)
         g = d[on & np.isfinite(d) & (d >= 0)]
         if lo is not None:

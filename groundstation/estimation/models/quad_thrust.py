@@ -97,6 +97,7 @@ def quad_thrust_model(
     sigma_beta0: float = 2.0,
     sigma_tof0: float = 0.002,
     range_limits: tuple[float, float] = (0.0, math.inf),
+    range_offset: float = 0.0,
 ) -> LinearModel:
     """``alpha0``/``beta0``: a priori thrust coefficients (document sec. 1: estimated offline).
     ``drag`` [1/s]: the airframe's vertical drag, ``v_dot -= drag v`` (added to the document's
@@ -111,7 +112,7 @@ def quad_thrust_model(
     z = 0, so left free (2 cm) it is set by the take-off alone. A simulated quad whose model, at a take-off slower
     than its thrust estimate, stood in ground contact (models.contact) while the vehicle rose to
     15 cm, put 7 cm into it at the first reading above the ground, a 7 cm height error through the
-    flight; held, that reading moves z. A known offset is declared (``range_offset``).
+    flight; held, that reading moves z. A known offset is declared (``range_offset`` [m]: the prior d_tof).
 
     GPS is left out unless ``use_gps``: with both sensor biases as states, the
     common mode of (z, d_bar, d_tof) is seen by GPS alone, and GPS altitude
@@ -170,7 +171,7 @@ def quad_thrust_model(
         A=lambda u: _A(u, drag),
         B=B,
         Qc=np.diag([0.0, G_acc, G_alpha, G_beta, G_bar, G_tof]),
-        x0=np.array([0.0, 0.0, alpha0, beta0, 0.0, 0.0]),
+        x0=np.array([0.0, 0.0, alpha0, beta0, 0.0, range_offset]),
         P0=np.diag([0.02**2, 0.05**2, sigma_alpha0**2, sigma_beta0**2, 0.3**2, sigma_tof0**2]),
         measurements=meas,
         doc=__doc__,
