@@ -242,13 +242,14 @@ async def _vehicle_asked(link: MavlinkLink, boot: int):
 
 
 @pytest.mark.slow
-@async_test(timeout=900)
+@async_test(timeout=400)
 async def test_behind_a_mavproxy_router_left_at_its_defaults_the_streams_hold(tmp_path):
     """A MAVProxy router with its default stream rate asks the vehicle for every stream at 4 Hz, again
-    and again: behind it the telemetry had fallen to a tenth after a minute and stayed there, with no
-    word (and later the 5 Hz streams stayed at the router's 4 Hz). The link notices the fall, says
-    it, and asks again: over ten minutes every stream keeps 90 % of its asked rate. The rates are
-    counted over the vehicle's own clock: a loaded machine pauses the simulated world (its frames
+    and again (every 10-20 s): behind it the telemetry had fallen to a tenth after a minute and stayed
+    there, with no word (and later the 5 Hz streams stayed at the router's 4 Hz, 80 %). The link
+    notices the fall, says it, and asks again: over three minutes, a dozen of the router's asks,
+    every stream keeps 90 % of its asked rate (``bench/router_streams.py`` measures ten). The rates
+    are counted over the vehicle's own clock: a loaded machine pauses the simulated world (its frames
     are then late, not lost), and a rate over the wall clock would count the pause as loss."""
     vehicle_port, gcs_port = free_udp_port(), free_udp_port()
     link = MavlinkLink(f"udpin:127.0.0.1:{gcs_port}", ack_timeout=0.5, check_every=2.0)
@@ -262,13 +263,13 @@ async def test_behind_a_mavproxy_router_left_at_its_defaults_the_streams_hold(tm
                 clock[:] = [m.t]
 
     async with _OnLink(link):
-        with running(mavproxy, stdin=subprocess.DEVNULL), simulated_vehicle(vehicle_port, "--duration", "900"):
+        with running(mavproxy, stdin=subprocess.DEVNULL), simulated_vehicle(vehicle_port, "--duration", "400"):
             following = asyncio.get_running_loop().create_task(follow())
             try:
                 await _vehicle_asked(link, 1)
                 await _until(lambda: bool(clock), 30, "the vehicle's IMU")
                 start, v0 = dict(link.counters.by_type), clock[0]
-                await asyncio.sleep(600.0)  # the measurement window itself
+                await asyncio.sleep(180.0)  # the measurement window itself
                 dt = clock[0] - v0
                 got = {n: (link.counters.by_type[n] - start.get(n, 0)) / dt for n in SIM_MESSAGES}
             finally:
