@@ -18,7 +18,7 @@ true effect's rank, its parameter error, RMSE against truth before/after
 sensor's NIS and Ljung-Box p after, and the same test's p on that sensor's own simulated
 noise against truth (:func:`sensor_noise`). Then per effect the issue's bars: ranked
 first in >= 90 % of runs (beside it, "+k": runs where it was not first but the report gives it as
-the first effect's close alternative, ``engine.CLOSE_CALL``), parameter within +-15 %, RMSE down >= 50 % (>= 80 %
+the first effect's close alternative, ``search.CLOSE_CALL``), parameter within +-15 %, RMSE down >= 50 % (>= 80 %
 for tilt and latency), and for the clean runs nothing claimed in >= 95 %; for an effect outside the
 catalogue (``OUTSIDE``, the simulator's ``baro_airflow``), how often the regression names it and sizes
 it within 30 %. The
@@ -153,7 +153,7 @@ def one(job: tuple) -> dict:
         float("nan"),
     )
     noise = sensor_noise(ms, sim_truth, sensor, R, mag if effect == "sensor_delay" else 0.0)
-    # the runner-ups the log barely told from the effects it named (engine.CLOSE_CALL)
+    # the runner-ups the log barely told from the effects it named (search.CLOSE_CALL)
     alternatives = [e.evidence["alternative"]["name"].split("(")[0] for e in dg.effects if "alternative" in e.evidence]
     return {
         "effect": effect,

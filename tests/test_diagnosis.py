@@ -194,7 +194,7 @@ def test_a_clean_flight_claims_nothing(tmp_path, vehicle, seed, flight):
 def test_a_drift_the_log_barely_tells_from_a_thermal_error_is_reported_with_its_alternative(tmp_path):
     """On this high flight the temperature rises almost in a line, so a baro drift and a thermal
     coefficient bend the baro's reading alike: the drift of 0.03 m/s is named baro_thermal by Delta BIC
-    -7168.5 against -7161.9. Less than very strong evidence (engine.CLOSE_CALL): the report gives the
+    -7168.5 against -7161.9. Less than very strong evidence (search.CLOSE_CALL): the report gives the
     drift beside it, sized right, and the conclusion says the log barely tells the two apart."""
     from groundstation.diagnosis.report import as_json, conclusion
 
@@ -446,7 +446,7 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
 def test_two_thrust_effects_at_once_are_both_found_and_sized_jointly(tmp_path):
     """A voltage exponent of 1.5 and a 0.1 s actuator lag in one thrust test flight, the airframe known.
     n is found first, alone, and read 1.50 then; the report gives the final model's joint estimate
-    (engine._joint_params), 1.65, and the first value in the evidence. The lag, profiled with n in the
+    (joint.joint_params), 1.65, and the first value in the evidence. The lag, profiled with n in the
     model, reads 0.110 s. The slant range comes third (the flight does not declare it). Should the
     touchdown's "the thrust lifts the vehicle" leave the voltage's factor out, the model falls through
     the ground after the landing (1.2 m), and the veto by truth rejects the slant (height error 26 mm).
@@ -503,7 +503,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     skipped. The log as ``diagnose`` fits it: without the battery failsafe's last 5 s, which the
     triage cuts. The whole loop on this log (five effects, about 20 minutes here) is
     ``bench/real_logs.py``; this is each effect's first step, scored alone against the base model."""
-    from groundstation.diagnosis.engine import sensor_findings
+    from groundstation.diagnosis.detect import sensor_findings
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.run import run_model
     from groundstation.diagnosis.thrust import ThrustContext
@@ -828,7 +828,7 @@ def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     """A correlate that explains nothing through the filter is turned away, and the report's
     rejected table says what the regression had fitted (the page failed on it with a KeyError)."""
     from groundstation.diagnosis.discover import Discovery
-    from groundstation.diagnosis.engine import _add_discovery
+    from groundstation.diagnosis.discovered import add_discovery
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.report import _evidence_html
     from groundstation.diagnosis.run import run_model
@@ -840,7 +840,7 @@ def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     t = base.sensors["baro"].t
     noise = np.random.default_rng(3).normal(size=t.size)  # a signal with nothing of the baro's error in it
     d = Discovery("baro", "noise", 0.01, 0.02, [("noise", 0.01), ("time", -0.002)], keep_t=t, signal=noise)
-    found = _add_discovery(d, su.model, base, su.prep, su.make, su.prep.measurements)
+    found = add_discovery(d, su.model, base, su.prep, su.make, su.prep.measurements)
     assert "reason" in found.evidence and found.evidence["terms"][1] == {"regressor": "time", "coefficient": -0.002}
     page = _evidence_html("discovered", found.evidence)
     assert "2% of the innovations&#x27; variance: 0.01 noise + -0.002 time" in page and "not claimed" in page

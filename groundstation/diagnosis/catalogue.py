@@ -67,7 +67,7 @@ class Candidate:
     #: profile over its logarithm is refined between the shapes as a delay's is between its grid's values
     refine_shape: bool = False
     #: once such a shape is chosen (``augment`` then binds it): the augment that takes it, for
-    #: the shape to be chosen again with every effect found after it in the model (engine.joint_shapes)
+    #: the shape to be chosen again with every effect found after it in the model (joint.joint_shapes)
     unshaped: Callable[..., LinearModel] | None = None
     #: the effect's unknown constants as they act on the base model, linearly
     #: (``columns(model)``, or ``columns(model, shape)`` with shapes; in the order of the states

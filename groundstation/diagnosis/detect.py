@@ -27,11 +27,16 @@ sec. 5.4), so each test below asks one way in which they are not:
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.stats import chi2, norm
 
+from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import effective_size, lag1, ljung_box
+
+if TYPE_CHECKING:
+    from .run import Run
 
 
 @dataclass
@@ -167,3 +172,21 @@ def excursion(
         places.append((float(t[k]), where))
     where = "; ".join(w for _, w in places) or f"t = {t[worst]:.1f} s"
     return Finding(sensor, "excursion", bool(abs(z[worst]) < bound), float(z[worst]), f"|z| < {bound:.2f}", where)
+
+
+def sensor_findings(run: Run) -> list[Finding]:
+    """Every sensor's tests on a run's innovations, from 5 s in (the filter settling); the ground's
+    pseudo-sensor is no sensor."""
+    out = []
+    for s, tr in run.sensors.items():
+        if s == LANDED:
+            continue
+        k = tr.t >= tr.t[0] + 5.0
+        sig = {n: v[k] for n, v in tr.signals.items() if n not in ("throttle_lp",)}
+        out += detect(s, tr.t[k], tr.nu_normalised[k], tr.nis[k], tr.nu.shape[1], sig, nu=tr.nu[k, 0])
+    return out
+
+
+def residuals_pass(findings: list[Finding]) -> bool:
+    """The residuals pass: NIS in its band and white (the diagnosis's stopping rule)."""
+    return all(f.passed for f in findings if f.test in ("NIS mean", "Ljung-Box whiteness"))

@@ -30,9 +30,9 @@ An effect's evidence: ``delta_bic``, ``delta_bic_effective`` and ``innovation_co
 (the same at the innovations' effective sample size, and n / n_eff per sensor: see
 trace.py), ``sensor``, ``loglik_gain``, ``gain_per_update`` over ``support`` updates (those the
 effect acts on: trace.py), ``runner_up`` and its ΔBIC, ``alternative`` ({name, params, delta_bic}) when
-that runner-up would have been claimed too and is less than very strongly worse (engine.CLOSE_CALL), and,
+that runner-up would have been claimed too and is less than very strongly worse (search.CLOSE_CALL), and,
 when an effect added later moved its estimate, ``params_when_added`` (``params`` are the final
-model's joint estimate: engine._joint_params).
+model's joint estimate: joint.joint_params).
 A discovered effect is ``{"name": "discovered", "params": {"regressor", "coefficient", "sensor"},
 "evidence": {"r2", "terms", "ljung_box_p": {"innovations", "without_the_fit"}}}``; a rejected one's evidence
 has ``delta_bic``, ``against`` (the truth's source), ``quantity``, ``error_before`` and
@@ -58,8 +58,9 @@ from groundstation.estimation.whiteness import ljung_box
 
 from .autopilot_params import ParamSuggestion
 from .catalogue import unit_of
-from .engine import CLOSE_CALL, Diagnosis
+from .engine import Diagnosis
 from .run import Run
+from .search import CLOSE_CALL
 from .thrust import LIFTOFF_REACH, ThrustContext
 from .triage import Triage
 
@@ -128,7 +129,7 @@ def as_json(d: Diagnosis) -> dict:
                 "sensor": x.sensor,
                 "regressor": x.expression,
                 "coefficient": x.coefficient,
-                # as the filter estimates it, in the model (engine._add_discovery)
+                # as the filter estimates it, in the model (discovered.add_discovery)
                 **{k: v for k, v in added[x.sensor].params.items() if k != "expression"},
             }
             if x.sensor in added
