@@ -190,65 +190,95 @@ def _colour(e) -> tuple[str, float]:
 
 
 def conclusion(d: Diagnosis, j: dict) -> str:
-    parts = []
+    """The report's conclusion: what was found and how strongly, what was turned away and why, and
+    the error before and after, in sentences."""
+    return " ".join(
+        [
+            *_noise_said(d),
+            *_effects_said(d),
+            *_beside_said(d),
+            *_rejected_said(d),
+            *_outside_said(d),
+            *_errors_said(d, j),
+        ]
+    )
+
+
+def _noise_said(d: Diagnosis) -> list[str]:
     differs = [n for n in d.noise if n.differs]
-    if differs:
-        parts.append(
-            "The log's own noise differs from the model's, and the diagnosis used the log's: "
-            + "; ".join(f"{n.sensor} {n.sigma_data:.3g}, the model had {n.sigma_model:.3g}" for n in differs)
-            + " (covariance matching on the innovations). A mis-set noise level is a finding of its own, "
-            "not an effect."
-        )
+    if not differs:
+        return []
+    return [
+        "The log's own noise differs from the model's, and the diagnosis used the log's: "
+        + "; ".join(f"{n.sensor} {n.sigma_data:.3g}, the model had {n.sigma_model:.3g}" for n in differs)
+        + " (covariance matching on the innovations). A mis-set noise level is a finding of its own, "
+        "not an effect."
+    ]
+
+
+def _effects_said(d: Diagnosis) -> list[str]:
+    """The catalogue's effects added, their evidence at the innovations' colour and their close calls;
+    or that none was, and the sizes the log could have shown."""
     catalogued = [e for e in d.effects if e.name != "discovered"]
-    if catalogued:
-        found = "; ".join(_named(e) for e in catalogued)
+    if not catalogued:
+        return _nothing_said(d)
+    found = "; ".join(_named(e) for e in catalogued)
+    parts = [
+        f"The model was missing {len(catalogued)} effect{'s' * (len(catalogued) > 1)}: {found}. "
+        f"Each was added with its parameters estimated from this log, and each improved the "
+        f"likelihood of the measurements by very strong evidence (Delta BIC < -10), by at least "
+        f"3 standard errors, and on stretches of the log it was not fitted on."
+    ]
+    coloured = [(e, *_colour(e)) for e in catalogued if e.evidence.get("innovation_colour")]
+    coloured = [(e, s, f) for e, s, f in coloured if f >= COLOURED]
+    if coloured:
         parts.append(
-            f"The model was missing {len(catalogued)} effect{'s' * (len(catalogued) > 1)}: {found}. "
-            f"Each was added with its parameters estimated from this log, and each improved the "
-            f"likelihood of the measurements by very strong evidence (Delta BIC < -10), by at least "
-            f"3 standard errors, and on stretches of the log it was not fitted on."
-        )
-        coloured = [(e, *_colour(e)) for e in catalogued if e.evidence.get("innovation_colour")]
-        coloured = [(e, s, f) for e, s, f in coloured if f >= COLOURED]
-        if coloured:
-            parts.append(
-                "That evidence assumes white innovations. Counted at their effective sample size, "
-                + "; ".join(
-                    f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
-                    f"each {s} innovation is worth 1/{f:.0f} of an independent "
-                    f"sample)"
-                    for e, s, f in coloured
-                )
-                + ". Weigh those findings with care: the colour comes from something the model still lacks."
+            "That evidence assumes white innovations. Counted at their effective sample size, "
+            + "; ".join(
+                f"{e.name} scores Delta BIC {e.evidence['delta_bic_effective']:.0f} (with it, "
+                f"each {s} innovation is worth 1/{f:.0f} of an independent "
+                f"sample)"
+                for e, s, f in coloured
             )
-        for e in catalogued:
-            alt = e.evidence.get("alternative")
-            if alt:
-                p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
-                parts.append(
-                    f"This log barely tells {e.name} from {alt['name']}{f' ({p})' if p else ''}: that one "
-                    f"would have been claimed too, at Delta BIC {alt['delta_bic']:.1f} against "
-                    f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
-                    f"strong evidence. Read the finding as either; a flight that tells them apart settles it."
-                )
-    else:
+            + ". Weigh those findings with care: the colour comes from something the model still lacks."
+        )
+    for e in catalogued:
+        alt = e.evidence.get("alternative")
+        if alt:
+            p = format_params(alt["name"], {k: v for k, v in alt["params"].items() if k != "sensor"})
+            parts.append(
+                f"This log barely tells {e.name} from {alt['name']}{f' ({p})' if p else ''}: that one "
+                f"would have been claimed too, at Delta BIC {alt['delta_bic']:.1f} against "
+                f"{e.evidence['delta_bic']:.1f}, and a difference under {CLOSE_CALL:.0f} is not very "
+                f"strong evidence. Read the finding as either; a flight that tells them apart settles it."
+            )
+    return parts
+
+
+def _nothing_said(d: Diagnosis) -> list[str]:
+    parts = [
+        "No effect in the catalogue improves the model by strong evidence"
+        + (
+            ", but the innovations follow something outside it (below)."
+            if d.discoveries
+            else ": as far as these data can tell, the model is complete."
+        )
+    ]
+    if d.detectable:
         parts.append(
-            "No effect in the catalogue improves the model by strong evidence"
-            + (
-                ", but the innovations follow something outside it (below)."
-                if d.discoveries
-                else ": as far as these data can tell, the model is complete."
+            "The smallest sizes they would have shown about half the time: "
+            + "; ".join(
+                f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items()) for x in d.detectable
             )
+            + "."
         )
-        if d.detectable:
-            parts.append(
-                "The smallest sizes they would have shown about half the time: "
-                + "; ".join(
-                    f"{x['name']} " + ", ".join(_size(x["name"], k, v) for k, v in x["size"].items())
-                    for x in d.detectable
-                )
-                + "."
-            )
+    return parts
+
+
+def _beside_said(d: Diagnosis) -> list[str]:
+    """What was found beside the model, and the thrust curve the accelerometer reads against the vehicle
+    file's and against the effects' sizes."""
+    parts = []
     for e in d.beside:
         ev = e.evidence
         parts.append(
@@ -282,6 +312,11 @@ def conclusion(d: Diagnosis, j: dict) -> str:
             )
             + "."
         )
+    return parts
+
+
+def _rejected_said(d: Diagnosis) -> list[str]:
+    parts = []
     for e in d.rejected:
         ev = e.evidence
         if "reason" in ev:
@@ -297,15 +332,21 @@ def conclusion(d: Diagnosis, j: dict) -> str:
             f"from {ev['error_before'] * k:.2f} to {ev['error_with'] * k:.2f} {unit}, so the better fit "
             f"comes from something the model lacks, not from {e.name}."
         )
-    for e in d.modelled:
-        parts.append(
-            f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}."
-        )
-    for e in d.against_truth:
-        parts.append(
-            f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
-            f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown."
-        )
+    return parts
+
+
+def _outside_said(d: Diagnosis) -> list[str]:
+    """What the model's own states carry, the range's offset against truth, and what lies outside the
+    catalogue."""
+    parts = [
+        f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}."
+        for e in d.modelled
+    ]
+    parts += [
+        f"Against the {e.evidence['against']}, the range sensor reads with an offset of "
+        f"{e.params['o'] * 100:+.1f} cm, which no sensor of the log could have shown."
+        for e in d.against_truth
+    ]
     for x in d.discoveries:
         p0, p1 = x.ljung_box_p
         white = f"; without it their Ljung-Box p goes from {p0:.2g} to {p1:.2g}" if p0 < 0.05 and p1 > p0 else ""
@@ -315,6 +356,13 @@ def conclusion(d: Diagnosis, j: dict) -> str:
             f"added to the model as a regressor on the {x.sensor}, it held out of sample as a catalogued "
             f"effect must."
         )
+    return parts
+
+
+def _errors_said(d: Diagnosis, j: dict) -> list[str]:
+    """The range's skipped echoes, the error before and after against truth and against the sensors
+    left out, the sigma's honesty, and the sensors still failing."""
+    parts = []
     b, a = j["before"], j["after"]
     rng = a["sensors"].get("range", {})
     if rng.get("skipped_spurious"):
@@ -354,7 +402,7 @@ def conclusion(d: Diagnosis, j: dict) -> str:
         if not still
         else f"Still failing NIS or whiteness: {', '.join(still)}."
     )
-    return " ".join(parts)
+    return parts
 
 
 def _size(name: str, param: str, v: float) -> str:
@@ -527,6 +575,29 @@ def write(
     model was chosen, and (``not_described``) why the model does not describe it and no parameter is
     written."""
     out.mkdir(parents=True, exist_ok=True)
+    j = _report_json(d, triage, used, cut, parameters, vehicle, model_chosen, not_described)
+    (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
+    for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
+        w = EstimateCsvWriter(out / name, "x", run.model.states)
+        for t, x, P in zip(run.t, run.x, run.P):
+            w.write(_Snap(t, x, np.sqrt(np.clip(np.diag(P), 0, None))))
+        w.close()
+    (out / "report.html").write_text(_report_html(d, j, triage, parameters))
+    return j
+
+
+def _report_json(
+    d: Diagnosis,
+    triage: Triage | None,
+    used: list[tuple[float, float]] | None,
+    cut: list[dict] | None,
+    parameters: list[ParamSuggestion] | None,
+    vehicle: Vehicle | None,
+    model_chosen: str,
+    not_described: str | None,
+) -> dict:
+    """report.json's content (:func:`write`'s arguments), the conclusion opened by what the triage and
+    the vehicle say."""
     j = as_json(d)
     j["conclusion"] = conclusion(d, j)
     if vehicle is not None:
@@ -547,45 +618,12 @@ def write(
         j["conclusion"] = triage_headline(triage, used or [], cut or []) + j["conclusion"]
     if parameters is not None:
         j["parameters"] = [p.as_json() for p in parameters]
-    (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
-    for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
-        w = EstimateCsvWriter(out / name, "x", run.model.states)
-        for t, x, P in zip(run.t, run.x, run.P):
-            w.write(_Snap(t, x, np.sqrt(np.clip(np.diag(P), 0, None))))
-        w.close()
-    rows = []
-    for s in sorted(j["before"]["sensors"]):
-        b, a = j["before"]["sensors"][s], j["after"]["sensors"].get(s, {})
-        rows.append(
-            [
-                s,
-                f"{b['innovation_rms']:.4g}",
-                f"{a.get('innovation_rms', math.nan):.4g}",
-                f"{b['nis_mean']:.2f}",
-                f"{a.get('nis_mean', math.nan):.2f}",
-                f"{b['ljung_box_p']:.3g}",
-                f"{a.get('ljung_box_p', math.nan):.3g}",
-            ]
-        )
-    sensors = _table(
-        rows, ["sensor", "innovation RMS before", "after", "NIS before", "after", "Ljung-Box p before", "after"]
-    )
-    effects = _table(
-        [
-            [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
-            for e in j["effects"] + j["modelled"] + j["measured_against_truth"]
-        ]
-        or [["(none)", "", ""]],
-        ["effect", "parameters", "evidence"],
-    )
-    if j["rejected"]:
-        effects += "<h3>Rejected: a better fit that does not hold (out of sample, or against truth)</h3>" + _table(
-            [
-                [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
-                for e in j["rejected"]
-            ],
-            ["effect", "parameters", "evidence"],
-        )
+    return j
+
+
+def _report_html(d: Diagnosis, j: dict, triage: Triage | None, parameters: list[ParamSuggestion] | None) -> str:
+    """report.html: the conclusion, the triage, the error against truth, the effects and what to set,
+    then the evidence, section by section."""
     ranking = "".join(
         f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
         for i, it in enumerate(j["ranking"])
@@ -604,7 +642,67 @@ def write(
         ["effect", "size", "Delta BIC on this log"],
     )
     unobs = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>" for k, v in d.unobservable.items())
-    left_out = _table(
+    return f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
+<style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
+th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
+<body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}{_vehicle_line(d)}</p>
+<div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{_triage_html(triage, j)}{_truth_html(j)}
+<h2>Effects found</h2>{_effects_html(j)}{_parameters_html(parameters)}
+<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
+<h2>Each absolute sensor predicted by the others (left out of the filter; its unit, m)</h2>{_left_out_html(j)}
+<h2>Residuals before and after</h2>{_sensors_html(j)}{_figures(d)}
+<h2>Tests that failed before</h2>{failed}
+<h2>Tests that still fail after</h2>{still}
+<h2>What this log could have shown: the size of each effect not found that it would claim about half the time</h2>
+{detectable}
+<h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
+
+
+def _sensors_html(j: dict) -> str:
+    rows = []
+    for s in sorted(j["before"]["sensors"]):
+        b, a = j["before"]["sensors"][s], j["after"]["sensors"].get(s, {})
+        rows.append(
+            [
+                s,
+                f"{b['innovation_rms']:.4g}",
+                f"{a.get('innovation_rms', math.nan):.4g}",
+                f"{b['nis_mean']:.2f}",
+                f"{a.get('nis_mean', math.nan):.2f}",
+                f"{b['ljung_box_p']:.3g}",
+                f"{a.get('ljung_box_p', math.nan):.3g}",
+            ]
+        )
+    return _table(
+        rows, ["sensor", "innovation RMS before", "after", "NIS before", "after", "Ljung-Box p before", "after"]
+    )
+
+
+def _effects_html(j: dict) -> str:
+    """The effects found (and those the model carries, and those measured against truth), then the
+    rejected ones with why."""
+    effects = _table(
+        [
+            [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+            for e in j["effects"] + j["modelled"] + j["measured_against_truth"]
+        ]
+        or [["(none)", "", ""]],
+        ["effect", "parameters", "evidence"],
+    )
+    if j["rejected"]:
+        effects += "<h3>Rejected: a better fit that does not hold (out of sample, or against truth)</h3>" + _table(
+            [
+                [e["name"], format_params(e["name"], e["params"]), _Html(_evidence_html(e["name"], e["evidence"]))]
+                for e in j["rejected"]
+            ],
+            ["effect", "parameters", "evidence"],
+        )
+    return effects
+
+
+def _left_out_html(j: dict) -> str:
+    return _table(
         [
             [lo["sensor"], f"{lo['rms_before']:.4f}", f"{lo['rms_after']:.4f}", lo["n"]]
             + (
@@ -617,40 +715,27 @@ def write(
         or [["(none)", "", "", "", "", ""]],
         ["left out", "RMS before", "RMS after", "readings", "height vs truth before [m]", "after [m]"],
     )
-    truth = ""
-    if "rmse_vs_truth" in j["before"]:
-        b, a = j["before"], j["after"]
-        what, unit, scale = (
-            ("Height", "m", 1.0) if b["rmse_of"].startswith("height") else ("Roll and pitch", "deg", math.degrees(1.0))
+
+
+def _truth_html(j: dict) -> str:
+    if "rmse_vs_truth" not in j["before"]:
+        return ""
+    b, a = j["before"], j["after"]
+    what, unit, scale = (
+        ("Height", "m", 1.0) if b["rmse_of"].startswith("height") else ("Roll and pitch", "deg", math.degrees(1.0))
+    )
+    truth = (
+        f"<p>{what} RMSE against the {html.escape(b['truth'])}: "
+        f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
+        f"after.</p>"
+    )
+    if "nees" in b and "nees" in a:
+        truth += (
+            f"<p>Truth within the height's 2 sigma: <b>{b['within_2sigma']:.0%}</b> of the time before, "
+            f"<b>{a['within_2sigma']:.0%}</b> after (95 % if the sigma is honest); NEES {b['nees']:.2f} "
+            f"before, {a['nees']:.2f} after (1 if honest).</p>"
         )
-        truth = (
-            f"<p>{what} RMSE against the {html.escape(b['truth'])}: "
-            f"<b>{b['rmse_vs_truth'] * scale:.4f} {unit}</b> before, <b>{a['rmse_vs_truth'] * scale:.4f} {unit}</b> "
-            f"after.</p>"
-        )
-        if "nees" in b and "nees" in a:
-            truth += (
-                f"<p>Truth within the height's 2 sigma: <b>{b['within_2sigma']:.0%}</b> of the time before, "
-                f"<b>{a['within_2sigma']:.0%}</b> after (95 % if the sigma is honest); NEES {b['nees']:.2f} "
-                f"before, {a['nees']:.2f} after (1 if honest).</p>"
-            )
-    page = f"""<!doctype html><html><head><meta charset="utf-8"><title>diagnosis: {html.escape(d.source)}</title>
-<style>body{{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;color:#222}}
-table{{border-collapse:collapse;margin:0.5em 0 1.5em}}td,th{{border:1px solid #ccc;padding:3px 8px;font-size:13px}}
-th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32;padding:0.6em 1em}}</style></head>
-<body><h1>Diagnosis of {html.escape(d.source)}</h1><p>model: {html.escape(d.model)}{_vehicle_line(d)}</p>
-<div class="concl"><p>{html.escape(j["conclusion"])}</p></div>{_triage_html(triage, j)}{truth}
-<h2>Effects found</h2>{effects}{_parameters_html(parameters)}
-<h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
-<h2>Each absolute sensor predicted by the others (left out of the filter; its unit, m)</h2>{left_out}
-<h2>Residuals before and after</h2>{sensors}{_figures(d)}
-<h2>Tests that failed before</h2>{failed}
-<h2>Tests that still fail after</h2>{still}
-<h2>What this log could have shown: the size of each effect not found that it would claim about half the time</h2>
-{detectable}
-<h2>Not observable with these sensors</h2><ul>{unobs}</ul></body></html>"""
-    (out / "report.html").write_text(page)
-    return j
+    return truth
 
 
 def triage_headline(tr: Triage, used: list[tuple[float, float]], cut: list[dict]) -> str:

@@ -48,6 +48,7 @@ from . import trials
 from .catalogue import Candidate
 from .gains import SCREEN_SHARE, CatalogueColumns, Fit, best_shape, fit, participation, run_signatures, virtual_run
 from .run import SETTLE_S, Prepared, Run, ending, run_model
+from .signature import Signatures
 from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
@@ -305,30 +306,70 @@ def rank(
     is run: each candidate's filter runs on ``workers`` processes (:mod:`.trials`: the same scores
     on any number). ``trials.BY_RUNS`` runs every candidate. ``started``: trials begun beside the base
     run (:class:`.trials.Started`), taken as made."""
-    sig = None
-    # the stand-ins read off the base run itself (a delay's heights then against now)
-    read_off = {id(c): c.screen(model, base) for c in cands if c.screen is not None} if columns is not None else {}
-    if columns is not None and not trials.BY_RUNS:
-        extra = columns.extra() + [col for stand_ins in read_off.values() for cols in stand_ins for col in cols]
-        sig = run_signatures(base, model.n, extra, delta=())
     t_score = prep.t0 + SETTLE_S
-    # each linear candidate's best shape first, then Delta of those shapes' columns alone, in one pass
-    best: dict[int, tuple[Fit, float | None]] = {}
+    sig, best, read_off = _signatures(cands, model, base, columns, t_score)
+    out: list[tuple[int, Scored]] = []
+    to_run: list[tuple[int, Candidate]] = [(i, c) for i, c in enumerate(cands)]
+    shaped: dict[int, tuple[float, Fit]] = {}  # a candidate run at the shape the two-stage filter chose for it
     if sig is not None and columns is not None:
-        for i, c in enumerate(cands):
-            shapes = columns.by_candidate.get(id(c))
-            if shapes is not None:
-                fits = {shape: fit(sig, cols, shape) for shape, cols in shapes.items()}
-                best[i] = best_shape(fits, t_score, c.refine_shape)
-        sig.keep([j for f, _ in best.values() for j in f.J])
+        out, to_run, shaped = _through_gains(
+            cands, model, base, prep, ms, sig, columns, best, read_off, t_score, exact_gains
+        )
+    if to_run:
+        out += _by_runs(to_run, shaped, model, base, prep, make, ms, progress, workers, started, t_score)
+    out.sort(key=lambda p: p[0])
+    ranked = [s for _, s in out]
+    ranked.sort(key=lambda s: s.delta_bic)
+    if sig is not None:
+        # from here on only a claim's columns are read (its hold-out): the others' G and Delta go
+        sig.forget([j for s in ranked if s.accepted and s.fit is not None and s.fit.sig is sig for j in s.fit.J])
+    return ranked
+
+
+def _signatures(
+    cands: list[Candidate], model: LinearModel, base: Run, columns: CatalogueColumns | None, t_score: float
+) -> tuple[Signatures | None, dict[int, tuple[Fit, float | None]], dict[int, list]]:
+    """The candidates' signatures through the base run's gains (None without ``columns``), each linear
+    candidate's best shape by its fit, and the stand-ins read off the base run itself (a delay's
+    heights then against now)."""
+    read_off = {id(c): c.screen(model, base) for c in cands if c.screen is not None} if columns is not None else {}
+    best: dict[int, tuple[Fit, float | None]] = {}
+    if columns is None or trials.BY_RUNS:
+        return None, best, read_off
+    extra = columns.extra() + [col for stand_ins in read_off.values() for cols in stand_ins for col in cols]
+    sig = run_signatures(base, model.n, extra, delta=())
+    if sig is None:
+        return None, best, read_off
+    # each linear candidate's best shape first, then Delta of those shapes' columns alone, in one pass
+    for i, c in enumerate(cands):
+        shapes = columns.by_candidate.get(id(c))
+        if shapes is not None:
+            fits = {shape: fit(sig, cols, shape) for shape, cols in shapes.items()}
+            best[i] = best_shape(fits, t_score, c.refine_shape)
+    sig.keep([j for f, _ in best.values() for j in f.J])
+    return sig, best, read_off
+
+
+def _through_gains(
+    cands: list[Candidate],
+    model: LinearModel,
+    base: Run,
+    prep: Prepared,
+    ms,
+    sig: Signatures,
+    columns: CatalogueColumns,
+    best: dict[int, tuple[Fit, float | None]],
+    read_off: dict[int, list],
+    t_score: float,
+    exact_gains: bool,
+) -> tuple[list[tuple[int, Scored]], list[tuple[int, Candidate]], dict[int, tuple[float, Fit]]]:
+    """The candidates scored through the base run's gains (:func:`rank`'s docstring), and those that
+    need runs of their own (with the shape the gains chose for any that does)."""
     n = max(base.n_scored, 1)
     out: list[tuple[int, Scored]] = []
     to_run: list[tuple[int, Candidate]] = []
-    shaped: dict[int, tuple[float, Fit]] = {}  # a candidate run at the shape the two-stage filter chose for it
+    shaped: dict[int, tuple[float, Fit]] = {}
     for i, c in enumerate(cands):
-        if sig is None or columns is None:
-            to_run.append((i, c))
-            continue
         shapes = columns.by_candidate.get(id(c))
         if shapes is not None:
             s = _two_stage_score(c, best[i], model, base, sig, t_score, n, ms)
@@ -352,45 +393,47 @@ def rank(
                 out.append((i, _supported(bound, base, prep, t_score)))
         else:
             to_run.append((i, c))
-    if to_run:
-        made = Trials(
-            [c for _, c in to_run],
-            model,
-            prep,
-            make,
-            ms,
-            workers=workers,
-            base=base,
-        )
-        if started is not None:
-            begun = started.take([c for _, c in to_run])
-            for j, (_, c) in enumerate(to_run):
-                for key, got in begun.get(id(c), {}).items():
-                    if key not in made.runs[j]:
-                        made.runs[j][key] = made.attach(j, key, got)
-        if made.workers > 1:
-            if progress and made.pending():
-                progress(f"{len(to_run)} candidates on {made.workers} cores")
-            made.compute_all()
-        for j, (i, c) in enumerate(to_run):
-            if progress:
-                progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
-            r = score(c, model, base, made, j, ms)
-            if r is not None:
-                if i in shaped:
-                    r.params[c.shape_name], r.fit = shaped[i]
-                out.append((i, _supported(r, base, prep, t_score, partial(made.run, j, SIGNATURE))))
-            # what its score holds kept, the rest of its runs let go (each a candidate's whole run)
-            made.settle(j, [r.run, *r.profile.values()] if r is not None else [])
-    else:
-        made = None
-    out.sort(key=lambda p: p[0])
-    ranked = [s for _, s in out]
-    ranked.sort(key=lambda s: s.delta_bic)
-    if sig is not None:
-        # from here on only a claim's columns are read (its hold-out): the others' G and Delta go
-        sig.forget([j for s in ranked if s.accepted and s.fit is not None and s.fit.sig is sig for j in s.fit.J])
-    return ranked
+    return out, to_run, shaped
+
+
+def _by_runs(
+    to_run: list[tuple[int, Candidate]],
+    shaped: dict[int, tuple[float, Fit]],
+    model: LinearModel,
+    base: Run,
+    prep: Prepared,
+    make,
+    ms,
+    progress: Callable[[str], None] | None,
+    workers: int,
+    started: trials.Started | None,
+    t_score: float,
+) -> list[tuple[int, Scored]]:
+    """The candidates scored by their own runs, on ``workers`` processes (:mod:`.trials`), those
+    begun beside the base run (``started``) taken as made."""
+    out: list[tuple[int, Scored]] = []
+    made = Trials([c for _, c in to_run], model, prep, make, ms, workers=workers, base=base)
+    if started is not None:
+        begun = started.take([c for _, c in to_run])
+        for j, (_, c) in enumerate(to_run):
+            for key, got in begun.get(id(c), {}).items():
+                if key not in made.runs[j]:
+                    made.runs[j][key] = made.attach(j, key, got)
+    if made.workers > 1:
+        if progress and made.pending():
+            progress(f"{len(to_run)} candidates on {made.workers} cores")
+        made.compute_all()
+    for j, (i, c) in enumerate(to_run):
+        if progress:
+            progress(c.name + (f" ({c.sensor})" if c.sensor and c.delays else ""))
+        r = score(c, model, base, made, j, ms)
+        if r is not None:
+            if i in shaped:
+                r.params[c.shape_name], r.fit = shaped[i]
+            out.append((i, _supported(r, base, prep, t_score, partial(made.run, j, SIGNATURE))))
+        # what its score holds kept, the rest of its runs let go (each a candidate's whole run)
+        made.settle(j, [r.run, *r.profile.values()] if r is not None else [])
+    return out
 
 
 def realise(s: Scored, base: Run, prep: Prepared, make, probes) -> None:
