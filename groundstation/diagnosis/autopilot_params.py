@@ -37,7 +37,7 @@ that reads high (pressure low) takes a negative scale. An effect with no paramet
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +47,7 @@ from drivers.mavlink.param_ranges import outside
 from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 
+from .effect import Effect
 from .engine import Diagnosis
 from .triage.finding import cell_count
 
@@ -96,6 +97,20 @@ def _current(params: dict, name: str, default: float) -> float:
     return float(v) if v is not None and math.isfinite(v) and v != 0 else default
 
 
+#: (which autopilot, name, value or None, effect, why): a suggestion's adder (:func:`suggest`)
+Add = Callable[[str, str, "float | None", str, str], None]
+
+
+@dataclass(frozen=True)
+class _LogFacts:
+    """What an effect's parameters are scaled by: the log's own parameters, its air's rho g [Pa/m],
+    and its measurements (the pack's voltage)."""
+
+    params: dict[str, float]
+    rho_g: float
+    ms: Sequence[Measurement]
+
+
 def suggest(
     d: Diagnosis, ms: Sequence[Measurement], params: dict[str, float], autopilot: str = ""
 ) -> list[ParamSuggestion]:
@@ -113,68 +128,12 @@ def suggest(
                 why, v = f"{why}; {refused}", None
             out.append(ParamSuggestion(which, name, v, effect, why))
 
-    rho_g = _rho_g(ms)
+    facts = _LogFacts(params, _rho_g(ms), ms)
     for e in [*d.effects, *d.beside]:
         base, _, sensor = e.name.partition("(")
         sensor = sensor.rstrip(")") or str(e.evidence.get("sensor", ""))
-        p = e.params
-        if base == "sensor_delay" and "seconds" in p:
-            ms_ = round(1000.0 * p["seconds"])
-            why = f"{sensor} lags the accelerometer by {p['seconds'] * 1000:.0f} ms"
-            if sensor == "baro":
-                add("ArduPilot", "EK3_HGT_DELAY", ms_, e.name, why)
-                add("PX4", "EKF2_BARO_DELAY", ms_, e.name, why)
-            elif sensor == "gps":
-                add("ArduPilot", "GPS_DELAY_MS", ms_, e.name, why + " (GPS1_DELAY_MS from ArduPilot 4.6)")
-                add("PX4", "EKF2_GPS_DELAY", ms_, e.name, why)
-            elif sensor == "range":
-                add("ArduPilot", "", None, e.name, why + "; ArduPilot's EKF has no rangefinder delay parameter")
-                add("PX4", "EKF2_RNG_DELAY", ms_, e.name, why)
-        elif base == "accel_scale" and "s" in p:
-            s = p["s"]
-            why = f"the accelerometer reads {s:+.2%} along z; the calibration's scale divided by 1 + s"
-            add("ArduPilot", "INS_ACCSCAL_Z", _current(params, "INS_ACCSCAL_Z", 1.0) / (1 + s), e.name, why)
-            add("PX4", "CAL_ACC0_ZSCALE", _current(params, "CAL_ACC0_ZSCALE", 1.0) / (1 + s), e.name, why)
-        elif base == "accel_bias" and "z" in p:
-            b = p["z"]
-            why = f"the accelerometer reads {b:+.3f} m/s^2 along z; the offset is subtracted from the reading"
-            add("ArduPilot", "INS_ACCOFFS_Z", params.get("INS_ACCOFFS_Z", 0.0) + b, e.name, why)
-            add("PX4", "CAL_ACC0_ZOFF", params.get("CAL_ACC0_ZOFF", 0.0) + b, e.name, why)
-        elif base == "baro_thrust" and "k" in p:
-            why = (
-                f"the baro reads {p['k']:+.2f} m high per unit throttle; ArduPilot 4.5+ subtracts the scale times "
-                f"throttle from the pressure ({rho_g:.2f} Pa/m here)"
-            )
-            if p.get("tc", 0.0) > LAG_UNCOMPENSATED_S:
-                # the compensation is proportional to the throttle as it is now: the wash's lag stays
-                why += (
-                    f"; the wash lags the throttle by {p['tc']:.2f} s, which the compensation does not follow "
-                    "(what is left shows in climbs and descents)"
-                )
-            add("ArduPilot", "BARO1_THST_SCALE", -rho_g * p["k"], e.name, why)
-            add("PX4", "", None, e.name, "PX4 has no throttle compensation of the baro")
-        elif base == "baro_ground_effect" and "A" in p:
-            why = f"the baro is off by {p['A']:+.2f} m near the ground (falling off over {p.get('h0', math.nan):.2f} m)"
-            add("ArduPilot", "EK3_GND_EFF_DZ", min(abs(p["A"]), 10.0), e.name, why + "; the EKF's dead zone there")
-            add("PX4", "EKF2_GND_EFF_DZ", abs(p["A"]), e.name, why)
-            if "h0" in p:
-                add("PX4", "EKF2_GND_MAX_HGT", 3.0 * p["h0"], e.name, "where the ground effect has fallen to 5 %")
-        elif base == "baro_thermal" and "k" in p:
-            why = f"the baro drifts {p['k']:+.3f} m per K of its temperature"
-            add(
-                "ArduPilot", "", None, e.name, why + "; ArduPilot's temperature calibration (TCAL) covers the IMUs only"
-            )
-            add("PX4", "TC_B0_X1", -rho_g * p["k"], e.name, why + " (Pa/K; with TC_B_ENABLE = 1)")
-            add("PX4", "TC_B_ENABLE", 1, e.name, "turns the baro's temperature compensation on")
-        elif base == "thrust_voltage":
-            why = f"thrust falls with the pack's voltage (exponent {p.get('n', math.nan):.2f})"
-            volts = [float(m.value[0]) for m in ms if m.kind is Kind.BATTERY_VOLTAGE]
-            if volts:
-                cells = cell_count(float(np.percentile(volts, 99)))
-                add("ArduPilot", "MOT_BAT_VOLT_MAX", 4.2 * cells, e.name, why + f"; {cells}S pack, full")
-                add("ArduPilot", "MOT_BAT_VOLT_MIN", 3.3 * cells, e.name, why + f"; {cells}S pack, empty")
-            add("PX4", "MC_BAT_SCALE_EN", 1, e.name, why)
-        else:
+        for_effect = _FOR_EFFECT.get(base)
+        if for_effect is None or not for_effect(add, e, sensor, facts):
             add("ArduPilot", "", None, e.name, "no autopilot parameter for this effect")
             add("PX4", "", None, e.name, "no autopilot parameter for this effect")
     c = d.clearance
@@ -192,6 +151,112 @@ def suggest(
             add("ArduPilot", names[n.sensor][0], n.sigma_data, f"noise({n.sensor})", why)
             add("PX4", names[n.sensor][1], n.sigma_data, f"noise({n.sensor})", why)
     return out
+
+
+# Each effect's parameters (the module's table): add what to set for ``e`` and say True, or False
+# when its parameters hold nothing to set (the effect is then said to have no autopilot parameter).
+
+
+def _sensor_delay(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    p = e.params
+    if "seconds" not in p:
+        return False
+    ms_ = round(1000.0 * p["seconds"])
+    why = f"{sensor} lags the accelerometer by {p['seconds'] * 1000:.0f} ms"
+    if sensor == "baro":
+        add("ArduPilot", "EK3_HGT_DELAY", ms_, e.name, why)
+        add("PX4", "EKF2_BARO_DELAY", ms_, e.name, why)
+    elif sensor == "gps":
+        add("ArduPilot", "GPS_DELAY_MS", ms_, e.name, why + " (GPS1_DELAY_MS from ArduPilot 4.6)")
+        add("PX4", "EKF2_GPS_DELAY", ms_, e.name, why)
+    elif sensor == "range":
+        add("ArduPilot", "", None, e.name, why + "; ArduPilot's EKF has no rangefinder delay parameter")
+        add("PX4", "EKF2_RNG_DELAY", ms_, e.name, why)
+    return True
+
+
+def _accel_scale(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    if "s" not in e.params:
+        return False
+    s, params = e.params["s"], facts.params
+    why = f"the accelerometer reads {s:+.2%} along z; the calibration's scale divided by 1 + s"
+    add("ArduPilot", "INS_ACCSCAL_Z", _current(params, "INS_ACCSCAL_Z", 1.0) / (1 + s), e.name, why)
+    add("PX4", "CAL_ACC0_ZSCALE", _current(params, "CAL_ACC0_ZSCALE", 1.0) / (1 + s), e.name, why)
+    return True
+
+
+def _accel_bias(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    if "z" not in e.params:
+        return False
+    b, params = e.params["z"], facts.params
+    why = f"the accelerometer reads {b:+.3f} m/s^2 along z; the offset is subtracted from the reading"
+    add("ArduPilot", "INS_ACCOFFS_Z", params.get("INS_ACCOFFS_Z", 0.0) + b, e.name, why)
+    add("PX4", "CAL_ACC0_ZOFF", params.get("CAL_ACC0_ZOFF", 0.0) + b, e.name, why)
+    return True
+
+
+def _baro_thrust(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    p, rho_g = e.params, facts.rho_g
+    if "k" not in p:
+        return False
+    why = (
+        f"the baro reads {p['k']:+.2f} m high per unit throttle; ArduPilot 4.5+ subtracts the scale times "
+        f"throttle from the pressure ({rho_g:.2f} Pa/m here)"
+    )
+    if p.get("tc", 0.0) > LAG_UNCOMPENSATED_S:
+        # the compensation is proportional to the throttle as it is now: the wash's lag stays
+        why += (
+            f"; the wash lags the throttle by {p['tc']:.2f} s, which the compensation does not follow "
+            "(what is left shows in climbs and descents)"
+        )
+    add("ArduPilot", "BARO1_THST_SCALE", -rho_g * p["k"], e.name, why)
+    add("PX4", "", None, e.name, "PX4 has no throttle compensation of the baro")
+    return True
+
+
+def _baro_ground_effect(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    p = e.params
+    if "A" not in p:
+        return False
+    why = f"the baro is off by {p['A']:+.2f} m near the ground (falling off over {p.get('h0', math.nan):.2f} m)"
+    add("ArduPilot", "EK3_GND_EFF_DZ", min(abs(p["A"]), 10.0), e.name, why + "; the EKF's dead zone there")
+    add("PX4", "EKF2_GND_EFF_DZ", abs(p["A"]), e.name, why)
+    if "h0" in p:
+        add("PX4", "EKF2_GND_MAX_HGT", 3.0 * p["h0"], e.name, "where the ground effect has fallen to 5 %")
+    return True
+
+
+def _baro_thermal(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    if "k" not in e.params:
+        return False
+    k = e.params["k"]
+    why = f"the baro drifts {k:+.3f} m per K of its temperature"
+    add("ArduPilot", "", None, e.name, why + "; ArduPilot's temperature calibration (TCAL) covers the IMUs only")
+    add("PX4", "TC_B0_X1", -facts.rho_g * k, e.name, why + " (Pa/K; with TC_B_ENABLE = 1)")
+    add("PX4", "TC_B_ENABLE", 1, e.name, "turns the baro's temperature compensation on")
+    return True
+
+
+def _thrust_voltage(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
+    why = f"thrust falls with the pack's voltage (exponent {e.params.get('n', math.nan):.2f})"
+    volts = [float(m.value[0]) for m in facts.ms if m.kind is Kind.BATTERY_VOLTAGE]
+    if volts:
+        cells = cell_count(float(np.percentile(volts, 99)))
+        add("ArduPilot", "MOT_BAT_VOLT_MAX", 4.2 * cells, e.name, why + f"; {cells}S pack, full")
+        add("ArduPilot", "MOT_BAT_VOLT_MIN", 3.3 * cells, e.name, why + f"; {cells}S pack, empty")
+    add("PX4", "MC_BAT_SCALE_EN", 1, e.name, why)
+    return True
+
+
+_FOR_EFFECT: dict[str, Callable[[Add, Effect, str, _LogFacts], bool]] = {
+    "sensor_delay": _sensor_delay,
+    "accel_scale": _accel_scale,
+    "accel_bias": _accel_bias,
+    "baro_thrust": _baro_thrust,
+    "baro_ground_effect": _baro_ground_effect,
+    "baro_thermal": _baro_thermal,
+    "thrust_voltage": _thrust_voltage,
+}
 
 
 #: PX4 parameters that are integers (the rest are floats), for QGroundControl's file's type column

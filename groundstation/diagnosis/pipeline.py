@@ -21,7 +21,7 @@ from groundstation.estimation.stated import stated_by
 from groundstation.estimation.truth import truth_from
 
 from . import report
-from .autopilot_params import suggest, suggest_notch, write_param_file
+from .autopilot_params import ParamSuggestion, suggest, suggest_notch, write_param_file
 from .engine import diagnose
 from .models import choose_model
 from .report import triage_headline
@@ -88,12 +88,50 @@ def run(
     if model == "auto":
         picked, chose = choose_model(_kinds(log), craft)
         if picked is None:
-            why = f"Not diagnosed: {chose}."
-            j = write_triage_only(out, path, log.description, tr, used, cut, why, craft)
+            j = write_triage_only(out, path, log.description, tr, used, cut, f"Not diagnosed: {chose}.", craft)
             say(f"not diagnosed: {chose}; the triage is in {out / 'report.json'}")
             return LogDiagnosis(j, log.description, duration, [])
         model = picked
         say(f"model: {chose}")
+    j, suggestions = _diagnosed(
+        path, out, log, tr, ms, used, cut, craft, model, chose, declared, vehicle, truth_csv, veto_with_truth,
+        progress, workers,
+    )  # fmt: skip
+    files = _param_files(out, suggestions, path)
+    if progress is not None:
+        progress("done")
+    say(j["conclusion"])
+    settable = [p for p in suggestions if p.name and p.value is not None]
+    if settable:
+        say("parameters to set: " + "; ".join(f"{p.autopilot} {p.name} = {p.value:g}" for p in settable))
+    say(
+        f"report: {out / 'report.html'} and report.json; estimates_before.csv, estimates_after.csv"
+        + (f"; {', '.join(files)}" if files else "")
+    )
+    return LogDiagnosis(j, log.description, duration, files)
+
+
+def _diagnosed(
+    path: Path,
+    out: Path,
+    log: LoadedLog,
+    tr: Triage,
+    ms,
+    used: list[tuple[float, float]],
+    cut: list[dict],
+    craft: Vehicle,
+    model: str,
+    chose: str,
+    declared: list | None,
+    vehicle: str | None,
+    truth_csv: Path | None,
+    veto_with_truth: bool,
+    progress: Callable[[str], None] | None,
+    workers: int,
+) -> tuple[dict, list[ParamSuggestion]]:
+    """The usable readings ``ms`` diagnosed with ``model`` and the report written: report.json's
+    content, and the parameters to set (none where the model does not describe the vehicle)."""
+    ms_all = log.measurements
     describes = craft.describes(model) or craft.kind == "unknown"
     notch = []
     if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
@@ -125,23 +163,19 @@ def run(
         model_chosen=chose,
         not_described=None if describes else craft.why_not(model),
     )
+    return j, suggestions
+
+
+def _param_files(out: Path, suggestions: list[ParamSuggestion], path: Path) -> list[str]:
+    """Each autopilot's parameter file of what to set, written where it has something to set (an old
+    one of a diagnosis before taken away); the names written."""
     files = []
     for autopilot, name in (("ArduPilot", "params_ardupilot.param"), ("PX4", "params_px4.params")):
         if write_param_file(out / name, suggestions, autopilot, str(path)):
             files.append(name)
         else:
             (out / name).unlink(missing_ok=True)
-    if progress is not None:
-        progress("done")
-    say(j["conclusion"])
-    settable = [p for p in suggestions if p.name and p.value is not None]
-    if settable:
-        say("parameters to set: " + "; ".join(f"{p.autopilot} {p.name} = {p.value:g}" for p in settable))
-    say(
-        f"report: {out / 'report.html'} and report.json; estimates_before.csv, estimates_after.csv"
-        + (f"; {', '.join(files)}" if files else "")
-    )
-    return LogDiagnosis(j, log.description, duration, files)
+    return files
 
 
 def _usable_imu(log: LoadedLog, tr: Triage, *, keep: bool) -> ImuColumns | None:
