@@ -75,3 +75,11 @@ def test_06_the_parameters_a_diagnosis_loads_make_the_vehicles_own_estimate_bett
     assert -45.0 < scale < -27.0  # -rho*g*k: about 12 Pa/m times the 3 m per unit throttle hidden
     before, after = numbers(r"([0-9.]+) cm before, ([0-9.]+) cm after", out)
     assert before > 80.0 and after < 0.35 * before
+
+
+@pytest.mark.slow
+def test_07_a_search_over_two_candidates_claims_the_wash_and_nothing_else():
+    out = run("07_a_diagnosis_from_its_parts.py", 60)
+    (k,) = numbers(r"claimed baro_thrust: k = ([0-9.]+)", out)
+    before, after = numbers(r"([0-9.]+) cm before, ([0-9.]+) cm after", out)
+    assert 2.4 < k < 3.6 and after < 0.5 * before and "claimed baro_bias_drift" not in out

@@ -28,7 +28,7 @@ from groundstation.core.readings import Readings
 from groundstation.core.validity import reading_problem
 from groundstation.estimation.context import Context, Zero
 from groundstation.estimation.estimator import KalmanEstimator
-from groundstation.estimation.filters import GainTape
+from groundstation.estimation.filters import GainTape, InnovationLog
 from groundstation.estimation.models.base import LinearModel
 
 # the on-ground constraints' pseudo-sensor (models.ground): not a sensor to diagnose, and not
@@ -335,20 +335,7 @@ def run_model(
             value = getattr(ctx, k)
             d[k].append(math.nan if value is None else value)
     log = est.filter.log
-    sensors = {}
-    ll_by, inflation, n_sc = {}, {}, 0
-    t_score = prep.t0 + score_from
-    for s in log.sensors():
-        a = log.arrays(s)
-        tr = SensorTrace(
-            a["t"], a["nu"], a["S"], a["nis"], a["z"], {k: np.array(v, dtype=float) for k, v in sig.get(s, {}).items()}
-        )
-        sensors[s] = tr
-        scored = tr.t >= t_score
-        if scored.any() and s != LANDED:
-            ll_by[s] = float(np.sum(tr.loglik[scored]))
-            inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
-            n_sc += int(scored.sum())
+    sensors, ll_by, inflation, n_sc = _traces(log, sig, prep.t0 + score_from)
     n = model.n
     # the doubles themselves, not a copy (a long log's covariances are 0.1 GB a run, twice over while copied)
     x, P = np.frombuffer(xs, dtype=float).reshape(-1, n), np.frombuffer(Ps, dtype=float).reshape(-1, n, n)
@@ -375,6 +362,30 @@ def run_model(
         inflation,
         recorded,
     )
+
+
+def _traces(
+    log: InnovationLog, sig: dict[str, dict[str, array[float]]], t_score: float
+) -> tuple[dict[str, SensorTrace], dict[str, float], dict[str, float], int]:
+    """Each sensor's trace (its innovations and the signals beside them), and from ``t_score`` on each
+    one's log-likelihood, its innovations' colour (updates per effective sample) and the updates
+    scored."""
+    sensors: dict[str, SensorTrace] = {}
+    ll_by: dict[str, float] = {}
+    inflation: dict[str, float] = {}
+    n_sc = 0
+    for s in log.sensors():
+        a = log.arrays(s)
+        tr = SensorTrace(
+            a["t"], a["nu"], a["S"], a["nis"], a["z"], {k: np.array(v, dtype=float) for k, v in sig.get(s, {}).items()}
+        )
+        sensors[s] = tr
+        scored = tr.t >= t_score
+        if scored.any() and s != LANDED:
+            ll_by[s] = float(np.sum(tr.loglik[scored]))
+            inflation[s] = int(scored.sum()) / max(effective_size(tr.nu_normalised[scored]), 1.0)
+            n_sc += int(scored.sum())
+    return sensors, ll_by, inflation, n_sc
 
 
 # -- signals the catalogue's regressors and the discovery library read ------------------------------
