@@ -278,7 +278,7 @@ def test_diagnose_command_writes_the_reports(tmp_path):
 def test_an_innovation_plot_breaks_where_a_sensor_had_no_readings():
     """A range sensor out of reach above 4 m for 15 s: its innovations are drawn with a break there,
     not a straight line across (a NaN between the last reading before and the first after)."""
-    from groundstation.diagnosis.report import _broken_at_gaps
+    from groundstation.diagnosis.report_html import _broken_at_gaps
 
     t = np.concatenate([np.arange(0.0, 15.0, 0.05), np.arange(30.0, 40.0, 0.05)])
     tb, yb = _broken_at_gaps(t, np.zeros_like(t))
@@ -830,7 +830,7 @@ def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     from groundstation.diagnosis.discover import Discovery
     from groundstation.diagnosis.discovered import add_discovery
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.report import _evidence_html
+    from groundstation.diagnosis.report_html import _evidence_html
     from groundstation.diagnosis.run import run_model
 
     log = tmp_path / "d.tlog"

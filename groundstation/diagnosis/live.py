@@ -15,8 +15,9 @@ from collections.abc import Sequence
 from groundstation.core.imu import block_mean, starts_block
 from groundstation.core.measurement import Kind, Measurement
 
+from .conclusion import conclusion, format_params
 from .engine import diagnose
-from .report import as_json, conclusion, format_params
+from .report import as_json
 
 #: the live diagnosis worker's niceness: it yields the CPU to the link and the estimation loop (on
 #: two cores, a 2 kHz link's p99 socket-to-record went from 5.8 ms to 1.9 ms with a diagnosis beside it)
