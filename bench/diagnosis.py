@@ -46,7 +46,7 @@ from threadpoolctl import threadpool_limits
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from groundstation.diagnosis.catalogue import GEOMETRIC  # noqa: E402
+from groundstation.diagnosis.catalogue.altitude import GEOMETRIC  # noqa: E402
 
 #: effect -> (parameter checked, magnitudes spread over the realistic range, extra spec)
 SWEEP = {
@@ -234,7 +234,7 @@ def clean_twin_rmse(
     (before - floor), is what the diagnosis controls."""
     from drivers.replay import Replay
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.runs.run import run_model
     from groundstation.estimation.truth import truth_from
     from groundstation.estimation.vehicles import declared_effects
     from sim_bridge.fast import run_fast

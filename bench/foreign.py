@@ -36,11 +36,11 @@ from threadpoolctl import threadpool_limits
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from groundstation.core.measurement import Kind, Measurement  # noqa: E402
-from groundstation.diagnosis.discover import lowpass  # noqa: E402
+from groundstation.diagnosis.claims.discover import lowpass  # noqa: E402
 from groundstation.diagnosis.engine import diagnose  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
-from groundstation.diagnosis.noise_match import match_noise  # noqa: E402
-from groundstation.diagnosis.run import in_time_order, run_model  # noqa: E402
+from groundstation.diagnosis.runs.run import in_time_order, run_model  # noqa: E402
+from groundstation.diagnosis.scoring.noise_match import match_noise  # noqa: E402
 from groundstation.estimation.logs import load_measurements  # noqa: E402
 from groundstation.estimation.truth import truth_from  # noqa: E402
 

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from groundstation.diagnosis.engine import diagnose  # noqa: E402
-from groundstation.diagnosis.report import as_json  # noqa: E402
+from groundstation.diagnosis.report.report import as_json  # noqa: E402
 from groundstation.estimation.logs import load_measurements  # noqa: E402
 from groundstation.estimation.truth import truth_from  # noqa: E402
 

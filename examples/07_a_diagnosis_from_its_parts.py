@@ -27,9 +27,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from drivers.replay import Replay
-from groundstation.diagnosis.catalogue import altitude_catalogue
+from groundstation.diagnosis.catalogue.altitude import altitude_catalogue
+from groundstation.diagnosis.claims.search import Search
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.search import Search
 from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario

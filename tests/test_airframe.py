@@ -8,13 +8,13 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.airframe import thrust_curve
+from groundstation.diagnosis.catalogue.airframe import thrust_curve
+from groundstation.diagnosis.catalogue.thrust import TAU_GROUND, lift_off, main_flight, throttle_series
 from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.live import markdown
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.outputs import interval_means
-from groundstation.diagnosis.report import as_json, conclusion
-from groundstation.diagnosis.thrust import TAU_GROUND, lift_off, main_flight, throttle_series
+from groundstation.diagnosis.report.report import as_json, conclusion
+from groundstation.diagnosis.runs.outputs import interval_means
 from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
 from sim_bridge.fast import run_fast

@@ -219,8 +219,8 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
     """``sim --fast --log X.bin`` writes what the vehicle itself would log (flight_log.py): the same
     flight as a tlog and as a .bin, each diagnosed from the log alone, name the same hidden effect
     with the same size."""
-    from groundstation.diagnosis.autopilot_params import suggest
     from groundstation.diagnosis.engine import diagnose
+    from groundstation.diagnosis.report.autopilot_params import suggest
     from groundstation.diagnosis.triage import triage
     from groundstation.estimation.logs import load_log
     from sim_bridge.fast import run_fast

@@ -14,7 +14,7 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.detect import detect
+from groundstation.diagnosis.claims.detect import detect
 from groundstation.diagnosis.engine import diagnose
 from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
@@ -115,7 +115,7 @@ def test_a_small_accelerometer_scale_is_weighed_over_the_updates_it_acts_on(tmp_
     update, s = 0.015 here (read 0.0147 +- 0.0021, Delta BIC -35.9) gained 0.018 per update, below
     trace.MATERIAL, and went unclaimed; over the 185 of 1262 updates its signature covers
     (trace.signature_support) it gains 0.12, and is found."""
-    from groundstation.diagnosis.trace import MATERIAL
+    from groundstation.diagnosis.scoring.trace import MATERIAL
 
     d, (before, after) = run_case(tmp_path, ["accel_scale:s=0.015"])
     assert d.effects and d.effects[0].name == "accel_scale", [e.name for e in d.effects]
@@ -148,7 +148,7 @@ def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tm
     sizes go unclaimed and at twice them are found. The range delay's limit comes from its
     profile's curvature at zero (trace.profile_sigma): delays of 0.01-0.015 s, once never
     located on the 0.04 s grid, are found (0.0100, 0.0147 s)."""
-    from groundstation.diagnosis.report import as_json, conclusion
+    from groundstation.diagnosis.report.report import as_json, conclusion
 
     d, _ = run_case(tmp_path, [])
     assert d.effects == []
@@ -196,7 +196,7 @@ def test_a_drift_the_log_barely_tells_from_a_thermal_error_is_reported_with_its_
     coefficient bend the baro's reading alike: the drift of 0.03 m/s is named baro_thermal by Delta BIC
     -7168.5 against -7161.9. Less than very strong evidence (search.CLOSE_CALL): the report gives the
     drift beside it, sized right, and the conclusion says the log barely tells the two apart."""
-    from groundstation.diagnosis.report import as_json, conclusion
+    from groundstation.diagnosis.report.report import as_json, conclusion
 
     d, (before, after) = run_case(tmp_path, ["baro_bias_drift:rate=0.03,sigma=0.01"], seed=1147, flight="high")
     e = d.effects[0]
@@ -218,7 +218,7 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_regression_with_its_siz
     that without it (predicted on stretches it was not fitted on) the baro's innovations are white. It
     explains only 5-7 % of their variance (the baro's noise is 0.33 m): what names it is that it is
     their colour (discover.WHITENS). Added to the model as a regressor, it holds out of sample."""
-    from groundstation.diagnosis.report import as_json, conclusion
+    from groundstation.diagnosis.report.report import as_json, conclusion
 
     d, _ = run_case(tmp_path, [f"baro_airflow:k={k}"], seed=seed, vehicle=vehicle, flight="high")
     assert [e.name for e in d.effects] == ["discovered"], [e.name for e in d.effects]
@@ -278,7 +278,7 @@ def test_diagnose_command_writes_the_reports(tmp_path):
 def test_an_innovation_plot_breaks_where_a_sensor_had_no_readings():
     """A range sensor out of reach above 4 m for 15 s: its innovations are drawn with a break there,
     not a straight line across (a NaN between the last reading before and the first after)."""
-    from groundstation.diagnosis.report_html import _broken_at_gaps
+    from groundstation.diagnosis.report.html import _broken_at_gaps
 
     t = np.concatenate([np.arange(0.0, 15.0, 0.05), np.arange(30.0, 40.0, 0.05)])
     tb, yb = _broken_at_gaps(t, np.zeros_like(t))
@@ -423,7 +423,7 @@ def test_the_airframes_acceleration_noise_leaves_a_clean_flights_range_innovatio
     from scipy.stats import chi2
 
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.runs.run import run_model
     from groundstation.estimation.whiteness import ljung_box
 
     log = tmp_path / "clean.tlog"
@@ -503,11 +503,11 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     skipped. The log as ``diagnose`` fits it: without the battery failsafe's last 5 s, which the
     triage cuts. The whole loop on this log (five effects, about 20 minutes here) is
     ``bench/real_logs.py``; this is each effect's first step, scored alone against the base model."""
-    from groundstation.diagnosis.detect import sensor_findings
+    from groundstation.diagnosis.catalogue.thrust import ThrustContext
+    from groundstation.diagnosis.claims.detect import sensor_findings
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
-    from groundstation.diagnosis.thrust import ThrustContext
-    from groundstation.diagnosis.trace import rank
+    from groundstation.diagnosis.runs.run import run_model
+    from groundstation.diagnosis.scoring.trace import rank
     from groundstation.diagnosis.triage import triage, usable
     from groundstation.estimation.logs import load_log
 
@@ -550,9 +550,9 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     the constant thrust coefficients are those of the flight, the simulator's alpha = 22, beta = -1.2.
     Flown through the ground, the model fitted 14.2 and 2.8. With the airframe's drag (0.35 /s, as
     ``--vehicle sim_quad``): 21.37, -0.88; with the default 0.3, beta reads -0.77."""
+    from groundstation.diagnosis.catalogue.thrust import hover_prior, thrust_model
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
-    from groundstation.diagnosis.thrust import hover_prior, thrust_model
+    from groundstation.diagnosis.runs.run import run_model
 
     log = tmp_path / "land.tlog"
     run_fast(Scenario.from_args("quad", 1000, 60.0, ["range_tilt"], []), log, log.with_suffix(".csv"))
@@ -579,7 +579,7 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     Each record is the lag's mean over the time it is held: taken as the lag's value with the new
     output written at the sample before, a step written at a sample reads 20 ms early."""
     from groundstation.core.measurement import Kind, Measurement
-    from groundstation.diagnosis.thrust import lag_throttle
+    from groundstation.diagnosis.catalogue.thrust import lag_throttle
 
     ms = []
     for k in range(50):
@@ -615,9 +615,9 @@ def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     the motors are stopped."""
     import csv
 
+    from groundstation.diagnosis.catalogue.thrust import lag_throttle
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
-    from groundstation.diagnosis.thrust import lag_throttle
+    from groundstation.diagnosis.runs.run import run_model
     from groundstation.estimation.context import Context
     from groundstation.estimation.models.ground import H_LANDED, TAU_GROUND, landed
 
@@ -670,10 +670,10 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
     row of zeros with no noise."""
     from dataclasses import replace
 
-    from groundstation.diagnosis.catalogue import Candidate
+    from groundstation.diagnosis.catalogue.altitude import Candidate
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
-    from groundstation.diagnosis.trace import rank
+    from groundstation.diagnosis.runs.run import run_model
+    from groundstation.diagnosis.scoring.trace import rank
 
     def blind_range(model):
         meas = dict(model.measurements)
@@ -704,9 +704,9 @@ def test_the_landing_does_not_move_an_effects_estimate(tmp_path):
     compared at the last range reading in the air (the last climb and the descent, 51-55.6 s, carry
     much of the scale's evidence and move it legitimately: 0.0228 -> 0.0213 with the bias along the
     body axis), then within 0.00004."""
-    from groundstation.diagnosis.catalogue import accel_scale
+    from groundstation.diagnosis.catalogue.altitude import accel_scale
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.runs.run import run_model
 
     log = tmp_path / "l.tlog"
     run_fast(
@@ -736,7 +736,7 @@ def test_lift_off_is_where_the_range_keeps_reading_inside_its_limits_not_the_spi
     """underpowered.log's take-off, in outline: the motors spin up at 0 s, the sonar reads its
     no-echo maximum, then spurious echoes for 0.9 s, then its floor for 5 s with the vehicle still
     on the ground, then a climb from 6.1 s. The hover throttle is read from there, not from the spin-up."""
-    from groundstation.diagnosis.thrust import lift_off
+    from groundstation.diagnosis.catalogue.thrust import lift_off
 
     ms = (
         [_range(0.1 * k, 7.65) for k in range(30)]
@@ -752,9 +752,9 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     """A sonar reading 1.9-6.5 m for 0.6 s while the rotors spin up on the ground (underpowered.log at
     54.6-55.5 s): no lift-off reaches that from the ground between two readings, so in contact the
     model skips and counts them. Used, they launched it (20 m/s upwards there, 10 m up in 3 s)."""
-    from groundstation.diagnosis import thrust
+    from groundstation.diagnosis.catalogue import thrust
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.runs.run import run_model
 
     log = tmp_path / "t.tlog"
     run_fast(Scenario.from_args("quad", 1012, 20.0, ["range_tilt"], [], flight="thrust_test"), log)
@@ -778,7 +778,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
 def test_a_short_sum_of_coloured_innovations_varies_as_an_ar1_sum_does():
     """The excursion test's spread: the exact variance of an m-sample sum of an AR(1) sequence, checked
     against the direct double sum and against 4000 simulated 20-sample sums at r = 0.9."""
-    from groundstation.diagnosis.detect import ar1_sum_variance
+    from groundstation.diagnosis.claims.detect import ar1_sum_variance
 
     r, m = 0.95, 20
     direct = m + 2 * sum((m - k) * r**k for k in range(1, m))
@@ -800,7 +800,7 @@ def test_the_throttle_is_held_at_its_intervals_mean_and_a_jump_where_it_shows():
     first shows it (spread, it would act 10 ms early); a dropout is not bridged; an unused output stays
     NaN and a stand-in 0/1 throttle as it is."""
     from groundstation.core.measurement import Kind, Measurement
-    from groundstation.diagnosis.outputs import interval_means
+    from groundstation.diagnosis.runs.outputs import interval_means
 
     t = np.round(np.arange(0.0, 0.2, 0.02), 3)
     tau = np.array([0.5, 0.5, 0.2, 0.21, 0.22, 0.23, 0.24, 0.25, 0.26, 0.27])
@@ -827,11 +827,11 @@ def test_the_throttle_is_held_at_its_intervals_mean_and_a_jump_where_it_shows():
 def test_a_rejected_discovery_is_reported_with_its_regression_terms(tmp_path):
     """A correlate that explains nothing through the filter is turned away, and the report's
     rejected table says what the regression had fitted (the page failed on it with a KeyError)."""
-    from groundstation.diagnosis.discover import Discovery
-    from groundstation.diagnosis.discovered import add_discovery
+    from groundstation.diagnosis.claims.discover import Discovery
+    from groundstation.diagnosis.claims.discovered import add_discovery
     from groundstation.diagnosis.models import setup
-    from groundstation.diagnosis.report_html import _evidence_html
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.report.html import _evidence_html
+    from groundstation.diagnosis.runs.run import run_model
 
     log = tmp_path / "d.tlog"
     run_fast(Scenario.from_args("quad", 5, 20.0, ["range_tilt"], []), log, log.with_suffix(".csv"))

@@ -95,7 +95,7 @@ def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_pat
     innovations. The rows are the diagnosis' IMU blocks: a 500 Hz log's blocks all hold 5 samples
     (from microsecond stamps, without a microsecond's slack three in four take a sixth and the grid
     drifts), and on a clean flight the model's x innovations are that noise."""
-    from groundstation.diagnosis.run import run_model
+    from groundstation.diagnosis.runs.run import run_model
 
     log, ms = fly(tmp_path, [], 43)
     su = setup(ms, model_name="attitude")
@@ -189,7 +189,7 @@ def test_the_live_buffer_averages_the_imu_as_a_log_is_prepared(tmp_path):
     model's accelerometer noise is that of a block mean."""
     from groundstation.core.measurement import Kind
     from groundstation.diagnosis.live import SessionBuffer
-    from groundstation.diagnosis.run import prepare
+    from groundstation.diagnosis.runs.run import prepare
 
     log = tmp_path / "b.tlog"
     run_fast(Scenario.from_args("quad", 45, 12.0, ["range_tilt"], []), log)

@@ -455,7 +455,7 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     """An autopilot's THROTTLE (VFR_HUD: an integer percent, every fifth output message, on its own
     scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
-    from groundstation.diagnosis.thrust import throttle_series
+    from groundstation.diagnosis.catalogue.thrust import throttle_series
     from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle
 
@@ -476,7 +476,7 @@ def test_a_battery_reading_pairs_with_the_throttle_written_before_it():
     test flight steps its throttle on the battery's 5 Hz grid; paired with the new throttle, the
     voltage carried forward between readings was off by k (0.77^2 - 0.5^2) = 1.6 V after each step,
     and thrust_voltage's n = 1.5 read 1.85 (with a false actuator lag beside it)."""
-    from groundstation.diagnosis.battery import load_line
+    from groundstation.diagnosis.catalogue.battery import load_line
     from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle, throttle_at_reading
 

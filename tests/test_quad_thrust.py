@@ -64,7 +64,7 @@ def test_thrust_loss_with_battery_sag_shows_in_this_filter(tmp_path):
 def test_the_battery_load_line_is_read_from_the_log_and_fills_in_between_readings():
     """battery.py: V = V_oc(t) - k tau^2, readings at 5 Hz and the throttle at 50 Hz."""
     from groundstation.core.measurement import Kind, Measurement
-    from groundstation.diagnosis.battery import load_line, loaded_voltage
+    from groundstation.diagnosis.catalogue.battery import load_line, loaded_voltage
 
     rng = np.random.default_rng(3)
     t = np.arange(0.0, 60.0, 0.02)
@@ -100,7 +100,7 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
     log, 3 mV (5-7 mV filtered forward only), not behind the discharge (a level without the drift state would lag
     it by the rate times the interval over the gain), and beyond the last reading on its drift."""
     from groundstation.core.measurement import Kind, Measurement
-    from groundstation.diagnosis.battery import (
+    from groundstation.diagnosis.catalogue.battery import (
         OpenCircuitVoltage,
         loaded_voltage,
         reading_sigma,
@@ -138,7 +138,7 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
 def test_thrust_voltage_is_the_exact_power_law_at_its_estimate():
     """thrust.thrust_voltage: a_V (the input) + n^ times the coupling's column give a_T c ((V/V_ref)^n^ - 1),
     and the column is the derivative in n there."""
-    from groundstation.diagnosis.thrust import (
+    from groundstation.diagnosis.catalogue.thrust import (
         _voltage_terms,
         thrust_model,
         thrust_voltage,

@@ -5,9 +5,9 @@ autopilots document (drivers/mavlink/param_ranges.py)."""
 import pytest
 
 from drivers.mavlink.param_ranges import outside
+from groundstation.diagnosis.catalogue.thrust_side import voltage_effect
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.run import run_model
-from groundstation.diagnosis.thrust_side import voltage_effect
+from groundstation.diagnosis.runs.run import run_model
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.stated import stated_by
 

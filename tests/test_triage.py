@@ -356,7 +356,7 @@ def test_vibe_clipping_counts_and_a_saturated_motor():
 def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
     """The simulator's 123 Hz rotor harmonic on the accelerometer (500 Hz IMU): a throttle-referenced
     notch at that frequency, half as wide, referenced to the hover throttle; a clean flight none."""
-    from groundstation.diagnosis.autopilot_params import suggest_notch
+    from groundstation.diagnosis.report.autopilot_params import suggest_notch
 
     p, _ = _sim(tmp_path, "vibration:A=20")
     got = {s.name: s.value for s in suggest_notch(load_log(p).measurements, "ardupilot")}

@@ -11,13 +11,13 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis import holdout, trials
-from groundstation.diagnosis.catalogue import Candidate, altitude_catalogue, with_throttle_stand_in
-from groundstation.diagnosis.gains import CatalogueColumns
+from groundstation.diagnosis.catalogue.altitude import Candidate, altitude_catalogue, with_throttle_stand_in
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.run import run_model
-from groundstation.diagnosis.trace import rank
-from groundstation.diagnosis.trials import fork_map, log_profile
+from groundstation.diagnosis.runs.run import run_model
+from groundstation.diagnosis.scoring import holdout, trials
+from groundstation.diagnosis.scoring.gains import CatalogueColumns
+from groundstation.diagnosis.scoring.trace import rank
+from groundstation.diagnosis.scoring.trials import fork_map, log_profile
 from groundstation.estimation.models.altitude import altitude_model
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
@@ -208,7 +208,7 @@ def test_a_prepared_log_leaves_out_the_readings_no_estimator_takes_and_counts_th
     left out, counted by kind and problem, and the runs on what is left are what the estimator's
     own check gives."""
     from groundstation.core.measurement import Kind
-    from groundstation.diagnosis.run import add_signal_rules, prepare
+    from groundstation.diagnosis.runs.run import add_signal_rules, prepare
 
     su, base = flight
     ms = list(su.prep.measurements)

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from drivers.replay import Replay
-from groundstation.diagnosis import holdout, trials
 from groundstation.diagnosis.engine import diagnose
-from groundstation.diagnosis.gains import CatalogueColumns, fit, run_signatures, virtual_run
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.run import SETTLE_S, run_model
+from groundstation.diagnosis.runs.run import SETTLE_S, run_model
+from groundstation.diagnosis.scoring import holdout, trials
+from groundstation.diagnosis.scoring.gains import CatalogueColumns, fit, run_signatures, virtual_run
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast

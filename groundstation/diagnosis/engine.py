@@ -1,14 +1,15 @@
 """The closed loop: residual -> detect -> trace -> add -> repeat, then the error before and after.
 
 :func:`diagnose` reads as the steps of docs/diagnosis.md. It takes each sensor's noise from the log
-(:mod:`.noise_match`) and runs the model on the measured data (steps 1 and 2); then, an effect at a
-time, ranks the catalogue's effects through the filter (:mod:`.trace`), adds the best one that holds
-out of sample (:mod:`.holdout`) with its parameters estimated from the data, or a correlate outside
-the catalogue the log prefers (:mod:`.discovered`), until the residuals pass or nothing improves
-the criterion by strong evidence (Delta BIC < -10) (steps 3 to 5, :class:`.search.Search`); then
-estimates the effects again together (:mod:`.joint`), names what lies outside the catalogue, and
-reports the error before and after (step 6). With truth (motion capture), a winner whose fix makes
-the error against it worse is rejected and reported as such, and the next candidate is tried.
+(:mod:`~groundstation.diagnosis.scoring.noise_match`) and runs the model on the measured data (steps 1 and 2); then, an
+effect at a time, ranks the catalogue's effects through the filter (:mod:`~groundstation.diagnosis.scoring.trace`), adds
+the best one that holds out of sample (:mod:`~groundstation.diagnosis.scoring.holdout`) with its parameters estimated
+from the data, or a correlate outside the catalogue the log prefers (:mod:`~groundstation.diagnosis.claims.discovered`),
+until the residuals pass or nothing improves the criterion by strong evidence (Delta BIC < -10) (steps 3 to 5,
+:class:`~groundstation.diagnosis.claims.search.Search`); then estimates the effects again together
+(:mod:`~groundstation.diagnosis.claims.joint`), names what lies outside the catalogue, and reports the error before and
+after (step 6). With truth (motion capture), a winner whose fix makes the error against it worse is rejected and
+reported as such, and the next candidate is tried.
 """
 
 from __future__ import annotations
@@ -22,24 +23,23 @@ import numpy as np
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
+from groundstation.diagnosis.catalogue.altitude import unobservable_in
+from groundstation.diagnosis.catalogue.thrust_side import voltage_effect
+from groundstation.diagnosis.claims.detect import Finding, residuals_pass, sensor_findings
+from groundstation.diagnosis.claims.discover import Discovery
+from groundstation.diagnosis.claims.discovered import rival_discovery, taken
+from groundstation.diagnosis.claims.joint import joint_params, joint_shapes
+from groundstation.diagnosis.claims.leave_one_out import LeftOut, leave_one_out
+from groundstation.diagnosis.claims.search import Search, detectable
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.models import setup
+from groundstation.diagnosis.runs.run import Run, run_model
+from groundstation.diagnosis.scoring import holdout
+from groundstation.diagnosis.scoring.noise_match import NoiseLevel, match_gps_slow
+from groundstation.diagnosis.scoring.trace import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.stated import RangeClearance, Stated
 from groundstation.estimation.truth import Truth
-
-from . import holdout
-from .catalogue import unobservable_in
-from .detect import Finding, residuals_pass, sensor_findings
-from .discover import Discovery
-from .discovered import rival_discovery, taken
-from .effect import Effect
-from .joint import joint_params, joint_shapes
-from .leave_one_out import LeftOut, leave_one_out
-from .models import setup
-from .noise_match import NoiseLevel, match_gps_slow
-from .run import Run, run_model
-from .search import Search, detectable
-from .thrust_side import voltage_effect
-from .trace import STRONG
 
 
 @dataclass
@@ -117,11 +117,10 @@ def diagnose(
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
-    :data:`.search.VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the processes the
-    candidates' runs are spread over (:mod:`.trials`; the findings are the same on any number).
-    ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``stated``: what the log
-    states besides its readings (the range's ground clearance, the motors' thrust curve:
-    :func:`.models.setup`)."""
+    :data:`~groundstation.diagnosis.claims.search.VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the
+    processes the candidates' runs are spread over (:mod:`~groundstation.diagnosis.scoring.trials`; the findings are the
+    same on any number). ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``stated``: what the log
+    states besides its readings (the range's ground clearance, the motors' thrust curve: :func:`.models.setup`)."""
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, stated=stated)
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
@@ -163,10 +162,10 @@ def diagnose(
 
 
 def _together(search: Search) -> None:
-    """The effects added, estimated again together (:mod:`.joint`); then outside the catalogue, after
-    it, so that a physical effect the catalogue names comes first (scored beside it, a regression over
-    a hundred columns found the battery current on the range where a delay of 60 ms was); then the
-    GPS given the slow error the log shows."""
+    """The effects added, estimated again together (:mod:`~groundstation.diagnosis.claims.joint`); then outside the
+    catalogue, after it, so that a physical effect the catalogue names comes first (scored beside it, a regression over
+    a hundred columns found the battery current on the range where a delay of 60 ms was); then the GPS given the slow
+    error the log shows."""
     s = search
     s.model, s.base = joint_shapes(s.model0, s.effects, s.added, s.prep, s.make, s.stream, s.model, s.base)
     joint_params(s.effects, s.added, s.base)
@@ -204,9 +203,9 @@ def _against_truth(search: Search, truth: Truth | None, unobs: dict[str, str]) -
 
 
 def _as_found(search: Search) -> LinearModel:
-    """The model after, with each added effect's state held at the value found (:func:`.holdout.fixed`,
-    carried back to the log's start), and its run (the search's base from here on): the error after
-    is the fix's, not a filter's still learning it."""
+    """The model after, with each added effect's state held at the value found
+    (:func:`~groundstation.diagnosis.scoring.holdout.fixed`, carried back to the log's start), and its run (the search's
+    base from here on): the error after is the fix's, not a filter's still learning it."""
     s = search
     if s.model.f is not None or s.model.n <= s.model0.n:
         return s.model
@@ -218,8 +217,8 @@ def _as_found(search: Search) -> LinearModel:
 
 
 def _beside(search: Search, model_name: str, unobs: dict[str, str]) -> tuple[list[Effect], list[dict]]:
-    """Effects found beside the model, where it cannot show them (the altitude model: thrust lost as
-    the battery sags, from the accelerometer's thrust curve, :mod:`.thrust_side`), and the candidates
+    """Effects found beside the model, where it cannot show them (the altitude model: thrust lost as the battery sags,
+    from the accelerometer's thrust curve, :mod:`~groundstation.diagnosis.catalogue.thrust_side`), and the candidates
     left unclaimed with the size this log would claim them at."""
     s = search
     found: list[Effect] = []

@@ -32,8 +32,7 @@ from pathlib import Path
 from drivers.logs.crazyflie import is_crazyflie_log
 from drivers.logs.dataflash import is_dataflash
 from drivers.logs.ulog import is_ulog
-
-from .pipeline import run
+from groundstation.diagnosis.pipeline import run
 
 TABLE_COLUMNS = (
     "log",

@@ -14,10 +14,9 @@ from collections.abc import Sequence
 
 from groundstation.core.imu import block_mean, starts_block
 from groundstation.core.measurement import Kind, Measurement
-
-from .conclusion import conclusion, format_params
-from .engine import diagnose
-from .report import as_json
+from groundstation.diagnosis.engine import diagnose
+from groundstation.diagnosis.report.conclusion import conclusion, format_params
+from groundstation.diagnosis.report.report import as_json
 
 #: the live diagnosis worker's niceness: it yields the CPU to the link and the estimation loop (on
 #: two cores, a 2 kHz link's p99 socket-to-record went from 5.8 ms to 1.9 ms with a diagnosis beside it)
@@ -25,8 +24,8 @@ DIAGNOSIS_NICE = 10
 
 
 class SessionBuffer:
-    """The latest measurements, bounded by count, the IMU already averaged over ``imu_dt`` blocks
-    exactly as :func:`.run.prepare` averages a log's (:mod:`groundstation.core.imu`), so a live
+    """The latest measurements, bounded by count, the IMU already averaged over ``imu_dt`` blocks exactly as
+    :func:`~groundstation.diagnosis.runs.run.prepare` averages a log's (:mod:`groundstation.core.imu`), so a live
     diagnosis sees the same input as one of the recorded session, at a fifth of the memory."""
 
     def __init__(self, maxlen: int = 300_000, imu_dt: float = 0.01) -> None:

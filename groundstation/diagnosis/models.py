@@ -18,6 +18,28 @@ import numpy as np
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
+from groundstation.diagnosis.catalogue.altitude import (
+    BARO_WANDER,
+    UNOBSERVABLE,
+    Candidate,
+    altitude_catalogue,
+    baro_zero,
+    gps_in_altitude,
+)
+from groundstation.diagnosis.catalogue.attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
+from groundstation.diagnosis.catalogue.thrust import (
+    RANGE_FLOOR,
+    UNOBSERVABLE_THRUST,
+    hover_prior,
+    main_flight,
+    thrust_catalogue,
+    thrust_estimator,
+    thrust_model,
+)
+from groundstation.diagnosis.model_names import MODEL_HELP
+from groundstation.diagnosis.runs.outputs import interval_means
+from groundstation.diagnosis.runs.run import CONTEXT_KINDS, Prepared, prepare, run_model
+from groundstation.diagnosis.scoring.noise_match import GPS_SLOW
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.identity import Vehicle
 from groundstation.estimation.models.altitude import altitude_model
@@ -27,22 +49,6 @@ from groundstation.estimation.models.ground import on_ground
 from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
 from groundstation.estimation.routing import altitude_estimator, attitude_estimator
 from groundstation.estimation.stated import RangeClearance, Stated
-
-from .attitude_catalogue import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from .catalogue import BARO_WANDER, UNOBSERVABLE, Candidate, altitude_catalogue, baro_zero, gps_in_altitude
-from .model_names import MODEL_HELP
-from .noise_match import GPS_SLOW
-from .outputs import interval_means
-from .run import CONTEXT_KINDS, Prepared, prepare, run_model
-from .thrust import (
-    RANGE_FLOOR,
-    UNOBSERVABLE_THRUST,
-    hover_prior,
-    main_flight,
-    thrust_catalogue,
-    thrust_estimator,
-    thrust_model,
-)
 
 #: a GPS altitude's slow error [m] and its correlation time [s] (first-order Gauss-Markov): the
 #: floor of noise_match.GPS_SLOW while effects are traced, then the level the log picks; its white

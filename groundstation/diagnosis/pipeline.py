@@ -15,17 +15,16 @@ from pathlib import Path
 from groundstation.core.allocator import return_freed_arrays
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind
+from groundstation.diagnosis.engine import diagnose
+from groundstation.diagnosis.models import choose_model
+from groundstation.diagnosis.report import report
+from groundstation.diagnosis.report.autopilot_params import ParamSuggestion, suggest, suggest_notch, write_param_file
+from groundstation.diagnosis.report.report import triage_headline
+from groundstation.diagnosis.triage import Triage, triage, usable, usable_imu
 from groundstation.estimation.identity import Vehicle, identify
 from groundstation.estimation.logs import LoadedLog, load_log
 from groundstation.estimation.stated import stated_by
 from groundstation.estimation.truth import truth_from
-
-from . import report
-from .autopilot_params import ParamSuggestion, suggest, suggest_notch, write_param_file
-from .engine import diagnose
-from .models import choose_model
-from .report import triage_headline
-from .triage import Triage, triage, usable, usable_imu
 
 #: the least of a log the fit is run on, after the triage's cuts [s]
 MIN_FIT_SECONDS = 10.0

@@ -74,7 +74,7 @@ class Context:
     throttle_lp: float | None = None  #: the throttle low-passed (rotor wash)
     throttle_lp_t: float | None = None
     #: the throttle low-passed at each rotor-wash time constant [s] the model asks for (its
-    #: ``options["throttle_tcs"]``, :func:`groundstation.diagnosis.catalogue.baro_thrust`) -> value
+    #: ``options["throttle_tcs"]``, :func:`groundstation.diagnosis.catalogue.altitude.baro_thrust`) -> value
     throttle_lps: dict[float, float] = field(default_factory=dict)
     throttle_lps_t: float | None = None
     f_lp: float | None = None  #: |f| low-passed over 1 s

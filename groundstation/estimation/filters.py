@@ -46,7 +46,7 @@ class GainTape:
     ``(Phi, G, u)`` (x <- Phi x + G u), a measurement update as ``(sensor, H, K, reset, record)``
     (``reset``: the states a reset update set, else None; ``record``: its index in the innovation
     log), and a restart of the filter (a clock jump, a divergence) as None. The diagnosis runs
-    every candidate effect through these gains at once (:mod:`groundstation.diagnosis.signature`).
+    every candidate effect through these gains at once (:mod:`groundstation.diagnosis.runs.signature`).
 
     Kept compact, as a long log's run takes a million steps: a prediction as the index of its
     (Phi, G), which the filter's discretisation cache shares among steps, and u as doubles; an

@@ -107,7 +107,7 @@ def attitude_drag_model(
     """The drag attitude model. Noise as densities: ``gyro_noise`` [rad/s/sqrt(Hz)], ``G_v``
     [(m/s^2)^2/Hz] for what the velocity model leaves out (the ``q w`` terms, gusts),
     ``bias_walk`` [rad/s/sqrt(s)]; ``sigma_accel`` [m/s^2] per accelerometer sample: an update
-    is a 10 ms block mean of n samples (:func:`groundstation.diagnosis.run.prepare`), read with
+    is a 10 ms block mean of n samples (:func:`groundstation.diagnosis.runs.run.prepare`), read with
     R = sigma^2 / n. 0.08 is the simulator's white noise. A fixed R per block (0.0335^2, right for
     the simulator's 500 Hz IMU, 5-6 samples) is 1.7 times too small for a live recording's 250 Hz
     one."""

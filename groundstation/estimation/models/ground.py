@@ -116,7 +116,7 @@ def on_ground(model: LinearModel, *, height: bool = True, reset: bool = False) -
     of 2.02 m per unit throttle, the wash read 2.21 (1.99 as resets, at the same 0.15 s time
     constant) and an accelerometer scale the flight does not have gained 67 in log-likelihood (as
     resets it loses 4.5). As resets the ground does the same whatever the model's effects are, and the
-    diagnosis's two-stage filter (:mod:`groundstation.diagnosis.signature`) is exact through it. The
+    diagnosis's two-stage filter (:mod:`groundstation.diagnosis.runs.signature`) is exact through it. The
     live filter keeps full updates: on the pad, vz = 0 is what teaches it the accelerometer's bias
     before take-off."""
     iz, iv = model.index("z"), model.index("vz")

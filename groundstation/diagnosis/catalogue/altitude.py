@@ -28,11 +28,10 @@ import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
+from groundstation.diagnosis.runs.run import CONTEXT_KINDS, THROTTLE_TC, Run
+from groundstation.diagnosis.runs.signature import Column
 from groundstation.estimation.context import Context
 from groundstation.estimation.models.base import LinearModel, pad_row, slant
-
-from .run import CONTEXT_KINDS, THROTTLE_TC, Run
-from .signature import Column
 
 
 @dataclass
@@ -69,10 +68,10 @@ class Candidate:
     #: once such a shape is chosen (``augment`` then binds it): the augment that takes it, for
     #: the shape to be chosen again with every effect found after it in the model (joint.joint_shapes)
     unshaped: Callable[..., LinearModel] | None = None
-    #: the effect's unknown constants as they act on the base model, linearly
-    #: (``columns(model)``, or ``columns(model, shape)`` with shapes; in the order of the states
-    #: ``augment`` appends): the two-stage filter (:mod:`.signature`) then scores it through the base
-    #: run's gains, without a run of its own
+    # #: the effect's unknown constants as they act on the base model, linearly #: (``columns(model)``, or
+    # ``columns(model, shape)`` with shapes; in the order of the states #: ``augment`` appends): the two-stage filter
+    # (:mod:`~groundstation.diagnosis.runs.signature`) then scores it through the base #: run's gains, without a run of
+    # its own
     columns: Callable[..., list[Column]] | None = None
     #: for an effect not linear in its parameters (a delay, a changed measurement function): linear
     #: stand-ins, each a list of columns, whose two-stage gains at their best fit bound the effect's;
@@ -289,7 +288,7 @@ def baro_thrust(model: LinearModel, tc: float = THROTTLE_TC) -> LinearModel:
     ``tc`` (:data:`WASH_TCS`, then its profile refined): held at the simulator's 0.5 s, another
     generator's 0.25 s wash read k = 2.53 m for 2.02 and its fix left three times the error of the
     true model. The model asks the filter for that low-pass (``options["throttle_tcs"]``,
-    :func:`.run.add_signal_rules`)."""
+    :func:`~groundstation.diagnosis.runs.run.add_signal_rules`)."""
 
     out = with_regressor(model, "baro", "k_thrust", _wash(tc), WASH_PRIOR)
     out.options["throttle_tcs"] = (*out.options.get("throttle_tcs", ()), tc)
@@ -314,11 +313,10 @@ def baro_thrust_columns(model: LinearModel, tc: float = THROTTLE_TC) -> list[Col
 
 
 def with_throttle_stand_in(cands: list[Candidate]) -> list[Candidate]:
-    """The catalogue for a log whose throttle is a stand-in (motors running or not, from the IMU's
-    vibration or the range: :func:`.run.motors_from_vibration`): a step with no time course of its
-    own, so the rotor wash is held at its default time constant. Chosen by the likelihood against
-    such a step, on a Crazyflie log the wash's 2 s took part of the baro's drift (0.064 m/s for the
-    data's README's 0.09-0.13)."""
+    """The catalogue for a log whose throttle is a stand-in (motors running or not, from the IMU's vibration or the
+    range: :func:`~groundstation.diagnosis.runs.run.motors_from_vibration`): a step with no time course of its own, so
+    the rotor wash is held at its default time constant. Chosen by the likelihood against such a step, on a Crazyflie
+    log the wash's 2 s took part of the baro's drift (0.064 m/s for the data's README's 0.09-0.13)."""
     return [replace(c, shapes=(), refine_shape=False) if c.refine_shape else c for c in cands]
 
 

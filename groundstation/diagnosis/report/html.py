@@ -10,12 +10,11 @@ import math
 
 import numpy as np
 
+from groundstation.diagnosis.engine import Diagnosis
+from groundstation.diagnosis.report.autopilot_params import ParamSuggestion
+from groundstation.diagnosis.report.conclusion import COLOURED, format_params
+from groundstation.diagnosis.triage import Triage
 from groundstation.estimation.models.ground import LANDED
-
-from .autopilot_params import ParamSuggestion
-from .conclusion import COLOURED, format_params
-from .engine import Diagnosis
-from .triage import Triage
 
 
 def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

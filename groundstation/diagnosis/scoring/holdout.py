@@ -45,14 +45,13 @@ from scipy.linalg import expm
 
 from groundstation.core.measurement import Measurement
 from groundstation.core.readings import Readings
+from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS
+from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
+from groundstation.diagnosis.runs.signature import fitted_without, loglik
+from groundstation.diagnosis.scoring.gains import Fit
+from groundstation.diagnosis.scoring.trials import fork_map, portable
 from groundstation.estimation.models.base import LinearModel, MeasurementModel
 from groundstation.estimation.models.ground import LANDED
-
-from .catalogue import SENSOR_KINDS
-from .gains import Fit
-from .run import SETTLE_S, Prepared, Run, run_model
-from .signature import fitted_without, loglik
-from .trials import fork_map, portable
 
 #: time blocks of the scored window
 BLOCKS = 3
@@ -231,11 +230,10 @@ def _held_out(
 
 
 def two_stage_blocks(f: Fit, prep: Prepared) -> tuple[list[dict[str, float]], dict[str, float]]:
-    """The held-out gains of a candidate the two-stage filter fitted (:mod:`.signature`): for each
-    block, theta fitted on every sensor update outside it (the base filter saw them all), then the
-    block's innovations with theta fixed there, ``nu - G theta`` at the base filter's S, against
-    the base's. Per block the gain by sensor; and each sensor's standard error of its summed gain
-    (the per-update differences' spread)."""
+    """The held-out gains of a candidate the two-stage filter fitted (:mod:`~groundstation.diagnosis.runs.signature`):
+    for each block, theta fitted on every sensor update outside it (the base filter saw them all), then the block's
+    innovations with theta fixed there, ``nu - G theta`` at the base filter's S, against the base's. Per block the gain
+    by sensor; and each sensor's standard error of its summed gain (the per-update differences' spread)."""
     sig = f.sig
     G = sig.G_of(f.J)
     per_block: list[dict[str, float]] = []

@@ -1,12 +1,11 @@
 """The catalogue through the base filter's gains: each candidate scored by the two-stage filter.
 
-:mod:`.signature` gives, from one taped run of the base model, every linear candidate's augmented
-filter as sums over time. This module turns that into what the trace and the hold-out read: a
-candidate's run (:func:`virtual_run`, a :class:`.Run` like any other: innovations per sensor, its
-likelihood, the estimate with the effect's states appended), its best shape (a wash's time
-constant profiled over a grid of them, all in the same pass), and for an effect not linear in its
-parameters, whether its linear stand-in (``Candidate.screen``) could be claimed at all, which
-decides whether its own runs are made.
+:mod:`~groundstation.diagnosis.runs.signature` gives, from one taped run of the base model, every linear candidate's
+augmented filter as sums over time. This module turns that into what the trace and the hold-out read: a candidate's run
+(:func:`virtual_run`, a :class:`.Run` like any other: innovations per sensor, its likelihood, the estimate with the
+effect's states appended), its best shape (a wash's time constant profiled over a grid of them, all in the same pass),
+and for an effect not linear in its parameters, whether its linear stand-in (``Candidate.screen``) could be claimed at
+all, which decides whether its own runs are made.
 """
 
 from __future__ import annotations
@@ -17,13 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, SensorTrace, run_model
+from groundstation.diagnosis.runs.signature import Column, Probes, Signatures, TwoStage, loglik, signatures, two_stage
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import effective_size
-
-from .catalogue import Candidate
-from .run import SETTLE_S, Prepared, Run, SensorTrace, run_model
-from .signature import Column, Probes, Signatures, TwoStage, loglik, signatures, two_stage
 
 #: [s] the rotor wash's time constants profiled at once (a candidate with ``refine_shape``): from a
 #: twentieth of a second to four, each 1.5 times the one before; the profile's parabola through the
@@ -91,7 +89,7 @@ def run_signatures(
 
 def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict[str, float], dict[str, float], int]:
     """Each real sensor's innovation log-likelihood from ``t_score`` on, its innovations' colour
-    (n / n_eff) and the count of updates scored: what :func:`.run.run_model` scores."""
+    (n / n_eff) and the count of updates scored: what :func:`~groundstation.diagnosis.runs.run.run_model` scores."""
     ll_by, inflation, n = {}, {}, 0
     for s, tr in sensors.items():
         scored = tr.t >= t_score
@@ -103,11 +101,11 @@ def sensor_scores(sensors: dict[str, SensorTrace], t_score: float) -> tuple[dict
 
 
 def virtual_run(aug: LinearModel, base: Run, sig: Signatures, J: Sequence[int], ts: TwoStage, t_score: float) -> Run:
-    """The augmented model's run as the two-stage filter gives it (:mod:`.signature`): the base run's
-    readings with the augmented innovations, and its estimate ``x + Delta theta`` with theta's
-    states appended (their covariance, and the cross terms, as the augmented filter has them).
-    The covariance is computed when it is read (``Run.P``): a ranking reads most candidates' final
-    row alone (``Run.final``), and all of it, (N, n + p, n + p), only for the effects added."""
+    """The augmented model's run as the two-stage filter gives it (:mod:`~groundstation.diagnosis.runs.signature`): the
+    base run's readings with the augmented innovations, and its estimate ``x + Delta theta`` with theta's states
+    appended (their covariance, and the cross terms, as the augmented filter has them). The covariance is computed when
+    it is read (``Run.P``): a ranking reads most candidates' final row alone (``Run.final``), and all of it, (N, n + p,
+    n + p), only for the effects added."""
     assert base.taped is not None
     rows = base.taped.x_record
     J = list(J)

@@ -1,8 +1,8 @@
-"""Steps 1 to 5 of a diagnosis (docs/diagnosis.md): the model run on the log with the log's own
-noise, then, one effect at a time, the catalogue ranked through the filter (:mod:`.trace`), the best
-candidate that holds out of sample (:mod:`.holdout`) and is not contradicted by truth added to the
-model, or a correlate outside the catalogue (:mod:`.discovered`) where the log prefers it by strong
-evidence; until the residuals pass or nothing more is claimed.
+"""Steps 1 to 5 of a diagnosis (docs/diagnosis.md): the model run on the log with the log's own noise, then, one effect
+at a time, the catalogue ranked through the filter (:mod:`~groundstation.diagnosis.scoring.trace`), the best candidate
+that holds out of sample (:mod:`~groundstation.diagnosis.scoring.holdout`) and is not contradicted by truth added to the
+model, or a correlate outside the catalogue (:mod:`.discovered`) where the log prefers it by strong evidence; until the
+residuals pass or nothing more is claimed.
 
 :class:`Search` holds what the loop carries from one effect to the next (the model, its run, the
 measurements it reads, the candidates left) and what it found; each ranking's candidates live in
@@ -15,21 +15,20 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from groundstation.core.measurement import Measurement
+from groundstation.diagnosis.catalogue.altitude import Candidate, with_throttle_stand_in
+from groundstation.diagnosis.claims.detect import residuals_pass, sensor_findings
+from groundstation.diagnosis.claims.discover import Discovery
+from groundstation.diagnosis.claims.discovered import DISCOVERY_MARGIN, rival_discovery, taken
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.models import Setup
+from groundstation.diagnosis.runs.run import Prepared, Run, hold_zeros, run_model
+from groundstation.diagnosis.runs.signature import Probes
+from groundstation.diagnosis.scoring import holdout, trials
+from groundstation.diagnosis.scoring.gains import CatalogueColumns
+from groundstation.diagnosis.scoring.noise_match import NoiseLevel, match_gps_slow, match_noise
+from groundstation.diagnosis.scoring.trace import Scored, rank, realise, smallest_claimed
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.truth import Truth
-
-from . import holdout, trials
-from .catalogue import Candidate, with_throttle_stand_in
-from .detect import residuals_pass, sensor_findings
-from .discover import Discovery
-from .discovered import DISCOVERY_MARGIN, rival_discovery, taken
-from .effect import Effect
-from .gains import CatalogueColumns
-from .models import Setup
-from .noise_match import NoiseLevel, match_gps_slow, match_noise
-from .run import Prepared, Run, hold_zeros, run_model
-from .signature import Probes
-from .trace import Scored, rank, realise, smallest_claimed
 
 #: effects added at most, one per iteration of the loop (underpowered.log's fifth, the sonar's delay,
 #: came after four: the baro's drift, thrust loss, rotor and baro ground effect)
@@ -50,9 +49,9 @@ CLOSE_CALL = 10.0
 def start_trials(
     cands: list[Candidate], model: LinearModel, prep: Prepared, make, columns: CatalogueColumns | None, workers: int
 ) -> trials.Started | None:
-    """With cores to spare, the one trial each of the candidates without columns of their own (those
-    the first ranking runs when their screen could be claimed, and those it always runs), begun
-    beside the base run, one on each core but the one that makes it (:class:`.trials.Started`)."""
+    """With cores to spare, the one trial each of the candidates without columns of their own (those the first ranking
+    runs when their screen could be claimed, and those it always runs), begun beside the base run, one on each core but
+    the one that makes it (:class:`~groundstation.diagnosis.scoring.trials.Started`)."""
     if workers < 2 or columns is None or trials.BY_RUNS:
         return None
     own = [c for c in cands if id(c) not in columns.by_candidate]
@@ -265,10 +264,10 @@ class Search:
 def _noise_matched(
     model: LinearModel, prep: Prepared, make, probes: Probes | None
 ) -> tuple[LinearModel, list[NoiseLevel], Run | None]:
-    """The model with each sensor's noise the log shows (:func:`.noise_match.match_noise`), and its
-    run where that run can be the base (None: the first run, taken before the absolute sensors'
-    zeros were held, reads them otherwise than every run after it). The first run, a long log's
-    largest object, ends here."""
+    """The model with each sensor's noise the log shows
+    (:func:`~groundstation.diagnosis.scoring.noise_match.match_noise`), and its run where that run can be the base
+    (None: the first run, taken before the absolute sensors' zeros were held, reads them otherwise than every run after
+    it). The first run, a long log's largest object, ends here."""
     first_run = run_model(model, prep, make)
     hold_zeros(prep, first_run)  # the absolute sensors' zeros, the same for every model from here on
     model, noise, matched = match_noise(model, prep, make, probes, first=first_run)

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 import math
 
-from .catalogue import unit_of
-from .engine import Diagnosis
-from .search import CLOSE_CALL
-from .thrust import LIFTOFF_REACH
+from groundstation.diagnosis.catalogue.altitude import unit_of
+from groundstation.diagnosis.catalogue.thrust import LIFTOFF_REACH
+from groundstation.diagnosis.claims.search import CLOSE_CALL
+from groundstation.diagnosis.engine import Diagnosis
 
 
 def _colour(e) -> tuple[str, float]:

@@ -19,7 +19,7 @@ and 0.325 (``tests/test_diagnosis.py``).
 Why not regress raw innovations on raw features for the catalogue too: the
 filter absorbs part of every effect, so such coefficients are biased
 low; the catalogue's candidates are scored through the filter itself
-(:mod:`.trace`). This regression only *names* what the catalogue does not.
+(:mod:`~groundstation.diagnosis.scoring.trace`). This regression only *names* what the catalogue does not.
 OMP is written out (30 lines) rather than pulled from scikit-learn, which the
 project does not otherwise need.
 """
@@ -32,9 +32,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.stats import chi2
 
+from groundstation.diagnosis.runs.run import Run
 from groundstation.estimation.whiteness import ljung_box_q
-
-from .run import Run
 
 LAGS = 20  # the Ljung-Box test's, as sensor_findings runs it (evaluate.ljung_box)
 

@@ -17,7 +17,7 @@ The likelihood is the filter's, which assumes white innovations. Measured ones
 rarely are, even after the fix, and then each innovation carries less than one
 sample's evidence: for a slowly varying signature the log-likelihood ratio is
 inflated by ``f = n / n_eff`` (Bartlett 1946; the AR(1) form ``(1 + r) / (1 - r)``
-of :func:`.detect.effective_size`). Each effect's evidence therefore also carries
+of :func:`~groundstation.diagnosis.claims.detect.effective_size`). Each effect's evidence therefore also carries
 
     Delta BIC_eff = -2 sum_s (l_aug,s - l_base,s) / f_s + k ln n
 
@@ -42,14 +42,22 @@ from functools import partial
 import numpy as np
 
 from groundstation.core.measurement import Measurement
+from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, ending, run_model
+from groundstation.diagnosis.runs.signature import Signatures
+from groundstation.diagnosis.scoring import trials
+from groundstation.diagnosis.scoring.gains import (
+    SCREEN_SHARE,
+    CatalogueColumns,
+    Fit,
+    best_shape,
+    fit,
+    participation,
+    run_signatures,
+    virtual_run,
+)
+from groundstation.diagnosis.scoring.trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
 from groundstation.estimation.models.base import LinearModel
-
-from . import trials
-from .catalogue import Candidate
-from .gains import SCREEN_SHARE, CatalogueColumns, Fit, best_shape, fit, participation, run_signatures, virtual_run
-from .run import SETTLE_S, Prepared, Run, ending, run_model
-from .signature import Signatures
-from .trials import SIGNATURE, Trials, delayed, log_profile, refine, scan_grid
 
 STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
@@ -93,8 +101,8 @@ class Scored:
         return not self.screened and self.delta_bic < STRONG and self.gain_per_update >= MATERIAL
 
     def end(self) -> None:
-        """Kept as its scores and where its run ended (:func:`.run.ending`): its trajectory, tape, fit
-        and profile let go of. What a candidate that is not added is read for afterwards."""
+        """Kept as its scores and where its run ended (:func:`~groundstation.diagnosis.runs.run.ending`): its
+        trajectory, tape, fit and profile let go of. What a candidate that is not added is read for afterwards."""
         self.run, self.fit, self.profile = ending(self.run), None, {}
 
 
@@ -249,11 +257,10 @@ def signature_support(pert: Run | None, base: Run, prep: Prepared, sensor: str) 
 def _supported(
     s: Scored, base: Run, prep: Prepared, t_score: float, signature: Callable[[], Run | None] | None = None
 ) -> Scored:
-    """``s`` with its support (the updates its gain is spread over) and gain per update; one that
-    cannot be accepted then kept as its scores and where its run ended (:func:`.run.ending`): of
-    those only the size they would be claimed at is read, and a ranking's dozen candidates' runs
-    and fits are some 25 MB each on a 1-hour log. ``signature``: its signature trial, for an effect
-    on the input scored by its own runs."""
+    """``s`` with its support (the updates its gain is spread over) and gain per update; one that cannot be accepted
+    then kept as its scores and where its run ended (:func:`~groundstation.diagnosis.runs.run.ending`): of those only
+    the size they would be claimed at is read, and a ranking's dozen candidates' runs and fits are some 25 MB each on a
+    1-hour log. ``signature``: its signature trial, for an effect on the input scored by its own runs."""
     sensor = s.candidate.sensor
     if sensor is None:
         # an effect on the input (the accelerometer's scale, the thrust) acts on every sensor

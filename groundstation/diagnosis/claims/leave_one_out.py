@@ -25,10 +25,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.diagnosis.runs.run import Prepared, run_model
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
-
-from .run import Prepared, run_model
 
 #: the sensors that measure the height itself (the accelerometer is the model's input)
 ABSOLUTE = {Kind.RANGE, Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE, Kind.GPS}

@@ -24,10 +24,9 @@ from __future__ import annotations
 import math
 
 from groundstation.core.measurement import Kind
+from groundstation.diagnosis.catalogue.altitude import Candidate
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
 from groundstation.estimation.models.base import LinearModel
-
-from .catalogue import Candidate
 
 
 def _rebuilt(**option):

@@ -9,18 +9,17 @@ from dataclasses import replace
 
 import numpy as np
 
+from groundstation.diagnosis.catalogue.altitude import Candidate, state_param, with_regressor
+from groundstation.diagnosis.claims.detect import Finding, residuals_pass
+from groundstation.diagnosis.claims.discover import Discovery, discover, library
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
+from groundstation.diagnosis.runs.signature import Column, Probes
+from groundstation.diagnosis.scoring import holdout, trials
+from groundstation.diagnosis.scoring.gains import fit, run_signatures, virtual_run
+from groundstation.diagnosis.scoring.trace import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
-
-from . import holdout, trials
-from .catalogue import Candidate, state_param, with_regressor
-from .detect import Finding, residuals_pass
-from .discover import Discovery, discover, library
-from .effect import Effect
-from .gains import fit, run_signatures, virtual_run
-from .run import SETTLE_S, Prepared, Run, run_model
-from .signature import Column, Probes
-from .trace import STRONG
 
 #: a discovered correlate is added in the catalogue's place when the log prefers it by this much more
 #: (Delta BIC): strong evidence on Kass and Raftery's scale, so that where the two nearly tie the
@@ -64,9 +63,9 @@ def rival_discovery(
 
 
 def discovered_column(sensor: str, t_sig: np.ndarray, sig: np.ndarray, nu_sd: float) -> Column:
-    """A discovered correlate as a column on its sensor (:mod:`.signature`): its values at the times
-    given, held between them; prior: ten times the innovations' spread per signal spread (diffuse
-    against any plausible coefficient), as the augmented model's."""
+    """A discovered correlate as a column on its sensor (:mod:`~groundstation.diagnosis.runs.signature`): its values at
+    the times given, held between them; prior: ten times the innovations' spread per signal spread (diffuse against any
+    plausible coefficient), as the augmented model's."""
 
     def values(t: np.ndarray, t0: np.ndarray) -> np.ndarray:
         return np.interp(t, t_sig, sig)
@@ -111,11 +110,11 @@ def settled_signal(d: Discovery, base: Run, model: LinearModel, nu_sd: float) ->
 
 
 def add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, workers: int = 1) -> Effect:
-    """The discovered correlate added to the model as a regressor on its sensor, ``y = h(x) + k s(t)``
-    (``s`` the signal as the run before it saw it), claimed on the catalogue's terms: strong evidence
-    (Delta BIC), k at least 3 sigma from zero, and a gain on held-out blocks (:mod:`.holdout`). The
-    claimed effect carries the augmented model, its candidate and its run in its evidence (taken out
-    by the caller); a discovery that fails comes back as a rejected effect with the reason."""
+    """The discovered correlate added to the model as a regressor on its sensor, ``y = h(x) + k s(t)`` (``s`` the signal
+    as the run before it saw it), claimed on the catalogue's terms: strong evidence (Delta BIC), k at least 3 sigma from
+    zero, and a gain on held-out blocks (:mod:`~groundstation.diagnosis.scoring.holdout`). The claimed effect carries
+    the augmented model, its candidate and its run in its evidence (taken out by the caller); a discovery that fails
+    comes back as a rejected effect with the reason."""
     t_sig = np.asarray(d.keep_t)
     nu_sd = float(np.std(base.sensors[d.sensor].nu[:, 0])) or 1.0
     sig = np.asarray(d.signal) if trials.BY_RUNS else settled_signal(d, base, model, nu_sd)

@@ -23,7 +23,7 @@ the augmented filter's innovation at update k is ``nu_k - G_k theta_k`` with cov
 :class:`~groundstation.estimation.filters.GainTape` thus gives every such candidate's whole run (its
 innovations, likelihood per sensor, parameters with their sigma, estimate), all candidates and
 every shape of theirs (a time constant's grid) together, as cumulative sums over time; and the
-held-out blocks of :mod:`.holdout` become sums over the other blocks.
+held-out blocks of :mod:`~groundstation.diagnosis.scoring.holdout` become sums over the other blocks.
 
 It is exact where the base filter's gains do not depend on the data (the ground's constraints are
 resets for this reason: :func:`groundstation.estimation.models.ground.on_ground`). Where a rule reads

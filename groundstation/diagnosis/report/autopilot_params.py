@@ -46,10 +46,9 @@ import numpy as np
 from drivers.mavlink.param_ranges import outside
 from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
-
-from .effect import Effect
-from .engine import Diagnosis
-from .triage.finding import cell_count
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.engine import Diagnosis
+from groundstation.diagnosis.triage.finding import cell_count
 
 G = 9.80665
 R_AIR = 287.05  # J/(kg K)

@@ -36,7 +36,7 @@ from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import effective_size, lag1, ljung_box
 
 if TYPE_CHECKING:
-    from .run import Run
+    from groundstation.diagnosis.runs.run import Run
 
 
 @dataclass

@@ -33,10 +33,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from groundstation.core.measurement import Measurement
+from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
+from groundstation.diagnosis.runs.signature import Probes
 from groundstation.estimation.models.base import LinearModel
-
-from .run import SETTLE_S, Prepared, Run, run_model
-from .signature import Probes
 
 #: scalar sensors whose R is matched (the pseudo-sensor and vector sensors keep theirs)
 MATCHED = ("range", "baro", "gps")

@@ -28,10 +28,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from groundstation.core.measurement import Measurement
+from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS, Candidate, shift
+from groundstation.diagnosis.runs.run import Prepared, Run, ending, run_model
 from groundstation.estimation.models.base import LinearModel
-
-from .catalogue import SENSOR_KINDS, Candidate, shift
-from .run import Prepared, Run, ending, run_model
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -314,11 +313,11 @@ class Trials:
         return runs[key]
 
     def _ended_below_best(self, i: int) -> None:
-        """Candidate ``i``'s runs that score below its best so far, as their scores and where they
-        ended (:func:`.run.ending`): its score is its best run's, and of the others only the
-        likelihoods (a shape's profile) and the innovations (a delay's, held out block by block,
-        holdout.py) are read. A run once below the best never becomes it; a tie stays whole. A
-        shape refined in log steps takes some nine runs, 15-20 MB each on a 1-hour log."""
+        """Candidate ``i``'s runs that score below its best so far, as their scores and where they ended
+        (:func:`~groundstation.diagnosis.runs.run.ending`): its score is its best run's, and of the others only the
+        likelihoods (a shape's profile) and the innovations (a delay's, held out block by block, holdout.py) are read. A
+        run once below the best never becomes it; a tie stays whole. A shape refined in log steps takes some nine runs,
+        15-20 MB each on a 1-hour log."""
         runs = self.runs[i]
         top = max((r.loglik for k, r in runs.items() if k != SIGNATURE and r is not None), default=None)
         if top is None:

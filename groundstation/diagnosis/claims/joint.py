@@ -11,15 +11,14 @@ from dataclasses import replace
 import numpy as np
 
 from groundstation.core.measurement import Measurement
+from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.runs.run import Prepared, Run, run_model
+from groundstation.diagnosis.scoring import trials
+from groundstation.diagnosis.scoring.gains import profile_shape
+from groundstation.diagnosis.scoring.trace import with_shape
+from groundstation.diagnosis.scoring.trials import log_profile
 from groundstation.estimation.models.base import LinearModel
-
-from . import trials
-from .catalogue import Candidate
-from .effect import Effect
-from .gains import profile_shape
-from .run import Prepared, Run, run_model
-from .trace import with_shape
-from .trials import log_profile
 
 
 def joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> None:
@@ -52,13 +51,12 @@ def joint_shapes(
     model: LinearModel,
     base: Run,
 ) -> tuple[LinearModel, Run]:
-    """A continuous shape (the rotor wash's time constant) chosen again with every effect found after
-    it in the model, by its profile likelihood (:func:`.trials.log_profile`, from the value chosen
-    alone and a factor 1.5 either side). Chosen alone, the wash of a flight whose baro also read
-    its temperature took 0.28 s for its true 0.39 s (the thermal error's share in what the wash
-    explained), and the fix left 1.7 times the error of the true model; with the thermal term in the
-    model the profile peaks at 0.36 s. ``model0``: the model the effects were added to, in the
-    order of ``added``; returns the final model and its run, as they were when nothing moved."""
+    """A continuous shape (the rotor wash's time constant) chosen again with every effect found after it in the model,
+    by its profile likelihood (:func:`~groundstation.diagnosis.scoring.trials.log_profile`, from the value chosen alone
+    and a factor 1.5 either side). Chosen alone, the wash of a flight whose baro also read its temperature took 0.28 s
+    for its true 0.39 s (the thermal error's share in what the wash explained), and the fix left 1.7 times the error of
+    the true model; with the thermal term in the model the profile peaks at 0.36 s. ``model0``: the model the effects
+    were added to, in the order of ``added``; returns the final model and its run, as they were when nothing moved."""
     for j, c in enumerate(added[:-1]):
         if c.unshaped is None:
             continue

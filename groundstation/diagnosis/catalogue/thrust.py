@@ -55,6 +55,16 @@ import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.units import G
+from groundstation.diagnosis.catalogue.airframe import thrust_curve
+from groundstation.diagnosis.catalogue.altitude import (
+    UNOBSERVABLE,
+    Candidate,
+    altitude_catalogue,
+    sensor_delay,
+    state_param,
+)
+from groundstation.diagnosis.catalogue.battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
+from groundstation.diagnosis.runs.run import SETTLE_S
 from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
@@ -77,11 +87,6 @@ from groundstation.estimation.routing import (
     read_vehicle_status,
     throttle_at_reading,
 )
-
-from .airframe import thrust_curve
-from .battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
-from .catalogue import UNOBSERVABLE, Candidate, altitude_catalogue, sensor_delay, state_param
-from .run import SETTLE_S
 
 GE_MIN_H = 0.1  # m: below this the first-order ground-effect term is not used
 #: s after the model leaves the ground during which the ground-effect term is not used. The model's
@@ -185,7 +190,7 @@ def main_flight(
     of it to its end. Ground handling around it (motor tests, hops, a
     sonar reading its floor or nothing on the ground) says nothing about thrust.
     ``before`` is 3 s longer than the filter settles before the likelihood is scored
-    (:data:`~.run.SETTLE_S`), so the spin-up is scored: with 3 s, the first 2 s of
+    (:data:`~groundstation.diagnosis.runs.run.SETTLE_S`), so the spin-up is scored: with 3 s, the first 2 s of
     underpowered.log's baro dip at spin-up (the data README's -2.7 m) were not."""
     th = throttle_series(ms)
     best, start, last_up = None, None, None

@@ -49,18 +49,17 @@ from typing import Any
 
 import numpy as np
 
+from groundstation.diagnosis.catalogue.thrust import ThrustContext
+from groundstation.diagnosis.engine import Diagnosis
+from groundstation.diagnosis.report.autopilot_params import ParamSuggestion
+from groundstation.diagnosis.report.conclusion import conclusion
+from groundstation.diagnosis.report.html import report_html
+from groundstation.diagnosis.runs.run import Run
+from groundstation.diagnosis.triage import Triage
 from groundstation.estimation.export import EstimateCsvWriter
 from groundstation.estimation.identity import Vehicle
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import ljung_box
-
-from .autopilot_params import ParamSuggestion
-from .conclusion import conclusion
-from .engine import Diagnosis
-from .report_html import report_html
-from .run import Run
-from .thrust import ThrustContext
-from .triage import Triage
 
 
 def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, float] | None = None) -> dict:

@@ -26,6 +26,7 @@ from groundstation.core.imu import IMU_KINDS, ImuColumns, block_means
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
 from groundstation.core.validity import reading_problem
+from groundstation.diagnosis.runs.signature import Probes
 from groundstation.estimation.context import Context, Zero
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.filters import GainTape, InnovationLog
@@ -38,8 +39,6 @@ from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.routing import collective, motor_outputs, set_throttle
 from groundstation.estimation.whiteness import effective_size
-
-from .signature import Probes
 
 
 @dataclass

@@ -36,13 +36,12 @@ import math
 import numpy as np
 
 from groundstation.core.measurement import Kind
+from groundstation.diagnosis.catalogue.airframe import STEP, WINDOW, CurvePoints, curve_points, fit_curve
+from groundstation.diagnosis.catalogue.battery import loaded_voltage
+from groundstation.diagnosis.catalogue.thrust import RANGE_FLOOR, hover_prior, lift_off, throttle_series
+from groundstation.diagnosis.effect import Effect
+from groundstation.diagnosis.runs.run import Prepared, Run
 from groundstation.estimation.models.ground import TAU_GROUND
-
-from .airframe import STEP, WINDOW, CurvePoints, curve_points, fit_curve
-from .battery import loaded_voltage
-from .effect import Effect
-from .run import Prepared, Run
-from .thrust import RANGE_FLOOR, hover_prior, lift_off, throttle_series
 
 #: the exponent a battery's sag can have on a rotor's thrust (module docstring)
 PLAUSIBLE_N = (0.3, 4.0)
