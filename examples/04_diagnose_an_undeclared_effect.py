@@ -16,7 +16,8 @@ from pathlib import Path
 
 from drivers.replay import Replay
 from groundstation.diagnosis.engine import diagnose
-from groundstation.diagnosis.report.report import as_json, conclusion
+from groundstation.diagnosis.report.conclusion import conclusion
+from groundstation.diagnosis.report.report import as_json
 from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario

@@ -9,12 +9,14 @@ import pytest
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis.catalogue.airframe import thrust_curve
-from groundstation.diagnosis.catalogue.thrust import TAU_GROUND, lift_off, main_flight, throttle_series
+from groundstation.diagnosis.catalogue.thrust_model import lift_off, main_flight, throttle_series
 from groundstation.diagnosis.engine import diagnose
 from groundstation.diagnosis.live import markdown
 from groundstation.diagnosis.models import setup
-from groundstation.diagnosis.report.report import as_json, conclusion
+from groundstation.diagnosis.report.conclusion import conclusion
+from groundstation.diagnosis.report.report import as_json
 from groundstation.diagnosis.runs.outputs import interval_means
+from groundstation.estimation.models.ground import TAU_GROUND
 from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
 from sim_bridge.fast import run_fast

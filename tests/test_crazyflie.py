@@ -114,7 +114,8 @@ def test_diagnose_finds_what_the_data_readme_describes_on_0422_log00():
     # of the evidence survives counting them at their effective sample size
     thrust = {e.name: e.evidence for e in d.effects}["baro_thrust"]
     assert thrust["innovation_colour"]["baro"] > 10 and thrust["delta_bic_effective"] > thrust["delta_bic"]
-    from groundstation.diagnosis.report.report import as_json, conclusion
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
 
     assert "Counted at their effective sample size, baro_thrust scores" in conclusion(d, as_json(d))
     # what still colours the baro after the fit (the throttle's shape, README: 60 % in sample) is not
@@ -128,7 +129,8 @@ def test_attitude_diagnosis_rejects_a_mounting_error_that_vicon_contradicts():
     accelerometer better, and makes roll and pitch worse against Vicon. It is rejected, said
     with its evidence, and what is kept does not worsen the estimate."""
     from groundstation.diagnosis.engine import diagnose
-    from groundstation.diagnosis.report.report import as_json, conclusion
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
     from groundstation.estimation.logs import load_measurements
     from groundstation.estimation.truth import truth_from
 

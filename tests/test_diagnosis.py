@@ -113,9 +113,9 @@ def test_a_small_accelerometer_scale_is_weighed_over_the_updates_it_acts_on(tmp_
     """Of s's effect on the vertical only s a is left (s g is a bias, b_acc's), and all its evidence
     sits where the vertical acceleration changes: the steps and the descent. Spread over every range
     update, s = 0.015 here (read 0.0147 +- 0.0021, Delta BIC -35.9) gained 0.018 per update, below
-    trace.MATERIAL, and went unclaimed; over the 185 of 1262 updates its signature covers
+    scored.MATERIAL, and went unclaimed; over the 185 of 1262 updates its signature covers
     (trace.signature_support) it gains 0.12, and is found."""
-    from groundstation.diagnosis.scoring.trace import MATERIAL
+    from groundstation.diagnosis.scoring.scored import MATERIAL
 
     d, (before, after) = run_case(tmp_path, ["accel_scale:s=0.015"])
     assert d.effects and d.effects[0].name == "accel_scale", [e.name for e in d.effects]
@@ -143,12 +143,13 @@ def test_a_large_accelerometer_bias_along_the_body_axis_leaves_the_range_innovat
 
 @pytest.mark.slow
 def test_the_sizes_a_clean_flight_could_have_shown_are_what_that_flight_shows(tmp_path):
-    """ "Nothing claimed" comes with what the log could have shown (trace.smallest_claimed): the
+    """ "Nothing claimed" comes with what the log could have shown (scored.smallest_claimed): the
     size of each effect claimed about half the time. On the same flight, effects at half those
     sizes go unclaimed and at twice them are found. The range delay's limit comes from its
     profile's curvature at zero (trace.profile_sigma): delays of 0.01-0.015 s, once never
     located on the 0.04 s grid, are found (0.0100, 0.0147 s)."""
-    from groundstation.diagnosis.report.report import as_json, conclusion
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
 
     d, _ = run_case(tmp_path, [])
     assert d.effects == []
@@ -196,7 +197,8 @@ def test_a_drift_the_log_barely_tells_from_a_thermal_error_is_reported_with_its_
     coefficient bend the baro's reading alike: the drift of 0.03 m/s is named baro_thermal by Delta BIC
     -7168.5 against -7161.9. Less than very strong evidence (search.CLOSE_CALL): the report gives the
     drift beside it, sized right, and the conclusion says the log barely tells the two apart."""
-    from groundstation.diagnosis.report.report import as_json, conclusion
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
 
     d, (before, after) = run_case(tmp_path, ["baro_bias_drift:rate=0.03,sigma=0.01"], seed=1147, flight="high")
     e = d.effects[0]
@@ -218,7 +220,8 @@ def test_an_effect_outside_the_catalogue_is_named_by_the_regression_with_its_siz
     that without it (predicted on stretches it was not fitted on) the baro's innovations are white. It
     explains only 5-7 % of their variance (the baro's noise is 0.33 m): what names it is that it is
     their colour (discover.WHITENS). Added to the model as a regressor, it holds out of sample."""
-    from groundstation.diagnosis.report.report import as_json, conclusion
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
 
     d, _ = run_case(tmp_path, [f"baro_airflow:k={k}"], seed=seed, vehicle=vehicle, flight="high")
     assert [e.name for e in d.effects] == ["discovered"], [e.name for e in d.effects]
@@ -503,7 +506,7 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     skipped. The log as ``diagnose`` fits it: without the battery failsafe's last 5 s, which the
     triage cuts. The whole loop on this log (five effects, about 20 minutes here) is
     ``bench/real_logs.py``; this is each effect's first step, scored alone against the base model."""
-    from groundstation.diagnosis.catalogue.thrust import ThrustContext
+    from groundstation.diagnosis.catalogue.thrust_model import ThrustContext
     from groundstation.diagnosis.claims.detect import sensor_findings
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.runs.run import run_model
@@ -550,7 +553,7 @@ def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     the constant thrust coefficients are those of the flight, the simulator's alpha = 22, beta = -1.2.
     Flown through the ground, the model fitted 14.2 and 2.8. With the airframe's drag (0.35 /s, as
     ``--vehicle sim_quad``): 21.37, -0.88; with the default 0.3, beta reads -0.77."""
-    from groundstation.diagnosis.catalogue.thrust import hover_prior, thrust_model
+    from groundstation.diagnosis.catalogue.thrust_model import hover_prior, thrust_model
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.runs.run import run_model
 
@@ -670,7 +673,7 @@ def test_a_candidate_whose_filter_diverges_is_scored_out_not_raised(tmp_path):
     row of zeros with no noise."""
     from dataclasses import replace
 
-    from groundstation.diagnosis.catalogue.altitude import Candidate
+    from groundstation.diagnosis.catalogue.candidate import Candidate
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.runs.run import run_model
     from groundstation.diagnosis.scoring.trace import rank
@@ -736,7 +739,7 @@ def test_lift_off_is_where_the_range_keeps_reading_inside_its_limits_not_the_spi
     """underpowered.log's take-off, in outline: the motors spin up at 0 s, the sonar reads its
     no-echo maximum, then spurious echoes for 0.9 s, then its floor for 5 s with the vehicle still
     on the ground, then a climb from 6.1 s. The hover throttle is read from there, not from the spin-up."""
-    from groundstation.diagnosis.catalogue.thrust import lift_off
+    from groundstation.diagnosis.catalogue.thrust_model import lift_off
 
     ms = (
         [_range(0.1 * k, 7.65) for k in range(30)]
@@ -752,14 +755,14 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
     """A sonar reading 1.9-6.5 m for 0.6 s while the rotors spin up on the ground (underpowered.log at
     54.6-55.5 s): no lift-off reaches that from the ground between two readings, so in contact the
     model skips and counts them. Used, they launched it (20 m/s upwards there, 10 m up in 3 s)."""
-    from groundstation.diagnosis.catalogue import thrust
+    from groundstation.diagnosis.catalogue import thrust_model
     from groundstation.diagnosis.models import setup
     from groundstation.diagnosis.runs.run import run_model
 
     log = tmp_path / "t.tlog"
     run_fast(Scenario.from_args("quad", 1012, 20.0, ["range_tilt"], [], flight="thrust_test"), log)
     ms = list(Replay(log).iter_measurements())
-    spin = next(t for t, v in thrust.throttle_series(ms) if v >= thrust.TAU_GROUND)
+    spin = next(t for t, v in thrust_model.throttle_series(ms) if v >= thrust_model.TAU_GROUND)
     echoes = [_range(spin + 0.1 + 0.1 * k, d) for k, d in enumerate([6.46, 6.46, 5.28, 5.28, 1.94, 1.94])]
     su = setup(ms + echoes, model_name="quad_thrust", declared=[{"name": "range_tilt"}], vehicle="sim_quad")
 
@@ -770,7 +773,7 @@ def test_spurious_range_echoes_on_the_ground_at_spin_up_do_not_launch_the_thrust
 
     z, skipped = highest()
     assert z < 0.15 and skipped == 6, (z, skipped)  # the model floats within 0.1 m at spin-up
-    monkeypatch.setattr(thrust, "LIFTOFF_REACH", np.inf)
+    monkeypatch.setattr(thrust_model, "LIFTOFF_REACH", np.inf)
     z, skipped = highest()
     assert z > 1.0 and skipped == 0, (z, skipped)
 

@@ -455,7 +455,7 @@ def test_the_throttle_comes_from_one_source_the_motor_outputs_when_the_log_has_t
     """An autopilot's THROTTLE (VFR_HUD: an integer percent, every fifth output message, on its own
     scale) and the motor outputs (SERVO_OUTPUT_RAW, 1 us) once both set the models' throttle: a
     simulated quad's thrust model flew a 1 %-quantised throttle for 20 ms of every 100."""
-    from groundstation.diagnosis.catalogue.thrust import throttle_series
+    from groundstation.diagnosis.catalogue.thrust_model import throttle_series
     from groundstation.estimation.context import Context
     from groundstation.estimation.routing import read_throttle
 

@@ -138,11 +138,8 @@ def test_the_open_circuit_voltage_is_smoothed_over_the_readings_without_lagging_
 def test_thrust_voltage_is_the_exact_power_law_at_its_estimate():
     """thrust.thrust_voltage: a_V (the input) + n^ times the coupling's column give a_T c ((V/V_ref)^n^ - 1),
     and the column is the derivative in n there."""
-    from groundstation.diagnosis.catalogue.thrust import (
-        _voltage_terms,
-        thrust_model,
-        thrust_voltage,
-    )
+    from groundstation.diagnosis.catalogue.thrust import thrust_voltage
+    from groundstation.diagnosis.catalogue.thrust_model import _voltage_terms, thrust_model
 
     m = thrust_voltage(thrust_model(alpha0=22.0, beta0=-1.2))
     i_n, iv = m.index("n_voltage"), m.index("vz")

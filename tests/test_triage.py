@@ -294,7 +294,7 @@ def test_diagnosis_of_a_simulated_crash_claims_nothing_from_the_tumble(tmp_path,
     claims nothing the simulator does not have (its range sensor reads the slant distance, always:
     the roll towards 30 deg shows it). Fitted to the whole log instead, the tumble reads as an
     accelerometer scale error (1.5 % on this flight), the first effect claimed."""
-    from groundstation.diagnosis import engine
+    from groundstation.diagnosis.claims import search
     from groundstation.diagnosis.engine import diagnose
 
     p, tr = _sim(tmp_path, "motor_failure:motor=3,loss=1,t=12", seconds=40.0)
@@ -307,7 +307,7 @@ def test_diagnosis_of_a_simulated_crash_claims_nothing_from_the_tumble(tmp_path,
     assert j["segments_used"][0]["t_end"] == pytest.approx(flip.t_start, abs=0.01)
     assert all(s["t_end"] <= flip.t_start + 1e-3 or s["t_start"] >= flip.t_end - 1e-3 for s in j["segments_used"])
     assert {e["name"] for e in j["effects"]} <= {"range_tilt"}, j["conclusion"]
-    monkeypatch.setattr(engine, "MAX_EFFECTS", 1)
+    monkeypatch.setattr(search, "MAX_EFFECTS", 1)
     whole = diagnose(load_log(p).measurements, source=str(p), model_name="altitude")
     assert whole.effects[0].name == "accel_scale"  # what the cut keeps out
 

@@ -11,7 +11,8 @@ import pytest
 
 from drivers.replay import Replay
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.catalogue.altitude import Candidate, altitude_catalogue, with_throttle_stand_in
+from groundstation.diagnosis.catalogue.altitude import altitude_catalogue, with_throttle_stand_in
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import run_model
 from groundstation.diagnosis.scoring import holdout, trials
@@ -208,7 +209,8 @@ def test_a_prepared_log_leaves_out_the_readings_no_estimator_takes_and_counts_th
     left out, counted by kind and problem, and the runs on what is left are what the estimator's
     own check gives."""
     from groundstation.core.measurement import Kind
-    from groundstation.diagnosis.runs.run import add_signal_rules, prepare
+    from groundstation.diagnosis.runs.run import prepare
+    from groundstation.diagnosis.runs.signals import add_signal_rules
 
     su, base = flight
     ms = list(su.prep.measurements)

@@ -36,7 +36,7 @@ from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import Run, run_model
 from groundstation.diagnosis.scoring import holdout
 from groundstation.diagnosis.scoring.noise_match import NoiseLevel, match_gps_slow
-from groundstation.diagnosis.scoring.trace import STRONG
+from groundstation.diagnosis.scoring.scored import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.stated import RangeClearance, Stated
 from groundstation.estimation.truth import Truth
@@ -60,7 +60,7 @@ class Diagnosis:
     rejected: list[Effect] = field(default_factory=list)  # fitted better, contradicted by truth
     vehicle: str | None = None  # the airframe's constants the model started from
     airframe: dict | None = None  # ... or the thrust curve read from the log's accelerometer
-    #: per candidate left unclaimed, the size this log would claim it at about half the time (trace.smallest_claimed)
+    #: per candidate left unclaimed, the size this log would claim it at about half the time (scored.smallest_claimed)
     detectable: list[dict] = field(default_factory=list)
     #: each sensor's noise as the log shows it, beside the model's (noise_match.py)
     noise: list[NoiseLevel] = field(default_factory=list)

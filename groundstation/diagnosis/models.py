@@ -21,21 +21,14 @@ from groundstation.core.readings import Readings
 from groundstation.diagnosis.catalogue.altitude import (
     BARO_WANDER,
     UNOBSERVABLE,
-    Candidate,
     altitude_catalogue,
     baro_zero,
     gps_in_altitude,
 )
 from groundstation.diagnosis.catalogue.attitude import UNOBSERVABLE_ATTITUDE, attitude_catalogue
-from groundstation.diagnosis.catalogue.thrust import (
-    RANGE_FLOOR,
-    UNOBSERVABLE_THRUST,
-    hover_prior,
-    main_flight,
-    thrust_catalogue,
-    thrust_estimator,
-    thrust_model,
-)
+from groundstation.diagnosis.catalogue.candidate import Candidate
+from groundstation.diagnosis.catalogue.thrust import UNOBSERVABLE_THRUST, thrust_catalogue
+from groundstation.diagnosis.catalogue.thrust_model import hover_prior, main_flight, thrust_estimator, thrust_model
 from groundstation.diagnosis.model_names import MODEL_HELP
 from groundstation.diagnosis.runs.outputs import interval_means
 from groundstation.diagnosis.runs.run import CONTEXT_KINDS, Prepared, prepare, run_model
@@ -45,6 +38,7 @@ from groundstation.estimation.identity import Vehicle
 from groundstation.estimation.models.altitude import altitude_model
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
 from groundstation.estimation.models.base import LinearModel
+from groundstation.estimation.models.contact import RANGE_FLOOR
 from groundstation.estimation.models.ground import on_ground
 from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
 from groundstation.estimation.routing import altitude_estimator, attitude_estimator

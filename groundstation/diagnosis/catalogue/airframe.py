@@ -18,7 +18,7 @@ with ``y`` and ``tau`` averaged over ``WINDOW`` s on a 20 Hz grid, ``v`` the ver
 sensor's height ``r c`` (a local quadratic over the window), ``b_z`` the accelerometer's bias from the
 ground before the spin-up (where it reads ``-g c``), ``V`` the pack's voltage between its readings
 (battery.py: the smoothed open-circuit voltage less the load line) and ``V_ref`` the voltage alpha is
-read at (the thrust model's, :func:`~.thrust.hover_prior`). ``n`` (``thrust_voltage``) and ``tc``
+read at (the thrust model's, :func:`~.thrust_model.hover_prior`). ``n`` (``thrust_voltage``) and ``tc``
 (``actuator_lag``, a first-order lag: ``tau = tau_applied + tc dtau_applied/dt``) are fitted along,
 as nuisance parameters: held at 0, a simulated n = 1 flight read alpha 17.4 and beta +1.0. Which
 effects the log has is the diagnosis' question, answered by its own filter and criterion; this fit
@@ -69,7 +69,7 @@ MIN_POINTS = 200
 #: tell alpha from beta)
 MAX_REL_SIGMA = 0.03
 #: (m/s^2)^2/Hz: the thrust model's acceleration noise with the curve from the log. The diagnosis'
-#: 0.006 (thrust.DIAGNOSIS_G_ACC) covers a curve read from the hover throttle, 10 % off; with the curve
+#: 0.006 (thrust_model.DIAGNOSIS_G_ACC) covers a curve read from the hover throttle, 10 % off; with the curve
 #: read here the model is as good as with the airframe file, and takes its noise (sim_quad.json: 0.0001,
 #: chosen by the whiteness of 8 clean simulated flights' range innovations). On four thrust test flights
 #: (clean seeds 1012 and 1018, n = 1, lag 0.05 s) the range's Ljung-Box p after the fix was 0.000-0.019
@@ -99,7 +99,7 @@ class ThrustCurve:
     bias_z: float
 
     def prior(self) -> dict:
-        """The thrust model's constants from it (:func:`~.thrust.thrust_model`'s parameters)."""
+        """The thrust model's constants from it (:func:`~.thrust_model.thrust_model`'s parameters)."""
         return {
             "alpha0": self.alpha,
             "beta0": self.beta,

@@ -24,7 +24,7 @@ from __future__ import annotations
 import math
 
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.estimation.models.attitude_drag import attitude_drag_model
 from groundstation.estimation.models.base import LinearModel
 

@@ -38,14 +38,15 @@ import numpy as np
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis.catalogue.airframe import STEP, WINDOW, CurvePoints, curve_points, fit_curve
 from groundstation.diagnosis.catalogue.battery import loaded_voltage
-from groundstation.diagnosis.catalogue.thrust import RANGE_FLOOR, hover_prior, lift_off, throttle_series
+from groundstation.diagnosis.catalogue.thrust_model import hover_prior, lift_off, throttle_series
 from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.runs.run import Prepared, Run
+from groundstation.estimation.models.contact import RANGE_FLOOR
 from groundstation.estimation.models.ground import TAU_GROUND
 
 #: the exponent a battery's sag can have on a rotor's thrust (module docstring)
 PLAUSIBLE_N = (0.3, 4.0)
-#: the claim's bars, as the catalogue's (trace.STRONG, holdout)
+#: the claim's bars, as the catalogue's (scored.STRONG, holdout)
 STRONG = -10.0
 MIN_Z = 3.0
 MAX_BLOCK_LOSS = 2.0
@@ -109,7 +110,7 @@ def voltage_effect(prep: Prepared, run: Run | None) -> Effect | None:
         "thrust_rms_after": round(math.sqrt(rss1 / points), 4),
         "seconds": round(points * STEP, 1),
         "height_from": "the altitude filter's estimate" if height is not None else "the range sensor",
-        # the size this flight would claim about half the time (trace.smallest_claimed, one parameter)
+        # the size this flight would claim about half the time (scored.smallest_claimed, one parameter)
         "n_50": round(sigma_n * math.sqrt(max(math.log(n_eff) - STRONG, 0.0)), 3),
     }
     if held:  # (a fit on two blocks that fails leaves none)

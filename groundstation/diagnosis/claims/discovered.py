@@ -9,7 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from groundstation.diagnosis.catalogue.altitude import Candidate, state_param, with_regressor
+from groundstation.diagnosis.catalogue.candidate import Candidate, state_param, with_regressor
 from groundstation.diagnosis.claims.detect import Finding, residuals_pass
 from groundstation.diagnosis.claims.discover import Discovery, discover, library
 from groundstation.diagnosis.effect import Effect
@@ -17,7 +17,7 @@ from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
 from groundstation.diagnosis.runs.signature import Column, Probes
 from groundstation.diagnosis.scoring import holdout, trials
 from groundstation.diagnosis.scoring.gains import fit, run_signatures, virtual_run
-from groundstation.diagnosis.scoring.trace import STRONG
+from groundstation.diagnosis.scoring.scored import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.ground import LANDED
 

@@ -11,7 +11,7 @@ from dataclasses import replace
 import numpy as np
 
 from groundstation.core.measurement import Measurement
-from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.runs.run import Prepared, Run, run_model
 from groundstation.diagnosis.scoring import trials

@@ -15,7 +15,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 
 from groundstation.core.measurement import Measurement
-from groundstation.diagnosis.catalogue.altitude import Candidate, with_throttle_stand_in
+from groundstation.diagnosis.catalogue.altitude import with_throttle_stand_in
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.claims.detect import residuals_pass, sensor_findings
 from groundstation.diagnosis.claims.discover import Discovery
 from groundstation.diagnosis.claims.discovered import DISCOVERY_MARGIN, rival_discovery, taken
@@ -26,7 +27,8 @@ from groundstation.diagnosis.runs.signature import Probes
 from groundstation.diagnosis.scoring import holdout, trials
 from groundstation.diagnosis.scoring.gains import CatalogueColumns
 from groundstation.diagnosis.scoring.noise_match import NoiseLevel, match_gps_slow, match_noise
-from groundstation.diagnosis.scoring.trace import Scored, rank, realise, smallest_claimed
+from groundstation.diagnosis.scoring.scored import Scored, smallest_claimed
+from groundstation.diagnosis.scoring.trace import rank, realise
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.truth import Truth
 
@@ -304,7 +306,7 @@ def _as_ended(scored: Iterable[Scored], *kept: Run) -> None:
 
 def detectable(scored: list[Scored], added: list[Candidate], rejected: list[Effect]) -> list[dict]:
     """The candidates of the last ranking left unclaimed, each with the size this log would claim it
-    at about half the time (trace.smallest_claimed). When the effect added last ended the search
+    at about half the time (scored.smallest_claimed). When the effect added last ended the search
     (the residuals then passed), they were scored against the model before it."""
     out = []
     for s in scored:

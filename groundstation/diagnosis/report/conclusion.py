@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import math
 
-from groundstation.diagnosis.catalogue.altitude import unit_of
-from groundstation.diagnosis.catalogue.thrust import LIFTOFF_REACH
+from groundstation.diagnosis.catalogue.candidate import unit_of
+from groundstation.diagnosis.catalogue.thrust_model import LIFTOFF_REACH
 from groundstation.diagnosis.claims.search import CLOSE_CALL
 from groundstation.diagnosis.engine import Diagnosis
 
@@ -261,7 +261,7 @@ def _named(e) -> str:
 
 
 def format_params(name: str, p: dict) -> str:
-    """``k = v unit`` for each parameter of effect ``name`` (catalogue.UNITS; a ``unit`` entry in ``p``
+    """``k = v unit`` for each parameter of effect ``name`` (candidate.UNITS; a ``unit`` entry in ``p``
     overrides it), sigmas left out."""
 
     def unit(k):

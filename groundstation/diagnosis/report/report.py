@@ -21,7 +21,7 @@ report.json::
 with ``before``/``after`` per sensor: innovation RMS, NIS mean, Ljung-Box p,
 failed tests, and ``skipped_spurious`` (a count) and ``skipped_spurious_at`` ([first, last]
 spans in s) where readings were skipped as spurious (the thrust model's range echoes on the
-ground, ``thrust.LIFTOFF_REACH``); and, when truth exists,
+ground, ``thrust_model.LIFTOFF_REACH``); and, when truth exists,
 ``rmse_vs_truth`` of the height [m] or, for the attitude model, of roll and pitch together
 [rad] (``rmse_of`` says which), and for the height whether its sigma is honest:
 ``within_2sigma`` (the share of its errors within 2 sigma; 0.95 if honest) and ``nees`` (1 if
@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from groundstation.diagnosis.catalogue.thrust import ThrustContext
+from groundstation.diagnosis.catalogue.thrust_model import ThrustContext
 from groundstation.diagnosis.engine import Diagnosis
 from groundstation.diagnosis.report.autopilot_params import ParamSuggestion
 from groundstation.diagnosis.report.conclusion import conclusion
@@ -80,7 +80,7 @@ def _summary(run: Run, findings, truth, t0: float, t1: float, delays: dict[str, 
         }
         ctx = run.ctx
         spurious = ctx.range_spurious if isinstance(ctx, ThrustContext) and s == "range" else ()
-        if spurious:  # thrust.LIFTOFF_REACH
+        if spurious:  # thrust_model.LIFTOFF_REACH
             out["sensors"][s]["skipped_spurious"] = len(spurious)
             late = (delays or {}).get(s, 0.0)
             out["sensors"][s]["skipped_spurious_at"] = _spans([t + late for t in spurious])

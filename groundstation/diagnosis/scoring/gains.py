@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from groundstation.diagnosis.catalogue.altitude import Candidate
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, SensorTrace, run_model
 from groundstation.diagnosis.runs.signature import Column, Probes, Signatures, TwoStage, loglik, signatures, two_stage
 from groundstation.estimation.models.base import LinearModel

@@ -28,7 +28,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from groundstation.core.measurement import Measurement
-from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS, Candidate, shift
+from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS, shift
+from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.runs.run import Prepared, Run, ending, run_model
 from groundstation.estimation.models.base import LinearModel
 

@@ -16,7 +16,7 @@ model's inputs are off and z and vz are *reset* to 0 (:func:`ground_contact`), w
 other states are: as Kalman updates, a touchdown's vz = 0 against an estimate still sinking
 at 0.8 m/s was "explained" through the correlations. Used by the live thrust filter
 (:func:`groundstation.estimation.routing.thrust_input_on_ground`, through :func:`contact_range`) and its diagnosis
-(:func:`groundstation.diagnosis.catalogue.thrust._input`).
+(:func:`groundstation.diagnosis.catalogue.thrust_model._input`).
 """
 
 from __future__ import annotations
