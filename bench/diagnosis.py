@@ -27,7 +27,7 @@ veto of an effect that makes the error against truth worse is off, so what is
 measured is the diagnosis from the log's own sensors. ``--airframe sim_quad``
 gives the thrust model the simulated quadcopter's thrust curve, drag and
 acceleration noise (``groundstation/vehicles/sim_quad.json``, as ``diagnose --vehicle``); without it
-they come from the log (the thrust curve from the accelerometer: groundstation/diagnosis/airframe.py).
+they come from the log (the thrust curve from the accelerometer: groundstation/diagnosis/catalogue/airframe.py).
 The fast subset is ``tests/test_diagnosis.py``.
 """
 
@@ -335,7 +335,7 @@ def main() -> int:
         flush=True,
     )
     rows = []
-    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/trials.py)
+    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/scoring/trials.py)
     with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(args.jobs) as ex:
         for r in ex.map(one, jobs):
             rows.append(r)

@@ -7,8 +7,8 @@ are the same.
 
 The baseline is ``diagnose --jobs 1`` with GROUNDSTATION_TRACE=runs: every candidate scored by
 filter runs of its own, every value of a delay's grid and every refinement run, one after another
-(``groundstation/diagnosis/trials.py``), as the diagnosis ran before the two-stage filter
-(``groundstation/diagnosis/signature.py``). Then the default path on one core and on every core.
+(``groundstation/diagnosis/scoring/trials.py``), as the diagnosis ran before the two-stage filter
+(``groundstation/diagnosis/runs/signature.py``). Then the default path on one core and on every core.
 Each run is the command line in a fresh process, as a user runs it (reading the log included),
 its peak memory that process's. The findings compared (:func:`same_findings`): the effects added,
 in order, with their parameters (within 5 % or half a standard error), and the candidates turned

@@ -167,7 +167,7 @@ def evaluate(name: str, data: Path = DATA) -> dict:
         fell = 1.0 - after / before if before > 0 else 0.0
         ok = "discovered" in claimed and fell >= DISCOVERED_FALL
         why = f"discovered {'named' if 'discovered' in claimed else 'not named'}, error {fell:+.0%} down"
-    elif not catalogued:  # thrust-side only: traced beside the altitude model (diagnosis/thrust_side.py)
+    elif not catalogued:  # thrust-side only: traced beside the altitude model (diagnosis/catalogue/thrust_side.py)
         ok = claimed == hidden and after <= before + 1e-9
         why = f"named {claimed} beside the model" if ok else f"claimed {claimed}"
     else:
@@ -308,7 +308,7 @@ def main() -> int:
         print(f"no foreign flights at {a.data} (set GROUNDSTATION_DATA)")
         return 1
     names = [n for n in (a.flights.split(",") if a.flights else flights(a.data)) if n in flights(a.data)]
-    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/trials.py)
+    # one BLAS thread each: OpenBLAS's pool does not survive a fork (groundstation/diagnosis/scoring/trials.py)
     with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(evaluate, names, [a.data] * len(names)))
     print(f"{'flight':24s} {'suite':5s} {'hidden':28s} {'claimed':44s} {'before':>7s} {'after':>7s} {'ref':>7s}  bar")

@@ -1,4 +1,4 @@
-"""The thrust curve read from a log's own accelerometer (groundstation/diagnosis/airframe.py): the thrust
+"""The thrust curve read from a log's own accelerometer (groundstation/diagnosis/catalogue/airframe.py): the thrust
 model's prior when no vehicle file gives the airframe."""
 
 import math

@@ -1,5 +1,5 @@
 """Thrust lost as the battery sags, traced beside the altitude model from the accelerometer's thrust
-curve (diagnosis/thrust_side.py), and the parameters a diagnosis never writes outside the ranges their
+curve (diagnosis/catalogue/thrust_side.py), and the parameters a diagnosis never writes outside the ranges their
 autopilots document (drivers/mavlink/param_ranges.py)."""
 
 import pytest

@@ -1,4 +1,4 @@
-"""The candidates through the base filter's gains (the two-stage filter, diagnosis/signature.py)
+"""The candidates through the base filter's gains (the two-stage filter, diagnosis/runs/signature.py)
 score as their own filter runs do: exactly for effects linear in their parameters, and the
 diagnosis finds the same with either path on simulated, foreign and real logs."""
 
