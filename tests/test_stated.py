@@ -131,3 +131,20 @@ def test_replay_and_evaluate_take_the_clearance_the_log_states():
     assert blocked is not None and blocked.stated and blocked.stated[0]["params"]["o"] == pytest.approx(0.05, abs=0.005)
     ev = evaluate(path)
     assert "5.0 cm" in ev.clearance and ev.estimate_rmse < 0.02, ev.table()
+
+
+def test_a_range_that_reads_zero_on_its_gear_gives_a_replay_no_offset(tmp_path):
+    """Our simulator's range reads max(0, noise) on the ground: its clearance is 0 m, and a replay
+    takes (and says) no offset for it, as the diagnosis takes none."""
+    from groundstation.estimation.logs import load_blocked
+    from groundstation.estimation.stated import GROUND_KINDS, STATED_TABLES
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    log = tmp_path / "q.tlog"
+    run_fast(Scenario(vehicle="quad", seed=3, duration=20.0), log)
+    loaded = load_log(log, tables=STATED_TABLES, imu_columns=True)
+    c = range_clearance(loaded.tables, loaded.measurements.only(GROUND_KINDS))
+    assert c is not None and c.metres == 0.0 and c.readings >= 10
+    blocked = load_blocked(log)
+    assert blocked is not None and blocked.clearance is None and blocked.stated == []

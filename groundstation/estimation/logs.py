@@ -167,6 +167,8 @@ def load_blocked(path: Path, imu_dt: float = IMU_BLOCK_S) -> BlockedLog | None:
     for (kind, inst), s in imu.series.items():
         every = every + block_means(s, kind, inst, imu_dt).readings
     clearance = range_clearance(log.tables, every.only(GROUND_KINDS)) if Kind.RANGE in every.kinds() else None
+    if clearance is not None and not clearance.metres:
+        clearance = None  # a range that reads 0 on its gear has no offset to take (as the diagnosis's setup)
     ms = list(every.where(every.t == every.t).in_time_order())
     return BlockedLog(
         ms, len(log.measurements) + len(imu), log.description, log.vehicle, log.damage, log.ground_stations, clearance
