@@ -9,6 +9,9 @@ one or more stages of the simulation:
 * ``baro_alt(sim)``: an altitude error [m] the barometer reads in addition
   (turned into pressure through the standard atmosphere);
 * ``range(d, sim)``: on the range reading [m];
+* ``rig(params)``: on the 3-DOF helicopter's constants, once, before it flies
+  (a rig that is not Table 1's: its motor constant, counterweight, friction);
+* ``encoders(angles, sim)``: on the 3-DOF helicopter's encoder angles [rad];
 * ``delay``: a per-sensor latency [s].
 
 The names are the catalogue's canonical names, shared with the diagnosis
@@ -20,7 +23,7 @@ undeclared effect reaches it by no channel at all (see :mod:`sim_bridge.scenario
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -96,6 +99,13 @@ class Effect:
 
     def range(self, d, sim):
         return d
+
+    def rig(self, params):
+        """The 3-DOF helicopter's constants (``Heli3dofParams``) as this rig has them."""
+        return params
+
+    def encoders(self, angles, sim):
+        return angles
 
     def step(self, dt, sim) -> None:
         """Advance internal state (random walks, filters) by one physics step."""
@@ -380,6 +390,83 @@ class MotorOffset(Effect):
         if sim.scenario.vehicle != "heli3dof":
             return cmd
         return type(cmd)(cmd.V_f + self.front, cmd.V_b + self.back)
+
+
+@register
+class MotorConstant(Effect):
+    """The 3-DOF rig's motors give more or less thrust per volt than the lab's K_f (the lab found
+    K_f by hand, from the equilibrium voltage and eq. 12). With the masses unchanged, the voltage
+    that holds the rig level moves with it: V_s0 = (2 l_h m_p - l_c m_c) g / (l_h K_f)."""
+
+    name = "motor_constant"
+    equation = "K_f = K_f_table * (1 + s)  (3-DOF helicopter)"
+    params = {"s": Param(0.08, "1", -0.3, 0.3)}
+
+    def rig(self, params):
+        return replace(params, K_f=params.K_f * (1.0 + self.s))
+
+
+@register
+class Counterweight(Effect):
+    """The 3-DOF rig's counterweight heavier (or lighter) than Table 1's: the equilibrium voltage
+    moves by -l_c g dm / (l_h K_f) (about -0.55 V per 10 g). Its moment of inertia is kept
+    (l_c^2 dm is under 0.1 % of J_e for the range here)."""
+
+    name = "counterweight"
+    equation = "m_c = m_c_table + dm  (3-DOF helicopter; V_s0 = (2 l_h m_p - l_c m_c) g / (l_h K_f))"
+    params = {"dm": Param(0.02, "kg", -0.1, 0.1)}
+
+    def rig(self, params):
+        return replace(params, m_c=params.m_c + self.dm)
+
+
+@register
+class MotorAsymmetry(Effect):
+    """The 3-DOF rig's two motors unlike: the back one gives (1 + a) K_f per volt, the front one
+    (1 - a) K_f. Level flight then needs a voltage difference, and the sum's lift is shared unevenly."""
+
+    name = "motor_asymmetry"
+    equation = "F_f = K_f (1 - a) V_f,  F_b = K_f (1 + a) V_b  (3-DOF helicopter)"
+    params = {"a": Param(0.04, "1", -0.15, 0.15)}
+
+    def rig(self, params):
+        return replace(params, a=self.a)
+
+
+@register
+class ViscousFriction(Effect):
+    """Bearing and air friction on the 3-DOF rig's axes, a torque against each rate."""
+
+    name = "viscous_friction"
+    equation = "J x_dd = ... - d x_dot  (3-DOF helicopter: pitch, elevation, travel)"
+    params = {
+        "p": Param(0.005, "N m s/rad", 0.0, 0.05),
+        "e": Param(0.05, "N m s/rad", 0.0, 0.3),
+        "lambda": Param(0.08, "N m s/rad", 0.0, 0.3),
+    }
+
+    def rig(self, params):
+        return replace(params, d_p=self.values["p"], d_e=self.values["e"], d_l=self.values["lambda"])
+
+
+@register
+class EncoderOffset(Effect):
+    """The 3-DOF rig's encoders zeroed away from level (the lab's own pitch offset, sec. 4.6): each
+    reads its angle plus an offset. Travel's zero is arbitrary and shows in nothing."""
+
+    name = "encoder_offset"
+    equation = "angle_read = angle + offset  (3-DOF helicopter: p, e, lambda)"
+    params = {
+        "p": Param(1.0, "deg", -5.0, 5.0),
+        "e": Param(-0.8, "deg", -5.0, 5.0),
+        "lambda": Param(0.0, "deg", -180.0, 180.0),
+    }
+
+    def setup(self, kw):
+        self.offset = tuple(math.radians(self.values[k]) for k in ("p", "e", "lambda"))
+
+    def encoders(self, angles, sim):
+        return tuple(a + o for a, o in zip(angles, self.offset))
 
 
 @register

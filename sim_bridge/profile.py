@@ -70,6 +70,7 @@ class FlightProfile:
         self.tilt_period = rng.uniform(2.0, 4.0)
         self.duration = duration
         self.flight = flight
+        self.seed = seed
         # thrust_test (drawn after the standard's draws, which stay as they were)
         self.h_ground = rng.uniform(0.15, 0.3)
         self.step = rng.uniform(0.3, 0.6)
@@ -268,21 +269,46 @@ class CoaxAutopilot:
 
 
 class Heli3dofAutopilot:
-    """PD on elevation through V_s, on pitch through V_d, pitch set from travel."""
+    """PD on elevation through V_s, on pitch through V_d, pitch set from travel.
+
+    The flights: ``standard`` takes off from the table and steps elevation by 0.15-0.25 rad with
+    travel swinging at 0.3 rad/s; ``small`` is recorded from level flight on and stays within a few
+    degrees of it (where the lab's linear model holds); ``large`` takes off and flies far from it
+    (elevation from -0.3 to +0.5 rad, pitch to 0.6 rad, travel at 0.8 rad/s). ``small`` and
+    ``large`` vary their sizes and periods with the seed."""
 
     def __init__(self, heli: Heli3dof, profile: FlightProfile) -> None:
         self.h, self.profile = heli, profile
         rng = np.random.default_rng(profile.duration.__hash__() % 1000)
         self.e_step = 0.15 + 0.1 * rng.random()
+        self.flight = profile.flight
+        seeded = np.random.default_rng(profile.seed + 3000)
+        if self.flight == "small":
+            self.e_up, self.e_down = seeded.uniform(0.03, 0.06), -seeded.uniform(0.03, 0.06)
+            self.lamd_amp, self.p_lim = seeded.uniform(0.06, 0.12), 0.1
+        else:
+            self.e_up, self.e_down = seeded.uniform(0.35, 0.5), -seeded.uniform(0.2, 0.3)
+            self.lamd_amp, self.p_lim = seeded.uniform(0.6, 0.9), 0.6
+        self.e_period, self.lamd_period = seeded.uniform(6.0, 10.0), seeded.uniform(12.0, 20.0)
+        self.start = 0.0 if self.flight == "small" else 2.0
+
+    def references(self, t: float) -> tuple[float, float]:
+        """(elevation, travel rate) references [rad, rad/s]."""
+        if self.flight == "standard":
+            e_ref = 0.0 if t < 10.0 else (self.e_step if (t // 8) % 2 else -self.e_step / 2)
+            return e_ref, (0.0 if t < 15.0 else 0.3 * math.sin(2 * math.pi * t / 20.0))
+        s = t - self.start
+        e_ref = 0.0 if s < 4.0 else (self.e_up if (s // self.e_period) % 2 else self.e_down)
+        return e_ref, (0.0 if s < 6.0 else self.lamd_amp * math.sin(2 * math.pi * (s - 6.0) / self.lamd_period))
 
     def __call__(self, t: float, dt: float) -> Heli3dofCommand:
         P = self.h.p
         p, pd, e, ed, lam, lamd = self.h.x
-        if t < 2.0:
+        if t < self.start:
             return Heli3dofCommand(0.0, 0.0)
-        e_ref = 0.0 if t < 10.0 else (self.e_step if (t // 8) % 2 else -self.e_step / 2)
-        lamd_ref = 0.0 if t < 15.0 else 0.3 * math.sin(2 * math.pi * t / 20.0)
-        p_ref = max(-0.4, min(0.4, 1.5 * (lamd_ref - lamd)))
+        e_ref, lamd_ref = self.references(t)
+        p_lim = 0.4 if self.flight == "standard" else self.p_lim
+        p_ref = max(-p_lim, min(p_lim, 1.5 * (lamd_ref - lamd)))
         V_s = P.V_s0 + 40.0 * (e_ref - e) - 25.0 * ed
         V_d = 60.0 * (p_ref - p) - 12.0 * pd
         return Heli3dofCommand((V_s - V_d) / 2.0, (V_s + V_d) / 2.0)

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .effects import Effect, parse_effect
-from .names import FLIGHTS, VEHICLES
+from .names import FLIGHTS, RIG_FLIGHTS, VEHICLES
 from .sensors import SensorConfig
 
 
@@ -46,6 +46,8 @@ class Scenario:
             raise ScenarioError(f"unknown flight {self.flight!r}; use one of {', '.join(FLIGHTS)}")
         if self.flight == "guided" and self.vehicle == "heli3dof":
             raise ScenarioError("the 3-DOF rig is on its stand: it flies no guided flight")
+        if self.flight in RIG_FLIGHTS and self.vehicle != "heli3dof":
+            raise ScenarioError(f"the {self.flight} flight is the 3-DOF helicopter's: use --vehicle heli3dof")
 
     @property
     def effects(self) -> list[Effect]:

@@ -27,7 +27,7 @@ from .profile import CoaxAutopilot, FlightProfile, GuidedProfile, Heli3dofAutopi
 from .scenario import Scenario
 from .sensors import SensorSuite
 from .vehicles.coax import Coax
-from .vehicles.heli3dof import Heli3dof
+from .vehicles.heli3dof import Heli3dof, Heli3dofParams
 from .vehicles.quad import Quad
 
 
@@ -61,7 +61,10 @@ class Simulator:
             coax = Coax()
             self.vehicle, self.autopilot = coax, CoaxAutopilot(coax, self.profile)
         else:
-            rig = Heli3dof()
+            constants = Heli3dofParams()
+            for e in scenario.effects:
+                constants = e.rig(constants)
+            rig = Heli3dof(constants, e0=0.0 if scenario.flight == "small" else None)
             assert isinstance(self.profile, FlightProfile)  # the scenario refuses a guided flight here
             self.vehicle, self.autopilot = rig, Heli3dofAutopilot(rig, self.profile)
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))

@@ -14,8 +14,10 @@ already MAVLink's (NED/FRD) and stay so.
 Vehicle time: the message's ``time_usec``/``time_boot_ms`` where it has one
 (a UNIX-epoch ``time_usec`` or a zero time is treated as absent); otherwise the
 system's aligned clock (:mod:`drivers.mavlink.clock`). SERVO_OUTPUT_RAW's
-``time_usec`` is a uint32 that wraps every 71.6 minutes, so it uses the aligned
-clock too.
+``time_usec`` is a uint32 that wraps every 71.6 minutes: the aligned clock says
+which turn it is on, and the field gives the time within it (the aligned clock
+alone is the receive time's: a few ms of jitter, which a 3-DOF rig's
+identification read as a 2 ms lag of its motor voltages).
 
 Until a system has sent its first timestamped message, the offset is unknown:
 its untimed measurements wait (at most ``PENDING_S``) and are stamped once the
@@ -185,10 +187,11 @@ _PENDING_MAX = 2000
 
 def _time_field(cls) -> tuple[Callable | None, float, float]:
     """The getter of the message's vehicle-time field (None: it has none), the largest raw value
-    that is a time since boot (a larger ``time_usec`` is a UNIX-epoch time), and its scale to s."""
+    that is a time since boot (a larger ``time_usec`` is a UNIX-epoch time; a negative one is minus
+    the period of a field that wraps), and its scale to s."""
     names = cls.ordered_fieldnames
-    if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min
-        return None, 0.0, 0.0
+    if cls.msgname == "SERVO_OUTPUT_RAW":  # uint32 us wraps every 71.6 min: minus its period
+        return itemgetter(names.index("time_usec")), -(2**32) * 1e-6, 1e-6
     if "time_usec" in names:
         return itemgetter(names.index("time_usec")), EPOCH_THRESHOLD_US, 1e-6
     if "time_boot_ms" in names:
@@ -329,6 +332,9 @@ class MavlinkDecoder:
                 self.on_restart(sysid)
         else:  # no time field, a zero one, or a UNIX-epoch time_usec: the system's aligned clock
             t = clock.vehicle_time(t_rx)
+            if largest < 0.0 and raw and t == t:  # a field that wraps: the clock picks its turn
+                t_field = raw * to_s
+                t = t_field - largest * round((t - t_field) / -largest)
         n = len(out)
         try:
             handler(m, t, t_rx, source, instance, out)

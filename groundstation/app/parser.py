@@ -13,7 +13,7 @@ from pathlib import Path
 
 from drivers.speed import check_speed
 from groundstation.core.cores import available_cores
-from groundstation.diagnosis.model_names import MODEL_HELP
+from groundstation.diagnosis.model_names import MODEL_HELP, RIG_MODEL_HELP
 from groundstation.estimation.model_names import CLI_MODELS
 from sim_bridge.names import FLIGHTS, UNASKED_RATE, VEHICLES
 
@@ -49,8 +49,8 @@ def add_diagnose_parser(sub) -> None:
     d.add_argument(
         "--model",
         default="auto",
-        choices=("auto", *MODEL_HELP),
-        help="; ".join(f"{name}: {text}" for name, text in MODEL_HELP.items())
+        choices=("auto", *MODEL_HELP, *RIG_MODEL_HELP),
+        help="; ".join(f"{name}: {text}" for name, text in {**MODEL_HELP, **RIG_MODEL_HELP}.items())
         + " (default auto: the one the vehicle and the log's readings allow, the altitude model first; "
         "with a throttle and a battery voltage, thrust lost with the battery is traced beside it)",
     )
@@ -106,7 +106,7 @@ def add_fleet_parser(sub) -> None:
     d.add_argument("archive", type=Path)
     d.add_argument("--out", type=Path, required=True, help="the fleet's folder: a report folder per log, the table")
     d.add_argument(
-        "--model", default="auto", choices=("auto", *MODEL_HELP), help="as diagnose's (default auto: by each log)"
+        "--model", default="auto", choices=("auto", *MODEL_HELP, *RIG_MODEL_HELP), help="as diagnose's (default auto: by each log)"
     )
     d.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)")
     d.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")

@@ -16,13 +16,18 @@ from groundstation.core.allocator import return_freed_arrays
 from groundstation.core.imu import ImuColumns
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis.engine import diagnose
+from groundstation.diagnosis.model_names import RIG_MODEL_HELP
 from groundstation.diagnosis.models import choose_model
 from groundstation.diagnosis.report import report
 from groundstation.diagnosis.report.autopilot_params import ParamSuggestion, suggest, suggest_notch, write_param_file
 from groundstation.diagnosis.report.report import triage_headline
+from groundstation.diagnosis.rig import report as rig_report
+from groundstation.diagnosis.rig.diagnose import diagnose_rig
 from groundstation.diagnosis.triage import Triage, triage, usable, usable_imu
 from groundstation.estimation.identity import Vehicle, identify
 from groundstation.estimation.logs import LoadedLog, load_log
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
+from groundstation.estimation.registry import vehicle_config
 from groundstation.estimation.stated import stated_by
 from groundstation.estimation.truth import truth_from
 
@@ -66,6 +71,8 @@ def run(
         raise ValueError(f"{path}: no reading could be read from it ({log.description})")
     duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
     say(f"diagnosing {path}: {log.description}")
+    if model in RIG_MODEL_HELP or (model == "auto" and Kind.ENCODERS in _kinds(log)):
+        return _rig(path, out, log, duration, vehicle, progress, say)
     tr = triage(log.tables, ms_all, log.imu)
     say(tr.summary())
     ms, used, cut = usable(ms_all, tr)
@@ -163,6 +170,34 @@ def _diagnosed(
         not_described=None if describes else craft.why_not(model),
     )
     return j, suggestions
+
+
+def _rig(
+    path: Path,
+    out: Path,
+    log: LoadedLog,
+    duration: float,
+    vehicle: str | None,
+    progress: Callable[[str], None] | None,
+    say: Callable[[str], None],
+) -> LogDiagnosis:
+    """A 3-DOF helicopter session: the rig's own diagnosis (:mod:`.rig`), from the lab's model or
+    from the vehicle file's constants of this rig."""
+    craft = vehicle_of(log)
+    if craft.kind not in ("rig", "helicopter", "unknown"):
+        raise ValueError(
+            f"this log is a {craft.name}'s ({craft.evidence}): the 3-DOF rig's diagnosis reads the encoders of a "
+            "rig (its ENCODERS, or the ATTITUDE a rig that calls itself a helicopter sends)"
+        )
+    rig = vehicle_config(vehicle, "heli3dof").get("rig") if vehicle else None
+    start = Heli3dofRig.from_vehicle(rig) if isinstance(rig, dict) else None
+    d = diagnose_rig(log.measurements, log.imu, start=start, source=str(path), progress=progress)
+    j = rig_report.write(d, out, str(path), log.description)
+    if progress is not None:
+        progress("done")
+    say(j["conclusion"])
+    say(f"report: {out / 'report.html'} and report.json; the rig's constants: {out / rig_report.RIG_FILE}")
+    return LogDiagnosis(j, log.description, duration, [rig_report.RIG_FILE])
 
 
 def _param_files(out: Path, suggestions: list[ParamSuggestion], path: Path) -> list[str]:

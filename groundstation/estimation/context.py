@@ -107,6 +107,7 @@ class Context:
     e_dot_hat: float = 0.0
     lambda_dot_hat: float = 0.0
     u_s: float = 0.0
+    u_d: float = 0.0
 
     def copy(self) -> Context:
         """A snapshot for a rollback (the module docstring says why shallow is enough)."""

@@ -281,6 +281,7 @@ def estimate_for_accel(m: Measurement, ctx: Context) -> None:
             float(x[5]),
         )
         ctx.u_s = float(u[0]) if u is not None and len(u) else 0.0
+        ctx.u_d = float(u[1]) if u is not None and len(u) > 1 else 0.0
 
 
 def estimate_for_gyro(m: Measurement, ctx: Context) -> None:

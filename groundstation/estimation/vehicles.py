@@ -1,6 +1,6 @@
 """Files that describe a vehicle and a session: vehicle parameter files and declared effects.
 
-A vehicle file (``groundstation/vehicles/<name>.json``) gives an airframe's constants per model
+A vehicle file (``groundstation/vehicles/<name>.json``, or any ``.json`` path) gives an airframe's constants per model
 (its sensors' noise, a thrust curve, a sonar's range) and the effects known for it (a range
 sensor's mounting offset); :func:`groundstation.estimation.registry.vehicle_config` checks a
 model's section against what that model takes. A session's ``*.declared.json`` (or
@@ -21,8 +21,13 @@ def vehicle_names() -> list[str]:
 
 
 def vehicle_file(vehicle: str) -> dict:
-    """The whole file of a vehicle, or a one-line error naming the known ones."""
+    """The whole file of a vehicle: a known name, or the path of a ``.json`` file (what
+    ``diagnose --model heli3dof`` writes for a rig); a one-line error naming the known ones."""
     p = VEHICLE_CONFIGS / f"{vehicle}.json"
+    if vehicle.endswith(".json"):
+        p = Path(vehicle)
+        if not p.is_file():
+            raise ValueError(f"no vehicle file {vehicle}")
     if not p.exists():
         known = ", ".join(sorted(x.stem for x in VEHICLE_CONFIGS.glob("*.json")))
         raise ValueError(f"no vehicle configuration {vehicle!r}; known: {known}")

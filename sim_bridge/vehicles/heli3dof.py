@@ -25,6 +25,16 @@ Corrections, made knowingly:
 * Travel torque (13) gets the lever arm ``l_h cos(e)``; the lab drops it with
   the small-angle assumption.
 
+What a real rig has beyond Table 1, each zero by default and set by the
+simulator's effects (``sim_bridge.effects``: motor_asymmetry, viscous_friction,
+motor_constant, counterweight): the two motors' constants ``K_f (1 -+ a)``
+(front, back) and a viscous friction torque ``-d x_dot`` on each axis::
+
+    J_p p_dd   = l_p (F_b - F_f) - d_p p_dot
+    J_e e_dd   = ... (10) ... - d_e e_dot
+    J_l lam_dd = ... (13) ... - d_l lam_dot
+    F_f = K_f (1 - a) V_f,  F_b = K_f (1 + a) V_b
+
 The IMU sits on the arm that carries the rotors, as the lab describes (sec. 4.1):
 its frame follows travel (yaw), elevation (pitch) and the helicopter's pitch p
 (roll), so its gyro reads the Euler-rate transform of (p_dot, e_dot,
@@ -60,6 +70,10 @@ class Heli3dofParams:
     e_min: float = -0.5  # elevation end stop (resting on the table) [rad]
     e_max: float = 1.0  # elevation end stop above (the rig's frame) [rad]
     p_max: float = 1.2  # pitch end stops [rad]
+    a: float = 0.0  # motor asymmetry: F_f = K_f (1 - a) V_f, F_b = K_f (1 + a) V_b
+    d_p: float = 0.0  # viscous friction on pitch [N m s/rad]
+    d_e: float = 0.0  # on elevation
+    d_l: float = 0.0  # on travel
 
     @property
     def V_s0(self) -> float:
@@ -91,14 +105,15 @@ class Heli3dof(Vehicle):
     def derivatives(self, x: np.ndarray, cmd: Heli3dofCommand) -> np.ndarray:
         P = self.p
         p, pd, e, ed, lam, lamd = x
-        F_f, F_b = P.K_f * cmd.V_f, P.K_f * cmd.V_b
-        pdd = P.l_p * (F_b - F_f) / P.J_p
+        F_f, F_b = P.K_f * (1.0 - P.a) * cmd.V_f, P.K_f * (1.0 + P.a) * cmd.V_b
+        pdd = (P.l_p * (F_b - F_f) - P.d_p * pd) / P.J_p
         edd = (
             P.l_h * math.cos(p) * (F_f + F_b)
             - P.l_h * math.cos(e) * 2 * P.m_p * P.g
             + P.l_c * math.cos(e) * P.m_c * P.g
+            - P.d_e * ed
         ) / P.J_e
-        ldd = P.l_h * math.cos(e) * (F_f + F_b) * math.sin(p) / P.J_l
+        ldd = (P.l_h * math.cos(e) * (F_f + F_b) * math.sin(p) - P.d_l * lamd) / P.J_l
         return np.array([pd, pdd, ed, edd, lamd, ldd])
 
     def clipped(self, cmd: Heli3dofCommand) -> Heli3dofCommand:

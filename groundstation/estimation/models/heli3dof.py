@@ -49,9 +49,8 @@ import numpy as np
 from groundstation.core.measurement import Kind
 
 from .base import LinearModel, MeasurementModel, observability_rank
+from .heli3dof_rig import J_E, J_L, J_P, K_F, L_H, L_P, V_S0, Heli3dofRig, dynamics, voltages
 
-# Table 1 and the corrected motor constant
-L_P, L_H, J_P, J_E, J_L, K_F, V_S0 = 0.175, 0.66, 0.044, 1.03, 1.08, 0.1248, 8.0
 STATES = ["p", "p_dot", "e", "e_dot", "lambda", "lambda_dot"]
 
 
@@ -102,52 +101,87 @@ def arm_acceleration_body(p: float, e: float, e_dot: float, l_dot: float, e_dd: 
 
 
 def heli3dof_model(
-    *, R: dict | None = None, G_acc: float = 3e-3, K_f: float = K_F, arm_acceleration: bool = True
+    *,
+    R: dict | None = None,
+    G_acc: float = 3e-3,
+    K_f: float = K_F,
+    arm_acceleration: bool = True,
+    rig: Heli3dofRig | dict | None = None,
 ) -> LinearModel:
+    """The lab's filter; with ``rig`` (a vehicle file's ``heli3dof.rig``, or what ``diagnose --model
+    heli3dof`` found: :class:`~.heli3dof_rig.Heli3dofRig`) on that rig's own constants. A rig whose
+    dynamics the linear model cannot hold (the full equations, a motor lag, a V_s0 other than the
+    input's reference) makes it an extended Kalman filter on ``heli3dof_rig.dynamics``; its IMU's
+    biases and mounting and its encoders' offsets are taken off the readings before they are used."""
+    if isinstance(rig, dict):
+        rig = Heli3dofRig.from_vehicle(rig)
+    rig = rig if rig is not None else Heli3dofRig(K_f=K_f)
+    K_f = rig.K_f
     A, B = matrices(K_f)
+    A[1, 1], A[3, 3], A[5, 5] = -rig.c_p, -rig.c_e, -rig.c_l
     K1, K2, K3 = gains(K_f)
     R = {**R_DEFAULT, **(R or {})}
+    nonlinear = not (rig.linear_dynamics and rig.V_s0 == V_S0)
+    f_jac = dynamics(rig) if nonlinear else None
+    n = 8 if nonlinear and rig.tc > 0 else 6
+    C_mount_T = rig.mounting().T  # f = C^T f_m
+    b_g, b_a = np.asarray(rig.gyro_bias), np.asarray(rig.accel_bias)
+    offset = np.array([*rig.encoder_offset, 0.0])
+    lab_imu = rig.gyro_bias == (0.0, 0.0, 0.0) and rig.accel_bias == (0.0, 0.0, 0.0) and rig.imu_mounting == (0.0,) * 3
+
+    def pad(C: np.ndarray) -> np.ndarray:
+        return np.hstack([C, np.zeros((C.shape[0], n - 6))]) if n > 6 else C
+
+    c_gyro, c_accel, c_enc = pad(C_GYRO), pad(C_ACCEL), pad(C_ENC)
+
+    def arm_terms(ctx) -> tuple[float, float]:
+        """(e_dd, lambda_dd) the model expects now, for the arm's own acceleration."""
+        if not nonlinear:
+            return K2 * ctx.u_s, K3 * ctx.p_hat
+        V_f, V_b = voltages((ctx.u_s, ctx.u_d))
+        _, edd, ldd = rig.accelerations(ctx.p_hat, ctx.e_hat, ctx.p_dot_hat, ctx.e_dot_hat, ctx.lambda_dot_hat, V_f, V_b)
+        return edd, ldd
 
     def gyro(m, ctx):
-        return euler_rates(ctx.p_hat, ctx.e_hat, m.value)
+        w = m.value if lab_imu else C_mount_T @ (np.asarray(m.value, dtype=float) - b_g)
+        return euler_rates(ctx.p_hat, ctx.e_hat, w)
 
     def accel(m, ctx):
         f = np.asarray(m.value, dtype=float)
+        if not lab_imu:
+            f = C_mount_T @ (f - b_a)
         if arm_acceleration:
-            p_hat = ctx.p_hat
-            f = f - arm_acceleration_body(
-                p_hat,
-                ctx.e_hat,
-                ctx.e_dot_hat,
-                ctx.lambda_dot_hat,
-                K2 * ctx.u_s,
-                K3 * p_hat,
-            )
+            edd, ldd = arm_terms(ctx)
+            f = f - arm_acceleration_body(ctx.p_hat, ctx.e_hat, ctx.e_dot_hat, ctx.lambda_dot_hat, edd, ldd)
         fx, fy, fz = f
         return np.array([math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))])
 
     def encoders(m, ctx):
-        return np.array(m.value[:3], dtype=float)
+        return np.array(m.value[:3], dtype=float) - offset
 
     meas = {
-        "gyro": MeasurementModel("gyro", Kind.GYRO, gyro, lambda ctx: C_GYRO, np.asarray(R["gyro"])),
-        "accel": MeasurementModel("accel", Kind.ACCEL, accel, lambda ctx: C_ACCEL, np.asarray(R["accel"])),
-        "encoders": MeasurementModel("encoders", Kind.ENCODERS, encoders, lambda ctx: C_ENC, np.asarray(R["encoders"])),
+        "gyro": MeasurementModel("gyro", Kind.GYRO, gyro, lambda ctx: c_gyro, np.asarray(R["gyro"])),
+        "accel": MeasurementModel("accel", Kind.ACCEL, accel, lambda ctx: c_accel, np.asarray(R["accel"])),
+        "encoders": MeasurementModel("encoders", Kind.ENCODERS, encoders, lambda ctx: c_enc, np.asarray(R["encoders"])),
         "encoders_mav": MeasurementModel(
-            "encoders", Kind.ATTITUDE, encoders, lambda ctx: C_ENC, np.asarray(R["encoders"])
+            "encoders", Kind.ATTITUDE, encoders, lambda ctx: c_enc, np.asarray(R["encoders"])
         ),
     }
+    extra = n - 6  # the motors' voltages (a lag's states)
     return LinearModel(
         name="heli3dof",
-        states=list(STATES),
+        states=list(STATES) + ["V_f", "V_b"][:extra],
         inputs=["Vs_tilde", "V_d"],
         A=lambda u: A,
-        B=B,
-        Qc=np.diag([0.0, G_acc, 0.0, G_acc, 0.0, G_acc]),
-        x0=np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0]),
-        P0=np.diag([0.05, 0.05, 0.1, 0.05, 0.05, 0.05]),
+        B=B if n == 6 else np.zeros((n, 2)),
+        Qc=np.diag([0.0, G_acc, 0.0, G_acc, 0.0, G_acc] + [0.0] * extra),
+        x0=np.array([0.0, 0.0, -0.5, 0.0, 0.0, 0.0] + [0.0] * extra),
+        P0=np.diag([0.05, 0.05, 0.1, 0.05, 0.05, 0.05] + [1.0] * extra),
         measurements=meas,
         doc=__doc__,
+        f=f_jac[0] if f_jac else None,
+        jacobian=f_jac[1] if f_jac else None,
+        options=dict(R=R, G_acc=G_acc, arm_acceleration=arm_acceleration, rig=rig),
     )
 
 

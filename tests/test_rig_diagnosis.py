@@ -1,0 +1,140 @@
+"""The 3-DOF helicopter's closed loop: every effect the simulator can give the rig is found at a
+realistic size on a session flown as the lab flies it (take-off from the table, elevation steps,
+travel swings), with its size; a session near the linearisation point claims nothing, one far from
+it the full equations only; the rig's constants written go back into the estimator and leave
+nothing to find."""
+
+import json
+import math
+import subprocess
+import sys
+
+import pytest
+
+from groundstation.diagnosis.rig.diagnose import diagnose_rig
+from groundstation.estimation.logs import load_log
+from groundstation.estimation.registry import build_estimator
+
+#: terms of the full equations the simulator always flies: a session may show them with anything
+PHYSICS = {"elevation_trig", "travel_lever_arm"}
+
+
+def simulate(tmp, *args, seconds=60, flight="standard", seed=1):
+    log = tmp / f"rig-{flight}-{seed}-{abs(hash(args)) % 10**8}.tlog"
+    cmd = [sys.executable, "-m", "groundstation", "sim", "--vehicle", "heli3dof", "--fast", "--flight", flight]
+    cmd += ["--seed", str(seed), "--duration", str(seconds), "--log", str(log), *args]
+    subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+    return log
+
+
+def diagnosed(path, **kw):
+    log = load_log(path, tables=False, imu_columns=True)
+    return diagnose_rig(log.measurements, log.imu, with_kalman=kw.pop("with_kalman", False), **kw)
+
+
+def claimed(d) -> dict[str, dict]:
+    """Each claimed effect's fitted values (the final model's)."""
+    fin = d.search.final.values
+    return {st.name: {k: fin[k] for k in st.fit.free} for st in d.search.claimed}
+
+
+# (undeclared effect, the candidate that must name it, the parameter and its true value, tolerance)
+INJECTED = [
+    # the masses kept, V_s0 = (2 l_h m_p - l_c m_c) g / (l_h K_f) moves with K_f: 8.008 / 1.08
+    ("motor_constant:s=0.08", "motor_constant", "K_f", 0.1248 * 1.08, 0.02),
+    ("counterweight:dm=0.02", "equilibrium_voltage", "V_s0", 6.907, 0.02),
+    ("motor_asymmetry:a=0.04", "motor_asymmetry", "a", 0.04, 0.1),
+    ("viscous_friction:p=0,e=0,lambda=0.08", "viscous_friction(lambda)", "c_l", 0.08 / 1.08, 0.15),
+    ("viscous_friction:p=0.005,e=0,lambda=0", "viscous_friction(p)", "c_p", 0.005 / 0.044, 0.2),
+    ("actuator_lag:tc=0.05", "motor_lag", "tc", 0.05, 0.25),
+    ("encoder_offset:p=1.0,e=-0.8", "encoder_offset", "o_p", math.radians(1.0), 0.05),
+    ("gyro_bias:x=0.01,y=-0.008,z=0.005", "gyro_bias", "b_gx", 0.01, 0.05),
+    ("accel_bias:x=0.1,y=-0.08,z=0.15", "accel_bias", "b_az", 0.15, 0.05),
+    ("imu_misalignment:roll=2,pitch=-1.5,yaw=0", "imu_misalignment", "m_roll", math.radians(2.0), 0.05),
+]
+
+
+#: what an effect moves besides its own constant
+ALSO = {"motor_constant": {"equilibrium_voltage"}}
+
+
+@pytest.mark.parametrize("effect,name,param,truth,rel", INJECTED, ids=[x[1] for x in INJECTED])
+def test_each_effect_is_found_with_its_size_and_nothing_else(tmp_path, effect, name, param, truth, rel):
+    d = diagnosed(simulate(tmp_path, "--undeclared", effect))
+    found = claimed(d)
+    assert name in found, f"{name} not claimed: {list(found)}"
+    assert set(found) - PHYSICS - {name} - ALSO.get(name, set()) == set(), found
+    assert d.search.final.values[param] == pytest.approx(truth, rel=rel)
+    # the model with it predicts the encoders better than the lab's
+    before, after = d.prediction
+    assert sum(after.rms.values()) < sum(before.rms.values())
+
+
+def test_near_the_linearisation_point_nothing_is_claimed(tmp_path):
+    for seed in (1, 2):
+        d = diagnosed(simulate(tmp_path, flight="small", seed=seed))
+        assert claimed(d) == {}, seed
+
+
+def test_far_from_it_the_full_equations_and_nothing_else(tmp_path):
+    d = diagnosed(simulate(tmp_path, flight="large", seed=3, seconds=90))
+    found = claimed(d)
+    assert set(found) == PHYSICS
+    fin = d.search.final.values
+    assert fin["w_e"] == pytest.approx(1.0, abs=0.1) and fin["w_l"] == pytest.approx(1.0, abs=0.1)
+    before, after = d.prediction
+    assert after.rms["lambda"] < 0.2 * before.rms["lambda"] and after.rms["e"] < 0.5 * before.rms["e"]
+
+
+def test_the_kalman_filter_shows_an_imu_effect_and_its_correction(tmp_path):
+    d = diagnosed(simulate(tmp_path, "--undeclared", "gyro_bias:x=0.01,y=-0.008,z=0.005"), with_kalman=True)
+    assert d.nis is not None
+    before, after = d.nis
+    assert before["encoders"] > 1.5 and after["encoders"] < 1.2
+    assert abs(after["gyro"] - 1.0) < 0.5 and abs(after["accel"] - 1.0) < 0.5
+
+
+def test_the_command_line_writes_the_rig_file_and_the_loop_closes_on_it(tmp_path):
+    log = simulate(tmp_path, "--undeclared", "encoder_offset:p=1.0,e=-0.8", "--undeclared", "counterweight:dm=0.02")
+    out = tmp_path / "diag"
+    run = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "heli3dof", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert run.returncode == 0, run.stderr
+    assert "encoder_offset" in run.stdout and "equilibrium_voltage" in run.stdout
+    j = json.loads((out / "report.json").read_text())
+    assert {e["name"] for e in j["effects"]} >= {"encoder_offset", "equilibrium_voltage"}
+    rig_file = out / "heli3dof_rig.json"
+    rig = json.loads(rig_file.read_text())["heli3dof"]["rig"]
+    assert rig["encoder_offset_deg"][0] == pytest.approx(1.0, abs=0.05)
+    assert rig["V_s0"] == pytest.approx(6.907, rel=0.02)
+    # the estimator takes the file (an extended filter on the rig's own constants) ...
+    est = build_estimator("heli3dof", vehicle=str(rig_file))
+    assert est.model.f is not None
+    # ... and the diagnosis started from it finds nothing more
+    again = subprocess.run(
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "heli3dof", "--out",
+         str(tmp_path / "again"), "--vehicle", str(rig_file)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert json.loads((tmp_path / "again" / "report.json").read_text())["effects"] == []
+
+
+def test_a_log_without_encoders_and_a_rig_that_never_flew_are_one_line_errors(tmp_path):
+    quad = tmp_path / "quad.tlog"
+    subprocess.run(
+        [sys.executable, "-m", "groundstation", "sim", "--fast", "--duration", "20", "--log", str(quad)],
+        check=True, capture_output=True, timeout=120,
+    )  # fmt: skip
+    for path, words in ((quad, "reads the encoders of a rig"), (simulate(tmp_path, seconds=3), "flew free for")):
+        run = subprocess.run(
+            [sys.executable, "-m", "groundstation", "diagnose", str(path), "--model", "heli3dof", "--out",
+             str(tmp_path / "x")],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert run.returncode == 2 and words in run.stderr and "Traceback" not in run.stderr, run.stderr
+        assert len(run.stderr.strip().splitlines()) == 1
