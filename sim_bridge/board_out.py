@@ -22,6 +22,8 @@ _ENC = struct.Struct("<I3iH")
 _POWER = struct.Struct("<I2f")
 _BARO = struct.Struct("<I2f")
 _RANGE = struct.Struct("<IfB")
+#: [s] between the 3-DOF board's supply readings (50 Hz, whatever the rate the motors are set at)
+POWER_EVERY_S = 0.02
 
 
 class BinaryFramer:
@@ -43,6 +45,7 @@ class BoardEncoder:
         self.framer = BinaryFramer()
         self.epoch = epoch
         self.cpr = counts_per_rev
+        self._next_power = 0.0
 
     def _t_us(self, t: float) -> int:
         return int(round(t * 1e6)) & 0xFFFFFFFF
@@ -55,7 +58,8 @@ class BoardEncoder:
             if s.sensor == "encoders":
                 counts = [int(round(a / (2 * math.pi) * self.cpr)) for a in s.values]
                 return [f(0x04, _ENC.pack(tu, *counts, self.cpr))]
-            if s.sensor == "actuators":  # the board measures the motor supply
+            if s.sensor == "actuators" and s.t >= self._next_power:  # the board measures the motor supply
+                self._next_power = s.t + POWER_EVERY_S - 1e-6
                 return [f(0x05, _POWER.pack(tu, 12.0, 0.0))]
             return []
         if s.sensor == "gps":

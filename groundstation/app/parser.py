@@ -106,7 +106,10 @@ def add_fleet_parser(sub) -> None:
     d.add_argument("archive", type=Path)
     d.add_argument("--out", type=Path, required=True, help="the fleet's folder: a report folder per log, the table")
     d.add_argument(
-        "--model", default="auto", choices=("auto", *MODEL_HELP, *RIG_MODEL_HELP), help="as diagnose's (default auto: by each log)"
+        "--model",
+        default="auto",
+        choices=("auto", *MODEL_HELP, *RIG_MODEL_HELP),
+        help="as diagnose's (default auto: by each log)",
     )
     d.add_argument("--scheduler", help="an existing Dask scheduler, tcp://HOST:PORT (default: a local cluster)")
     d.add_argument("--workers", type=int, help="local worker processes (default: the machine's cores)")

@@ -29,9 +29,7 @@ CATALOGUE: tuple[RigCandidate, ...] = (
     RigCandidate("motor_lag", ("tc",), "the motors' thrust a first-order lag behind their voltage"),
     RigCandidate("gyro_bias", ("b_gx", "b_gy", "b_gz"), "a constant on each gyro axis", imu=True),
     RigCandidate("accel_bias", ("b_ax", "b_ay", "b_az"), "a constant on each accelerometer axis", imu=True),
-    RigCandidate(
-        "imu_misalignment", ("m_roll", "m_pitch", "m_yaw"), "the IMU mounted rotated on the arm", imu=True
-    ),
+    RigCandidate("imu_misalignment", ("m_roll", "m_pitch", "m_yaw"), "the IMU mounted rotated on the arm", imu=True),
     RigCandidate("encoder_offset", ("o_p", "o_e"), "the pitch and elevation encoders zeroed off level", imu=True),
 )
 

@@ -78,7 +78,4 @@ def diagnose_rig(
         if imu is not None:  # the filter takes the IMU as records, in time order with the rest
             records = sorted(records + imu.records(), key=lambda m: m.t)
         kalman = (nis(records, s, before, R), nis(records, s, after, R))
-    return RigDiagnosis(
-        s, found, catalogue, before, after, pred, (_rms(found.base), _rms(found.final)), kalman, R
-    )
-
+    return RigDiagnosis(s, found, catalogue, before, after, pred, (_rms(found.base), _rms(found.final)), kalman, R)

@@ -113,9 +113,7 @@ def fit(
             r = residuals(values, c)
             return np.concatenate([r[g] / scale[g] for g in scale])
 
-        sol = least_squares(
-            fun, x0, bounds=(lo, hi), x_scale=typical, method="trf", max_nfev=200, diff_step=1e-4
-        )
+        sol = least_squares(fun, x0, bounds=(lo, hi), x_scale=typical, method="trf", max_nfev=200, diff_step=1e-4)
         for k, xi in zip(free, sol.x):
             values[k] = float(xi)
         sigma, corr = _standard_errors(sol.jac, sol.fun, free)

@@ -91,7 +91,8 @@ def lagged(s: RigSession, tc: float) -> tuple[np.ndarray, np.ndarray]:
     if tc <= 1e-9:
         return s.V_f, s.V_b
     alpha = math.exp(-s.dt / tc)
-    return tuple(lfilter([1 - alpha], [1, -alpha], v, zi=[alpha * v[0]])[0] for v in (s.V_f, s.V_b))  # type: ignore[return-value]
+    V_f, V_b = (lfilter([1 - alpha], [1, -alpha], v, zi=[alpha * v[0]])[0] for v in (s.V_f, s.V_b))
+    return V_f, V_b
 
 
 @dataclass

@@ -77,7 +77,9 @@ def as_json(d: RigDiagnosis, source: str, description: str) -> dict:
         e["rivals"] = [
             {"name": o.name, "delta_bic": o.delta_bic}
             for o in tried
-            if o.name != st.name and o.delta_bic >= MIN_DELTA_BIC and o.delta_bic >= st.delta_bic - max(10.0, 0.05 * st.delta_bic)
+            if o.name != st.name
+            and o.delta_bic >= MIN_DELTA_BIC
+            and o.delta_bic >= st.delta_bic - max(10.0, 0.05 * st.delta_bic)
         ]
         effects.append(e)
     last = d.search.tried[-1] if d.search.tried else []
@@ -153,7 +155,9 @@ def conclusion(j: dict) -> str:
     k = j.get("kalman_nis")
     if k:
         nis = ", ".join(
-            f"{SENSOR_NAMES.get(s, s)} {k['before'][s]:.2f} -> {k['after'][s]:.2f}" for s in k["before"] if s in k["after"]
+            f"{SENSOR_NAMES.get(s, s)} {k['before'][s]:.2f} -> {k['after'][s]:.2f}"
+            for s in k["before"]
+            if s in k["after"]
         )
         text += f" The Kalman filter's NIS (1 where model and noise hold): {nis}."
     return text + f" The rig's constants are in {j['rig_file']} (--vehicle PATH)."

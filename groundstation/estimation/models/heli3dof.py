@@ -139,7 +139,9 @@ def heli3dof_model(
         if not nonlinear:
             return K2 * ctx.u_s, K3 * ctx.p_hat
         V_f, V_b = voltages((ctx.u_s, ctx.u_d))
-        _, edd, ldd = rig.accelerations(ctx.p_hat, ctx.e_hat, ctx.p_dot_hat, ctx.e_dot_hat, ctx.lambda_dot_hat, V_f, V_b)
+        _, edd, ldd = rig.accelerations(
+            ctx.p_hat, ctx.e_hat, ctx.p_dot_hat, ctx.e_dot_hat, ctx.lambda_dot_hat, V_f, V_b
+        )
         return edd, ldd
 
     def gyro(m, ctx):

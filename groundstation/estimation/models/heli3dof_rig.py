@@ -109,7 +109,9 @@ class Heli3dofRig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
-            raise ValueError(f"the 3-DOF rig's constants have no {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+            raise ValueError(
+                f"the 3-DOF rig's constants have no {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
         for k in ("gyro_bias", "accel_bias", "imu_mounting", "encoder_offset"):
             if k in d:
                 d[k] = tuple(float(x) for x in d[k])

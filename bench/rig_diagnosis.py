@@ -1,0 +1,108 @@
+"""The 3-DOF helicopter's closed loop over the simulator's rig effects: the validation table.
+
+    python bench/rig_diagnosis.py [--seeds 1,2] [--seconds 90]
+
+For each effect the simulator can give the rig (at a realistic size), on the standard flight (take-off
+from the table, elevation steps, travel swings) of each seed: ``diagnose --model heli3dof``'s claims,
+the injected parameter found against its truth, and the encoders predicted over 1 s from the motor
+voltages, RMS over pitch, elevation and travel, with the lab's model and with the effects found.
+Then the clean flights: ``small`` (near the linearisation point: nothing to claim) and ``large``
+(far from it: the full equations only). The ratio column is after / before of the prediction error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from groundstation.diagnosis.rig.diagnose import diagnose_rig  # noqa: E402
+from groundstation.estimation.logs import load_log  # noqa: E402
+
+# (effect, the claim that names it, its parameter, its truth, shown as (unit, factor))
+CASES = [
+    ("motor_constant:s=0.08", "motor_constant", "K_f", 0.1248 * 1.08, ("N/V", 1.0)),
+    ("counterweight:dm=0.02", "equilibrium_voltage", "V_s0", 6.907, ("V", 1.0)),
+    ("motor_asymmetry:a=0.04", "motor_asymmetry", "a", 0.04, ("", 1.0)),
+    ("viscous_friction:p=0.005,e=0,lambda=0", "viscous_friction(p)", "c_p", 0.005 / 0.044, ("1/s", 1.0)),
+    ("viscous_friction:p=0,e=0.05,lambda=0", "viscous_friction(e)", "c_e", 0.05 / 1.03, ("1/s", 1.0)),
+    ("viscous_friction:p=0,e=0,lambda=0.08", "viscous_friction(lambda)", "c_l", 0.08 / 1.08, ("1/s", 1.0)),
+    ("actuator_lag:tc=0.05", "motor_lag", "tc", 0.05, ("s", 1.0)),
+    ("actuator_lag:tc=0.1", "motor_lag", "tc", 0.1, ("s", 1.0)),
+    ("encoder_offset:p=1.0,e=-0.8", "encoder_offset", "o_p", math.radians(1.0), ("deg", math.degrees(1.0))),
+    ("gyro_bias:x=0.01,y=-0.008,z=0.005", "gyro_bias", "b_gx", 0.01, ("rad/s", 1.0)),
+    ("accel_bias:x=0.1,y=-0.08,z=0.15", "accel_bias", "b_az", 0.15, ("m/s^2", 1.0)),
+    (
+        "imu_misalignment:roll=2,pitch=-1.5,yaw=0",
+        "imu_misalignment",
+        "m_roll",
+        math.radians(2.0),
+        ("deg", math.degrees(1.0)),
+    ),
+]
+
+
+def simulate(folder: Path, flight: str, seed: int, seconds: float, effect: str | None) -> Path:
+    log = folder / f"{flight}-{seed}-{(effect or 'clean').split(':')[0]}.tlog"
+    cmd = [sys.executable, "-m", "groundstation", "sim", "--vehicle", "heli3dof", "--fast", "--flight", flight]
+    cmd += ["--seed", str(seed), "--duration", str(seconds), "--log", str(log)]
+    if effect:
+        cmd += ["--undeclared", effect]
+    subprocess.run(cmd, check=True, capture_output=True)
+    return log
+
+
+def run(path: Path):
+    log = load_log(path, tables=False, imu_columns=True)
+    t0 = time.perf_counter()
+    d = diagnose_rig(log.measurements, log.imu, with_kalman=False)
+    return d, time.perf_counter() - t0
+
+
+def deg_sum(p) -> float:
+    return math.degrees(sum(p.rms.values()))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", default="1,2")
+    ap.add_argument("--seconds", type=float, default=90.0)
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",")]
+    print(
+        "| flight | injected | claimed | found / truth | prediction (deg RMS, p+e+lambda) before -> after | ratio | s |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        for seed in seeds:
+            for effect, name, param, truth, (unit, k) in CASES:
+                d, secs = run(simulate(folder, "standard", seed, args.seconds, effect))
+                names = [st.name for st in d.search.claimed]
+                v = d.search.final.values[param]
+                found = f"{v * k:.4g} / {truth * k:.4g} {unit}" if name in names else "-"
+                b, a = deg_sum(d.prediction[0]), deg_sum(d.prediction[1])
+                print(
+                    f"| standard s{seed} | {effect} | {', '.join(names) or '-'} | {found} | {b:.3f} -> {a:.3f} | "
+                    f"{a / b:.2f} | {secs:.1f} |"
+                )
+            for flight in ("small", "large"):
+                d, secs = run(simulate(folder, flight, seed, args.seconds, None))
+                names = [st.name for st in d.search.claimed]
+                fin = d.search.final.values
+                shares = f"w_e {fin['w_e']:.3f}, w_l {fin['w_l']:.3f}" if names else "-"
+                b, a = deg_sum(d.prediction[0]), deg_sum(d.prediction[1])
+                print(
+                    f"| {flight} s{seed} | - | {', '.join(names) or '-'} | {shares} | {b:.3f} -> {a:.3f} | "
+                    f"{a / b:.2f} | {secs:.1f} |"
+                )
+
+
+if __name__ == "__main__":
+    main()
