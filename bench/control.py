@@ -21,15 +21,24 @@ the elevation is lifted to level, and the pitch reference steps at 6 s.
 3. **The lab's Q and R** (eq. 38, 44, 92): gains and closed-loop poles on the
    corrected model, and the step each gives.
 
+4. **The closed loop felt by the controller.** A rig unlike Table 1 (a heavier
+   counterweight, stronger and unlike motors: ``RIG_EFFECTS``) flies a session
+   on its own; ``diagnose --model heli3dof`` finds its constants; the PD and the
+   LQR with integral action, designed on the lab's constants and then on the
+   rig's, each fly a pitch step: overshoot, 2 % settling time, and the pitch's
+   and elevation's steady-state errors.
+
 Baseline for the ratios: the lab's own observation (Table 2/3) for part 1;
-encoder feedback for part 2.
+encoder feedback for part 2; the lab's constants for part 4.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -41,6 +50,9 @@ from groundstation.control import design  # noqa: E402
 from groundstation.control.controllers import LQRFeedForward, LQRIntegral, PitchPD  # noqa: E402
 from groundstation.control.feedback import FEEDBACK_3DOF  # noqa: E402
 from groundstation.control.response import classify, step_fit  # noqa: E402
+from groundstation.diagnosis.rig.diagnose import diagnose_rig  # noqa: E402
+from groundstation.estimation.logs import load_log  # noqa: E402
+from sim_bridge.effects import parse_effect  # noqa: E402
 from sim_bridge.scenario import Scenario  # noqa: E402
 
 #: Table 2: poles, theory, what the lab observed
@@ -216,13 +228,97 @@ def part3(seconds):
     return rows
 
 
+#: the rig of part 4: its V_s0 about 1.6 V under the lab's, its K_f 10 % over, its motors 5 % apart
+RIG_EFFECTS = ["counterweight:dm=0.03", "motor_constant:s=0.1", "motor_asymmetry:a=0.05"]
+
+
+def step_metrics(f, ref: float) -> dict:
+    """Overshoot [%], 2 % settling time [s] after the step, the pitch's and the elevation's mean error
+    over the last 3 s [rad] (elevation held at 0)."""
+    t, p, e = f.t, f.truth["p"], f.truth["e"]
+    after = t >= T_STEP
+    over = max(0.0, float(np.max(p[after]) - ref) / ref * 100.0)
+    outside = np.flatnonzero(after & (np.abs(p - ref) > 0.02 * ref))
+    settle = float(t[outside[-1]] - T_STEP) if len(outside) else 0.0
+    last = t >= t[-1] - 3.0
+    return {
+        "overshoot_pct": over,
+        "settling_s": settle,
+        "pitch_error": float(np.mean(p[last]) - ref),
+        "elevation_error": float(np.mean(e[last])),
+    }
+
+
+def _pitch_step(t):
+    """The PD's reference: level, then the pitch step; its own loop holds the elevation."""
+    return {"p_c": P_STEP if t >= T_STEP else 0.0, "e_c": 0.0}
+
+
+def _pitch_step_level_by_eye(t, truth):
+    """The LQR's: the pitch step, the elevation held level by the operator through the
+    elevation-rate reference (as in part 2)."""
+    return {"p_c": P_STEP if t >= T_STEP else 0.0, "e_dot_c": max(-0.15, min(0.15, -0.8 * truth["e"]))}
+
+
+def part4(seconds):
+    print("\n## 4. The controllers on the lab's constants and on the rig's (pitch step 0.3 rad, encoders)\n")
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "rig.tlog"
+        cmd = [sys.executable, "-m", "groundstation", "sim", "--vehicle", "heli3dof", "--fast", "--flight", "large"]
+        cmd += ["--seed", "21", "--duration", "90", "--log", str(log)]
+        for e in RIG_EFFECTS:
+            cmd += ["--undeclared", e]
+        subprocess.run(cmd, check=True, capture_output=True)
+        loaded = load_log(log, tables=False, imu_columns=True)
+        d = diagnose_rig(loaded.measurements, loaded.imu, with_kalman=False)
+    rig = d.after
+    print(
+        f"rig: {', '.join(RIG_EFFECTS)}; found {', '.join(st.name for st in d.search.claimed)}: K_f {rig.K_f:.4f} N/V, "
+        f"V_s0 {rig.V_s0:.3f} V, a {rig.a:.4f}, w_e {rig.w_e:.2f}\n"
+    )
+    print("| controller | constants | overshoot | settling [s] | pitch error [rad] | elevation error [rad] |")
+    print("|---|---|---|---|---|---|")
+    scenario = lambda: Scenario("heli3dof", seed=22, undeclared=[parse_effect(e) for e in RIG_EFFECTS])  # noqa: E731
+    rows = []
+    for label, make in (
+        ("PD (omega_0 4, zeta 1)", lambda **kw: PitchPD.place(4.0, 1.0, **kw)),
+        ("LQR + I (eq. 44)", lambda **kw: LQRIntegral(design.LAB_Q_I, design.LAB_R_I, **kw)),
+    ):
+        for which, kw in (("lab's", {}), ("rig's", {"rig": rig})):
+            c = make(**kw)
+            f = fly(
+                scenario(),
+                c,
+                FEEDBACK_3DOF["encoders"](),
+                seconds=min(seconds, 25.0),
+                reference=_pitch_step if "e_c" in c.references else _pitch_step_level_by_eye,
+            )
+            m = step_metrics(f, P_STEP)
+            print(
+                f"| {label} | {which} | {m['overshoot_pct']:.1f} % | {m['settling_s']:.2f} | {m['pitch_error']:+.4f} "
+                f"| {m['elevation_error']:+.4f} |"
+            )
+            rows.append({"controller": label, "constants": which, **m})
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=60.0, help="length of the feedback-source flights")
     ap.add_argument("--trial-seconds", type=float, default=20.0, help="length of each pole-placement trial")
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--parts", default="1,2,3,4", help="which parts to run")
     a = ap.parse_args()
-    out = {"table2": part1(a.trial_seconds), "feedback": part2(a.seconds), "weights": part3(a.seconds)}
+    parts = {int(x) for x in a.parts.split(",")}
+    out = {}
+    if 1 in parts:
+        out["table2"] = part1(a.trial_seconds)
+    if 2 in parts:
+        out["feedback"] = part2(a.seconds)
+    if 3 in parts:
+        out["weights"] = part3(a.seconds)
+    if 4 in parts:
+        out["rig"] = part4(a.seconds)
     if a.json:
         a.json.write_text(json.dumps(out, indent=2, default=float))
     return 0

@@ -3,7 +3,9 @@
     python bench/rig_diagnosis.py [--seeds 1,2] [--seconds 90]
 
 For each effect the simulator can give the rig (at a realistic size), on the standard flight (take-off
-from the table, elevation steps, travel swings) of each seed: ``diagnose --model heli3dof``'s claims,
+from the table, elevation steps, travel swings; the same manoeuvres for every seed, its noise
+differs) and on the large flight (far from the linearisation point, its sizes and periods drawn
+from the seed) of each seed: ``diagnose --model heli3dof``'s claims,
 the injected parameter found against its truth, and the encoders predicted over 1 s from the motor
 voltages, RMS over pitch, elevation and travel, with the lab's model and with the effects found.
 Then the clean flights: ``small`` (near the linearisation point: nothing to claim) and ``large``
@@ -32,6 +34,7 @@ CASES = [
     ("motor_asymmetry:a=0.04", "motor_asymmetry", "a", 0.04, ("", 1.0)),
     ("viscous_friction:p=0.005,e=0,lambda=0", "viscous_friction(p)", "c_p", 0.005 / 0.044, ("1/s", 1.0)),
     ("viscous_friction:p=0,e=0.05,lambda=0", "viscous_friction(e)", "c_e", 0.05 / 1.03, ("1/s", 1.0)),
+    ("viscous_friction:p=0,e=0.2,lambda=0", "viscous_friction(e)", "c_e", 0.2 / 1.03, ("1/s", 1.0)),
     ("viscous_friction:p=0,e=0,lambda=0.08", "viscous_friction(lambda)", "c_l", 0.08 / 1.08, ("1/s", 1.0)),
     ("actuator_lag:tc=0.05", "motor_lag", "tc", 0.05, ("s", 1.0)),
     ("actuator_lag:tc=0.1", "motor_lag", "tc", 0.1, ("s", 1.0)),
@@ -73,6 +76,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seeds", default="1,2")
     ap.add_argument("--seconds", type=float, default=90.0)
+    ap.add_argument("--flights", default="standard,large", help="the flights the effects are injected on")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     print(
@@ -82,14 +86,16 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for seed in seeds:
-            for effect, name, param, truth, (unit, k) in CASES:
-                d, secs = run(simulate(folder, "standard", seed, args.seconds, effect))
+            for flight, (effect, name, param, truth, (unit, k)) in (
+                (f, c) for f in args.flights.split(",") for c in CASES
+            ):
+                d, secs = run(simulate(folder, flight, seed, args.seconds, effect))
                 names = [st.name for st in d.search.claimed]
                 v = d.search.final.values[param]
                 found = f"{v * k:.4g} / {truth * k:.4g} {unit}" if name in names else "-"
                 b, a = deg_sum(d.prediction[0]), deg_sum(d.prediction[1])
                 print(
-                    f"| standard s{seed} | {effect} | {', '.join(names) or '-'} | {found} | {b:.3f} -> {a:.3f} | "
+                    f"| {flight} s{seed} | {effect} | {', '.join(names) or '-'} | {found} | {b:.3f} -> {a:.3f} | "
                     f"{a / b:.2f} | {secs:.1f} |"
                 )
             for flight in ("small", "large"):

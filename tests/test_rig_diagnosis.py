@@ -2,18 +2,25 @@
 realistic size on a session flown as the lab flies it (take-off from the table, elevation steps,
 travel swings), with its size; a session near the linearisation point claims nothing, one far from
 it the full equations only; the rig's constants written go back into the estimator and leave
-nothing to find."""
+nothing to find, and the controllers designed on them hold the rig where the lab's do not."""
 
 import json
 import math
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
+from groundstation.app.offline_flight import fly
+from groundstation.control.controllers import PitchPD
+from groundstation.control.feedback import FEEDBACK_3DOF
 from groundstation.diagnosis.rig.diagnose import diagnose_rig
 from groundstation.estimation.logs import load_log
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
 from groundstation.estimation.registry import build_estimator
+from sim_bridge.effects import parse_effect
+from sim_bridge.scenario import Scenario
 
 #: terms of the full equations the simulator always flies: a session may show them with anything
 PHYSICS = {"elevation_trig", "travel_lever_arm"}
@@ -138,3 +145,38 @@ def test_a_log_without_encoders_and_a_rig_that_never_flew_are_one_line_errors(tm
         )  # fmt: skip
         assert run.returncode == 2 and words in run.stderr and "Traceback" not in run.stderr, run.stderr
         assert len(run.stderr.strip().splitlines()) == 1
+
+
+def test_the_controllers_on_the_rig_constants_split_for_its_motors_and_hold_it_level():
+    rig = Heli3dofRig(K_f=0.1373, V_s0=5.79, a=0.05, w_e=1.0)
+    c = PitchPD.place(4.0, 1.0, rig=rig)
+    level = {"p": 0.0, "p_dot": 0.0, "e": 0.0, "e_dot": 0.0}
+    V_f, V_b = c.update(level, {"p_c": 0.0, "e_c": 0.0}, 0.01).command
+    # equal thrusts whose sum holds the rig: K_f (1 - a) V_f = K_f (1 + a) V_b, summing to K_f V_s0
+    assert V_f * 0.95 == pytest.approx(V_b * 1.05) and V_f * 0.95 + V_b * 1.05 == pytest.approx(5.79)
+    # where it stands at e = 0.3 (and p = 0.2) the lift that holds it is V_s0 cos(e) / cos(p)
+    tilted = {**level, "e": 0.3, "p": 0.2}
+    out = c.update(tilted, {"p_c": 0.2, "e_c": 0.3}, 0.01)
+    V_f, V_b = out.command
+    assert V_f * 0.95 + V_b * 1.05 == pytest.approx(5.79 * math.cos(0.3) / math.cos(0.2))
+    # the gains are designed on its K_f
+    assert c.K_pp == pytest.approx(PitchPD.place(4.0, 1.0, K_f=0.1373).K_pp)
+
+
+def test_on_a_rig_unlike_table_1_its_own_constants_hold_the_pitch_step():
+    effects = ["counterweight:dm=0.03", "motor_constant:s=0.1", "motor_asymmetry:a=0.05"]
+    # the rig those effects make (V_s0 = (2 l_h m_p - l_c m_c) g / (l_h K_f))
+    K_f = 0.1248 * 1.1
+    rig = Heli3dofRig(K_f=K_f, V_s0=(2 * 0.66 * 0.72 - 0.46 * 1.95) * 9.81 / (0.66 * K_f), a=0.05, w_e=1.0)
+    err = {}
+    for which, kw in (("lab", {}), ("rig", {"rig": rig})):
+        f = fly(
+            Scenario("heli3dof", seed=22, undeclared=[parse_effect(e) for e in effects]),
+            PitchPD.place(4.0, 1.0, **kw),
+            FEEDBACK_3DOF["encoders"](),
+            seconds=12.0,
+            reference=lambda t: {"p_c": 0.3 if t >= 6.0 else 0.0, "e_c": 0.0},
+        )
+        last = f.t >= f.t[-1] - 2.0
+        err[which] = (abs(np.mean(f.truth["p"][last]) - 0.3), abs(np.mean(f.truth["e"][last])))
+    assert err["rig"][0] < 0.2 * err["lab"][0] and err["rig"][1] < 0.2 * err["lab"][1], err

@@ -8,6 +8,13 @@ turned into motor voltages ``V_f = (V_s - V_d)/2``, ``V_b = (V_s + V_d)/2``
 * :class:`LQRFeedForward`: ``u = F r - K x``, x = (p, p_dot, e_dot), r = (p_c, e_dot_c) (eq. 33, 37);
 * :class:`LQRIntegral`: the same with ``gamma``, ``zeta`` integrating the tracking error (eq. 39-41).
 
+On a rig's own constants (``rig=``, :class:`~groundstation.estimation.models.heli3dof_rig.Heli3dofRig`,
+what ``diagnose --model heli3dof`` writes): the gains are designed on its K_f, the lift is held
+about its V_s0, the two motors' unlike constants are split for (``V_f = (V_s - V_d) / (2 (1 - a))``,
+``V_b = (V_s + V_d) / (2 (1 + a))``, so that the thrusts' sum and difference are the ones asked for),
+and where the rig shows the full equations the lift that holds it is ``V_s0 cos(e) / cos(p)``
+(eq. 10 at rest) instead of V_s0.
+
 Saturation: each motor takes 0 .. V_max. Lift comes first: V_s is clipped to
 0 .. 2 V_max, then V_d to what both motors can still give at that V_s,
 ``|V_d| <= min(V_s, 2 V_max - V_s)``. The lab's document is silent on it; an
@@ -37,6 +44,7 @@ import numpy as np
 
 from groundstation.control import design
 from groundstation.estimation.models.heli3dof import V_S0
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
 
 G = 9.80665
 V_MAX = 12.0
@@ -87,15 +95,21 @@ class Controller(abc.ABC):
 
 
 def motor_voltages(
-    u_s: float, V_d: float, V_s0: float = V_S0, V_max: float = V_MAX
+    u_s: float, V_d: float, V_s0: float = V_S0, V_max: float = V_MAX, a: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(V_f, V_b), the applied (V_s - V_s0, V_d), and whether anything was clipped."""
+    """(V_f, V_b), the applied (V_s - V_s0, V_d), and whether anything was clipped; ``a``: the
+    motors' asymmetry (module docstring), split for."""
     V_s = V_s0 + u_s
     V_s_c = clamp(V_s, 0.0, 2 * V_max)
     lim = min(V_s_c, 2 * V_max - V_s_c)
     V_d_c = clamp(V_d, -lim, lim)
     sat = V_s_c != V_s or V_d_c != V_d
-    return (np.array([(V_s_c - V_d_c) / 2, (V_s_c + V_d_c) / 2]), np.array([V_s_c - V_s0, V_d_c]), sat)
+    if a == 0.0:
+        return (np.array([(V_s_c - V_d_c) / 2, (V_s_c + V_d_c) / 2]), np.array([V_s_c - V_s0, V_d_c]), sat)
+    V_f = clamp((V_s_c - V_d_c) / (2 * (1 - a)), 0.0, V_max)
+    V_b = clamp((V_s_c + V_d_c) / (2 * (1 + a)), 0.0, V_max)
+    sat = sat or V_f != (V_s_c - V_d_c) / (2 * (1 - a)) or V_b != (V_s_c + V_d_c) / (2 * (1 + a))
+    return np.array([V_f, V_b]), np.array([V_s_c - V_s0, V_d_c]), sat
 
 
 #: the 3-DOF rig's angles stay within a quarter turn, its rates within 10 rad/s
@@ -112,12 +126,25 @@ class _Heli3dof(Controller):
     command_names = ("V_f", "V_b")
     state_limits = HELI3DOF_LIMITS
 
-    def __init__(self, *, V_s0: float = V_S0, V_max: float = V_MAX) -> None:
-        self.V_s0, self.V_max = V_s0, V_max
+    def __init__(self, *, V_s0: float = V_S0, V_max: float = V_MAX, rig: Heli3dofRig | None = None) -> None:
+        self.rig = rig
+        self.V_s0, self.V_max = (rig.V_s0 if rig is not None else V_s0), V_max
+        self.a = rig.a if rig is not None else 0.0
         self.command_limits = (0.0, V_max)
 
-    def _out(self, u_s: float, V_d: float) -> Output:
-        cmd, u, sat = motor_voltages(u_s, V_d, self.V_s0, self.V_max)
+    @staticmethod
+    def motor_constant(K_f: float, rig: Heli3dofRig | None) -> float:
+        """The K_f the gains are designed on: the rig's own where it is given."""
+        return rig.K_f if rig is not None else K_f
+
+    def _out(self, u_s: float, V_d: float, x: Mapping[str, float] | None = None) -> Output:
+        V_s0 = self.V_s0
+        rig = self.rig
+        if rig is not None and rig.w_e > 0 and x is not None and "e" in x and "p" in x:
+            # the lift that holds the rig where it is (eq. 10 at rest, in the rig's share of it)
+            ce, cp = 1 + rig.w_e * (math.cos(x["e"]) - 1), 1 + rig.w_e * (math.cos(x["p"]) - 1)
+            V_s0 = V_s0 * ce / max(cp, 0.5)
+        cmd, u, sat = motor_voltages(u_s + V_s0 - self.V_s0, V_d, self.V_s0, self.V_max, self.a)
         return Output(cmd, u, sat)
 
 
@@ -145,7 +172,7 @@ class PitchPD(_Heli3dof):
     ) -> None:
         super().__init__(**kw)
         self.K_pp, self.K_pd = K_pp, K_pd
-        _, K2 = design.k1_k2(K_f)
+        _, K2 = design.k1_k2(self.motor_constant(K_f, self.rig))
         # elevation: a critically damped pair at 2 rad/s unless given
         self.K_ep = K_ep if K_ep is not None else 4.0 / K2
         self.K_ed = K_ed if K_ed is not None else 4.0 / K2
@@ -153,18 +180,20 @@ class PitchPD(_Heli3dof):
     @classmethod
     def place(cls, omega0: float, zeta: float, *, K_f: float = design.K_F, **kw) -> PitchPD:
         """Gains for omega_0 and zeta on the plant with motor constant K_f (eq. 25-26)."""
+        K_f = cls.motor_constant(K_f, kw.get("rig"))
         K1, _ = design.k1_k2(K_f)
         return cls(*design.pd_gains(K1, omega0, zeta), K_f=K_f, **kw)
 
     @classmethod
     def from_poles(cls, l1: complex, l2: complex, *, K_f: float = design.K_F, **kw) -> PitchPD:
+        K_f = cls.motor_constant(K_f, kw.get("rig"))
         K1, _ = design.k1_k2(K_f)
         return cls(*design.pd_from_poles(K1, l1, l2), K_f=K_f, **kw)
 
     def update(self, x, r, dt):
         V_d = self.K_pp * (r["p_c"] - x["p"]) - self.K_pd * x["p_dot"]  # sec. 2.1
         u_s = self.K_ep * (r["e_c"] - x["e"]) - self.K_ed * x["e_dot"]
-        return self._out(u_s, V_d)
+        return self._out(u_s, V_d, x)
 
     def describe(self):
         return {"name": self.name, "K_pp": self.K_pp, "K_pd": self.K_pd, "K_ep": self.K_ep, "K_ed": self.K_ed}
@@ -181,7 +210,7 @@ class LQRFeedForward(_Heli3dof):
         self, Q: np.ndarray = design.LAB_Q_FF, R: np.ndarray = design.LAB_R_FF, *, K_f: float = design.K_F, **kw
     ) -> None:
         super().__init__(**kw)
-        A, B, C = design.pitch_model(K_f)
+        A, B, C = design.pitch_model(self.motor_constant(K_f, self.rig))
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
         self.K = design.lqr(A, B, self.Q, self.R)
         self.F = design.reference_feedforward(A, B, C, self.K)
@@ -189,7 +218,7 @@ class LQRFeedForward(_Heli3dof):
     def update(self, x, r, dt):
         xs = np.array([x["p"], x["p_dot"], x["e_dot"]])
         u = self.F @ np.array([r["p_c"], r["e_dot_c"]]) - self.K @ xs
-        return self._out(u[0], u[1])
+        return self._out(u[0], u[1], x)
 
     def describe(self):
         return {
@@ -224,6 +253,7 @@ class LQRIntegral(_Heli3dof):
     ) -> None:
         super().__init__(**kw)
         self.anti_windup = anti_windup
+        K_f = self.motor_constant(K_f, self.rig)
         A, B, _ = design.integral_model(K_f)
         A3, B3, C3 = design.pitch_model(K_f)
         self.Q, self.R = np.asarray(Q, float), np.asarray(R, float)
@@ -240,7 +270,7 @@ class LQRIntegral(_Heli3dof):
         ref = np.array([r["p_c"], r["e_dot_c"]])
         err = np.array([xs[0] - ref[0], xs[2] - ref[1]])  # eq. 39
         u = self.F @ ref - self.K @ np.concatenate([xs, self.z])
-        out = self._out(u[0], u[1])
+        out = self._out(u[0], u[1], x)
         # conditional integration: stop while saturated, unless the error unwinds it
         dz = err * dt
         if out.saturated and self.anti_windup:
