@@ -137,7 +137,7 @@ def test_a_log_without_encoders_and_a_rig_that_never_flew_are_one_line_errors(tm
         [sys.executable, "-m", "groundstation", "sim", "--fast", "--duration", "20", "--log", str(quad)],
         check=True, capture_output=True, timeout=120,
     )  # fmt: skip
-    for path, words in ((quad, "reads the encoders of a rig"), (simulate(tmp_path, seconds=3), "flew free for")):
+    for path, words in ((quad, "reads a rig's encoders"), (simulate(tmp_path, seconds=3), "flew free for")):
         run = subprocess.run(
             [sys.executable, "-m", "groundstation", "diagnose", str(path), "--model", "heli3dof", "--out",
              str(tmp_path / "x")],

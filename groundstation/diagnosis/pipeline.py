@@ -183,11 +183,13 @@ def _rig(
 ) -> LogDiagnosis:
     """A 3-DOF helicopter session: the rig's own diagnosis (:mod:`.rig`), from the lab's model or
     from the vehicle file's constants of this rig."""
-    craft = vehicle_of(log)
-    if craft.kind not in ("rig", "helicopter", "unknown"):
+    craft, kinds = vehicle_of(log), _kinds(log)
+    flies = kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE, Kind.GPS, Kind.RANGE}
+    if Kind.ENCODERS not in kinds and (craft.kind not in ("helicopter", "unknown") or flies):
+        what = f"a {craft.name} ({craft.evidence} says so)" + (", with a barometer, GPS or rangefinder" if flies else "")
         raise ValueError(
-            f"this log is a {craft.name}'s ({craft.evidence}): the 3-DOF rig's diagnosis reads the encoders of a "
-            "rig (its ENCODERS, or the ATTITUDE a rig that calls itself a helicopter sends)"
+            f"this log was written by {what}: the 3-DOF rig's diagnosis reads a rig's encoders (its ENCODERS, "
+            "or the ATTITUDE of a rig that reports itself a helicopter and has no height sensor)"
         )
     rig = vehicle_config(vehicle, "heli3dof").get("rig") if vehicle else None
     start = Heli3dofRig.from_vehicle(rig) if isinstance(rig, dict) else None
