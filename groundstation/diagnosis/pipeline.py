@@ -186,7 +186,9 @@ def _rig(
     craft, kinds = vehicle_of(log), _kinds(log)
     flies = kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE, Kind.GPS, Kind.RANGE}
     if Kind.ENCODERS not in kinds and (craft.kind not in ("helicopter", "unknown") or flies):
-        what = f"a {craft.name} ({craft.evidence} says so)" + (", with a barometer, GPS or rangefinder" if flies else "")
+        what = f"a {craft.name} ({craft.evidence} says so)" + (
+            ", with a barometer, GPS or rangefinder" if flies else ""
+        )
         raise ValueError(
             f"this log was written by {what}: the 3-DOF rig's diagnosis reads a rig's encoders (its ENCODERS, "
             "or the ATTITUDE of a rig that reports itself a helicopter and has no height sensor)"
