@@ -121,14 +121,16 @@ def test_the_command_line_writes_the_rig_file_and_the_loop_closes_on_it(tmp_path
     # the estimator takes the file (an extended filter on the rig's own constants) ...
     est = build_estimator("heli3dof", vehicle=str(rig_file))
     assert est.model.f is not None
-    # ... and the diagnosis started from it finds nothing more
+    # ... and the diagnosis started from it (the model picked from the log: a helicopter with
+    # angles, motor outputs and no height sensor is a rig) finds nothing more
     again = subprocess.run(
-        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--model", "heli3dof", "--out",
+        [sys.executable, "-m", "groundstation", "diagnose", str(log), "--out",
          str(tmp_path / "again"), "--vehicle", str(rig_file)],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert again.returncode == 0, again.stderr
-    assert json.loads((tmp_path / "again" / "report.json").read_text())["effects"] == []
+    second = json.loads((tmp_path / "again" / "report.json").read_text())
+    assert second["model"] == "heli3dof" and second["effects"] == []
 
 
 def test_a_log_without_encoders_and_a_rig_that_never_flew_are_one_line_errors(tmp_path):

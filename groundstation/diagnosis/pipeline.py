@@ -71,7 +71,7 @@ def run(
         raise ValueError(f"{path}: no reading could be read from it ({log.description})")
     duration = ms_all[-1].t - ms_all[0].t if ms_all else 0.0
     say(f"diagnosing {path}: {log.description}")
-    if model in RIG_MODEL_HELP or (model == "auto" and Kind.ENCODERS in _kinds(log)):
+    if model in RIG_MODEL_HELP or (model == "auto" and is_rig_session(log)):
         return _rig(path, out, log, duration, vehicle, progress, say)
     tr = triage(log.tables, ms_all, log.imu)
     say(tr.summary())
@@ -172,6 +172,23 @@ def _diagnosed(
     return j, suggestions
 
 
+HEIGHT_KINDS = frozenset({Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE, Kind.GPS, Kind.RANGE})
+
+
+def is_rig_session(log: LoadedLog) -> bool:
+    """A 3-DOF rig's session: its board's encoders, or over MAVLink a helicopter that sends its
+    angles and motor outputs and has no height sensor at all (nothing that flies logs none)."""
+    kinds = _kinds(log)
+    if Kind.ENCODERS in kinds:
+        return True
+    return (
+        vehicle_of(log).kind == "helicopter"
+        and not kinds & HEIGHT_KINDS
+        and Kind.ATTITUDE in kinds
+        and bool(kinds & {Kind.ACTUATOR, Kind.MOTOR_VOLTAGE})
+    )
+
+
 def _rig(
     path: Path,
     out: Path,
@@ -184,7 +201,7 @@ def _rig(
     """A 3-DOF helicopter session: the rig's own diagnosis (:mod:`.rig`), from the lab's model or
     from the vehicle file's constants of this rig."""
     craft, kinds = vehicle_of(log), _kinds(log)
-    flies = kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE, Kind.GPS, Kind.RANGE}
+    flies = kinds & HEIGHT_KINDS
     if Kind.ENCODERS not in kinds and (craft.kind not in ("helicopter", "unknown") or flies):
         what = f"a {craft.name} ({craft.evidence} says so)" + (
             ", with a barometer, GPS or rangefinder" if flies else ""
