@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 from groundstation.app.offline_flight import fly
+from groundstation.app.sim_cli import rig_constants
 from groundstation.control.controllers import PitchPD
 from groundstation.control.feedback import FEEDBACK_3DOF
+from groundstation.control.station import ControlStation
 from groundstation.diagnosis.rig.diagnose import diagnose_rig
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
@@ -163,6 +165,19 @@ def test_the_controllers_on_the_rig_constants_split_for_its_motors_and_hold_it_l
     assert V_f * 0.95 + V_b * 1.05 == pytest.approx(5.79 * math.cos(0.3) / math.cos(0.2))
     # the gains are designed on its K_f
     assert c.K_pp == pytest.approx(PitchPD.place(4.0, 1.0, K_f=0.1373).K_pp)
+
+
+def test_the_control_station_builds_every_rig_controller_on_the_rig_file(tmp_path):
+    rig = Heli3dofRig(K_f=0.13, V_s0=6.0, a=0.02)
+    path = tmp_path / "rig.json"
+    path.write_text(json.dumps({"heli3dof": {"rig": rig.as_vehicle()}}))
+    loaded = rig_constants(str(path))
+    assert loaded == rig
+    station = ControlStation("heli3dof", None, rig=loaded)
+    for name in station.controllers:
+        station.select(controller=name)
+        c = station.commander.controller
+        assert c.V_s0 == 6.0 and c.a == 0.02, name
 
 
 def test_on_a_rig_unlike_table_1_its_own_constants_hold_the_pitch_step():

@@ -243,6 +243,13 @@ def add_sim_parser(sub) -> None:
         help="fly it from the ground station: the dashboard's Control panel arms the vehicle's controllers "
         "(the 3-DOF rig's motor board on a pseudo-terminal)",
     )
+    d.add_argument(
+        "--rig",
+        type=Path,
+        metavar="FILE",
+        help="with --vehicle heli3dof: the rig's own constants (the heli3dof_rig.json diagnose --model heli3dof "
+        "writes), which its estimator and controllers take",
+    )
 
 
 def _speed(text: str) -> float:

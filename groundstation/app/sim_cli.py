@@ -13,7 +13,8 @@ from drivers.board import BoardLink
 from drivers.mavlink.link import MavlinkLink
 from groundstation.control.station import ControlStation
 from groundstation.estimation.loop import EstimationLoop
-from groundstation.estimation.registry import build_estimator
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
+from groundstation.estimation.registry import build_estimator, vehicle_config
 from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
@@ -138,6 +139,17 @@ def _fresh_path(p: Path) -> Path:
     return candidate
 
 
+def rig_constants(path: str | None) -> Heli3dofRig | None:
+    """A rig file's constants (``heli3dof.rig``), or None without one; a one-line error for a file
+    that holds none."""
+    if path is None:
+        return None
+    section = vehicle_config(path, "heli3dof").get("rig")
+    if not isinstance(section, dict):
+        raise ValueError(f"{path}: no heli3dof.rig section (the file diagnose --model heli3dof writes has one)")
+    return Heli3dofRig.from_vehicle(section)
+
+
 async def run_demo(args) -> int:
     """Bridge and ground station in one process, over real loopback UDP."""
 
@@ -153,7 +165,9 @@ async def run_demo(args) -> int:
         print(f"control: {dash.control_url} (this address carries the session's token)", flush=True)
     model = "heli3dof" if args.vehicle == "heli3dof" else "altitude"
     declared = [{"name": "range_tilt"}] if model == "altitude" else []
-    estimators = [build_estimator(model, declared)]
+    rig_file = str(args.rig) if getattr(args, "rig", None) and model == "heli3dof" else None
+    rig = rig_constants(rig_file)
+    estimators = [build_estimator(model, declared, vehicle=rig_file)]
     if dash is not None:
         dash.attach_session(model=model, declared=declared, counters=estimators[0].counters)
     if dash is not None and args.vehicle != "heli3dof":  # the rig is bolted to the table
@@ -182,7 +196,7 @@ async def run_demo(args) -> int:
             board = BoardLink(f"{board_port.path},921600", "binary", lost_after=0.3)
             board_sub = board.measurements()
             await board.open()
-            station = ControlStation("heli3dof", board, on_command=loop.push)
+            station = ControlStation("heli3dof", board, on_command=loop.push, rig=rig)
             control_tasks.append(asyncio.create_task(station.follow(board_sub)))
             print(f"demo: motor board on {board_port.path}", flush=True)
         else:

@@ -23,6 +23,7 @@ from collections.abc import Callable
 
 from groundstation.core.broadcast import Broadcast
 from groundstation.core.measurement import Measurement
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
 from groundstation.estimation.routing import altitude_estimator, quad_thrust_estimator
 
 from .commander import ArmRefused, Commander
@@ -38,8 +39,9 @@ from .controllers import (
 from .feedback import FEEDBACK_3DOF, EstimatorFeedback, Feedback
 from .uplink import AttitudeTarget, BoardMotors, ManualControl, Uplink
 
-CONTROLLERS: dict[str, dict[str, Callable[[], Controller]]] = {
-    "heli3dof": {"pd": lambda: PitchPD.place(4.0, 1.0), "lqr": LQRFeedForward, "lqr_i": LQRIntegral},
+#: each vehicle's controllers (the 3-DOF rig's take ``rig=``, its own constants)
+CONTROLLERS: dict[str, dict[str, Callable[..., Controller]]] = {
+    "heli3dof": {"pd": lambda **kw: PitchPD.place(4.0, 1.0, **kw), "lqr": LQRFeedForward, "lqr_i": LQRIntegral},
     "quad": {"altitude_hold": lambda: AltitudeHold(QUAD_THRUST)},
     "coax": {"altitude_hold": lambda: AltitudeHold(COAX_THRUST)},
 }
@@ -79,10 +81,14 @@ class ControlStation:
         controller: str | None = None,
         feedback: str | None = None,
         on_command: Callable[[Measurement], None] | None = None,
+        rig: Heli3dofRig | None = None,
     ) -> None:
+        """``rig``: a 3-DOF rig's own constants (a diagnosis's ``heli3dof_rig.json``), which its
+        controllers are designed on and fly with."""
         if vehicle not in CONTROLLERS:
             raise ValueError(f"no controllers for vehicle {vehicle!r}; use one of {', '.join(CONTROLLERS)}")
         self.vehicle, self.link, self.rate = vehicle, link, rate
+        self.rig = rig if vehicle == "heli3dof" else None
         self.uplink = uplink or default_uplink(vehicle, link)
         self.on_command = on_command
         self.controller_name = controller or next(iter(CONTROLLERS[vehicle]))
@@ -102,7 +108,8 @@ class ControlStation:
         return tuple(FEEDBACK[self.vehicle])
 
     def _build(self) -> Commander:
-        c = CONTROLLERS[self.vehicle][self.controller_name]()
+        make = CONTROLLERS[self.vehicle][self.controller_name]
+        c = make(rig=self.rig) if self.rig is not None else make()
         fb = FEEDBACK[self.vehicle][self.feedback_name]()
         return Commander(
             c, fb, self.uplink, rate=self.rate, link=self.link, on_command=self.on_command, notes=self.notes
