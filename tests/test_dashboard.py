@@ -421,8 +421,7 @@ async def test_a_failing_scene_update_is_reported_and_the_updates_go_on(capsys):
 
 
 def test_the_diagnosis_panel_follows_the_session():
-    """The panel offers the session's own model where it can diagnose it, and leaves the choice as
-    it was for one it cannot (the 3-DOF rig's)."""
+    """The panel offers the session's own model: a 3-DOF rig's session its own diagnosis."""
     from web.dashboard import Dashboard
 
     dash = Dashboard(port=0)
@@ -430,6 +429,6 @@ def test_the_diagnosis_panel_follows_the_session():
         dash.attach_session(model="quad_thrust", declared=[], vehicle="apm2_sonar")
         assert (dash.diagnosis_model.value, dash.airframe) == ("quad_thrust", "apm2_sonar")
         dash.attach_session(model="heli3dof", declared=[])
-        assert (dash.diagnosis_model.value, dash.airframe) == ("quad_thrust", None)
+        assert (dash.diagnosis_model.value, dash.airframe) == ("heli3dof", None)
     finally:
         dash.stop()

@@ -17,12 +17,14 @@ from groundstation.app.sim_cli import rig_constants
 from groundstation.control.controllers import PitchPD
 from groundstation.control.feedback import FEEDBACK_3DOF
 from groundstation.control.station import ControlStation
+from groundstation.diagnosis.live import SessionBuffer, diagnose_window, markdown
 from groundstation.diagnosis.rig.diagnose import diagnose_rig
 from groundstation.estimation.logs import load_log
 from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
 from groundstation.estimation.registry import build_estimator
 from sim_bridge.effects import parse_effect
 from sim_bridge.scenario import Scenario
+from web.dashboard import DIAGNOSIS_MODELS
 
 #: terms of the full equations the simulator always flies: a session may show them with anything
 PHYSICS = {"elevation_trig", "travel_lever_arm"}
@@ -197,3 +199,17 @@ def test_on_a_rig_unlike_table_1_its_own_constants_hold_the_pitch_step():
         last = f.t >= f.t[-1] - 2.0
         err[which] = (abs(np.mean(f.truth["p"][last]) - 0.3), abs(np.mean(f.truth["e"][last])))
     assert err["rig"][0] < 0.2 * err["lab"][0] and err["rig"][1] < 0.2 * err["lab"][1], err
+
+
+def test_the_live_panel_diagnoses_a_rig_window_as_the_command_line_does(tmp_path):
+    log = load_log(simulate(tmp_path, "--undeclared", "gyro_bias:x=0.01,y=-0.008,z=0.005"), tables=False)
+    buffer = SessionBuffer()  # the IMU averaged into 10 ms blocks, as the dashboard keeps a session
+    for m in log.measurements:
+        buffer.add(m)
+    j = diagnose_window(buffer.window(60.0), "heli3dof")
+    assert j["model"] == "heli3dof" and "gyro_bias" in {e["name"] for e in j["effects"]}
+    text = markdown(j, 60.0)
+    assert "model heli3dof" in text and "gyro_bias" in text
+    # a window of a multirotor's session is one line, not a traceback in the worker
+    assert "error" in diagnose_window(buffer.window(60.0)[:50], "heli3dof")
+    assert "heli3dof" in DIAGNOSIS_MODELS

@@ -43,6 +43,7 @@ from groundstation.core.counts import counted
 from groundstation.core.frames import quaternion_from_euler, quaternion_from_matrix
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.live import DIAGNOSIS_NICE, SessionBuffer, diagnose_window, markdown
+from groundstation.diagnosis.model_names import RIG_MODEL_HELP
 from groundstation.diagnosis.models import DIAGNOSABLE
 from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.truth import LiveTruthScore
@@ -53,8 +54,8 @@ from .session_loop import SessionLoop
 from .vehicle_panel import VehiclePanel
 
 _FLIP = np.array([1.0, -1.0, -1.0])
-#: the models the Diagnosis panel offers
-DIAGNOSIS_MODELS = tuple(DIAGNOSABLE)
+#: the models the Diagnosis panel offers (the 3-DOF rig's own diagnosis among them)
+DIAGNOSIS_MODELS = (*DIAGNOSABLE, *RIG_MODEL_HELP)
 
 
 def ned_to_view(v) -> np.ndarray:

@@ -169,7 +169,7 @@ async def run_demo(args) -> int:
     rig = rig_constants(rig_file)
     estimators = [build_estimator(model, declared, vehicle=rig_file)]
     if dash is not None:
-        dash.attach_session(model=model, declared=declared, counters=estimators[0].counters)
+        dash.attach_session(model=model, declared=declared, counters=estimators[0].counters, vehicle=rig_file)
     if dash is not None and args.vehicle != "heli3dof":  # the rig is bolted to the table
         estimators.append(build_estimator("horizontal"))
     loop = EstimationLoop(estimators)

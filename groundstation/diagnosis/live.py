@@ -15,8 +15,13 @@ from collections.abc import Sequence
 from groundstation.core.imu import block_mean, starts_block
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.engine import diagnose
+from groundstation.diagnosis.model_names import RIG_MODEL_HELP
 from groundstation.diagnosis.report.conclusion import conclusion, format_params
 from groundstation.diagnosis.report.report import as_json
+from groundstation.diagnosis.rig import report as rig_report
+from groundstation.diagnosis.rig.diagnose import diagnose_rig
+from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
+from groundstation.estimation.registry import vehicle_config
 
 #: the live diagnosis worker's niceness: it yields the CPU to the link and the estimation loop (on
 #: two cores, a 2 kHz link's p99 socket-to-record went from 5.8 ms to 1.9 ms with a diagnosis beside it)
@@ -61,7 +66,10 @@ def diagnose_window(
     ms: Sequence[Measurement], model: str = "altitude", declared: Sequence[dict] = (), vehicle: str | None = None
 ) -> dict:
     """Run in a worker process: the closed loop on ``ms``, as report.json plus its conclusion.
-    ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``."""
+    ``vehicle``: the airframe file the session's estimator was given, as ``diagnose --vehicle``; for
+    the 3-DOF rig (``heli3dof``), its constants, which the rig's diagnosis starts from."""
+    if model in RIG_MODEL_HELP:
+        return _rig_window(ms, vehicle)
     try:
         d = diagnose(ms, source="live session", model_name=model, declared=list(declared), vehicle=vehicle)
     except ValueError as e:
@@ -71,10 +79,35 @@ def diagnose_window(
     return j
 
 
+def _rig_window(ms: Sequence[Measurement], vehicle: str | None) -> dict:
+    """The rig's diagnosis (:mod:`.rig`) of a live window, as its report.json."""
+    try:
+        section = vehicle_config(vehicle, "heli3dof").get("rig") if vehicle else None
+        start = Heli3dofRig.from_vehicle(section) if isinstance(section, dict) else None
+        d = diagnose_rig(ms, start=start, source="live session")
+    except ValueError as e:
+        return {"error": str(e)}
+    seconds = ms[-1].t - ms[0].t if ms else 0.0
+    return rig_report.as_json(d, "live session", f"the last {seconds:.0f} s of the session")
+
+
+def _rig_markdown(j: dict, seconds: float) -> str:
+    rows = "\n".join(
+        f"| {e['name']} | "
+        + ", ".join(f"{k} {v:.4g} {e['units'][k]}".rstrip() for k, v in e["params"].items() if k != "d")
+        + " |"
+        for e in j["effects"]
+    )
+    table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
+    return f"**last {seconds:.0f} s, model heli3dof (the rig)**\n\n{table}{j['conclusion']}"
+
+
 def markdown(j: dict, seconds: float) -> str:
     """The panel's text: effects found, the conclusion, NIS before and after."""
     if "error" in j:
         return f"**cannot diagnose:** {j['error']}"
+    if j.get("model") in RIG_MODEL_HELP:
+        return _rig_markdown(j, seconds)
     rows = "\n".join(f"| {e['name']} | {format_params(e['name'], e['params'])} |" for e in j.get("effects", []))
     table = f"| effect | parameters |\n|---|---|\n{rows}\n\n" if rows else ""
     nis = " · ".join(
