@@ -9,8 +9,8 @@ one or more stages of the simulation:
 * ``baro_alt(sim)``: an altitude error [m] the barometer reads in addition
   (turned into pressure through the standard atmosphere);
 * ``range(d, sim)``: on the range reading [m];
-* ``rig(params)``: on the 3-DOF helicopter's constants, once, before it flies
-  (a rig that is not Table 1's: its motor constant, counterweight, friction);
+* ``constants(params)``: on a vehicle's constants, once, before it flies (a 3-DOF rig that is not
+  Table 1's: its motor constant, counterweight, friction; a coax's rotors);
 * ``encoders(angles, sim)``: on the 3-DOF helicopter's encoder angles [rad];
 * ``delay``: a per-sensor latency [s].
 
@@ -29,6 +29,9 @@ from typing import ClassVar
 import numpy as np
 
 from groundstation.core.frames import a_ib
+
+from .vehicles.coax import CoaxParams
+from .vehicles.heli3dof import Heli3dofParams
 
 
 @dataclass(frozen=True)
@@ -100,8 +103,9 @@ class Effect:
     def range(self, d, sim):
         return d
 
-    def rig(self, params):
-        """The 3-DOF helicopter's constants (``Heli3dofParams``) as this rig has them."""
+    def constants(self, params):
+        """The vehicle's constants (its ``*Params``) as this one has them; each effect changes only
+        the vehicle it names."""
         return params
 
     def encoders(self, angles, sim):
@@ -402,7 +406,9 @@ class MotorConstant(Effect):
     equation = "K_f = K_f_table * (1 + s)  (3-DOF helicopter)"
     params = {"s": Param(0.08, "1", -0.3, 0.3)}
 
-    def rig(self, params):
+    def constants(self, params):
+        if not isinstance(params, Heli3dofParams):
+            return params
         return replace(params, K_f=params.K_f * (1.0 + self.s))
 
 
@@ -416,7 +422,9 @@ class Counterweight(Effect):
     equation = "m_c = m_c_table + dm  (3-DOF helicopter; V_s0 = (2 l_h m_p - l_c m_c) g / (l_h K_f))"
     params = {"dm": Param(0.02, "kg", -0.1, 0.1)}
 
-    def rig(self, params):
+    def constants(self, params):
+        if not isinstance(params, Heli3dofParams):
+            return params
         return replace(params, m_c=params.m_c + self.dm)
 
 
@@ -429,7 +437,9 @@ class MotorAsymmetry(Effect):
     equation = "F_f = K_f (1 - a) V_f,  F_b = K_f (1 + a) V_b  (3-DOF helicopter)"
     params = {"a": Param(0.04, "1", -0.15, 0.15)}
 
-    def rig(self, params):
+    def constants(self, params):
+        if not isinstance(params, Heli3dofParams):
+            return params
         return replace(params, a=self.a)
 
 
@@ -445,7 +455,9 @@ class ViscousFriction(Effect):
         "lambda": Param(0.08, "N m s/rad", 0.0, 0.3),
     }
 
-    def rig(self, params):
+    def constants(self, params):
+        if not isinstance(params, Heli3dofParams):
+            return params
         return replace(params, d_p=self.values["p"], d_e=self.values["e"], d_l=self.values["lambda"])
 
 
@@ -467,6 +479,20 @@ class EncoderOffset(Effect):
 
     def encoders(self, angles, sim):
         return tuple(a + o for a, o in zip(angles, self.offset))
+
+
+@register
+class RotorTimeConstant(Effect):
+    """The coaxial helicopter's rotors spin up slower or faster than the document's step tests gave
+    (a heavier rotor, another speed controller): thrust and drag torque follow the input through a
+    first-order lag of time constant T (coaxial document, 5.20-5.22, 5.30-5.31; 0.17 s there)."""
+
+    name = "rotor_time_constant"
+    equation = "F(s) = k_F / (1 + T s) i(s)  (coaxial helicopter, both rotors; the document's T = 0.17 s)"
+    params = {"T": Param(0.3, "s", 0.05, 0.6)}
+
+    def constants(self, params):
+        return replace(params, T=self.T) if isinstance(params, CoaxParams) else params
 
 
 @register

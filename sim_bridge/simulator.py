@@ -26,7 +26,7 @@ from .effects import Effect
 from .profile import CoaxAutopilot, FlightProfile, GuidedProfile, Heli3dofAutopilot, QuadAutopilot
 from .scenario import Scenario
 from .sensors import SensorSuite
-from .vehicles.coax import Coax
+from .vehicles.coax import Coax, CoaxParams
 from .vehicles.heli3dof import Heli3dof, Heli3dofParams
 from .vehicles.quad import Quad
 
@@ -58,13 +58,10 @@ class Simulator:
             quad = Quad()
             self.vehicle, self.autopilot = quad, QuadAutopilot(quad, self.profile)
         elif name == "coax":
-            coax = Coax()
+            coax = Coax(self._constants(CoaxParams()))
             self.vehicle, self.autopilot = coax, CoaxAutopilot(coax, self.profile)
         else:
-            constants = Heli3dofParams()
-            for e in scenario.effects:
-                constants = e.rig(constants)
-            rig = Heli3dof(constants, e0=0.0 if scenario.flight == "small" else None)
+            rig = Heli3dof(self._constants(Heli3dofParams()), e0=0.0 if scenario.flight == "small" else None)
             assert isinstance(self.profile, FlightProfile)  # the scenario refuses a guided flight here
             self.vehicle, self.autopilot = rig, Heli3dofAutopilot(rig, self.profile)
         self.rate = max(PHYSICS_RATE[name], scenario.sensors.rates.get("imu", 0.0))
@@ -99,6 +96,12 @@ class Simulator:
         self.output_command = None  # what the outputs (PWM) show: the command from now on
         self._next_command = None  # that command, for the next step
         self.last_command = None  # what the vehicle was given (after the motors' effects)
+
+    def _constants(self, params):
+        """A vehicle's constants as the scenario's effects make them (a rig unlike Table 1)."""
+        for e in self.scenario.effects:
+            params = e.constants(params)
+        return params
 
     # -- ground-station commands -------------------------------------------------------
     def command(self, cmd) -> None:

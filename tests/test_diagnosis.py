@@ -372,6 +372,21 @@ def test_the_thrust_test_flight_shows_lag_and_ground_effect_to_the_thrust_model(
     assert after < 0.85 * before, (before, after)
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("T, seed", [(0.17, 3), (0.3, 4)])
+def test_the_coaxial_rotors_time_constant_is_the_thrust_models_lag(tmp_path, T, seed):
+    """The coax's rotors follow their inputs through a first-order lag (coaxial document, 5.20-5.22:
+    0.17 s; 0.3 s injected as a slower rotor). The thrust model's actuator_lag names it, first, on a
+    thrust test flight, within 15 %."""
+    log = tmp_path / "coax.tlog"
+    undeclared = [f"rotor_time_constant:T={T}"] if T != 0.17 else []
+    run_fast(Scenario.from_args("coax", seed, 60.0, [], undeclared, flight="thrust_test"), log, log.with_suffix(".csv"))
+    ms = list(Replay(log).iter_measurements())
+    d = diagnose(ms, model_name="quad_thrust", veto_with_truth=False)
+    assert [e.name for e in d.effects][:1] == ["actuator_lag"], [e.name for e in d.effects]
+    assert d.effects[0].params["tc"] == pytest.approx(T, rel=0.15)
+
+
 def test_the_simulated_quads_vehicle_file_is_its_airframe():
     """``--vehicle sim_quad`` tells the thrust model the simulated quadcopter's thrust curve and drag:
     they must be the simulator's own."""
