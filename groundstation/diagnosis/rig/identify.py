@@ -13,7 +13,8 @@ filtered signal are correlated over the filter's window and over what the model 
 each group counts as its effective number of samples, ``n / tau`` with ``tau = 1 + 2 sum rho_k``
 (the integrated autocorrelation time of its residuals). An effect is kept where
 
-* it lowers the criterion by more than ``MIN_DELTA_BIC`` (``k ln n_eff`` charged for its k
+* it lowers the criterion by ``MIN_DELTA_BIC`` or more: ΔBIC (the model with it, less the model
+  without; negative where it is better, as the engine reports it) at most -10, ``k ln n_eff`` charged for its k
   parameters), and
 * fitted on either half of the session it predicts the other half better (a two-fold
   cross-validation: a term that fits one stretch's peculiarity does not carry over), and
@@ -49,19 +50,17 @@ def rows_of(s: RigSession, keep: np.ndarray | None = None) -> np.ndarray:
 
 def tau(r: np.ndarray, gaps: np.ndarray) -> float:
     """Integrated autocorrelation time of ``r`` (in rows), summed until the correlation first falls
-    under 0.05; lags across a gap between stretches are not counted."""
+    under 0.05. ``gaps``: True at a row that starts a stretch; a pair of rows with a stretch's start
+    between them is not a lag of one stretch, and is not counted."""
     r = r - r.mean()
     var = float(r @ r)
     if var <= 0 or len(r) < 20:
         return 1.0
+    starts = np.cumsum(gaps)
     out = 1.0
     for k in range(1, min(len(r) // 4, 400)):
-        ok = ~gaps[k:] if k < len(gaps) else None
-        a, b = r[k:], r[:-k]
-        if ok is not None:
-            # a lag that straddles a gap is not a lag of the same stretch
-            span = np.convolve(gaps.astype(int), np.ones(k, dtype=int), "full")[k : len(r)] > 0
-            a, b = a[~span], b[~span]
+        same = starts[k:] == starts[:-k]
+        a, b = r[k:][same], r[:-k][same]
         if len(a) < 10:
             break
         rho = float(a @ b) / var * len(r) / len(a)
@@ -73,14 +72,13 @@ def tau(r: np.ndarray, gaps: np.ndarray) -> float:
 
 @dataclass
 class Fit:
-    """One model fitted: its parameter values, the residuals' sums of squares per group, and
-    (at the fit's rows) each group's effective number of samples."""
+    """One model fitted: its parameter values, the residuals' sums of squares and counts per group,
+    and its free parameters' standard errors and correlations."""
 
     values: dict[str, float]
     free: tuple[str, ...]
     rss: dict[str, float]
     n: dict[str, int]
-    n_eff: dict[str, float] = field(default_factory=dict)
     sigma: dict[str, float] = field(default_factory=dict)  #: the free parameters' standard errors
     #: the free parameters' estimates' correlations, in the order of ``free``
     corr: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
@@ -167,7 +165,7 @@ class Step:
     """One candidate tried at one step of the search."""
 
     name: str
-    delta_bic: float
+    delta_bic: float  #: the model with it less the model without: negative where it is better
     cross_validated: bool | None  #: None: not checked (its criterion did not pass)
     fit: Fit
     #: the found parameter it cannot be told from (then it is not claimed)
@@ -214,13 +212,13 @@ def search(s: RigSession, catalogue: list[RigCandidate], start: dict[str, float]
         steps = []
         for cand in left:
             f = fit(c, current.values, free + cand.params, scale)
-            delta = current.neg2lnl(n_eff) - f.neg2lnl(n_eff) - len(cand.params) * math.log(n_all)
+            delta = f.neg2lnl(n_eff) - current.neg2lnl(n_eff) + len(cand.params) * math.log(n_all)
             steps.append(Step(cand.name, delta, None, f))
-        steps.sort(key=lambda st: -st.delta_bic)
+        steps.sort(key=lambda st: st.delta_bic)
         record.tried.append(steps)
         taken = None
         for st in steps:
-            if st.delta_bic < MIN_DELTA_BIC:
+            if st.delta_bic > -MIN_DELTA_BIC:
                 break
             cand = next(x for x in left if x.name == st.name)
             st.confounded_with = confounded(st.fit, free, cand.params)

@@ -57,6 +57,7 @@ def effect_json(step: Step, params: tuple[str, ...], what: str) -> dict:
             out["sigma"]["d"] = f.sigma.get(k, math.nan) * INERTIA[k]
             out["units"]["d"] = "N m s/rad"
     out["delta_bic"] = step.delta_bic
+    out["evidence"] = {"delta_bic": step.delta_bic}  # where the fleet's table reads it
     return out
 
 
@@ -78,8 +79,8 @@ def as_json(d: RigDiagnosis, source: str, description: str) -> dict:
             {"name": o.name, "delta_bic": o.delta_bic}
             for o in tried
             if o.name != st.name
-            and o.delta_bic >= MIN_DELTA_BIC
-            and o.delta_bic >= st.delta_bic - max(10.0, 0.05 * st.delta_bic)
+            and o.delta_bic <= -MIN_DELTA_BIC
+            and o.delta_bic <= st.delta_bic + max(10.0, 0.05 * -st.delta_bic)
         ]
         effects.append(e)
     last = d.search.tried[-1] if d.search.tried else []
@@ -140,7 +141,8 @@ def conclusion(j: dict) -> str:
     if not j["effects"]:
         best = j["not_claimed"][0] if j["not_claimed"] else None
         text = "The lab's model holds on this session: no effect in the catalogue improves it" + (
-            f" (the closest, {best['name']}, by Delta BIC {best['delta_bic']:.1f}; {MIN_DELTA_BIC:g} is needed)."
+            f" (the closest, {best['name']}, at Delta BIC {best['delta_bic']:+.1f}; "
+            f"{-MIN_DELTA_BIC:g} or less is needed)."
             if best
             else "."
         )

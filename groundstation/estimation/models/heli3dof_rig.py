@@ -61,11 +61,6 @@ class Heli3dofRig:
     encoder_offset: tuple[float, float] = (0.0, 0.0)  #: p, e [rad]
 
     @property
-    def is_lab(self) -> bool:
-        """The lab's linear model with its constants (nothing this rig adds)."""
-        return self == Heli3dofRig()
-
-    @property
     def linear_dynamics(self) -> bool:
         """Its dynamics are the lab's linear ones with other constants (no trig, lag or offsets
         that a linear model with an input ``V_s - V_s0`` could not hold)."""
