@@ -44,7 +44,7 @@ MOTORS_OFF = 1.0
 @dataclass
 class RigSession:
     """Columns on one uniform clock ``t`` [s]. Angles [rad], rates [rad/s], accelerations [rad/s^2],
-    voltages [V], gyro [rad/s] and accelerometer [m/s^2] in the IMU's FRD frame (NaN where the log
+    voltages [V], gyro [rad/s] and accelerometer [m/s^2] in the IMU's FRD frame (None where the log
     has no IMU), all smoothed by the same filter; ``free``: the rig flew free there."""
 
     t: np.ndarray
