@@ -337,6 +337,10 @@ class ActuatorLag(Effect):
         self.state = None
 
     def command(self, cmd, dt, sim):
+        # the motors lag what their drivers give them: the command within its range, as the outputs
+        # a log records show it. A lag ahead of the clip would carry a voltage below 0 V (or above
+        # the supply) that no motor gets and no log shows
+        cmd = sim.vehicle.clipped(cmd)
         fields = list(vars(cmd))
         now = np.array([getattr(cmd, f) for f in fields], dtype=float)
         if self.state is None:
