@@ -7,9 +7,9 @@ differences; the same Gaussian smooths every column they are compared with (the 
 the accelerometer). The second difference of the smoothed angle is the smoothed acceleration
 (``(g * x)'' = g * x''``, to (w dt)^2 / 12, 1e-4 at 3 Hz), so an equation ``e_dd = K2 (V_s - V_s0)``
 holds between the filtered quantities as between the raw ones (a linear filter commutes with a
-linear model). Two filters that only look alike do not: a Savitzky-Golay second derivative beside
-its own smoothing biased a 50 ms motor lag to 30 ms, and scipy's sampled Gaussian-derivative kernels
-are not normalised (a constant 30 rad came out as -18 rad/s^2). What the filter does to the
+linear model). Two filters that only look alike do not: a Savitzky-Golay second derivative does not
+share its own smoothing's response (beside it, a 50 ms motor lag reads 30 ms), and scipy's sampled
+Gaussian-derivative kernels are not normalised (a constant 30 rad comes out as -18 rad/s^2). What the filter does to the
 nonlinear terms (cos p V_s) over 40 ms is far below the terms themselves.
 
 Contact: on the table or an end stop the encoder stands still while the lab's model asks for an
