@@ -238,20 +238,23 @@ def thrust_input_on_ground(m: Measurement, ctx: Context) -> np.ndarray | None:
     return thrust_input(m, ctx)
 
 
+#: what the thrust model reads beside its inputs: the attitude (the thrust's vertical share), the
+#: throttle and whether the vehicle is armed (the diagnosis's thrust filter adds its own)
+THRUST_CONTEXT = {
+    Kind.ATTITUDE: read_attitude,
+    Kind.ATTITUDE_QUATERNION: read_quaternion,
+    Kind.ANGULAR_RATE: read_angular_rate,
+    Kind.ACTUATOR: read_throttle,
+    Kind.THROTTLE: read_throttle,
+    Kind.VEHICLE_STATUS: read_vehicle_status,
+}
+
+
 def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
     model = model or quad_thrust_model()
     inp = thrust_input_on_ground if model.options.get("ground_contact") else thrust_input
     return KalmanEstimator(
-        model,
-        inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp},
-        context={
-            Kind.ATTITUDE: read_attitude,
-            Kind.ATTITUDE_QUATERNION: read_quaternion,
-            Kind.ANGULAR_RATE: read_angular_rate,
-            Kind.ACTUATOR: read_throttle,
-            Kind.THROTTLE: read_throttle,
-            Kind.VEHICLE_STATUS: read_vehicle_status,
-        },
+        model, inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp}, context=dict(THRUST_CONTEXT)
     )
 
 

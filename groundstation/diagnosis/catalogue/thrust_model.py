@@ -56,12 +56,9 @@ from groundstation.estimation.models.contact import (
 from groundstation.estimation.models.ground import TAU_GROUND, landed, on_ground
 from groundstation.estimation.models.quad_thrust import DRAG, quad_thrust_model
 from groundstation.estimation.routing import (
+    THRUST_CONTEXT,
     motor_outputs,
-    read_angular_rate,
-    read_attitude,
-    read_quaternion,
     read_specific_force,
-    read_throttle,
     read_vehicle_status,
     throttle_at_reading,
 )
@@ -383,16 +380,7 @@ def thrust_estimator(model: LinearModel) -> KalmanEstimator:
     est = KalmanEstimator(
         model,
         inputs={Kind.ACTUATOR: _input, Kind.THROTTLE: _input, Kind.ATTITUDE: _input},
-        context={
-            Kind.ACCEL: read_specific_force,
-            Kind.ATTITUDE: read_attitude,
-            Kind.ATTITUDE_QUATERNION: read_quaternion,
-            Kind.ANGULAR_RATE: read_angular_rate,
-            Kind.ACTUATOR: read_throttle,
-            Kind.THROTTLE: read_throttle,
-            Kind.VEHICLE_STATUS: read_vehicle_status,
-            Kind.BATTERY_VOLTAGE: _battery_voltage,
-        },
+        context={**THRUST_CONTEXT, Kind.ACCEL: read_specific_force, Kind.BATTERY_VOLTAGE: _battery_voltage},
     )
     opts = model.options
     est.filter.ctx = ThrustContext(

@@ -61,19 +61,13 @@ def effect_json(step: Step, params: tuple[str, ...], what: str) -> dict:
     return out
 
 
-def _final_values(d: RigDiagnosis, step: Step, params: tuple[str, ...]) -> Step:
-    """The effect's step with the final model's values (what later effects' fits made of it)."""
-    fin = d.search.final
-    moved = Step(step.name, step.delta_bic, step.cross_validated, fin)
-    return moved if all(k in fin.free for k in params) else step
-
-
 def as_json(d: RigDiagnosis, source: str, description: str) -> dict:
     by_name = {c.name: c for c in d.catalogue}
     effects = []
     for i, st in enumerate(d.search.claimed):
         cand = by_name[st.name]
-        e = effect_json(_final_values(d, st, cand.params), cand.params, cand.what)
+        # its values and errors as the final model has them (fitted with every effect found after it)
+        e = effect_json(Step(st.name, st.delta_bic, st.cross_validated, d.search.final), cand.params, cand.what)
         tried = d.search.tried[i]
         e["rivals"] = [
             {"name": o.name, "delta_bic": o.delta_bic}
