@@ -7,7 +7,7 @@ STAMP   := $(VENV)/.installed
 # test fails with its stack after 20 minutes instead of stalling CI
 PYTEST  := $(BIN)/python -m pytest -q -n auto --maxschedchunk 1 --timeout 1200
 
-.PHONY: demo test check lint setup browser bench clean
+.PHONY: demo test soak check lint setup browser bench clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -38,11 +38,16 @@ lint: setup
 
 # the quick loop: the static checks and the fast tests
 check: lint
-	$(PYTEST) -m "not slow"
+	$(PYTEST) -m "not slow and not soak"
 
-# everything, as CI runs it (the slowest tests listed at the end: what keeps the loop long)
+# the whole suite (the slowest tests listed at the end: what keeps the loop long)
 test: setup browser lint
-	$(PYTEST) --durations=15
+	$(PYTEST) -m "not soak" --durations=15
+
+# the measurements over many minutes, one after another on a machine of their own (CI runs them
+# after the suite): ten minutes behind a MAVProxy router, 100,000 mutated logs a format
+soak: setup
+	$(BIN)/python -m pytest -q -p no:xdist -m soak --timeout 3600 --durations=0
 
 bench: setup
 	$(BIN)/python bench/sim_speed.py

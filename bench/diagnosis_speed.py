@@ -15,7 +15,12 @@ in order, with their parameters (within 5 % or half a standard error), and the c
 away. Logs: a 60 s simulated quadcopter flight with a late range sensor and rotor wash on the
 baro, and a 10-minute one with a 1 kHz IMU, baro, range and GPS (both written here); a foreign
 flight (``../shared/data/foreign``), a Crazyflie log and a 23-minute ArduPilot tlog
-(``../shared/data/real``); one that is not there is listed as skipped.
+(``../shared/data/real``), and the 10-minute flight written as DataFlash and two foreign flights as
+DataFlash and ULog (``../shared/data/foreign2``); one that is not there is listed as skipped.
+
+Beside the baseline, the plain read of each file (pymavlink's ``recv_match`` loop, pyulog's
+``ULog``) in a fresh process: what reading the log alone costs a user's script, and a second of
+flight's diagnosis against the 10-minute tlog's (its DataFlash twin must find the same).
 """
 
 from __future__ import annotations
@@ -41,9 +46,12 @@ DATA = Path(os.environ.get("GROUNDSTATION_DATA") or ROOT.parent / "shared" / "da
 LOGS: list[tuple[str, Path | str]] = [
     ("sim quad 60 s", "sim60"),
     ("sim quad 10 min, 1 kHz IMU", "sim600"),
+    ("the same flight as DataFlash .bin", "sim600bin"),
     ("foreign baro_thermal_s1", DATA / "foreign" / "baro_thermal_s1.tlog"),
     ("crazyflie 0425-traj4", DATA / "real" / "crazyflie_util" / "0425-traj4"),
     ("dronekit tlog 23 min", DATA / "real" / "mavlink_tlog" / "dronekit_flight_replay_flight.tlog"),
+    ("foreign2 clean_s1.bin", DATA / "foreign2" / "clean_s1.bin"),
+    ("foreign2 clean_s2.ulg", DATA / "foreign2" / "clean_s2.ulg"),
 ]
 
 
@@ -51,7 +59,7 @@ def simulated(folder: Path, which: str, minutes: float) -> Path:
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
 
-    log = folder / f"{which}.tlog"
+    log = folder / (f"{which[:-3]}.bin" if which.endswith("bin") else f"{which}.tlog")
     if which == "sim60":
         sc = Scenario.from_args(
             "quad", 7, 60.0, ["range_tilt"], ["sensor_delay:sensor=range,seconds=0.06", "baro_thrust:k=2.5"]
@@ -71,6 +79,32 @@ def simulated(folder: Path, which: str, minutes: float) -> Path:
         sc = Scenario.load(spec)
     run_fast(sc, log, log.with_suffix(".csv"))
     return log
+
+
+#: the plain third-party read of a log, as a user's script does it: pymavlink's ``recv_match`` loop
+#: over a tlog or a DataFlash log, pyulog's ``ULog`` over a ULog (a Crazyflie log has none)
+_DECODE = """
+import sys
+path = sys.argv[1]
+if path.endswith(".ulg"):
+    from pyulog import ULog
+    ULog(path)
+else:
+    from pymavlink import mavutil
+    conn = mavutil.mavlink_connection(path)
+    while conn.recv_match() is not None:
+        pass
+"""
+
+
+def bare_decode(log: Path) -> float | None:
+    """Wall seconds of the plain read of ``log`` in a fresh process (imports included, as in
+    ``diagnose``'s), or None where there is no such reader."""
+    if log.is_dir() or log.suffix.lower() not in (".tlog", ".bin", ".log", ".ulg"):
+        return None
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", _DECODE, str(log)], check=True, capture_output=True)
+    return time.perf_counter() - t0
 
 
 #: runs the command line and reports its peak resident memory (this wrapper's only child)
@@ -136,8 +170,12 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=available_cores(), help="the processes of the new path")
     ap.add_argument("--only", nargs="*", help="these logs only (names as printed)")
     ap.add_argument("--minutes", type=float, default=10.0, help="the long simulated flight's length")
+    ap.add_argument("--no-baseline", action="store_true", help="skip the run per candidate (the slowest)")
     args = ap.parse_args()
     rows = []
+    #: the long simulated tlog's seconds of diagnosis a second of flight, and its report: the
+    #: reference of the per-second column, and of the same flight written as DataFlash
+    reference: dict = {}
     with tempfile.TemporaryDirectory() as d:
         folder = Path(d)
         for name, path in LOGS:
@@ -145,31 +183,48 @@ def main() -> int:
                 continue
             log = simulated(folder, path, args.minutes) if isinstance(path, str) else path
             if not log.exists():
-                rows.append(f"| {name} | skipped: {log} is not there | | | | | | |")
+                rows.append(f"| {name} | skipped: {log} is not there |" + " |" * 11)
                 continue
             size = sum(p.stat().st_size for p in ([log] if log.is_file() else log.rglob("*") if log.is_dir() else []))
-            t0, m0, j0 = diagnose(log, folder / f"{len(rows)}-0", 1, by_runs=True)
+            decode = bare_decode(log)
             t1, m1, j1 = diagnose(log, folder / f"{len(rows)}-1", 1)
             tn, mn, jn = diagnose(log, folder / f"{len(rows)}-n", args.jobs)
             seconds = sum(s["t_end"] - s["t_start"] for s in j1.get("segments_used") or [])  # what was fitted
-            same1, why1 = same_findings(j0, j1)
-            samen, whyn = same_findings(j0, jn)
-            verdict = "same" if same1 and samen else f"**differ**: {why1 if not same1 else whyn}"
-            old, one, new = (f"{t:.1f} ({seconds / t:.1f}x)" for t in (t0, t1, tn))
+            checks = [same_findings(j1, jn)]
+            if args.no_baseline:
+                t0 = m0 = math.nan
+            else:
+                t0, m0, j0 = diagnose(log, folder / f"{len(rows)}-0", 1, by_runs=True)
+                checks.append(same_findings(j0, j1))
+            if path == "sim600":
+                reference.update(cost=tn / seconds, report=j1)
+            if path == "sim600bin" and reference:
+                same, why = same_findings(reference["report"], j1)
+                checks.append((same, f"against the tlog: {why}"))
+            wrong = [why for same, why in checks if not same]
+            verdict = "same" if not wrong else f"**differ**: {wrong[0]}"
+            per_s = tn / seconds if seconds else math.nan
+            rel = f"{per_s / reference['cost']:.2f}" if reference and seconds else "–"
             rows.append(
-                f"| {name} | {seconds:.0f} | {size / 1e6:.1f} | {old} | {one} | {new} | {t0 / t1:.1f} | "
-                f"{t0 / tn:.1f} | {m0:.0f} / {mn:.0f} | {verdict} |"
+                f"| {name} | {seconds:.0f} | {size / 1e6:.1f} | "
+                + (f"{decode:.1f}" if decode else "–")
+                + f" | {t0:.1f} | {t1:.1f} ({seconds / t1:.1f}x) | {tn:.1f} ({seconds / tn:.1f}x) | "
+                + f"{t0 / t1:.1f} | {t0 / tn:.1f} | "
+                + (f"**{tn / decode:.2f}**" if decode else "–")
+                + f" | {60 * per_s:.1f} | {rel} | {m1:.0f} / {mn:.0f} | {verdict} |"
             )
             print(rows[-1], flush=True)
     print(
         f"\ndiagnose through the gains on 1 and {args.jobs} processes, against a run per candidate on one"
-        f" (the baseline), on {available_cores()} cores"
+        f" (the baseline) and against the plain read of the same file, on {available_cores()} cores"
     )
     print(
-        "| log | fitted [s] | log [MB] | baseline [s] (x real time) | --jobs 1 [s] | "
-        f"--jobs {args.jobs} [s] | ratio, 1 | ratio, {args.jobs} | peak memory, baseline / new [MB] | findings |"
+        "| log | fitted [s] | log [MB] | plain read [s] | baseline [s] | --jobs 1 [s] (x real time) | "
+        f"--jobs {args.jobs} [s] | baseline ratio, 1 | baseline ratio, {args.jobs} | "
+        f"--jobs {args.jobs} / plain read | s a flight minute | per second / the 10-minute tlog's | "
+        "peak memory, 1 / new [MB] | findings |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     print("\n".join(rows))
     return 0
 

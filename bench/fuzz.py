@@ -12,7 +12,8 @@ cuts. A mutant is *read* (the reader returned), *refused* (its one-line error: a
 ``OSError`` naming the file, one line), or a failure: a *traceback* (any other exception), a *hang*
 (over ``--time-s``), a *blow-up* (``MemoryError``, or the process's peak memory growing by more than
 ``BLOWUP_MB``). The table counts them per format; the first few failures are kept as files under
-``--keep`` to reproduce. ``tests/test_fuzz.py`` runs 10,000 a format (50,000 in all) in CI.
+``--keep`` to reproduce. ``tests/test_fuzz.py`` runs 2,000 a format in ``make test`` and 100,000
+a format in ``make soak``, which CI runs.
 """
 
 from __future__ import annotations

@@ -6,6 +6,12 @@ from pathlib import Path
 
 import pytest
 
+from groundstation.app.main import ONE_BLAS_THREAD
+
+# the command line's BLAS threads in every test and every process a test starts (before numpy loads)
+for _name, _value in ONE_BLAS_THREAD.items():
+    os.environ.setdefault(_name, _value)
+
 REPO = Path(__file__).resolve().parents[1]
 #: the shared data (real logs, foreign flights): ../shared/data, or $GROUNDSTATION_DATA
 DATA = Path(os.environ.get("GROUNDSTATION_DATA") or REPO.parent / "shared" / "data")

@@ -37,7 +37,16 @@ def problem_with(path: Path) -> str | None:
     return f"{path}: not a MAVLink tlog, nor an ArduPilot DataFlash, PX4 ULog or Crazyflie log (by its first bytes)"
 
 
+#: BLAS's own threads, one (unless the user's environment says otherwise): the estimators' matrices
+#: are a few states wide, where OpenBLAS's worker threads only spin: a diagnosis of
+#: ``underpowered.log`` takes the same 71 s with one thread as with two, and half the processor time
+#: (a second core's worth that parallel work, a dashboard or a test runner beside it then lacks)
+ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
 def main(argv: list[str] | None = None) -> int:
+    for name, value in ONE_BLAS_THREAD.items():  # before numpy is loaded: the count is read once
+        os.environ.setdefault(name, value)
     args = build_parser().parse_args(argv)
     if args.command in READS_A_LOG and getattr(args, "file", None) is not None:
         why = problem_with(args.file)
