@@ -99,6 +99,29 @@ class Browser:
                 raise AssertionError(f"the page never showed {text!r}")
             await asyncio.sleep(0.1)
 
+    async def evaluate(self, expression: str):
+        """The value of a JavaScript expression in the page."""
+        r = await self.call("Runtime.evaluate", expression=expression, returnByValue=True)
+        return r.get("result", {}).get("value")
+
+    async def click_button(self, text: str) -> None:
+        """Click the page's button that reads ``text``, as a mouse click does (React's handler runs)."""
+        found = await self.evaluate(
+            f"(() => {{ const b = [...document.querySelectorAll('button')]"
+            f".find(b => b.innerText.trim() === {json.dumps(text)}); if (b) b.click(); return !!b; }})()"
+        )
+        if not found:
+            raise AssertionError(f"the page has no button {text!r}")
+
+    async def key_on(self, selector: str, key: str, code: int) -> None:
+        """Focus the element ``selector`` and press ``key`` (its Windows virtual-key ``code``) there."""
+        if not await self.evaluate(
+            f"(() => {{ const e = document.querySelector({json.dumps(selector)}); if (e) e.focus(); return !!e; }})()"
+        ):
+            raise AssertionError(f"the page has no {selector}")
+        for kind in ("keyDown", "keyUp"):
+            await self.call("Input.dispatchKeyEvent", type=kind, key=key, code=key, windowsVirtualKeyCode=code)
+
     async def screenshot(self, path: Path):
         import numpy as np
         from PIL import Image

@@ -87,7 +87,9 @@ def test_ctrl_c_stops_a_batch_replay_with_what_was_estimated_written(tmp_path):
     """A max-speed replay runs outside an event loop: Ctrl-C stops it at once (inside one, the first
     SIGINT only marked the run cancelled and was lost), the estimates so far are in the file, and the
     last line says where it stopped; exit status 130."""
-    sc = Scenario(vehicle="quad", seed=2, duration=120.0)
+    # 8 minutes at 1 kHz: a replay of about 4 s on a quiet machine, long enough that the signal
+    # lands in it (2 minutes were over in 1 s, at times before the signal was handled)
+    sc = Scenario(vehicle="quad", seed=2, duration=480.0)
     sc.sensors.rates.update({"imu": 1000, "baro": 50, "range": 20})
     log, est = tmp_path / "q.tlog", tmp_path / "est.csv"
     run_fast(sc, log)

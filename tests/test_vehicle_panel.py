@@ -15,6 +15,7 @@ from sim_bridge.scenario import Scenario
 from web.dashboard import Dashboard
 from web.probe import ViserProbe, gui_id
 
+from .browser import CHROMIUM, Browser
 from .conftest import async_test, free_udp_port
 
 
@@ -120,3 +121,109 @@ async def test_a_view_only_tab_cannot_change_what_the_holder_sends():
             await s.press(a, s.panel.takeoff)
             await s.said(a, "takeoff 2.0: accepted by vehicle 1")
             assert guided.flying
+
+
+async def _until(done, what: str, timeout: float = 10.0) -> None:
+    """Until ``done()`` (a press's callback has run), polled; AssertionError naming ``what``."""
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not done():
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError(f"never: {what}")
+        await asyncio.sleep(0.02)
+
+
+class _ForeignPage:
+    """A page served from another origin (another port of this machine) whose script opens the
+    dashboard's control websocket, token and all, and sends viser's own messages: a camera report,
+    then ``presses`` (each a GuiUpdateMessage, msgpack-encoded here and carried as base64)."""
+
+    def __init__(self, websocket_url: str, presses: list[dict]) -> None:
+        import base64
+        import http.server
+        import json
+        import threading
+
+        import msgspec
+        import viser
+
+        camera = {
+            "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [3.0, 3.0, 3.0],
+            "fov": 1.0, "near": 0.01, "far": 1000.0, "image_height": 720, "image_width": 1280,
+            "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0],
+        }  # fmt: skip
+        frames = [base64.b64encode(msgspec.msgpack.encode(m)).decode() for m in (camera, *presses)]
+        page = f"""<!doctype html><title>elsewhere</title><script>
+const ws = new WebSocket({json.dumps(websocket_url)}, ["viser-v{viser.__version__}"]);
+ws.onopen = () => {{
+  for (const f of {json.dumps(frames)}) ws.send(Uint8Array.from(atob(f), c => c.charCodeAt(0)));
+  document.title = "sent";
+}};
+</script>""".encode()
+
+        class Serve(http.server.BaseHTTPRequestHandler):
+            def do_GET(self) -> None:  # noqa: N802 - http.server's name
+                self.send_response(200)
+                self.send_header("Content-Type", "text/html")
+                self.end_headers()
+                self.wfile.write(page)
+
+            def log_message(self, *args) -> None:
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Serve)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/"
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def __enter__(self) -> _ForeignPage:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+        self.thread.join()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed (make test installs it)")
+@async_test(timeout=120)
+async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_nothing():
+    """The audit's attacks in a real browser. A view-only tab (the dashboard's page without the
+    token) presses ARM and moves the takeoff slider with the keyboard, as a user would: told "Not
+    yours to command" and "Not changed" in the page, the slider's value goes back to the holder's.
+    A page from another origin that knows the token opens the control websocket itself and presses
+    ARM twice and sends a 30 m takeoff height: refused as a page from elsewhere. The vehicle stays
+    disarmed and the holder's 2 m stands."""
+    async with _Session() as s:
+        guided = s.bridge.protocol.guided
+        async with ViserProbe(s.dash.control_url) as a:
+            await s.press(a, s.panel.take)
+            await s.said(a, "control held by tab")
+            await s.press(a, s.panel.altitude, value=2.0)
+            await _until(lambda: s.panel.accepted["altitude"] == 2.0, "the holder's 2 m accepted")
+
+            async with Browser() as b:
+                await b.goto(s.dash.url)
+                await b.wait_for_text("TAKEOFF")
+                await b.click_button("ARM")
+                await b.wait_for_text("Not yours to command")
+                thumb = '[role="slider"][aria-valuemax="30"]'  # the takeoff height's, 1-30 m
+                assert await b.evaluate(f"document.querySelector('{thumb}').getAttribute('aria-valuenow')") == "2"
+                await b.key_on(thumb, "ArrowRight", 39)
+                await b.wait_for_text("Not changed")
+                assert s.panel.altitude.value == 2.0 and s.panel.accepted["altitude"] == 2.0
+
+                ws_url = s.dash.control_url.partition("websocket=")[2]
+                presses = [
+                    {"type": "GuiUpdateMessage", "uuid": gui_id(s.panel.arm), "updates": {"value": True}},
+                    {"type": "GuiUpdateMessage", "uuid": gui_id(s.panel.arm), "updates": {"value": True}},
+                    {"type": "GuiUpdateMessage", "uuid": gui_id(s.panel.altitude), "updates": {"value": 30.0}},
+                ]
+                before = s.panel.refused
+                with _ForeignPage(ws_url, presses) as elsewhere:
+                    await b.goto(elsewhere.url)
+                    await _until(lambda: s.panel.refused == before + 3, "the page's three presses refused")
+                    await s.said(a, f"a page from {elsewhere.url.rstrip('/')} may not command this vehicle")
+            assert f"{before + 3} refused to tabs without control" in s.panel.status_md.content  # the holder is told
+            assert not guided.armed
+            assert s.panel.altitude.value == 2.0 and s.panel.accepted["altitude"] == 2.0

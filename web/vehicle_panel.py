@@ -87,6 +87,9 @@ class VehiclePanel:
         self.session = session or SessionLoop()
         self.message = ""
         self.busy = False
+        #: presses and input changes refused to tabs without control, told to the holder (someone
+        #: else is trying to command this vehicle)
+        self.refused = 0
         self._pending: tuple[str, int, float] | None = None  # (action, client id, first press)
         self._params: dict[int, ParamClient] = {}
         with gui.add_folder("Vehicle"):
@@ -124,6 +127,7 @@ class VehiclePanel:
         @self.take.on_click
         async def _(e) -> None:
             why = self.refusal(e.client_id)
+            self.refused += why is not None
             self.message = self.authority.take(e.client_id) if why is None else f"tab {e.client_id}: {why}"
             self._refresh()
 
@@ -171,7 +175,9 @@ class VehiclePanel:
             value = handle.value
             if value == self.accepted[key]:
                 return
-            why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id) or check(value)
+            refused = self.authority.command_refusal(self.refusal(e.client_id), e.client_id)
+            self.refused += refused is not None
+            why = refused or check(value)
             if why is None:
                 self.accepted[key] = value
                 return
@@ -187,6 +193,7 @@ class VehiclePanel:
         why = self.authority.command_refusal(self.refusal(e.client_id), e.client_id)
         if why is None:
             return True
+        self.refused += 1
         self.message = f"tab {e.client_id}: {why}"
         if e.client is not None:
             e.client.add_notification("Not yours to command", why, auto_close_seconds=6.0, color="yellow")
@@ -271,6 +278,8 @@ class VehiclePanel:
             head = f"vehicle {sysid}: **{'ARMED' if armed else 'disarmed'}** · {COPTER_MODES.get(mode, mode)}"
         held = self.authority.holder
         who = f"control held by tab {held}" if held is not None else "nobody holds control"
+        if self.refused:
+            who += f" · {self.refused} refused to tabs without control"
         return f"{head} · {who}" + (f"\n\n{self.message}" if self.message else "")
 
     def _refresh(self) -> None:
