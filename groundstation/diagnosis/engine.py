@@ -133,7 +133,7 @@ def diagnose(
     left_out: list[LeftOut] = []
     if search.model.f is None and search.model0.f is None:
         say("predicting each absolute sensor from the others")
-        left_out = leave_one_out(search.model0, found, su.prep, search.make, search.stream, truth)
+        left_out = leave_one_out(search.model0, found, su.prep, search.make, search.stream, truth, workers)
     found_beside, unclaimed = _beside(search, model_name, unobs)
     return Diagnosis(
         source,

@@ -26,6 +26,7 @@ import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.runs.run import Prepared, run_model
+from groundstation.diagnosis.scoring.trials import fork_map
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
 
@@ -88,29 +89,34 @@ def leave_one_out(
     make: Callable[[LinearModel], KalmanEstimator],
     after_stream: Sequence[Measurement],
     truth=None,
+    workers: int = 1,
 ) -> list[LeftOut]:
     """Each absolute sensor both models have, left out of each (the after model's readings: its
-    delays applied, ``after_stream``)."""
-    out = []
+    delays applied, ``after_stream``). The runs, two a sensor, are independent: they go to up to
+    ``workers`` processes (:func:`.trials.fork_map`), each giving back its numbers alone."""
     t_from = prep.t0 + SETTLE_S
     names_before = {mm.name for mm in before.measurements.values()}
-    done: set[str] = set()
+    names: list[str] = []
     for mm in after.measurements.values():
-        if mm.kind not in ABSOLUTE or mm.name not in names_before or mm.name in done:
-            continue
-        if not dataclasses.is_dataclass(mm):
-            continue
-        done.add(mm.name)
-        run_b = run_model(without(before, mm.name), prep, make)
-        run_a = run_model(without(after, mm.name), prep, make, measurements=after_stream)
-        b, n = _rms(run_b, mm.name, t_from)
-        a, _ = _rms(run_a, mm.name, t_from)
+        if mm.kind in ABSOLUTE and mm.name in names_before and mm.name not in names and dataclasses.is_dataclass(mm):
+            names.append(mm.name)
+
+    def scored(job: tuple[str, bool]) -> tuple[float, int, float]:
+        """(the left-out sensor's RMS innovation, its count, the height's RMSE against truth)."""
+        name, as_found = job
+        if as_found:
+            run = run_model(without(after, name), prep, make, measurements=after_stream)
+        else:
+            run = run_model(without(before, name), prep, make)
+        rms, n = _rms(run, name, t_from)
+        return rms, n, truth.error(run, prep.t0, prep.t1) if truth is not None else math.nan
+
+    runs = fork_map(scored, [(name, as_found) for name in names for as_found in (False, True)], workers)
+    out = []
+    for k, name in enumerate(names):
+        (b, n, eb), (a, _, ea) = runs[2 * k], runs[2 * k + 1]
         if not n:
             continue
-        tb = ta = None
-        if truth is not None:
-            eb, ea = truth.error(run_b, prep.t0, prep.t1), truth.error(run_a, prep.t0, prep.t1)
-            if math.isfinite(eb) and math.isfinite(ea):
-                tb, ta = eb, ea
-        out.append(LeftOut(mm.name, b, a, n, tb, ta))
+        both = truth is not None and math.isfinite(eb) and math.isfinite(ea)
+        out.append(LeftOut(name, b, a, n, eb if both else None, ea if both else None))
     return out
