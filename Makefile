@@ -3,9 +3,12 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
-# every core, each handed one test at a time (the long ones come first: tests/conftest.py); a hung
-# test fails with its stack after 20 minutes instead of stalling CI
-PYTEST  := $(BIN)/python -m pytest -q -n auto --maxschedchunk 1 --timeout 1200
+# a worker a core and one more: a test waits part of its time on sockets, subprocesses, the browser
+# and the router's minute (one worker a core kept the cores 84 % busy); each worker handed one test
+# at a time (the long ones come first: tests/conftest.py); a hung test fails with its stack after
+# 20 minutes instead of stalling CI
+WORKERS := $(shell $(PY) -c "import os; print(len(os.sched_getaffinity(0)) + 1)")
+PYTEST  := $(BIN)/python -m pytest -q -n $(WORKERS) --maxschedchunk 1 --timeout 1200
 
 .PHONY: demo test soak check lint setup browser bench clean
 

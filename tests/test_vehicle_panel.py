@@ -6,6 +6,7 @@ read by anyone and set by the holder only, and nothing from another tab."""
 from __future__ import annotations
 
 import asyncio
+import subprocess
 
 import pytest
 
@@ -227,3 +228,60 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
             assert f"{before + 3} refused to tabs without control" in s.panel.status_md.content  # the holder is told
             assert not guided.armed
             assert s.panel.altitude.value == 2.0 and s.panel.accepted["altitude"] == 2.0
+
+
+@pytest.mark.slow
+@async_test(timeout=90)
+async def test_a_plain_connect_prints_its_control_address_and_its_vehicle_panel_commands():
+    """``groundstation connect`` with its dashboard and nothing else said: the control address is
+    printed, and the tab opened there takes control and sets the simulated vehicle's mode, which
+    the vehicle accepts; a tab at the printed dashboard address views only."""
+    import re
+    import sys
+
+    from .conftest import free_tcp_port
+    from .helpers import running, simulated_vehicle
+
+    port, web = free_udp_port(), free_tcp_port()
+    connect = [sys.executable, "-m", "groundstation", "connect", f"udpin:127.0.0.1:{port}", "--port", str(web)]
+    connect += ["--no-record"]
+    with running(connect, stdout=subprocess.PIPE, text=True) as gs, simulated_vehicle(port, "--flight", "guided"):
+        lines: list[str] = []
+        while not any(line.startswith("control: ") for line in lines):
+            line = await asyncio.wait_for(asyncio.to_thread(gs.stdout.readline), 30)
+            assert line, f"connect ended before it printed a control address: {lines}"
+            lines.append(line)
+        (control,) = [re.match(r"control: (\S+)", line)[1] for line in lines if line.startswith("control: ")]
+        (page,) = [re.match(r"dashboard: (\S+)", line)[1] for line in lines if line.startswith("dashboard: ")]
+        assert control.startswith(f"{page}/?websocket=")
+        async with ViserProbe(control) as a, ViserProbe(page) as viewer:
+            panel, seen = await _vehicle_panel(a), await _vehicle_panel(viewer)
+            assert seen == panel  # the same panel in every tab
+            await a.set_gui(panel["Take control"], value=True)
+            await a.until_markdown(panel["status"], "control held by tab", timeout=30)
+            await viewer.set_gui(panel["ARM"], value=True)
+            await viewer.until_notifications("Not yours to command", 1)
+            await a.set_gui(panel["mode"], value="GUIDED")
+            await a.set_gui(panel["Set mode"], value=True)
+            await a.until_markdown(panel["status"], "mode GUIDED: accepted by vehicle 1", timeout=30)
+
+
+async def _vehicle_panel(probe: ViserProbe, timeout: float = 30.0) -> dict[str, str]:
+    """The Vehicle panel's elements as a tab receives them from a dashboard in another process:
+    each one's label -> its id, and ``status``: the panel's markdown."""
+    await probe.announce_camera()
+
+    async def read() -> dict[str, str]:
+        folder, found = None, {}
+        async for _, messages in probe.frames():
+            for m in messages:
+                props = m.get("props") or {}
+                if m["type"] == "GuiFolderMessage" and props.get("label") == "Vehicle":
+                    folder = m["uuid"]
+                elif folder is not None and m.get("container_uuid") == folder:
+                    found["status" if m["type"] == "GuiMarkdownMessage" else props.get("label")] = m["uuid"]
+            if "Set" in found:  # the panel's last element
+                return found
+        raise AssertionError(f"the dashboard closed before its Vehicle panel came: {found}")
+
+    return await asyncio.wait_for(read(), timeout)
