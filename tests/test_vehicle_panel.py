@@ -231,7 +231,7 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
 
 
 @pytest.mark.slow
-@async_test(timeout=90)
+@async_test(timeout=150)
 async def test_a_plain_connect_prints_its_control_address_and_its_vehicle_panel_commands():
     """``groundstation connect`` with its dashboard and nothing else said: the control address is
     printed, and the tab opened there takes control and sets the simulated vehicle's mode, which
@@ -255,8 +255,10 @@ async def test_a_plain_connect_prints_its_control_address_and_its_vehicle_panel_
         (page,) = [re.match(r"dashboard: (\S+)", line)[1] for line in lines if line.startswith("dashboard: ")]
         assert control.startswith(f"{page}/?websocket=")
         async with ViserProbe(control) as a, ViserProbe(page) as viewer:
-            panel, seen = await _vehicle_panel(a), await _vehicle_panel(viewer)
+            (panel, shown), (seen, _) = await _vehicle_panel(a), await _vehicle_panel(viewer)
             assert seen == panel  # the same panel in every tab
+            if "vehicle 1: **disarmed**" not in shown:  # not heard yet when the tab opened
+                await a.until_markdown(panel["status"], "vehicle 1: **disarmed**", timeout=60)
             await a.set_gui(panel["Take control"], value=True)
             await a.until_markdown(panel["status"], "control held by tab", timeout=30)
             await viewer.set_gui(panel["ARM"], value=True)
@@ -266,22 +268,28 @@ async def test_a_plain_connect_prints_its_control_address_and_its_vehicle_panel_
             await a.until_markdown(panel["status"], "mode GUIDED: accepted by vehicle 1", timeout=30)
 
 
-async def _vehicle_panel(probe: ViserProbe, timeout: float = 30.0) -> dict[str, str]:
+async def _vehicle_panel(probe: ViserProbe, timeout: float = 30.0) -> tuple[dict[str, str], str]:
     """The Vehicle panel's elements as a tab receives them from a dashboard in another process:
-    each one's label -> its id, and ``status``: the panel's markdown."""
+    each one's label -> its id, and ``status``: the panel's markdown; and that markdown's text as
+    it stood when the panel had come (later changes come as updates)."""
     await probe.announce_camera()
 
-    async def read() -> dict[str, str]:
-        folder, found = None, {}
+    async def read() -> tuple[dict[str, str], str]:
+        folder, found, shown = None, {}, ""
         async for _, messages in probe.frames():
             for m in messages:
                 props = m.get("props") or {}
                 if m["type"] == "GuiFolderMessage" and props.get("label") == "Vehicle":
                     folder = m["uuid"]
+                elif m["type"] == "GuiUpdateMessage" and m.get("uuid") == found.get("status"):
+                    shown = m["updates"].get("_markdown", shown)
                 elif folder is not None and m.get("container_uuid") == folder:
-                    found["status" if m["type"] == "GuiMarkdownMessage" else props.get("label")] = m["uuid"]
+                    if m["type"] == "GuiMarkdownMessage":
+                        found["status"], shown = m["uuid"], props.get("_markdown", "")
+                    else:
+                        found[props.get("label")] = m["uuid"]
             if "Set" in found:  # the panel's last element
-                return found
+                return found, shown
         raise AssertionError(f"the dashboard closed before its Vehicle panel came: {found}")
 
     return await asyncio.wait_for(read(), timeout)
