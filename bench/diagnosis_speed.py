@@ -82,18 +82,21 @@ def simulated(folder: Path, which: str, minutes: float) -> Path:
 
 
 #: the plain third-party read of a log, as a user's script does it: pymavlink's ``recv_match`` loop
-#: over a tlog or a DataFlash log, pyulog's ``ULog`` over a ULog (a Crazyflie log has none)
+#: over a tlog or a DataFlash log, pyulog's ``ULog`` over a ULog (a Crazyflie log has none); it
+#: prints the records it read
 _DECODE = """
 import sys
 path = sys.argv[1]
 if path.endswith(".ulg"):
     from pyulog import ULog
-    ULog(path)
+    print(sum(len(d.data["timestamp"]) for d in ULog(path).data_list))
 else:
     from pymavlink import mavutil
     conn = mavutil.mavlink_connection(path)
+    n = 0
     while conn.recv_match() is not None:
-        pass
+        n += 1
+    print(n)
 """
 
 
@@ -103,8 +106,11 @@ def bare_decode(log: Path) -> float | None:
     if log.is_dir() or log.suffix.lower() not in (".tlog", ".bin", ".log", ".ulg"):
         return None
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", _DECODE, str(log)], check=True, capture_output=True)
-    return time.perf_counter() - t0
+    r = subprocess.run([sys.executable, "-c", _DECODE, str(log)], check=True, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if int(r.stdout.split()[-1]) == 0:
+        raise RuntimeError(f"{log}: the plain read read nothing")  # its time would mean nothing
+    return seconds
 
 
 #: runs the command line and reports its peak resident memory (this wrapper's only child)

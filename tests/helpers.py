@@ -1,9 +1,11 @@
 """Shared builders for tests: real pymavlink frames and tlogs, and processes a test runs."""
 
+import asyncio
 import contextlib
 import struct
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -53,3 +55,12 @@ def running(args, **popen):
 def simulated_vehicle(port: int, *args: str):
     """``groundstation sim`` sending to 127.0.0.1:``port`` (more options in ``args``), as :func:`running`."""
     return running([sys.executable, "-m", "groundstation", "sim", "--udp", f"127.0.0.1:{port}", *args])
+
+
+async def until(cond, timeout: float, what: str) -> None:
+    """Wait for a condition a link, a vehicle or a panel reaches (checked as the loop turns)."""
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f"not within {timeout} s: {what}")
+        await asyncio.sleep(0.02)

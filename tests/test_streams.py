@@ -20,22 +20,13 @@ from sim_bridge.bridge import LinkFaults, SimBridge
 from sim_bridge.scenario import Scenario
 
 from .conftest import async_test, free_udp_port
-from .helpers import running, simulated_vehicle
+from .helpers import running, simulated_vehicle, until
 
 #: MAVProxy, from the test extras (installed beside this Python by make test)
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 
 #: what the simulated quadcopter sends, as the ground station asks it (message -> its stream)
 ASKED = {"imu": 250.0, "baro": 50.0, "range": 25.0, "gps": 5.0, "attitude": 50.0, "actuators": 50.0, "battery": 5.0}
-
-
-async def _until(cond, timeout: float, what: str) -> None:
-    """Wait for a condition the link or the vehicle reaches (checked as the loop turns)."""
-    end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > end:
-            raise AssertionError(f"not within {timeout} s: {what}")
-        await asyncio.sleep(0.02)
 
 
 def _settled(link: MavlinkLink, bridge: SimBridge) -> bool:
@@ -82,20 +73,20 @@ async def test_every_stream_converges_at_twenty_percent_loss_and_again_after_a_r
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=1.0)
     async with _OnLink(link) as on:
         a = await on.start(4, faults=LinkFaults(loss=0.2))
-        await _until(lambda: _settled(link, a), 30, f"the streams asked ({a.sim.sensors.rates})")
+        await until(lambda: _settled(link, a), 30, f"the streams asked ({a.sim.sensors.rates})")
         v = link.requester.vehicles[1]
         assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
         assert v.acked == {"HIGHRES_IMU", "SCALED_PRESSURE", "DISTANCE_SENSOR", "ATTITUDE", "GPS_RAW_INT",
                            "GLOBAL_POSITION_INT", "SERVO_OUTPUT_RAW", "SYS_STATUS", "BATTERY_STATUS"}  # fmt: skip
         assert a.frames_dropped > 0  # the loss was real, ACKs among it
         # the vehicle restarts after 2 s up: a new process at its default rates, its clock from zero
-        await _until(lambda: a.sim.t > 2.0, 10, "2 s of uptime")
+        await until(lambda: a.sim.t > 2.0, 10, "2 s of uptime")
         a.close()
         b = await on.start(5)
         assert b.sim.sensors.rates["imu"] == 500.0
         # the restart is seen at the vehicle's next heartbeat after its clock went back; the streams
         # arriving short (its default rates) may be asked again before it
-        await _until(
+        await until(
             lambda: v.requests == 2 and _settled(link, b), 30, f"asked again after the restart ({b.sim.sensors.rates})"
         )
 
@@ -107,9 +98,9 @@ async def test_a_short_stream_is_asked_again():
     link = MavlinkLink("udpin:127.0.0.1:0", ack_timeout=0.3, check_every=0.5)
     async with _OnLink(link) as on:
         br = await on.start(6)
-        await _until(lambda: _settled(link, br), 20, "the streams asked")
+        await until(lambda: _settled(link, br), 20, "the streams asked")
         br.sim.sensors.set_rate("baro", 5.0)  # a tenth of what was asked
-        await _until(lambda: br.sim.sensors.rates["baro"] == 50.0, 10, "the baro asked again")
+        await until(lambda: br.sim.sensors.rates["baro"] == 50.0, 10, "the baro asked again")
         assert link.requester.vehicles[1].reasked.get("SCALED_PRESSURE") == 1
 
 
@@ -140,14 +131,12 @@ async def test_two_vehicles_on_one_udpin_port_are_each_asked_at_their_own_addres
     async with _OnLink(link) as on:
         bridges = [await on.start(7 + k, sysid=k) for k in (1, 2)]
         for k, br in zip((1, 2), bridges, strict=True):
-            await _until(lambda br=br: br.sim.sensors.rates == ASKED, 30, f"vehicle {k}'s streams asked")
+            await until(lambda br=br: br.sim.sensors.rates == ASKED, 30, f"vehicle {k}'s streams asked")
         assert set(link.vehicles) == {1, 2}
         for k in (1, 2):
             # the vehicle applies a rate before its acknowledgement reaches the link: wait for the answers
             v = link.requester.vehicles[k]
-            await _until(
-                lambda v=v: len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS), 30, f"vehicle {k}'s answers"
-            )
+            await until(lambda v=v: len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS), 30, f"vehicle {k}'s answers")
         for k, br in zip((1, 2), bridges, strict=True):
             v = link.requester.vehicles[k]
             assert v.method == "SET_MESSAGE_INTERVAL" and not v.unanswered
@@ -166,11 +155,11 @@ async def test_a_restart_is_a_new_segment_not_loss():
     events = link.events()
     async with _OnLink(link) as on:
         a = await on.start(8)
-        await _until(lambda: _settled(link, a) and a.sim.t > 3.0, 30, "streams asked and 3 s up")
+        await until(lambda: _settled(link, a) and a.sim.t > 3.0, 30, "streams asked and 3 s up")
         a.close()
         b = await on.start(8)
         v = link.requester.vehicles[1]
-        await _until(lambda: v.requests == 2 and _settled(link, b), 30, "asked again after the restart")
+        await until(lambda: v.requests == 2 and _settled(link, b), 30, "asked again after the restart")
         c = link.counters
         assert c.restarts == 1 and c.seq_lost == 0, (c.restarts, c.seq_lost)
         said = [e.reason for e in events.get_nowait()]
@@ -237,7 +226,7 @@ async def _vehicle_asked(link: MavlinkLink, boot: int):
         v = link.requester.vehicles.get(1)
         return v is not None and v.requests >= boot and len(v.acked) + len(v.refused) == len(DEFAULT_STREAMS)
 
-    await _until(done, 60, f"the streams asked, boot {boot}")
+    await until(done, 60, f"the streams asked, boot {boot}")
     return link.requester.vehicles[1]
 
 
@@ -266,7 +255,7 @@ async def _streams_behind_a_default_router(tmp_path, window_s: float) -> None:
             following = asyncio.get_running_loop().create_task(follow())
             try:
                 await _vehicle_asked(link, 1)
-                await _until(lambda: bool(clock), 30, "the vehicle's IMU")
+                await until(lambda: bool(clock), 30, "the vehicle's IMU")
                 start, v0 = dict(link.counters.by_type), clock[0]
                 await asyncio.sleep(window_s)  # the measurement window itself
                 dt = clock[0] - v0
@@ -318,7 +307,7 @@ async def test_a_refusal_that_comes_after_five_lost_answers_is_a_refusal_not_una
     )
     requester.start(1, 1)
     v = requester.vehicles[1]
-    await _until(lambda: "ATTITUDE_QUATERNION" in v.refused, 10, "the stream asked again and refused")
+    await until(lambda: "ATTITUDE_QUATERNION" in v.refused, 10, "the stream asked again and refused")
     assert not v.unanswered and v.acked == {"HIGHRES_IMU"}
     for t in requester.close():
         t.cancel()

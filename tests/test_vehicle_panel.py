@@ -14,10 +14,11 @@ from drivers.mavlink.link import MavlinkLink
 from sim_bridge.bridge import SimBridge
 from sim_bridge.scenario import Scenario
 from web.dashboard import Dashboard
-from web.probe import ViserProbe, gui_id
+from web.probe import CAMERA_REPORT, ViserProbe, gui_id
 
 from .browser import CHROMIUM, Browser
 from .conftest import async_test, free_udp_port
+from .helpers import until
 
 
 class _Session:
@@ -124,15 +125,6 @@ async def test_a_view_only_tab_cannot_change_what_the_holder_sends():
             assert guided.flying
 
 
-async def _until(done, what: str, timeout: float = 10.0) -> None:
-    """Until ``done()`` (a press's callback has run), polled; AssertionError naming ``what``."""
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not done():
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError(f"never: {what}")
-        await asyncio.sleep(0.02)
-
-
 class _ForeignPage:
     """A page served from another origin (another port of this machine) whose script opens the
     dashboard's control websocket, token and all, and sends viser's own messages: a camera report,
@@ -147,12 +139,7 @@ class _ForeignPage:
         import msgspec
         import viser
 
-        camera = {
-            "type": "ViewerCameraMessage", "wxyz": [1.0, 0.0, 0.0, 0.0], "position": [3.0, 3.0, 3.0],
-            "fov": 1.0, "near": 0.01, "far": 1000.0, "image_height": 720, "image_width": 1280,
-            "look_at": [0.0, 0.0, 0.0], "up_direction": [0.0, 0.0, 1.0],
-        }  # fmt: skip
-        frames = [base64.b64encode(msgspec.msgpack.encode(m)).decode() for m in (camera, *presses)]
+        frames = [base64.b64encode(msgspec.msgpack.encode(m)).decode() for m in (CAMERA_REPORT, *presses)]
         page = f"""<!doctype html><title>elsewhere</title><script>
 const ws = new WebSocket({json.dumps(websocket_url)}, ["viser-v{viser.__version__}"]);
 ws.onopen = () => {{
@@ -169,7 +156,7 @@ ws.onopen = () => {{
                 self.wfile.write(page)
 
             def log_message(self, *args) -> None:
-                pass
+                """Each request unprinted: the test's output is its assertions."""
 
         self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Serve)
         self.url = f"http://127.0.0.1:{self.server.server_address[1]}/"
@@ -201,7 +188,7 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
             await s.press(a, s.panel.take)
             await s.said(a, "control held by tab")
             await s.press(a, s.panel.altitude, value=2.0)
-            await _until(lambda: s.panel.accepted["altitude"] == 2.0, "the holder's 2 m accepted")
+            await until(lambda: s.panel.accepted["altitude"] == 2.0, 10.0, "the holder's 2 m accepted")
 
             async with Browser() as b:
                 await b.goto(s.dash.url)
@@ -223,7 +210,7 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
                 before = s.panel.refused
                 with _ForeignPage(ws_url, presses) as elsewhere:
                     await b.goto(elsewhere.url)
-                    await _until(lambda: s.panel.refused == before + 3, "the page's three presses refused")
+                    await until(lambda: s.panel.refused == before + 3, 10.0, "the page's three presses refused")
                     await s.said(a, f"a page from {elsewhere.url.rstrip('/')} may not command this vehicle")
             assert f"{before + 3} refused to tabs without control" in s.panel.status_md.content  # the holder is told
             assert not guided.armed

@@ -26,6 +26,21 @@ import zstandard
 from websockets.asyncio.client import ClientConnection
 from websockets.typing import Subprotocol
 
+#: the camera report a browser tab sends first: viser counts a tab as connected (and runs its GUI
+#: callbacks for it) only after one
+CAMERA_REPORT = {
+    "type": "ViewerCameraMessage",
+    "wxyz": [1.0, 0.0, 0.0, 0.0],
+    "position": [3.0, 3.0, 3.0],
+    "fov": 1.0,
+    "near": 0.01,
+    "far": 1000.0,
+    "image_height": 720,
+    "image_width": 1280,
+    "look_at": [0.0, 0.0, 0.0],
+    "up_direction": [0.0, 0.0, 1.0],
+}
+
 
 class ViserProbe:
     """``async with ViserProbe(url) as p: async for t, messages in p.frames(): ...``"""
@@ -71,22 +86,7 @@ class ViserProbe:
     async def announce_camera(self) -> None:
         """The first camera report a browser sends; viser counts a tab as connected
         (and runs its GUI callbacks) only after it."""
-        await self.ws.send(
-            msgspec.msgpack.encode(
-                {
-                    "type": "ViewerCameraMessage",
-                    "wxyz": [1.0, 0.0, 0.0, 0.0],
-                    "position": [3.0, 3.0, 3.0],
-                    "fov": 1.0,
-                    "near": 0.01,
-                    "far": 1000.0,
-                    "image_height": 720,
-                    "image_width": 1280,
-                    "look_at": [0.0, 0.0, 0.0],
-                    "up_direction": [0.0, 0.0, 1.0],
-                }
-            )
-        )
+        await self.ws.send(msgspec.msgpack.encode(CAMERA_REPORT))
 
     async def set_gui(self, handle_id: str, **updates) -> None:
         """What a tab sends when a control changes (a button press is ``value=True``)."""
