@@ -83,8 +83,10 @@ def test_the_excursion_test_finds_a_two_second_transient_and_says_when_and_what_
         # range carries it throughout and a baro effect moves it by a few tenths of a millimetre. The
         # rotor wash's time constant is not the simulator's default 0.5 s; the likelihood reads it to
         # about 25 % (1 sigma) here: 0.16 s and the true 0.2 s differ by 0.7 in log-likelihood. Every
-        # baro effect on the high flight, and every seed, is the sweep's (bench/diagnosis.py)
-        (["baro_thrust:k=3.0,tc=0.2"], "baro_thrust", {"k": (3.0, 0.15), "tc": (0.2, 0.3)}, 0.5, "high"),
+        # baro effect on the high flight, and every seed, is the sweep's (bench/diagnosis.py). The wash's
+        # before is the lift-off's too: the ground holding the height until the range reads took it
+        # from 4.4 to 3.1 cm, and the after is 1.6 cm either way
+        (["baro_thrust:k=3.0,tc=0.2"], "baro_thrust", {"k": (3.0, 0.15), "tc": (0.2, 0.3)}, 0.6, "high"),
         (["baro_ground_effect:A=-1.5"], "baro_ground_effect", {"A": (-1.5, 0.15)}, 1.05, "standard"),
         # s g is a bias on the vertical (b_acc takes it): what is left, s a, is a few hundredths of a
         # m/s^2, and s is read to +-0.002 (1 sigma): 0.02 is found, but 15 % of it is 1.5 sigma
@@ -540,8 +542,11 @@ def test_underpowered_log_shows_thrust_loss_as_the_battery_sags_and_the_baro_low
     assert isinstance(ctx, ThrustContext) and any(53.5 <= t <= 56.0 for t in ctx.range_spurious)  # spin-up echoes
     wanted = ("thrust_voltage", "baro_bias_drift", "baro_ground_effect")
     cands = [c for c in su.spec.catalogue(su.prep.kinds) if c.name in wanted]
-    scored = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements)
-    assert all(s.accepted for s in scored), [(s.name, s.delta_bic, s.gain_per_update) for s in scored]
+    ranked = rank(cands, su.model, base, su.prep, su.make, su.prep.measurements)
+    # each effect in the form the likelihood takes (the rotor wash's: while the rotors run, or as the thrust)
+    scored = [s for s in ranked if s is next(r for r in ranked if r.name == s.name)]
+    assert len(scored) == len(wanted)
+    assert all(s.accepted for s in scored), [(s.name, s.delta_bic, s.gain_per_update) for s in ranked]
     found = {s.name: s.params for s in scored}
     assert 1.4 < found["thrust_voltage"]["n"] < 2.1
     assert 0.008 < found["baro_bias_drift"]["rate"] < 0.02

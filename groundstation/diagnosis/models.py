@@ -41,8 +41,9 @@ from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.models.contact import RANGE_FLOOR
 from groundstation.estimation.models.ground import on_ground
 from groundstation.estimation.registry import MODELS, ModelSpec, vehicle_config
-from groundstation.estimation.routing import altitude_estimator, attitude_estimator
+from groundstation.estimation.routing import altitude_estimator, attitude_estimator, motor_outputs_of
 from groundstation.estimation.stated import RangeClearance, Stated
+from groundstation.estimation.thrust_ratio import thrust_ratio
 
 #: a GPS altitude's slow error [m] and its correlation time [s] (first-order Gauss-Markov): the
 #: floor of noise_match.GPS_SLOW while effects are traced, then the level the log picks; its white
@@ -111,7 +112,7 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
         # a logged throttle only: a stand-in derived from the range or the vibration would feed
         # the filter's own sensors back as a constraint (on 0422-log00: 0.69 -> 0.82 cm, and a
         # "throttle" pattern in the range innovations)
-        model = on_ground(model, reset=True)
+        model = on_ground(model, reset=True, range_in_log=Kind.RANGE in prep.kinds)
     if prep.kinds & {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}:
         if Kind.RANGE in prep.kinds:
             model = baro_zero(model)
@@ -238,7 +239,10 @@ def setup(
     cannot feed it). ``stated``: what the log states besides its readings
     (:mod:`groundstation.estimation.stated`): the range's reading on the ground, taken off every range
     reading so that the range reads the height every model means, 0 on the gear; the motors' thrust
-    curve, which the rotor wash's signal is read through (``options["motor_curve"]``)."""
+    curve, which the rotor wash's signal is read through (``options["motor_curve"]``). Where the log has a
+    throttle of its own, the map from it to the thrust over the weight that the accelerometer shows in
+    the air (:mod:`groundstation.estimation.thrust_ratio`, ``options["thrust_ratio"]``): what a rotor
+    wash follows."""
     clearance = stated.clearance if stated is not None else None
     spec = DIAGNOSABLE.get(model_name)
     if spec is None:
@@ -265,8 +269,13 @@ def setup(
             f"{MIN_SECONDS:.0f} s (the first 5 s settle the filter)"
         )
     model = base.model
-    if stated is not None and stated.motors is not None:
-        model = replace(model, options={**model.options, "motor_curve": stated.motors})
+    curve = stated.motors if stated is not None else None
+    if curve is not None:
+        model = replace(model, options={**model.options, "motor_curve": curve})
+    if prep.logged_throttle and model.f is None:  # a nonlinear model is rebuilt from its options
+        ratio = thrust_ratio(prep.measurements, curve, motor_outputs_of(prep.measurements))
+        if ratio is not None:
+            model = replace(model, options={**model.options, "thrust_ratio": ratio})
     return Setup(prep, model, spec, names, base.airframe, clearance)
 
 

@@ -77,6 +77,11 @@ class Context:
     #: ``options["throttle_tcs"]``, :func:`groundstation.diagnosis.catalogue.altitude.baro_thrust`) -> value
     throttle_lps: dict[float, float] = field(default_factory=dict)
     throttle_lps_t: float | None = None
+    #: the rotors' thrust over the weight the command makes (estimation.thrust_ratio), where the log
+    #: shows the map; and its low-passes, as ``throttle_lps`` (same time constants, same time)
+    thrust_ratio: float | None = None
+    thrust_lps: dict[float, float] = field(default_factory=dict)
+    thrust_lps_t: float | None = None
     f_lp: float | None = None  #: |f| low-passed over 1 s
     f_lp_t: float | None = None
     vibration: float | None = None  #: (|f| - f_lp)^2 low-passed: the rotors' vibration
@@ -98,6 +103,7 @@ class Context:
     range_track: tuple[float, float, float, float] | None = None  #: (t0, d0, t_last, d_last)
     in_contact: bool | None = None  #: None before the first decision
     landed: bool | None = None  #: models.ground's decision at the last throttle (None before the first)
+    lifted_at: float | None = None  #: the last lift-off by that decision [s]
     been_up: bool = False
 
     # -- the 3-DOF helicopter's estimate, for its gyro's and accelerometer's measurement functions --
@@ -115,6 +121,7 @@ class Context:
         new.__dict__.update(self.__dict__)
         new.zeros = dict(self.zeros)
         new.throttle_lps = dict(self.throttle_lps)
+        new.thrust_lps = dict(self.thrust_lps)
         return new
 
     def set_to(self, snapshot: Context) -> None:
@@ -122,6 +129,7 @@ class Context:
         self.__dict__.update(snapshot.__dict__)
         self.zeros = dict(snapshot.zeros)
         self.throttle_lps = dict(snapshot.throttle_lps)
+        self.thrust_lps = dict(snapshot.thrust_lps)
 
     @property
     def tau(self) -> float:

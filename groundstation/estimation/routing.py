@@ -8,6 +8,7 @@ not this record), a *context rule* updates the filter's :class:`~.models.base.Co
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -109,6 +110,16 @@ MOTOR_OUTPUTS = {
 
 def motor_outputs(ctx: Context) -> int:
     return ctx.motor_outputs
+
+
+def motor_outputs_of(ms: Iterable[Measurement]) -> int:
+    """How many of the first actuator outputs drive rotors, by the log's first vehicle status."""
+    for m in ms:
+        if m.kind is Kind.VEHICLE_STATUS:
+            ctx = Context()
+            read_vehicle_status(m, ctx)
+            return motor_outputs(ctx)
+    return Context.motor_outputs
 
 
 def read_vehicle_status(m: Measurement, ctx: Context) -> None:

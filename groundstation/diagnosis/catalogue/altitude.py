@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 
@@ -210,15 +211,21 @@ def scale_accelerometer(ms: Iterable[Measurement], s: float) -> Readings:
 WASH_TCS = (0.15, 0.5, 1.5)
 
 
-def baro_thrust(model: LinearModel, tc: float = THROTTLE_TC) -> LinearModel:
+def baro_thrust(model: LinearModel, tc: float = THROTTLE_TC, *, by_thrust: bool = False) -> LinearModel:
     """Rotor wash on the static port: y_baro = z + k LPF_tc(throttle), the throttle through a
     first-order low-pass of time constant ``tc`` [s] (the wake settling). The likelihood chooses
     ``tc`` (:data:`WASH_TCS`, then its profile refined): held at the simulator's 0.5 s, another
     generator's 0.25 s wash read k = 2.53 m for 2.02 and its fix left three times the error of the
     true model. The model asks the filter for that low-pass (``options["throttle_tcs"]``,
-    :func:`~groundstation.diagnosis.runs.signals.add_signal_rules`)."""
+    :func:`~groundstation.diagnosis.runs.signals.add_signal_rules`).
 
-    out = with_regressor(model, "baro", "k_thrust", _wash(tc), WASH_PRIOR)
+    ``by_thrust``: the wash as the thrust over the weight makes it, y_baro = z + k_tw LPF_tc(T / (m g)),
+    the thrust read as :mod:`groundstation.estimation.thrust_ratio` reads it. Momentum theory has the
+    wash's dynamic pressure follow the disc loading, the thrust; where the command makes thrust
+    through an offset or a curve (an idle spin, an ESC's) the two forms part, and the likelihood
+    takes the one the baro shows."""
+
+    out = with_regressor(model, "baro", "k_thrust", _wash(tc, by_thrust), WASH_PRIOR)
     out.options["throttle_tcs"] = (*out.options.get("throttle_tcs", ()), tc)
     return out
 
@@ -227,17 +234,30 @@ def baro_thrust(model: LinearModel, tc: float = THROTTLE_TC) -> LinearModel:
 WASH_PRIOR = 10.0**2
 
 
-def _wash(tc: float) -> Callable[[Context], float]:
+def _wash(tc: float, by_thrust: bool = False) -> Callable[[Context], float]:
     def regressor(ctx: Context) -> float:
-        return ctx.throttle_lps.get(tc, 0.0)
+        return (ctx.thrust_lps if by_thrust else ctx.throttle_lps).get(tc, 0.0)
 
     return regressor
 
 
-def baro_thrust_columns(model: LinearModel, tc: float = THROTTLE_TC) -> list[Column]:
+def baro_thrust_columns(model: LinearModel, tc: float = THROTTLE_TC, *, by_thrust: bool = False) -> list[Column]:
     """:func:`baro_thrust`'s k at time constant ``tc`` as the baro's regressor."""
-    wash = _wash(tc)
+    wash = _wash(tc, by_thrust)
     return [Column("k_thrust", WASH_PRIOR, "baro", lambda ctx, x: wash(ctx), throttle_tc=tc)]
+
+
+def thrust_form(fn: Callable) -> Callable:
+    """``fn`` (a wash's augment or columns) in its thrust form."""
+    return partial(fn, by_thrust=True)
+
+
+def _by_thrust_param(run) -> dict:
+    """k_tw [m per unit thrust over weight] and k, the same per unit of the command (the slope of the
+    map times k_tw): what an autopilot's compensation, proportional to its throttle, takes."""
+    k, sk = run.final("k_thrust")
+    a = run.model.options["thrust_ratio"].a
+    return {"k": k * a, "sigma_k": sk * a, "k_tw": k, "sigma_k_tw": sk}
 
 
 def with_throttle_stand_in(cands: list[Candidate]) -> list[Candidate]:
@@ -258,16 +278,20 @@ def _temperature(ctx: Context) -> float:
 GROUND_HEIGHTS = (0.25, 0.5, 1.0)
 
 
-def _ground(h0: float) -> Callable[[Context], float]:
+def _ground(h0: float, by_thrust: bool = False) -> Callable[[Context], float]:
     def regressor(ctx: Context) -> float:
         # pressure field near the ground while the rotors run: exp(-h/h0), h from the estimate. A
         # logged throttle says when they run; the vibration (low-passed 0.3 s) only stands in for one,
-        # as it lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35)
-        if ctx.throttle is not None:
-            running = ctx.throttle > 0.05
+        # as it lingers ~1 s after the motors stop (seed 1033: that second took A from -1.49 to -1.35).
+        # ``by_thrust``: as strong as the thrust over the weight (the disc loading,
+        # estimation.thrust_ratio), so weak at idle on the ground and full in the hover
+        if by_thrust:
+            strength = ctx.thrust_ratio or 0.0
+        elif ctx.throttle is not None:
+            strength = 1.0 if ctx.throttle > 0.05 else 0.0
         else:
-            running = ctx.vibration is not None and ctx.vibration > 0.05
-        return math.exp(-max(0.0, ctx.z) / h0) if running else 0.0
+            strength = 1.0 if ctx.vibration is not None and ctx.vibration > 0.05 else 0.0
+        return strength * math.exp(-max(0.0, ctx.z) / h0) if strength else 0.0
 
     return regressor
 
@@ -276,12 +300,12 @@ def _ground(h0: float) -> Callable[[Context], float]:
 GROUND_PRIOR = 3.0**2
 
 
-def _ground_effect(model: LinearModel, h0: float = 0.5) -> LinearModel:
-    return with_regressor(model, "baro", "A_ground", _ground(h0), GROUND_PRIOR)
+def _ground_effect(model: LinearModel, h0: float = 0.5, *, by_thrust: bool = False) -> LinearModel:
+    return with_regressor(model, "baro", "A_ground", _ground(h0, by_thrust), GROUND_PRIOR)
 
 
-def _ground_effect_columns(model: LinearModel, h0: float = 0.5) -> list[Column]:
-    g = _ground(h0)
+def _ground_effect_columns(model: LinearModel, h0: float = 0.5, *, by_thrust: bool = False) -> list[Column]:
+    g = _ground(h0, by_thrust)
     return [Column("A_ground", GROUND_PRIOR, "baro", lambda ctx, x: g(ctx), exact=False)]  # reads the estimate
 
 
@@ -360,33 +384,51 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 )
             )
         if has_throttle:
-            cands.append(
+            cands += [
                 Candidate(
                     "baro_thrust",
                     1,
                     set(),
                     "baro",
-                    baro_thrust,
-                    state_param("k", "k_thrust"),
+                    augment,
+                    params,
                     shapes=WASH_TCS,
                     shape_name="tc",
                     refine_shape=True,
-                    columns=baro_thrust_columns,
+                    columns=columns,
+                    form=form,
+                    needs_option=option,
                 )
-            )
-        cands.append(
+                for augment, params, columns, form, option in (
+                    (baro_thrust, state_param("k", "k_thrust"), baro_thrust_columns, "throttle", None),
+                    (
+                        thrust_form(baro_thrust),
+                        _by_thrust_param,
+                        thrust_form(baro_thrust_columns),
+                        "thrust",
+                        "thrust_ratio",
+                    ),
+                )
+            ]
+        cands += [
             Candidate(
                 "baro_ground_effect",
                 1,
                 set(),
                 "baro",
-                _ground_effect,
+                augment,
                 state_param("A", "A_ground"),
                 shapes=GROUND_HEIGHTS,
                 shape_name="h0",
-                columns=_ground_effect_columns,
+                columns=columns,
+                form=form,
+                needs_option=option,
             )
-        )
+            for augment, columns, form, option in (
+                (_ground_effect, _ground_effect_columns, "rotors running", None),
+                (thrust_form(_ground_effect), thrust_form(_ground_effect_columns), "thrust", "thrust_ratio"),
+            )
+        ]
     return [c for c in cands if c.needs <= kinds]
 
 

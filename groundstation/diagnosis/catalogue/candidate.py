@@ -56,6 +56,11 @@ class Candidate:
     #: where none could be claimed, its own runs are not made. ``screen(model, None)``: those the run
     #: must probe; ``screen(model, run)``: those read off the base run itself
     screen: Callable[[LinearModel, Run | None], list[list[Column]]] | None = None
+    #: one of an effect's forms (a rotor wash that follows the throttle or the thrust): each form its
+    #: own candidate of the same name, the likelihood taking one, and the claim saying which
+    form: str = ""
+    #: the model option the candidate reads (``LinearModel.options``), without which it is not offered
+    needs_option: str | None = None
 
 
 def with_regressor(
@@ -96,6 +101,7 @@ UNITS = {
     ("baro_bias_drift", "rate"): "m/s",
     ("baro_thermal", "k"): "m/K",
     ("baro_thrust", "k"): "m per unit throttle",
+    ("baro_thrust", "k_tw"): "m per unit thrust over weight",
     ("baro_thrust", "tc"): "s",
     ("baro_ground_effect", "A"): "m",
     ("baro_ground_effect", "h0"): "m",

@@ -57,9 +57,8 @@ from groundstation.estimation.models.ground import TAU_GROUND, landed, on_ground
 from groundstation.estimation.models.quad_thrust import DRAG, quad_thrust_model
 from groundstation.estimation.routing import (
     THRUST_CONTEXT,
-    motor_outputs,
+    motor_outputs_of,
     read_specific_force,
-    read_vehicle_status,
     throttle_at_reading,
 )
 
@@ -146,19 +145,10 @@ def thrust_model(
     return replace(m, options={k: v for k, v in options.items() if v})
 
 
-def _motor_outputs_of(ms: Sequence[Measurement]) -> int:
-    for m in ms:
-        if m.kind is Kind.VEHICLE_STATUS:
-            ctx = Context()
-            read_vehicle_status(m, ctx)
-            return motor_outputs(ctx)
-    return 4
-
-
 def throttle_series(ms: Sequence[Measurement]) -> list[tuple[float, float]]:
     """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
     them (one source, as :func:`groundstation.estimation.routing.collective` takes it)."""
-    n = _motor_outputs_of(ms)
+    n = motor_outputs_of(ms)
     outputs = [
         (m.t, float(np.nanmean(m.value[:n]))) for m in ms if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()
     ]

@@ -108,7 +108,11 @@ class Search:
         """Steps 1 and 2: each sensor's noise matched to the log, the absolute sensors' zeros held, the
         model run (before); with cores to spare the first ranking's own trials begun beside it."""
         prep, make, model = su.prep, su.spec.make, su.model
-        cands = [c for c in su.spec.catalogue(prep.kinds) if c.name not in su.declared]
+        cands = [
+            c
+            for c in su.spec.catalogue(prep.kinds)
+            if c.name not in su.declared and (c.needs_option is None or c.needs_option in model.options)
+        ]
         if not prep.logged_throttle:
             cands = with_throttle_stand_in(cands)
         # a linear model's candidates as columns (a nonlinear one is run candidate by candidate)
@@ -249,7 +253,8 @@ class Search:
             best.run = run_model(
                 best.model, self.prep, self.make, measurements=best.measurements or None, probes=self.probes()
             )
-        runner_up = next(iter(self.scored[self.scored.index(best) + 1 :]), None)  # the next one down
+        # the next one down that is another effect, not another form of this one
+        runner_up = next((s for s in self.scored[self.scored.index(best) + 1 :] if _label(s) != _label(best)), None)
         self.effects.append(Effect(best.name, best.params, _evidence(best, base, held, runner_up)))
         self.added.append(best.candidate)
         self.labels.append(_label(best))
@@ -281,6 +286,7 @@ def _evidence(best: Scored, base: Run, held: holdout.Holdout | None, runner_up: 
     return {
         "delta_bic": round(best.delta_bic, 1),
         "sensor": best.candidate.sensor,
+        **({"form": best.candidate.form} if best.candidate.form else {}),
         "loglik_gain": round(best.run.loglik - base.loglik, 1),
         "gain_per_update": round(best.gain_per_update, 4),
         "support": best.support,

@@ -202,6 +202,9 @@ def _baro_thrust(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
         f"the baro reads {p['k']:+.2f} m high per unit throttle; ArduPilot 4.5+ subtracts the scale times "
         f"throttle from the pressure ({rho_g:.2f} Pa/m here)"
     )
+    if "k_tw" in p:
+        # the thrust form (catalogue.altitude.baro_thrust_by_thrust): k is k_tw through the throttle's map
+        why += f"; the wash follows the thrust ({p['k_tw']:+.2f} m per unit thrust over weight)"
     if p.get("tc", 0.0) > LAG_UNCOMPENSATED_S:
         # the compensation is proportional to the throttle as it is now: the wash's lag stays
         why += (

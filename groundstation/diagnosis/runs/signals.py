@@ -1,5 +1,6 @@
 """The signals the catalogue's regressors and the discovery library read, kept current as a run goes:
-the throttle and its low-passes at each rotor-wash time constant the model asks for, the
+the throttle and its low-passes at each rotor-wash time constant the model asks for (and the thrust
+over the weight the throttle makes, with its own, where the log shows how it makes it), the
 temperature, the battery, and the rotors' vibration from the accelerometer."""
 
 from __future__ import annotations
@@ -7,14 +8,19 @@ from __future__ import annotations
 import math
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.units import G
 from groundstation.estimation.context import Context
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.routing import collective, motor_outputs, set_throttle
+from groundstation.estimation.thrust_ratio import command
 
 VIBRATION_TC = 0.3  # s: low-pass of the accelerometer's high-frequency energy (motors running)
 
 
 THROTTLE_TC = 0.5  # s: the low-passed throttle recorded beside each innovation (a signal to regress on)
+#: s: the thrust over the weight smoothed over this (the accelerometer's vibration out) for the
+#: regressors that read it as it is (the ground effect's)
+THRUST_SMOOTH_S = 0.1
 
 
 def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ()) -> None:
@@ -47,6 +53,9 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
     #: the motors' thrust curve the log states (estimation.stated.MotorCurve): the rotor wash's
     #: low-passes follow the thrust the outputs make, not their mean
     curve = est.model.options.get("motor_curve")
+    #: the map from that command to the thrust over the weight (estimation.thrust_ratio), where the
+    #: log shows it: the wash's other form follows the thrust (``ctx.thrust_lps``)
+    ratio = est.model.options.get("thrust_ratio")
 
     def throttle(m, ctx):
         tau = collective(m, ctx)
@@ -54,19 +63,37 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
             return
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
+        wash = tau
+        if curve is not None and m.kind is Kind.ACTUATOR:
+            c = command(m, curve, motor_outputs(ctx))
+            wash = c if c is not None else tau
+        if ratio is not None and ctx.landed is not False:
+            # on the ground the accelerometer reads the ground's support: the command says the thrust
+            thrust(ctx, ratio.of(wash), m.t)
         if tcs:
-            wash = tau
-            if curve is not None and m.kind is Kind.ACTUATOR:
-                outputs = [x for x in m.value[: motor_outputs(ctx)].tolist() if math.isfinite(x)]
-                wash = curve.thrust(outputs) if outputs else tau
-            t_last, lps = ctx.throttle_lps_t, ctx.throttle_lps
-            for tc in tcs:
-                old = lps.get(tc)
-                if old is None or t_last is None:
-                    lps[tc] = wash
-                elif m.t > t_last:
-                    lps[tc] = old + (wash - old) * (1.0 - math.exp(-(m.t - t_last) / tc))
+            t_last = ctx.throttle_lps_t
+            _lowpasses(ctx.throttle_lps, wash, m.t - t_last if t_last is not None else None)
             ctx.throttle_lps_t = m.t
+
+    def thrust(ctx: Context, tw: float, t: float) -> None:
+        """The thrust over the weight from ``t`` on: its smoothed value and the wash's low-passes."""
+        t_last = ctx.thrust_lps_t
+        dt = t - t_last if t_last is not None else None
+        if ctx.thrust_ratio is None or dt is None:
+            ctx.thrust_ratio = tw
+        elif dt > 0:
+            ctx.thrust_ratio += (tw - ctx.thrust_ratio) * (1.0 - math.exp(-dt / THRUST_SMOOTH_S))
+        _lowpasses(ctx.thrust_lps, tw, dt)
+        ctx.thrust_lps_t = t
+
+    def _lowpasses(lps: dict[float, float], value: float, dt: float | None) -> None:
+        """Each of ``lps``'s first-order low-passes (by time constant) towards ``value``, ``dt`` on."""
+        for tc in tcs:
+            old = lps.get(tc)
+            if old is None or dt is None:
+                lps[tc] = value
+            elif dt > 0:
+                lps[tc] = old + (value - old) * (1.0 - math.exp(-dt / tc))
 
     def temperature(m, ctx):
         if m.instance == 0:
@@ -84,9 +111,14 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         # the accelerometer's deviation from its own low-passed value: rotors turning
         if m.instance != 0:
             return
-        f = math.sqrt(sum(v * v for v in m.value.tolist()))
+        v = m.value.tolist()
+        f = math.sqrt(sum(x * x for x in v))
         lowpass(ctx, "f_lp", f, m.t, 1.0)
         lowpass(ctx, "vibration", (f - ctx.f_lp) ** 2, m.t, VIBRATION_TC)
+        if ratio is not None and ctx.landed is False and len(v) == 3:
+            # in the air the accelerometer reads the thrust over the mass along the body's z axis
+            # (f_z = -T/m, FRD): the thrust as it is, which the command's map only predicts
+            thrust(ctx, -v[2] / G, m.t)
 
     chain(Kind.THROTTLE, throttle)
     chain(Kind.ACTUATOR, throttle)

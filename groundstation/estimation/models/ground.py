@@ -14,7 +14,13 @@ throttle message (:func:`landed` says when), at the filter's own time
   then between 0 and that minimum. This is PX4 EKF2's on-ground range: with the
   range sensor sending but invalid on the ground, it synthesises a reading at the
   ground clearance (``EKF2_MIN_RNG``). In this model z is the height the range
-  sensor measures, so the ground is z = 0 wherever the vehicle lands.
+  sensor measures, so the ground is z = 0 wherever the vehicle lands. The same z = 0 from a
+  lift-off until the range's first reading after it (at most :data:`UNSEEN_S`): the vehicle
+  is still within the range's minimum distance of the floor. Without it, the vertical speed let
+  go there (below) and a baro that the rotors' wash holds low near the ground (another
+  generator's, 45 cm low) drew the estimate 17 and 41 cm under the floor it had just left.
+  Decided from the throttle and the range's timing, not from the estimate, so that every
+  candidate's filter holds the ground at the same updates (the two-stage filter's exactness).
 
 When the vehicle leaves the ground, the model lets go of its vertical speed: the ground held it
 at zero, and what the motors and the ground did in the instant of lift-off (a spring-off, a jump
@@ -97,11 +103,27 @@ SIGMA_ON_GROUND = 0.03
 SIGMA_LIFTOFF = 1.0
 #: [s] no range reading for this long: the sensor reads below its minimum (it sends at 10-50 Hz)
 RANGE_QUIET = 0.3
+#: [s] after a lift-off, the ground holds the height until the range reads, at most this long: a
+#: multirotor climbing at 0.5 m/s clears a 10-20 cm minimum distance in well under it
+UNSEEN_S = 1.0
 
 
-def on_ground(model: LinearModel, *, height: bool = True, reset: bool = False) -> LinearModel:
+def rising_unseen(ctx: Context, t: float) -> bool:
+    """The vehicle left the ground less than :data:`UNSEEN_S` before ``t`` and the range has read
+    nothing since: it is still within the range's minimum distance of the ground."""
+    lifted = ctx.lifted_at
+    if lifted is None or t - lifted >= UNSEEN_S:
+        return False
+    return ctx.range_read_at is None or ctx.range_read_at < lifted
+
+
+def on_ground(
+    model: LinearModel, *, height: bool = True, reset: bool = False, range_in_log: bool = False
+) -> LinearModel:
     """``model`` with the landed constraints (module docstring); ``height=False`` leaves out z = 0
     (the thrust model has its own ground contact, :func:`groundstation.estimation.models.contact.ground_contact`).
+    ``range_in_log``: the log is known to have range readings (a diagnosis reads the whole log
+    first), so the ground holds the height at the first lift-off, before the range's first reading.
 
     ``reset=True``: each constraint *sets* its state (vz, or z) to the ground's value with the
     constraint's variance, uncorrelated with the rest, and the other states keep what the sensors
@@ -129,12 +151,20 @@ def on_ground(model: LinearModel, *, height: bool = True, reset: bool = False) -
         # the sensor has sent (a reading used, or one models.range_gate skipped) and none used lately
         sent = ctx.range_read_at is not None or ctx.range_on_ground_at is not None
         last = ctx.range_read_at if ctx.range_read_at is not None else -math.inf
-        quiet = sent and m.t - last > RANGE_QUIET
-        return np.array([0.0]) if quiet and landed(ctx) else None
+        quiet = m.t - last > RANGE_QUIET
+        # below the ground with the range quiet: gone quiet, or not yet read (on the first take-off)
+        # where the log is known to have a range sensor
+        if sent or range_in_log:
+            landed_now = landed(ctx)
+            if (sent and quiet and landed_now) or (not landed_now and rising_unseen(ctx, m.t)):
+                return np.array([0.0])
+        return None
 
     def lift_off_or_touchdown(m, ctx):
         now = landed(ctx)
         was, ctx.landed = ctx.landed, now
+        if was and not now:
+            ctx.lifted_at = m.t
         return {"vz": SIGMA_LIFTOFF**2} if was is not None and was != now else None
 
     impulses = dict(model.impulses)

@@ -1,0 +1,106 @@
+"""The thrust over the weight from the command (estimation/thrust_ratio.py), the rotor wash's two forms
+it gives the catalogue, and the ground that holds the height from a lift-off until the range reads
+(estimation/models/ground.py)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
+from groundstation.diagnosis.catalogue.altitude import altitude_catalogue
+from groundstation.diagnosis.models import setup
+from groundstation.diagnosis.runs.run import run_model
+from groundstation.estimation.logs import load_log
+from groundstation.estimation.stated import stated_by
+from groundstation.estimation.thrust_ratio import ThrustRatio, command, thrust_ratio
+
+from .conftest import foreign2_file
+
+G = 9.80665
+
+
+def _m(t: float, kind: Kind, value) -> Measurement:
+    return Measurement(t, kind, np.atleast_1d(np.asarray(value, dtype=float)), "test", t)
+
+
+def _flight(a: float, b: float, seconds: float = 60.0, seed: int = 1) -> list[Measurement]:
+    """10 s on the ground (throttle 0, the ground's support in the accelerometer), ``seconds`` in the
+    air with a throttle that wanders about its hover, 10 s on the ground again; in the air the
+    accelerometer reads T/(m g) = a c + b along the body's z, with vibration."""
+    rng = np.random.default_rng(seed)
+    end = 20.0 + seconds
+    ms = []
+    for k in range(int(end * 10)):
+        t = k * 0.1
+        c = 0.0 if t < 10.0 or t > 10.0 + seconds else 0.4 + 0.08 * math.sin(0.7 * t) + 0.03 * math.sin(3.1 * t)
+        ms.append(_m(t, Kind.THROTTLE, c))
+    for k in range(int(end * 100)):
+        t = k * 0.01
+        c = 0.0 if t < 10.0 or t > 10.0 + seconds else 0.4 + 0.08 * math.sin(0.7 * t) + 0.03 * math.sin(3.1 * t)
+        tw = 1.0 if c == 0.0 else a * c + b
+        ms.append(_m(t, Kind.ACCEL, [0.0, 0.0, -G * tw + rng.normal(0.0, 0.5)]))
+    return sorted(ms, key=lambda m: m.t)
+
+
+def test_the_map_is_read_from_the_accelerometer_in_the_air():
+    """T/(m g) = 1.8 c + 0.28 in the air: the fit finds it, and on the ground a command at idle makes none."""
+    r = thrust_ratio(Readings.of(_flight(1.8, 0.28)), None, 4)
+    assert r is not None
+    assert r.a == pytest.approx(1.8, rel=0.05) and r.b == pytest.approx(0.28, abs=0.03)
+    assert r.of(0.0) == 0.0 and r.of(0.4) == pytest.approx(1.0, abs=0.02)
+    assert r.seconds == pytest.approx(58.0, abs=0.5)  # the air, a second clear of the take-off and the landing
+
+
+def test_no_map_without_a_flight_to_fit_it_on():
+    ground = [m for m in _flight(1.8, 0.28, seconds=5.0) if m.kind is Kind.ACCEL or m.value[0] == 0.0]
+    assert thrust_ratio(Readings.of(ground), None, 4) is None  # no throttle above idle
+    assert thrust_ratio(Readings.of(_flight(1.8, 0.28, seconds=8.0)), None, 4) is None  # 4 s in the air
+    no_accel = [m for m in _flight(1.8, 0.28) if m.kind is Kind.THROTTLE]
+    assert thrust_ratio(Readings.of(no_accel), None, 4) is None
+
+
+def test_the_thrust_forms_are_offered_only_with_the_map():
+    kinds = {Kind.ACCEL, Kind.BARO_PRESSURE, Kind.GPS, Kind.THROTTLE, Kind.TEMPERATURE}
+    forms = {(c.name, c.form, c.needs_option) for c in altitude_catalogue(kinds)}
+    assert ("baro_thrust", "throttle", None) in forms and ("baro_thrust", "thrust", "thrust_ratio") in forms
+    assert ("baro_ground_effect", "rotors running", None) in forms
+    assert ("baro_ground_effect", "thrust", "thrust_ratio") in forms
+
+
+@pytest.mark.parametrize("name", ["baro_thrust_s1.bin", "baro_thrust_s2.ulg"])
+def test_another_generators_thrust_over_weight_is_read_from_its_log(name):
+    """The map, applied to the log's own commands, against the truth's thrust over the weight in the
+    air: within a few percent of the hover's (what is left is the rotors' lag and the controller's
+    jitter, which the accelerometer reads in the air), and no thrust at idle on the ground."""
+    path = foreign2_file(name)
+    log = load_log(path, imu_columns=True)
+    stated = stated_by(log.tables, log.measurements)
+    su = setup(log.measurements, imu=log.imu, stated=stated)
+    r = su.model.options.get("thrust_ratio")
+    assert isinstance(r, ThrustRatio) and r.rms < 0.06
+    cmd = [(m.t, command(m, stated.motors, 4)) for m in log.measurements if m.kind is Kind.ACTUATOR]
+    t = np.array([x for x, c in cmd if c is not None])
+    tw = np.array([r.of(c) for _, c in cmd if c is not None])
+    truth = np.genfromtxt(path.with_name(path.stem + "_truth.csv"), delimiter=",", names=True)
+    fl = np.interp(t, truth["t"], truth["in_flight"]) > 0.5
+    err = tw - np.interp(t, truth["t"], truth["thrust_over_weight"])
+    assert abs(err[fl].mean()) < 0.02 and np.sqrt(np.mean(err[fl] ** 2)) < 0.05
+    idle = ~fl & (t < json.loads(path.with_name(path.stem + "_meta.json").read_text())["times"]["arm"])
+    assert np.all(tw[idle] == 0.0)
+
+
+def test_the_ground_holds_the_height_from_a_lift_off_until_the_range_reads():
+    """Another generator's lift-off: the wash holds the baro 45 cm low near the ground and the range
+    reads nothing until 0.12 s after it. The height before any effect is found stays on the floor
+    (it went 41 cm under it)."""
+    path = foreign2_file("baro_ground_effect_s2.ulg")
+    meta = json.loads(path.with_name("baro_ground_effect_s2_meta.json").read_text())
+    log = load_log(path, imu_columns=True)
+    su = setup(log.measurements, imu=log.imu, stated=stated_by(log.tables, log.measurements))
+    run = run_model(su.model, su.prep, su.make)
+    lift = meta["times"]["liftoff"]
+    near = (run.t > lift - 1.0) & (run.t < lift + 0.3)
+    assert run.x[near, su.model.index("z")].min() > -0.05
