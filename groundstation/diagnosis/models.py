@@ -273,7 +273,8 @@ def setup(
     if curve is not None:
         model = replace(model, options={**model.options, "motor_curve": curve})
     if prep.logged_throttle and model.f is None:  # a nonlinear model is rebuilt from its options
-        ratio = thrust_ratio(prep.measurements, curve, motor_outputs_of(prep.measurements))
+        motors = motor_outputs_of(prep.measurements.only({Kind.VEHICLE_STATUS}))
+        ratio = thrust_ratio(prep.measurements, curve, motors)
         if ratio is not None:
             model = replace(model, options={**model.options, "thrust_ratio": ratio})
     return Setup(prep, model, spec, names, base.airframe, clearance)

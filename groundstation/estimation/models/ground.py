@@ -152,8 +152,8 @@ def on_ground(
         sent = ctx.range_read_at is not None or ctx.range_on_ground_at is not None
         last = ctx.range_read_at if ctx.range_read_at is not None else -math.inf
         quiet = m.t - last > RANGE_QUIET
-        # below the ground with the range quiet: gone quiet, or not yet read (on the first take-off)
-        # where the log is known to have a range sensor
+        # landed with the range gone quiet; or just lifted off, the range not yet read since (before
+        # its first reading only where the log is known to have a range sensor)
         if sent or range_in_log:
             landed_now = landed(ctx)
             if (sent and quiet and landed_now) or (not landed_now and rising_unseen(ctx, m.t)):
