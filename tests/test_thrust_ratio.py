@@ -104,3 +104,13 @@ def test_the_ground_holds_the_height_from_a_lift_off_until_the_range_reads():
     lift = meta["times"]["liftoff"]
     near = (run.t > lift - 1.0) & (run.t < lift + 0.3)
     assert run.x[near, su.model.index("z")].min() > -0.05
+
+
+def test_a_wash_in_its_thrust_form_is_said_so_in_the_conclusion():
+    from groundstation.diagnosis.effect import Effect
+    from groundstation.diagnosis.report.conclusion import _named
+
+    thrust = Effect("baro_thrust", {"k": 1.82, "k_tw": 0.865, "tc": 0.275}, {"form": "thrust"})
+    throttle = Effect("baro_thrust", {"k": 1.82, "tc": 0.275}, {"form": "throttle"})
+    assert _named(thrust).endswith("; it follows the thrust over the weight)")
+    assert "thrust over the weight" not in _named(throttle)

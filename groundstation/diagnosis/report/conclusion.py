@@ -255,8 +255,11 @@ COLOURED = 3.0
 
 
 def _named(e) -> str:
-    """``name (k = v, ...)``, or the name alone for an effect without parameters (range_tilt)."""
+    """``name (k = v, ...)``, or the name alone for an effect without parameters (range_tilt); a rotor
+    wash taken in its thrust form says so (catalogue.altitude: its other form is the usual one)."""
     p = format_params(e.name, e.params)
+    if e.evidence.get("form") == "thrust":
+        p += "; it follows the thrust over the weight"
     return f"{e.name} ({p})" if p else e.name
 
 
