@@ -17,7 +17,6 @@ map is what says the thrust there, and a command at idle or below (c <= 0) makes
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,9 +69,7 @@ def command(m: Measurement, curve: MotorCurve | None, n_motors: int) -> float | 
     return None
 
 
-def thrust_ratio(
-    readings: Readings, curve: MotorCurve | None, n_motors: int, ms: Sequence[Measurement] | None = None
-) -> ThrustRatio | None:
+def thrust_ratio(readings: Readings, curve: MotorCurve | None, n_motors: int) -> ThrustRatio | None:
     """The map from the wash signal's command to T / (m g) (module docstring), fitted on ``readings``
     (a log's readings with the accelerometer's block means, instance 0), or None where the log has no
     command, no accelerometer, or too short or too steady an airborne stretch to fit it on. One
@@ -82,14 +79,15 @@ def thrust_ratio(
     source = Kind.ACTUATOR if Kind.ACTUATOR in kinds else Kind.THROTTLE
     if source not in kinds or Kind.ACCEL not in kinds:
         return None
-    cmds = [(m.t, command(m, curve, n_motors)) for m in readings.only({source})]
+    commands = readings.only({source})
+    cmds = [(m.t, command(m, curve, n_motors)) for m in commands]
     tc = np.array([t for t, c in cmds if c is not None])
     c = np.array([c for _, c in cmds if c is not None])
     ta, fz = _body_z(readings.only({Kind.ACCEL}))
     if not len(tc) or not len(ta):
         return None
     ratio = -fz / G
-    segments = ground_segments(ms if ms is not None else readings.only({source}))
+    segments = ground_segments(commands)
     if len(segments) < 2:
         return None
     up, down = segments[0][1] + EDGE_S, segments[1][0] - EDGE_S

@@ -64,7 +64,7 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
         wash = tau
-        if curve is not None and m.kind is Kind.ACTUATOR:
+        if curve is not None and m.kind is Kind.ACTUATOR and (tcs or ratio is not None):
             c = command(m, curve, motor_outputs(ctx))
             wash = c if c is not None else tau
         if ratio is not None and ctx.landed is not False:
