@@ -17,6 +17,7 @@ from groundstation.diagnosis.claims.leave_one_out import leave_one_out
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import run_model
 from groundstation.diagnosis.scoring import holdout, trials
+from groundstation.diagnosis.scoring.background import NICENESS, Begun
 from groundstation.diagnosis.scoring.gains import CatalogueColumns
 from groundstation.diagnosis.scoring.trace import rank
 from groundstation.diagnosis.scoring.trials import fork_map, log_profile
@@ -122,6 +123,34 @@ def test_a_worker_that_fails_fails_the_call_with_its_error():
     assert fork_map(lambda x: x * x, range(5), 2) == [0, 1, 4, 9, 16]
     with pytest.raises(ValueError, match="item 3 is bad"):
         fork_map(boom, range(5), 2)
+
+
+def test_runs_begun_early_come_back_as_made_here_and_yield_the_busy_cores():
+    """``Begun``: forked at a lower priority, the results are those made here with one worker, in
+    order; an error in a process reaches the caller as itself; a begun run no longer wanted is
+    stopped, its process gone."""
+    import os
+
+    def niceness_and_square(x):
+        return os.getpriority(os.PRIO_PROCESS, 0), x * x
+
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    got = Begun(niceness_and_square, range(4), 2).results()
+    assert [sq for _, sq in got] == [0, 1, 4, 9]
+    assert {n for n, _ in got} == {min(mine + NICENESS, 19)}
+    assert Begun(niceness_and_square, range(4), 1).results() == [(mine, x * x) for x in range(4)]
+
+    def boom(x):
+        if x == 2:
+            raise ValueError(f"item {x} is bad")
+        return x
+
+    with pytest.raises(ValueError, match="item 2 is bad"):
+        Begun(boom, range(4), 2).results()
+    begun = Begun(lambda x: __import__("time").sleep(60), [1], 2)
+    ((proc, _),) = begun._running
+    begun.close()
+    assert not proc.is_alive() and proc.exitcode is not None
 
 
 def test_a_trial_begun_beside_the_base_run_is_the_rankings_own(flight):

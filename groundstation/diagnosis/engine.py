@@ -29,7 +29,7 @@ from groundstation.diagnosis.claims.detect import Finding, residuals_pass, senso
 from groundstation.diagnosis.claims.discover import Discovery
 from groundstation.diagnosis.claims.discovered import rival_discovery, taken
 from groundstation.diagnosis.claims.joint import joint_params, joint_shapes
-from groundstation.diagnosis.claims.leave_one_out import LeftOut, leave_one_out
+from groundstation.diagnosis.claims.leave_one_out import LeftOut, LeftOutRuns
 from groundstation.diagnosis.claims.search import Search, detectable
 from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.models import setup
@@ -125,16 +125,24 @@ def diagnose(
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
     search = Search.begin(su, say=say, workers=workers, truth=truth if veto_with_truth else None)  # steps 1, 2
-    search.run()  # steps 3 to 5
-    _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
-    unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
-    against = _against_truth(search, truth, unobs)
-    found = _as_found(search)
-    left_out: list[LeftOut] = []
-    if search.model.f is None and search.model0.f is None:
-        say("predicting each absolute sensor from the others")
-        left_out = leave_one_out(search.model0, found, su.prep, search.make, search.stream, truth, workers)
-    found_beside, unclaimed = _beside(search, model_name, unobs)
+    # each absolute sensor left out of the model before: begun now, on the cores the search leaves idle
+    left = LeftOutRuns(search.model0, su.prep, search.make, truth, workers) if search.model0.f is None else None
+    try:
+        search.run()  # steps 3 to 5
+        _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
+        unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
+        against = _against_truth(search, truth, unobs)
+        found = _as_found(search)
+        left_out: list[LeftOut] = []
+        if left is not None and search.model.f is None:
+            say("predicting each absolute sensor from the others")
+            left.found(found, search.stream)  # begun, and collected after the thrust curve is read beside
+        found_beside, unclaimed = _beside(search, model_name, unobs)
+        if left is not None and search.model.f is None:
+            left_out = left.results()
+    finally:
+        if left is not None:
+            left.close()
     return Diagnosis(
         source,
         model_name,
