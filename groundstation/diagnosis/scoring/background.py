@@ -25,7 +25,7 @@ R = TypeVar("R")
 NICENESS = 10
 
 
-class Begun(Generic[R]):
+class Begun(Generic[T, R]):
     """``[fn(x) for x in items]``, begun now and collected by :meth:`results`.
 
     With ``workers`` > 1, one forked process an item, at :data:`NICENESS` (the processes inherit
@@ -35,8 +35,8 @@ class Begun(Generic[R]):
     """
 
     def __init__(self, fn: Callable[[T], R], items: Iterable[T], workers: int) -> None:
-        self._fn = fn
-        self._items = list(items)
+        self._fn: Callable[[T], R] = fn
+        self._items: list[T] = list(items)
         self._running: list[tuple] = []  # (process, its pipe's reading end), an item each
         if workers <= 1 or not self._items:
             return
@@ -77,7 +77,7 @@ class Begun(Generic[R]):
                     proc.join()
                 if isinstance(got, BaseException):
                     raise got
-                out.append(got)  # type: ignore[arg-type]
+                out.append(got)
         finally:
             self.close()
         return out
