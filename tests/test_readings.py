@@ -113,6 +113,22 @@ def test_whole_log_operations_equal_the_record_by_record_ones():
     assert _all_same(r.with_values(Kind.ACCEL, lambda v: v * 1.02), scaled)
 
 
+def test_columns_are_what_a_loop_over_the_records_reads():
+    """One kind's (or several kinds') times, times of receipt and values as columns, in the readings'
+    order; a kind read in two widths padded with NaN to the wider."""
+    ms = _log()
+    r = Readings.of(ms)
+    for kinds in ((Kind.ACTUATOR,), (Kind.ACCEL,), (Kind.THROTTLE, Kind.ACTUATOR), (Kind.GPS,)):
+        recs = [m for m in ms if m.kind in kinds]
+        t, t_rx, v = r.columns(kinds if len(kinds) > 1 else kinds[0])
+        assert np.array_equal(t, [m.t for m in recs], equal_nan=True)
+        assert np.array_equal(t_rx, [m.t_rx for m in recs], equal_nan=True)
+        assert v.shape == (len(recs), max((len(m.value) for m in recs), default=0))
+        for m, row in zip(recs, v, strict=True):
+            assert np.array_equal(row[: len(m.value)], m.value, equal_nan=True)
+            assert np.isnan(row[len(m.value) :]).all()
+
+
 def test_time_order_is_a_stable_sort_with_context_first():
     """By time, at equal times the context kinds first, else in their order; those without a time last."""
     ms = _log()

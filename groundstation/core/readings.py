@@ -202,6 +202,22 @@ class Readings(Sequence[Measurement]):
         """The readings before ``t_end``, in their order."""
         return self.where(self.t < t_end)
 
+    def columns(self, kinds: Kind | Collection[Kind]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The readings of a kind (or of several) in their order as columns: their times, their times
+        of receipt, and their values as one (n, width) array, width the widest stream's (a narrower
+        stream's missing components NaN). What a loop over the records would read, without a record
+        made for each."""
+        kinds = (kinds,) if isinstance(kinds, Kind) else kinds
+        idx = np.flatnonzero(self.is_kind(kinds))
+        stream, row = self.stream[idx], self.row[idx]
+        of_kind = [i for i, s in enumerate(self.streams) if s.kind in kinds]
+        values = np.full((len(idx), max((self.streams[i].values.shape[1] for i in of_kind), default=0)), np.nan)
+        for i in of_kind:
+            sel = stream == i
+            v = self.streams[i].values
+            values[sel, : v.shape[1]] = v[row[sel]]
+        return self.t[idx], self.t_rx[idx], values
+
 
 class ReadingsBuilder:
     """Records gathered into :class:`Readings` a chunk at a time, so that no more than a chunk of

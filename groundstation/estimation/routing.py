@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from groundstation.core.frames import euler_from_quaternion
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.core.units import G
 
 from .context import Context
@@ -114,6 +115,8 @@ def motor_outputs(ctx: Context) -> int:
 
 def motor_outputs_of(ms: Iterable[Measurement]) -> int:
     """How many of the first actuator outputs drive rotors, by the log's first vehicle status."""
+    if isinstance(ms, Readings):
+        ms = ms.only((Kind.VEHICLE_STATUS,))
     for m in ms:
         if m.kind is Kind.VEHICLE_STATUS:
             ctx = Context()

@@ -46,6 +46,7 @@ import numpy as np
 
 from drivers.logs.tables import LogTables
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 
 #: a throttle at or above this carries the vehicle (models.ground.TAU_GROUND: below it the ground does)
 TAU_AIRBORNE = 0.15
@@ -233,17 +234,16 @@ def ground_segments(ms: Sequence[Measurement], recording_origin: float | None = 
     without a logged throttle, or one that never carries the vehicle. On the vehicle's clock, or
     with ``recording_origin`` (a tlog's tables' :attr:`~drivers.logs.tables.LogTables.origin`) on
     the recording's, where a tlog's records are: its vehicle's clock began at boot, not with it."""
-    t, tau = [], []
-    for m in ms:
-        if m.kind is Kind.THROTTLE or m.kind is Kind.ACTUATOR:
-            v = [x for x in m.value[: 8 if m.kind is Kind.ACTUATOR else 1].tolist() if math.isfinite(x)]
-            at = m.t if recording_origin is None else m.t_rx - recording_origin
-            if v and math.isfinite(at):
-                t.append(at)
-                tau.append(float(np.median(v)))
-    if not t:
+    r = Readings.of(ms)
+    t, t_rx, v = r.columns((Kind.THROTTLE, Kind.ACTUATOR))
+    # a THROTTLE's one value, an ACTUATOR's first eight outputs; their median, of those that are numbers
+    v = np.where(np.isfinite(v[:, :8]), v[:, :8], np.nan)
+    v[~r.only((Kind.THROTTLE, Kind.ACTUATOR)).is_kind((Kind.ACTUATOR,)), 1:] = np.nan
+    at = t if recording_origin is None else t_rx - recording_origin
+    keep = np.isfinite(v).any(axis=1) & np.isfinite(at)
+    if not keep.any():
         return []
-    ta, va = np.array(t), np.array(tau)
+    ta, va = at[keep], np.nanmedian(v[keep], axis=1)
     up = np.flatnonzero(va >= TAU_AIRBORNE)
     if not len(up):
         return []

@@ -50,6 +50,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 
 G = 9.80665
 #: s: the window the accelerometer and throttle are averaged over (and the range's speed fitted in)
@@ -189,19 +190,15 @@ def curve_points(
     """The fit's data (:func:`thrust_curve` says what each argument is), or None when the log cannot
     give it. ``height``: (t, h, v_up) of an estimate to take the height and vertical speed from,
     instead of the range sensor's readings (an altitude filter's run, where the log has no range)."""
-    acc = np.array(
-        [(m.t, m.value[2]) for m in ms if m.kind is Kind.ACCEL and len(m.value) >= 3 and math.isfinite(m.value[2])]
-    )
-    att = np.array(
-        [(m.t, m.value[0], m.value[1]) for m in ms if m.kind is Kind.ATTITUDE and np.isfinite(m.value[:2]).all()]
-    )
-    rng = np.array(
-        [
-            (m.t, m.value[0])
-            for m in ms
-            if m.kind is Kind.RANGE and len(m.value) and range_limits[0] <= m.value[0] <= range_limits[1]
-        ]
-    )
+    r = Readings.of(ms)
+    t, _, v = r.columns(Kind.ACCEL)
+    acc = np.column_stack([t, v[:, 2]])[np.isfinite(v[:, 2])] if v.shape[1] >= 3 else np.zeros((0, 2))
+    t, _, v = r.columns(Kind.ATTITUDE)
+    att = np.column_stack([t, v[:, :2]])[np.isfinite(v[:, :2]).all(axis=1)] if v.shape[1] >= 2 else np.zeros((0, 3))
+    t, _, v = r.columns(Kind.RANGE)
+    rng = np.zeros((0, 2))
+    if v.shape[1]:
+        rng = np.column_stack([t, v[:, 0]])[(v[:, 0] >= range_limits[0]) & (v[:, 0] <= range_limits[1])]
     if len(acc) < 100 or len(att) < 10 or (height is None and len(rng) < 50):
         return None
     th = np.array([(t, v) for t, v in throttle if math.isfinite(t) and math.isfinite(v)])

@@ -40,6 +40,7 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 
 PAIR_GAP = 1.0  # s: consecutive readings further apart than this are not paired
 MIN_PAIRS = 20
@@ -50,7 +51,8 @@ def _readings(
     ms: Sequence[Measurement], throttle: list[tuple[float, float]]
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The battery's readings (t, V) and the throttle^2 in effect at each, or None without enough of either."""
-    volts = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.BATTERY_VOLTAGE and len(m.value)]
+    t, _, values = Readings.of(ms).columns(Kind.BATTERY_VOLTAGE)
+    volts = list(zip(t.tolist(), values[:, 0].tolist(), strict=True)) if values.shape[1] else []
     volts = [(t, v) for t, v in volts if math.isfinite(v) and v > 0]
     th = [(t, v) for t, v in throttle if math.isfinite(v)]
     if len(volts) <= MIN_PAIRS or len(th) < 2:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.core.readings import Readings
 from groundstation.core.units import G
 from groundstation.diagnosis.catalogue.airframe import thrust_curve
 from groundstation.diagnosis.catalogue.battery import OpenCircuitVoltage, load_line, loaded_voltage, reading_sigma
@@ -148,11 +149,14 @@ def thrust_model(
 def throttle_series(ms: Sequence[Measurement]) -> list[tuple[float, float]]:
     """(t, collective 0..1): the mean of the motor outputs (ACTUATOR), or THROTTLE in a log without
     them (one source, as :func:`groundstation.estimation.routing.collective` takes it)."""
-    n = motor_outputs_of(ms)
-    outputs = [
-        (m.t, float(np.nanmean(m.value[:n]))) for m in ms if m.kind is Kind.ACTUATOR and np.isfinite(m.value[:n]).any()
-    ]
-    return outputs or [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE and len(m.value)]
+    r = Readings.of(ms)
+    t, _, v = r.columns(Kind.ACTUATOR)
+    v = v[:, : motor_outputs_of(r)]
+    ok = np.isfinite(v).any(axis=1)
+    if ok.any():
+        return list(zip(t[ok].tolist(), np.nanmean(v[ok], axis=1).tolist(), strict=True))
+    t, _, v = r.columns(Kind.THROTTLE)
+    return list(zip(t.tolist(), v[:, 0].tolist(), strict=True)) if v.shape[1] else []
 
 
 def main_flight(
@@ -196,17 +200,20 @@ def lift_off(
     spurious echoes of 1.9-6.5 m for 0.9 s as the motors spin up."""
     start = None
     last = t_spin
-    for m in ms:
-        if m.kind is not Kind.RANGE or m.t < t_spin or not len(m.value):
+    t, _, d = Readings.of(ms).columns(Kind.RANGE)
+    if not d.shape[1]:
+        return t_spin
+    for tm, dm in zip(t.tolist(), d[:, 0].tolist(), strict=True):
+        if tm < t_spin:
             continue
-        up = limits[0] <= float(m.value[0]) <= limits[1]
-        if not up or m.t - last > 1.0:  # a second without a reading breaks the hold
+        up = limits[0] <= dm <= limits[1]
+        if not up or tm - last > 1.0:  # a second without a reading breaks the hold
             start = None
         if up:
-            start = m.t if start is None else start
-            if m.t - start >= hold:
+            start = tm if start is None else start
+            if tm - start >= hold:
                 return start
-        last = m.t
+        last = tm
     return t_spin
 
 
@@ -232,11 +239,8 @@ def hover_prior(prep, range_limits: tuple[float, float] = (RANGE_FLOOR, math.inf
     tau_h = float(np.median([v for t, v in flying if t0 <= t <= t0 + 10.0]))
     alpha0 = G / tau_h
     prior: dict[str, Any] = {"alpha0": alpha0, "beta0": 0.0, "sigma_alpha0": 0.2 * alpha0, "sigma_beta0": 0.05}
-    volts = [
-        float(m.value[0])
-        for m in prep.measurements
-        if m.kind is Kind.BATTERY_VOLTAGE and t0 <= m.t <= t0 + 10.0 and len(m.value)
-    ]
+    t, _, v = Readings.of(prep.measurements).columns(Kind.BATTERY_VOLTAGE)
+    volts = v[(t >= t0) & (t <= t0 + 10.0), 0].tolist() if v.shape[1] else []
     volts = [v for v in volts if math.isfinite(v) and v > 0]
     if volts:
         # thrust_voltage's V_ref: the voltage alpha0 was read at. Taken at the first sample with the
