@@ -198,8 +198,9 @@ def write(
     (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
     for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
         w = EstimateCsvWriter(out / name, "x", run.model.states)
-        for t, x, P in zip(run.t, run.x, run.P):
-            w.write(_Snap(t, x, np.sqrt(np.clip(np.diag(P), 0, None))))
+        sigma = np.sqrt(np.clip(np.diagonal(run.P, axis1=1, axis2=2), 0, None))
+        for t, x, s in zip(run.t, run.x, sigma):
+            w.write(_Snap(t, x, s))
         w.close()
     (out / "report.html").write_text(report_html(d, j, triage, parameters))
     return j

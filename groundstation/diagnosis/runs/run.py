@@ -326,7 +326,9 @@ def run_model(
         Ps.extend(f.kf.P.ravel().tolist())
         if taped:
             x_record.append(len(f.log) - 1)
-        d = sig.setdefault(rec.sensor, {k: array("d") for k in SIGNALS})
+        d = sig.get(rec.sensor)
+        if d is None:
+            d = sig[rec.sensor] = {k: array("d") for k in SIGNALS}
         ctx = f.ctx
         if probes is not None:
             probes.record(rec.sensor, ctx, f.kf.x - rec.K @ rec.nu)
