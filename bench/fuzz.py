@@ -42,8 +42,9 @@ FORMATS = ("tlog", "bin", "text", "ulg", "cf")
 BLOWUP_MB = 300.0
 
 
-class _Hang(Exception):
-    """A reader still at work when its mutant's time limit rang (raised by the alarm's handler)."""
+class _Hang(BaseException):
+    """A reader still at work when its mutant's time limit rang (raised by the alarm's handler). Not an
+    ``Exception``: a reader's catch-all would report it as the file refused, and a hang go uncounted."""
 
 
 def _on_alarm(_sig, _frame):

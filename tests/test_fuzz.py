@@ -358,6 +358,50 @@ def test_ulog_reproducers_give_one_line_or_a_counted_skip(tmp_path):
     assert len(cut.tables["baro_t"]) == 49  # every whole record before the cut
 
 
+def test_pyulog_seeking_back_past_a_short_read_lands_where_it_meant():
+    """pyulog skips a header it takes for damage by ``seek(-2 - size, 1)`` after reading ``size`` bytes; at
+    the end of a file the read is short, and the seek must still land one byte past the header (it
+    landed at the file's start, and pyulog read the same bytes for ever). Any other loop runs out of
+    reads."""
+    from drivers.logs.ulog_source import ULogLoopError, ULogSource
+
+    f = ULogSource(b"xxxxx" + struct.pack("<HB", 20_000, 0) + bytes(10))
+    f.seek(5)
+    assert len(f.read(3)) == 3 and len(f.read(20_000)) == 10
+    assert f.seek(-2 - 20_000, 1) == 6
+    f.seek(5)
+    f.read(3)
+    f.read(20_000)
+    assert f.seek(-(3 + 20_000), 1) == 5  # back to the header: a message to read again
+    f = ULogSource(bytes(100))
+    with pytest.raises(ULogLoopError):
+        while True:
+            f.seek(0)
+            f.read(3)
+
+
+def test_the_fuzzers_ulog_mutants_that_kept_pyulog_reading_are_read_at_once(tmp_path):
+    """Mutants 1 and 258 of the fuzzer's ULog share (seed 7000): each kept pyulog 1.3 reading until
+    the fuzzer's alarm, which its reader then reported as the file refused."""
+    import importlib.util
+    import time
+
+    from .conftest import REPO
+
+    spec = importlib.util.spec_from_file_location("fuzz_bench", REPO / "bench" / "fuzz.py")
+    assert spec is not None and spec.loader is not None
+    fuzz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz)
+    rng, base = random.Random(7000), fuzz.seed_ulg()
+    mutants = [fuzz.mutate(base, rng) for _ in range(259)]
+    for k in (1, 258):
+        p = tmp_path / f"mutant{k}.ulg"
+        p.write_bytes(mutants[k])
+        t0 = time.process_time()
+        _read_ulog_or_one_line(p)
+        assert time.process_time() - t0 < 1.0, k
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_damaged_ulogs_are_read_as_far_as_they_go_or_refused_in_one_line(tmp_path, seed):
     rng = random.Random(seed)

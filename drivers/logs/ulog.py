@@ -28,7 +28,6 @@ parameters to ``tables.params``.
 
 from __future__ import annotations
 
-import io
 import math
 from collections import Counter
 from dataclasses import dataclass, field
@@ -41,6 +40,7 @@ from groundstation.core.measurement import Kind, Measurement
 from .quiet import quiet
 from .tables import LogTables, Table
 from .ulog_check import ULogStructureError, check
+from .ulog_source import ULogSource
 
 #: a ULog file's first bytes: "ULog", then 0x01 0x12 0x35 (the format's magic)
 ULOG_MAGIC = b"ULog\x01\x12\x35"
@@ -90,8 +90,9 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
         checked = check(data)  # bounds first: pyulog trusts the file (ulog_check.py)
     except ULogStructureError as e:
         raise ULogError(f"{p}: not a readable ULog: {e}") from None
-    # pyulog is handed the file up to its last whole message, from memory (it takes a file object)
-    source_file = io.BytesIO(data[: checked.end] if checked.cut else data)
+    # pyulog is handed the file up to its last whole message, from memory (it takes a file object),
+    # its resynchronisation on damage made to move forward (ulog_source.py)
+    source_file = ULogSource(data[: checked.end] if checked.cut else data)
     del data
     try:
         with quiet():  # pyulog prints a warning per message it cannot place
