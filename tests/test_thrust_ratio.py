@@ -114,3 +114,30 @@ def test_a_wash_in_its_thrust_form_is_said_so_in_the_conclusion():
     throttle = Effect("baro_thrust", {"k": 1.82, "tc": 0.275}, {"form": "throttle"})
     assert _named(thrust).endswith("; it follows the thrust over the weight)")
     assert "thrust over the weight" not in _named(throttle)
+
+
+def test_touching_down_the_accelerometer_is_held_to_the_thrust_the_command_makes():
+    """In the air the thrust over the weight is the accelerometer's; once the gear takes the weight and
+    the throttle winds down, the accelerometer reads the support as well, and the thrust is held to the
+    most the command makes (the map and five times its residual above it)."""
+    from groundstation.diagnosis.runs.signals import add_signal_rules
+    from groundstation.estimation.models.altitude import altitude_model
+    from groundstation.estimation.routing import altitude_estimator
+
+    ratio = ThrustRatio(a=1.8, b=0.28, rms=0.02, seconds=60.0)
+    assert ratio.most(0.4) == pytest.approx(ratio.of(0.4) + 5 * 0.03)  # the residual taken at least 0.03
+    model = altitude_model()
+    model.options["thrust_ratio"] = ratio
+    est = altitude_estimator(model)
+    add_signal_rules(est)
+    est.filter.ctx.landed = False  # in the air (the ground's own rule decides it in a run)
+    est.handle(_m(0.0, Kind.ATTITUDE, [0.0, 0.0, 0.0]))
+    for k in range(50):  # hovering: the accelerometer and the command agree
+        est.handle(_m(0.01 * k, Kind.THROTTLE, 0.4))
+        est.handle(_m(0.01 * k + 0.005, Kind.ACCEL, [0.0, 0.0, -G * ratio.of(0.4)]))
+    assert est.filter.ctx.thrust_ratio == pytest.approx(1.0, abs=0.01)
+    for k in range(50, 200):  # on the gear, the throttle at 0.2 and the ground holding the rest
+        est.filter.ctx.landed = False  # (before any land detector says so)
+        est.handle(_m(0.01 * k, Kind.THROTTLE, 0.2))
+        est.handle(_m(0.01 * k + 0.005, Kind.ACCEL, [0.0, 0.0, -G]))
+    assert est.filter.ctx.thrust_ratio == pytest.approx(ratio.most(0.2), abs=0.01)

@@ -37,6 +37,10 @@ AIRBORNE = 0.15
 #: [s] kept clear of the ground segments (which end a second short of the take-off and begin a second
 #: after the landing): the gear's support is still in the accelerometer around both
 EDGE_S = 2.0
+#: the map's residual, in standard deviations, the accelerometer may read above it before the excess is
+#: taken for the ground's support; and the least residual taken (a map fitted to a smooth flight)
+SPREAD_SIGMAS = 5.0
+SPREAD_FLOOR = 0.03
 
 
 @dataclass(frozen=True)
@@ -50,6 +54,13 @@ class ThrustRatio:
 
     def of(self, command: float) -> float:
         return max(self.a * command + self.b, 0.0) if command > 0.0 else 0.0
+
+    def most(self, command: float) -> float:
+        """The most thrust over the weight ``command`` makes: the map's, and :data:`SPREAD_SIGMAS` times
+        its residual above it (at least :data:`SPREAD_FLOOR`). Where the accelerometer reads more, the
+        ground carries the rest: touching down, the gear takes the weight while the throttle winds
+        down, before any land detector says so."""
+        return self.of(command) + SPREAD_SIGMAS * max(self.rms, SPREAD_FLOOR)
 
     def as_dict(self) -> dict:
         return {"a": round(self.a, 4), "b": round(self.b, 4), "rms": round(self.rms, 4), "seconds": round(self.seconds)}

@@ -67,9 +67,11 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         if curve is not None and m.kind is Kind.ACTUATOR and (tcs or ratio is not None):
             c = command(m, curve, motor_outputs(ctx))
             wash = c if c is not None else tau
-        if ratio is not None and ctx.landed is not False:
-            # on the ground the accelerometer reads the ground's support: the command says the thrust
-            thrust(ctx, ratio.of(wash), m.t)
+        if ratio is not None:
+            ctx.thrust_most = ratio.most(wash)
+            if ctx.landed is not False:
+                # on the ground the accelerometer reads the ground's support: the command says the thrust
+                thrust(ctx, ratio.of(wash), m.t)
         if tcs:
             t_last = ctx.throttle_lps_t
             _lowpasses(ctx.throttle_lps, wash, m.t - t_last if t_last is not None else None)
@@ -117,8 +119,10 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         lowpass(ctx, "vibration", (f - ctx.f_lp) ** 2, m.t, VIBRATION_TC)
         if ratio is not None and ctx.landed is False and len(v) == 3:
             # in the air the accelerometer reads the thrust over the mass along the body's z axis
-            # (f_z = -T/m, FRD): the thrust as it is, which the command's map only predicts
-            thrust(ctx, -v[2] / G, m.t)
+            # (f_z = -T/m, FRD): the thrust as it is, which the command's map only predicts. Not more
+            # than the command can make: touching down, the gear's support is in it too
+            tw = -v[2] / G
+            thrust(ctx, tw if ctx.thrust_most is None else min(tw, ctx.thrust_most), m.t)
 
     chain(Kind.THROTTLE, throttle)
     chain(Kind.ACTUATOR, throttle)
