@@ -38,8 +38,9 @@ AIRBORNE = 0.15
 #: after the landing): the gear's support is still in the accelerometer around both
 EDGE_S = 2.0
 #: the map's residual, in standard deviations, the accelerometer may read above it before the excess is
-#: taken for the ground's support; and the least residual taken (a map fitted to a smooth flight)
-SPREAD_SIGMAS = 5.0
+#: taken for the ground's support (a one-sided test at 3 sigma: 0.13 % of a flight's true thrust
+#: clipped, were the residual Gaussian); and the least residual taken (a map fitted to a smooth flight)
+SPREAD_SIGMAS = 3.0
 SPREAD_FLOOR = 0.03
 
 
