@@ -125,21 +125,19 @@ def diagnose(
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
     search = Search.begin(su, say=say, workers=workers, truth=truth if veto_with_truth else None)  # steps 1, 2
-    # each absolute sensor left out of the model before: begun now, on the cores the search leaves idle
-    left = LeftOutRuns(search.model0, su.prep, search.make, truth, workers) if search.model0.f is None else None
+    search.run()  # steps 3 to 5
+    _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
+    unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
+    against = _against_truth(search, truth, unobs)
+    found = _as_found(search)
+    left: LeftOutRuns | None = None
+    if search.model.f is None and search.model0.f is None:
+        say("predicting each absolute sensor from the others")
+        # begun on the cores the thrust curve, read beside the model meanwhile, leaves idle
+        left = LeftOutRuns(search.model0, found, su.prep, search.make, search.stream, truth, workers)
     try:
-        search.run()  # steps 3 to 5
-        _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
-        unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
-        against = _against_truth(search, truth, unobs)
-        found = _as_found(search)
-        left_out: list[LeftOut] = []
-        if left is not None and search.model.f is None:
-            say("predicting each absolute sensor from the others")
-            left.found(found, search.stream)  # begun, and collected after the thrust curve is read beside
         found_beside, unclaimed = _beside(search, model_name, unobs)
-        if left is not None and search.model.f is None:
-            left_out = left.results()
+        left_out: list[LeftOut] = left.results() if left is not None else []
     finally:
         if left is not None:
             left.close()

@@ -92,50 +92,44 @@ def absolute(model: LinearModel) -> list[str]:
 
 
 class LeftOutRuns:
-    """The runs of :func:`leave_one_out`, begun as soon as each model is known: the model before's when
-    the diagnosis has it (:class:`.Begun`: on the cores the search leaves idle), the model as found's
-    when the search ends (:meth:`found`); :meth:`results` collects them. The runs, two a sensor, are
+    """The runs of :func:`leave_one_out`, begun now (:class:`.Begun`: at a lower priority, on up to
+    ``workers`` processes, no more runs held at once than that) and collected by :meth:`results`: the
+    diagnosis reads the thrust curve beside the model meanwhile. The runs, two a sensor, are
     independent; each gives back its numbers alone, the same on any number of ``workers``."""
 
     def __init__(
         self,
         before: LinearModel,
+        after: LinearModel,
         prep: Prepared,
         make: Callable[[LinearModel], KalmanEstimator],
+        after_stream: Sequence[Measurement],
         truth=None,
         workers: int = 1,
     ) -> None:
-        self._prep, self._make, self._truth, self._workers = prep, make, truth, workers
-        self._names_before = absolute(before)
-        self._before = Begun(lambda name: self._scored(run_model(without(before, name), prep, make), name),
-                             self._names_before, workers)  # fmt: skip
-        self._names: list[str] = []
-        self._after: Begun | None = None
+        names_before = absolute(before)
+        self._names = [name for name in absolute(after) if name in names_before]
+        self._truth = truth
+        t_from = prep.t0 + SETTLE_S
 
-    def _scored(self, run, name: str) -> tuple[float, int, float]:
-        """(the left-out sensor's RMS innovation, its count, the height's RMSE against truth)."""
-        prep, truth = self._prep, self._truth
-        rms, n = _rms(run, name, prep.t0 + SETTLE_S)
-        return rms, n, truth.error(run, prep.t0, prep.t1) if truth is not None else math.nan
+        def scored(job: tuple[str, bool]) -> tuple[float, int, float]:
+            """(the left-out sensor's RMS innovation, its count, the height's RMSE against truth)."""
+            name, as_found = job
+            if as_found:
+                run = run_model(without(after, name), prep, make, measurements=after_stream)
+            else:
+                run = run_model(without(before, name), prep, make)
+            rms, n = _rms(run, name, t_from)
+            return rms, n, truth.error(run, prep.t0, prep.t1) if truth is not None else math.nan
 
-    def found(self, after: LinearModel, after_stream: Sequence[Measurement]) -> None:
-        """Begin the runs of the model as found (its delays applied to the readings: ``after_stream``),
-        each sensor both models have left out."""
-        prep, make = self._prep, self._make
-        self._names = [name for name in absolute(after) if name in self._names_before]
-        self._after = Begun(
-            lambda name: self._scored(run_model(without(after, name), prep, make, measurements=after_stream), name),
-            self._names,
-            self._workers,
-        )
+        self._runs = Begun(scored, [(name, as_found) for name in self._names for as_found in (False, True)], workers)
 
     def results(self) -> list[LeftOut]:
-        """Each sensor left out, before and after (:meth:`found` first)."""
-        assert self._after is not None, "the model as found is not known yet"
-        before = dict(zip(self._names_before, self._before.results(), strict=True))
+        """Each sensor left out, before and after."""
+        runs = self._runs.results()
         out = []
-        for name, (a, _, ea) in zip(self._names, self._after.results(), strict=True):
-            b, n, eb = before[name]
+        for k, name in enumerate(self._names):
+            (b, n, eb), (a, _, ea) = runs[2 * k], runs[2 * k + 1]
             if not n:
                 continue
             both = self._truth is not None and math.isfinite(eb) and math.isfinite(ea)
@@ -144,9 +138,7 @@ class LeftOutRuns:
 
     def close(self) -> None:
         """Stop the runs still going (the diagnosis ended otherwise)."""
-        self._before.close()
-        if self._after is not None:
-            self._after.close()
+        self._runs.close()
 
 
 def leave_one_out(
@@ -160,9 +152,8 @@ def leave_one_out(
 ) -> list[LeftOut]:
     """Each absolute sensor both models have, left out of each (the after model's readings: its
     delays applied, ``after_stream``), on up to ``workers`` processes."""
-    runs = LeftOutRuns(before, prep, make, truth, workers)
+    runs = LeftOutRuns(before, after, prep, make, after_stream, truth, workers)
     try:
-        runs.found(after, after_stream)
         return runs.results()
     finally:
         runs.close()
