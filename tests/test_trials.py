@@ -13,12 +13,14 @@ from drivers.replay import Replay
 from groundstation.core.measurement import Kind
 from groundstation.diagnosis.catalogue.altitude import altitude_catalogue, with_throttle_stand_in
 from groundstation.diagnosis.catalogue.candidate import Candidate
-from groundstation.diagnosis.claims.leave_one_out import leave_one_out
+from groundstation.diagnosis.claims.leave_one_out import SETTLE_S as LEFT_OUT_SETTLE_S
+from groundstation.diagnosis.claims.leave_one_out import LeftOutRuns, leave_one_out, without
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import run_model
 from groundstation.diagnosis.scoring import holdout, trials
 from groundstation.diagnosis.scoring.background import NICENESS, Begun
 from groundstation.diagnosis.scoring.gains import CatalogueColumns
+from groundstation.diagnosis.scoring.noise_match import sensor_noise, with_noise
 from groundstation.diagnosis.scoring.trace import rank
 from groundstation.diagnosis.scoring.trials import fork_map, log_profile
 from groundstation.estimation.models.altitude import altitude_model
@@ -138,7 +140,7 @@ def test_runs_begun_early_come_back_as_made_here_and_yield_the_busy_cores():
     got = Begun(niceness_and_square, range(4), 2).results()
     assert [sq for _, sq in got] == [0, 1, 4, 9]
     assert {n for n, _ in got} == {min(mine + NICENESS, 19)}
-    assert Begun(niceness_and_square, range(4), 1).results() == [(mine, x * x) for x in range(4)]
+    assert Begun(niceness_and_square, range(4), 0).results() == [(mine, x * x) for x in range(4)]
 
     def boom(x):
         if x == 2:
@@ -148,9 +150,29 @@ def test_runs_begun_early_come_back_as_made_here_and_yield_the_busy_cores():
     with pytest.raises(ValueError, match="item 2 is bad"):
         Begun(boom, range(4), 2).results()
     begun = Begun(lambda x: __import__("time").sleep(60), [1], 2)
-    ((proc, _),) = begun._running
+    ((proc, _, _),) = begun._running
     begun.close()
     assert not proc.is_alive() and proc.exitcode is not None
+
+
+@pytest.mark.parametrize("processes", [0, 2])
+def test_runs_forked_held_start_with_what_go_gives_them(processes):
+    """``Begun(held=True)``: forked now, each run made with the arguments :meth:`go` sends later,
+    as made here; collected before they were started is an error, not a hang; held ones let go of
+    are stopped, their processes gone."""
+    import os
+
+    parent = os.getpid()
+    begun = Begun(lambda scale, shift, x: (scale * x + shift, os.getpid() != parent), range(5), processes, held=True)
+    with pytest.raises(RuntimeError, match="before they were started"):
+        begun.results()
+    begun.go(10, 1)
+    assert begun.results() == [(10 * x + 1, processes > 0) for x in range(5)]
+    never = Begun(lambda x: x, range(3), 2, held=True)
+    procs = [proc for proc, _, _ in never._running]
+    assert len(procs) == 2 and all(proc.is_alive() for proc in procs)
+    never.close()
+    assert not any(proc.is_alive() for proc in procs)
 
 
 def test_a_trial_begun_beside_the_base_run_is_the_rankings_own(flight):
@@ -312,3 +334,43 @@ def test_two_workers_leave_each_sensor_out_exactly_as_one(flight):
     two = leave_one_out(su.model, after, su.prep, su.make, su.prep.measurements, workers=2)
     assert [x.as_dict() for x in two] == [x.as_dict() for x in one]
     assert {x.sensor for x in one} == {"baro", "range"} and all(x.n > 0 for x in one)
+
+
+def test_a_run_read_for_its_scores_is_the_full_run_without_its_covariances(flight):
+    """``run_model(scores_only=True)``, the leave-one-out runs' form: the same innovations, states and
+    likelihood as the full run, and of the covariances the last alone (where the run ended)."""
+    su, base = flight
+    full = run_model(su.model, su.prep, su.make)
+    lean = run_model(su.model, su.prep, su.make, scores_only=True)
+    assert lean.loglik == full.loglik and lean.sensors.keys() == full.sensors.keys()
+    for name, tr in full.sensors.items():
+        np.testing.assert_array_equal(lean.sensors[name].nu, tr.nu)
+    np.testing.assert_array_equal(lean.t, full.t)
+    np.testing.assert_array_equal(lean.x, full.x)
+    assert lean.P.shape == (1, su.model.n, su.model.n)
+    np.testing.assert_array_equal(lean.P[0], full.P[-1])
+    assert lean.final("z") == full.final("z")
+
+
+def test_the_model_befores_runs_forked_early_are_the_noise_matched_models_own(flight):
+    """The leave-one-out runs of the model before, forked before the noise is matched and started with
+    it (``LeftOutRuns.before``), score each sensor left out as a run of the matched model itself does,
+    and not as the declared model would."""
+    su, _ = flight
+    matched = with_noise(su.model, {s: 4.0 * r for s, r in sensor_noise(su.model).items()})
+    runs = LeftOutRuns(su.model, su.prep, su.make, None, 2)
+    try:
+        runs.before(matched)
+        runs.then(matched, su.prep.measurements)
+        got = runs.results()
+    finally:
+        runs.close()
+
+    def rms(model, name):
+        tr = run_model(without(model, name), su.prep, su.make).sensors[name]
+        nu = tr.nu[tr.t >= su.prep.t0 + LEFT_OUT_SETTLE_S]
+        return float(np.sqrt(np.mean(np.sum(nu * nu, axis=1))))
+
+    assert {x.sensor for x in got} == {"baro", "range"}
+    for x in got:
+        assert x.before == x.after == rms(matched, x.sensor) != rms(su.model, x.sensor)

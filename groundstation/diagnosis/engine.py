@@ -124,18 +124,26 @@ def diagnose(
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, stated=stated)
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
-    search = Search.begin(su, say=say, workers=workers, truth=truth if veto_with_truth else None)  # steps 1, 2
-    search.run()  # steps 3 to 5
-    _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
-    unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
-    against = _against_truth(search, truth, unobs)
-    found = _as_found(search)
-    left: LeftOutRuns | None = None
-    if search.model.f is None and search.model0.f is None:
-        say("predicting each absolute sensor from the others")
-        # begun on the cores the thrust curve, read beside the model meanwhile, leaves idle
-        left = LeftOutRuns(search.model0, found, su.prep, search.make, search.stream, truth, workers)
+    # each absolute sensor predicted by the others, forked now, while the heap holds little more than the log, and
+    # started with the model before as soon as it is known, on the cores the search leaves idle
+    left = LeftOutRuns(su.model, su.prep, su.spec.make, truth, workers) if su.model.f is None else None
     try:
+        search = Search.begin(
+            su,
+            say=say,
+            workers=workers,
+            truth=truth if veto_with_truth else None,
+            matched=left.before if left is not None else lambda _model: None,
+        )  # steps 1, 2
+        search.run()  # steps 3 to 5
+        _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
+        unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
+        against = _against_truth(search, truth, unobs)
+        found = _as_found(search)
+        if left is not None and search.model.f is None:
+            say("predicting each absolute sensor from the others")
+            # the model after's, begun on the cores the thrust curve, read beside the model meanwhile, leaves idle
+            left.then(found, search.stream)
         found_beside, unclaimed = _beside(search, model_name, unobs)
         left_out: list[LeftOut] = left.results() if left is not None else []
     finally:

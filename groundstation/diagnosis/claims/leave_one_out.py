@@ -21,12 +21,15 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.runs.run import Prepared, run_model
 from groundstation.diagnosis.scoring.background import Begun
+from groundstation.diagnosis.scoring.noise_match import sensor_noise, with_noise
+from groundstation.estimation.context import Zero
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
 
@@ -92,44 +95,71 @@ def absolute(model: LinearModel) -> list[str]:
 
 
 class LeftOutRuns:
-    """The runs of :func:`leave_one_out`, begun now (:class:`.Begun`: at a lower priority, on up to
-    ``workers`` processes, no more runs held at once than that) and collected by :meth:`results`: the
-    diagnosis reads the thrust curve beside the model meanwhile. The runs, two a sensor, are
-    independent; each gives back its numbers alone, the same on any number of ``workers``."""
+    """The runs of :func:`leave_one_out`, two a sensor, forked early and collected by :meth:`results`
+    (:class:`.Begun`: at a lower priority, each run read for its scores alone, ``run_model(scores_only=True)``).
+
+    Made with the model as declared, before the search's first run: the model before's runs are
+    forked then, held (``workers`` - 1 processes, the cores the search's one-at-a-time stretches leave
+    idle), while the diagnosis's heap holds little more than the log. :meth:`before` starts them with
+    the noise the log shows and the zeros the search holds (numbers alone cross to them); :meth:`then`
+    begins the model after's, on ``workers``, while the diagnosis reads the thrust curve beside the
+    model. Each gives back its numbers alone, the same on any number of ``workers``; with one, all are
+    made here when collected."""
 
     def __init__(
         self,
-        before: LinearModel,
-        after: LinearModel,
+        declared: LinearModel,
         prep: Prepared,
         make: Callable[[LinearModel], KalmanEstimator],
-        after_stream: Sequence[Measurement],
         truth=None,
         workers: int = 1,
     ) -> None:
-        names_before = absolute(before)
-        self._names = [name for name in absolute(after) if name in names_before]
-        self._truth = truth
-        t_from = prep.t0 + SETTLE_S
+        self._prep, self._make, self._truth, self._workers = prep, make, truth, workers
+        self._declared = declared
+        self._names_before = absolute(declared)
+        self._names: list[str] = []
+        self._before: Begun = Begun(
+            self._scored_before, self._names_before, workers - 1 if workers > 1 else 0, held=True
+        )
+        self._after: Begun | None = None
 
-        def scored(job: tuple[str, bool]) -> tuple[float, int, float]:
-            """(the left-out sensor's RMS innovation, its count, the height's RMSE against truth)."""
-            name, as_found = job
-            if as_found:
-                run = run_model(without(after, name), prep, make, measurements=after_stream)
-            else:
-                run = run_model(without(before, name), prep, make)
-            rms, n = _rms(run, name, t_from)
-            return rms, n, truth.error(run, prep.t0, prep.t1) if truth is not None else math.nan
+    def _scored(
+        self, model: LinearModel, prep: Prepared, stream: Sequence[Measurement] | None, name: str
+    ) -> tuple[float, int, float]:
+        """(the left-out sensor's RMS innovation, its count, the height's RMSE against truth)."""
+        run = run_model(without(model, name), prep, self._make, measurements=stream, scores_only=True)
+        rms, n = _rms(run, name, prep.t0 + SETTLE_S)
+        return rms, n, self._truth.error(run, prep.t0, prep.t1) if self._truth is not None else math.nan
 
-        self._runs = Begun(scored, [(name, as_found) for name in self._names for as_found in (False, True)], workers)
+    def _scored_before(self, noise: dict[str, float], zeros: dict[str, Zero], name: str) -> tuple[float, int, float]:
+        """The model before's: the declared model with ``noise``, over the log with ``zeros`` held."""
+        prep = dataclasses.replace(self._prep, zeros=zeros)
+        return self._scored(with_noise(self._declared, noise), prep, None, name)
+
+    def before(self, model0: LinearModel) -> None:
+        """The model before's runs started: ``model0`` is the declared model with each sensor's noise as
+        the log shows it (:func:`.noise_match.match_noise`), over the prepared log with its zeros held."""
+        self._before.go(sensor_noise(model0), dict(self._prep.zeros))
+
+    def then(self, after: LinearModel, after_stream: Sequence[Measurement]) -> None:
+        """The model after's runs begun (its readings ``after_stream``: its delays applied), each sensor the
+        model before has too."""
+        self._names = [name for name in absolute(after) if name in self._names_before]
+        self._after = Begun(
+            partial(self._scored, after, self._prep, after_stream),
+            self._names,
+            self._workers if self._workers > 1 else 0,
+        )
 
     def results(self) -> list[LeftOut]:
-        """Each sensor left out, before and after."""
-        runs = self._runs.results()
+        """Each sensor left out, before and after (none before :meth:`then`)."""
+        if self._after is None:
+            return []
+        after = self._after.results()
+        before = dict(zip(self._names_before, self._before.results()))
         out = []
-        for k, name in enumerate(self._names):
-            (b, n, eb), (a, _, ea) = runs[2 * k], runs[2 * k + 1]
+        for name, (a, _, ea) in zip(self._names, after):
+            b, n, eb = before[name]
             if not n:
                 continue
             both = self._truth is not None and math.isfinite(eb) and math.isfinite(ea)
@@ -138,7 +168,9 @@ class LeftOutRuns:
 
     def close(self) -> None:
         """Stop the runs still going (the diagnosis ended otherwise)."""
-        self._runs.close()
+        self._before.close()
+        if self._after is not None:
+            self._after.close()
 
 
 def leave_one_out(
@@ -152,8 +184,10 @@ def leave_one_out(
 ) -> list[LeftOut]:
     """Each absolute sensor both models have, left out of each (the after model's readings: its
     delays applied, ``after_stream``), on up to ``workers`` processes."""
-    runs = LeftOutRuns(before, after, prep, make, after_stream, truth, workers)
+    runs = LeftOutRuns(before, prep, make, truth, workers)
     try:
+        runs.before(before)
+        runs.then(after, after_stream)
         return runs.results()
     finally:
         runs.close()

@@ -104,9 +104,19 @@ class Search:
         return self.columns.probes() if self.columns is not None else None
 
     @classmethod
-    def begin(cls, su: Setup, *, say: Callable[[str], None], workers: int, truth: Truth | None) -> Search:
+    def begin(
+        cls,
+        su: Setup,
+        *,
+        say: Callable[[str], None],
+        workers: int,
+        truth: Truth | None,
+        matched: Callable[[LinearModel], object] = lambda _model: None,
+    ) -> Search:
         """Steps 1 and 2: each sensor's noise matched to the log, the absolute sensors' zeros held, the
-        model run (before); with cores to spare the first ranking's own trials begun beside it."""
+        model run (before); with cores to spare the first ranking's own trials begun beside it.
+        ``matched`` is given the model with its noise matched as soon as it is known, before anything
+        else is made (what it forks holds the log alone)."""
         prep, make, model = su.prep, su.spec.make, su.model
         cands = [
             c
@@ -119,11 +129,12 @@ class Search:
         columns = CatalogueColumns.of(cands, model) if model.f is None and not trials.BY_RUNS else None
         probes = columns.probes if columns is not None else lambda: None
         say("matching the sensors' noise to the log")
-        model, noise, matched = _noise_matched(model, prep, make, probes())
+        model, noise, matched_run = _noise_matched(model, prep, make, probes())
+        matched(model)
         started = start_trials(cands, model, prep, make, columns, workers)
         try:
             say("running the model (before)")
-            base = matched if matched is not None else run_model(model, prep, make, probes=probes())
+            base = matched_run if matched_run is not None else run_model(model, prep, make, probes=probes())
             # before: the model as the log's noise has it, the GPS's slow error included; the effects are
             # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
             _, _, first = match_gps_slow(model, prep, make, base=base)

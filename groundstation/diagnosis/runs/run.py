@@ -299,10 +299,14 @@ def run_model(
     score_from: float = SETTLE_S,
     taped: bool = False,
     probes: Probes | None = None,
+    scores_only: bool = False,
 ) -> Run:
     """The model over the prepared log; the likelihood scored from ``score_from`` s in. ``taped``:
     with its gains recorded (:class:`.Run`'s ``tape``); ``probes``: regressors evaluated at each
-    update of their sensor (:mod:`.signature`)."""
+    update of their sensor (:mod:`.signature`). ``scores_only``: the innovations and the state after
+    each update, without the covariances (the run's :attr:`.Run.P` holds the last one alone) or the
+    signals beside the innovations: a run read for its scores, at a fraction of the memory (a 1-hour
+    log's covariances are 0.1 GB a run)."""
     est = make_estimator(model)
     if prep.zeros:
         est.filter.ctx.zeros = dict(prep.zeros)
@@ -316,13 +320,15 @@ def run_model(
     ts, xs, Ps, x_record = array("d"), array("d"), array("d"), array("q")
     # each signal as doubles as it comes (not a float object a value: a long log's run holds millions)
     sig: dict[str, dict[str, array[float]]] = {}
+    f = est.filter
     for m in ms:
         rec = est.handle(m, checked=True)  # prepare() checked every reading
         if rec is None:
             continue
-        f = est.filter
         ts.append(rec.t)
         xs.extend(f.kf.x.tolist())
+        if scores_only:
+            continue
         Ps.extend(f.kf.P.ravel().tolist())
         if taped:
             x_record.append(len(f.log) - 1)
@@ -335,6 +341,8 @@ def run_model(
         for k in SIGNALS:
             value = getattr(ctx, k)
             d[k].append(math.nan if value is None else value)
+    if scores_only and len(ts):
+        Ps.extend(f.kf.P.ravel().tolist())  # the last one alone: where the run ended
     log = est.filter.log
     sensors, ll_by, inflation, n_sc = _traces(log, sig, prep.t0 + score_from)
     n = model.n

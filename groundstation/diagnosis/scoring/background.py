@@ -6,14 +6,21 @@ left out of the model, :mod:`~groundstation.diagnosis.claims.leave_one_out`) can
 :class:`Begun` forks processes for them at a lower priority (``os.nice``), so that they take a core
 the diagnosis leaves idle and yield to the diagnosis on a busy one. Collected, each is the same run,
 number for number, as it is made here with one worker.
+
+A forked process holds every page its parent had at the fork, for as long as it lives: the parent's
+pages it later frees or rewrites are then the child's alone, and count twice. A process forked
+late in a diagnosis, from a heap of runs and rankings, costs that much memory. So :class:`Begun` can
+fork *held*: early, while the heap holds little more than the log, with the runs' last few inputs
+(a handful of numbers) sent when they are known (:meth:`Begun.go`).
 """
 
 from __future__ import annotations
 
+import gc
 import multiprocessing
 import os
 from collections.abc import Callable, Iterable
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 from threadpoolctl import threadpool_limits
 
@@ -26,38 +33,61 @@ NICENESS = 10
 
 
 class Begun(Generic[T, R]):
-    """``[fn(x) for x in items]``, begun now and collected by :meth:`results`.
+    """``[fn(*args, x) for x in items]``, begun now (or, ``held``, when :meth:`go` gives ``args``) and
+    collected by :meth:`results`.
 
-    With ``workers`` > 1, up to ``workers`` forked processes at :data:`NICENESS`, each making its share
-    of the items one after another (so that no more runs are held at once than ``workers``, as
-    :func:`.trials.fork_map` holds them); the processes inherit ``fn``, a closure over the log and the
-    model (no pickle carries those), and the results must pickle. With one worker nothing runs until
-    :meth:`results`, which then makes them here, in order. An error in a process reaches
-    :meth:`results` as itself; :meth:`close` stops what still runs.
+    Up to ``processes`` forked processes at :data:`NICENESS`, each making its share of the items one
+    after another (so that no more runs are held at once than that, as :func:`.trials.fork_map` holds
+    them); the processes inherit ``fn``, a closure over the log and the model (no pickle carries
+    those); ``args`` and the results must pickle. With none, nothing runs until :meth:`results`, which
+    then makes them here, in order. An error in a process reaches :meth:`results` as itself;
+    :meth:`close` stops what still runs (a held process too).
     """
 
-    def __init__(self, fn: Callable[[T], R], items: Iterable[T], workers: int) -> None:
-        self._fn: Callable[[T], R] = fn
+    def __init__(self, fn: Callable[..., R], items: Iterable[T], processes: int, *, held: bool = False) -> None:
+        self._fn: Callable[..., R] = fn
         self._items: list[T] = list(items)
-        self._running: list[tuple] = []  # (process, its pipe's reading end), a share each
-        if workers <= 1 or not self._items:
+        self._args: tuple | None = None if held else ()
+        self._running: list[tuple[Any, Any, Any]] = []  # (process, its results' pipe, its go pipe), a share each
+        if processes < 1 or not self._items:
             return
-        n = min(workers, len(self._items))
+        n = min(processes, len(self._items))
         ctx = multiprocessing.get_context("fork")
-        # one BLAS thread in the children, as trials.fork_map (OpenBLAS's pool does not survive a fork)
-        with threadpool_limits(limits=1, user_api="blas"):
-            for k in range(n):
-                recv, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=self._work, args=(self._items[k::n], send), daemon=True)
-                proc.start()
-                send.close()
-                self._running.append((proc, recv))
+        # one BLAS thread in the children, as trials.fork_map (OpenBLAS's pool does not survive a fork);
+        # the objects there are now out of the children's garbage collection, which would otherwise
+        # write to (and so copy) every page of the parent's they hold
+        gc.freeze()
+        try:
+            with threadpool_limits(limits=1, user_api="blas"):
+                for k in range(n):
+                    recv, send = ctx.Pipe(duplex=False)
+                    go_recv, go_send = ctx.Pipe(duplex=False) if held else (None, None)
+                    proc = ctx.Process(target=self._work, args=(self._items[k::n], send, go_recv), daemon=True)
+                    proc.start()
+                    send.close()
+                    if go_recv is not None:
+                        go_recv.close()
+                    self._running.append((proc, recv, go_send))
+        finally:
+            gc.unfreeze()
 
-    def _work(self, share: list[T], send) -> None:
+    def go(self, *args: Any) -> None:
+        """A held one's runs started, each ``fn(*args, x)``."""
+        if self._args is not None:
+            raise RuntimeError("these runs were started already")
+        self._args = args
+        for _, _, go in self._running:
+            go.send(args)
+            go.close()
+
+    def _work(self, share: list[T], send, go) -> None:
         """In the child: at a lower priority, its share's results sent back (or the error that stopped it)."""
         os.nice(NICENESS)
         try:
-            out: object = [self._fn(x) for x in share]
+            args = go.recv() if go is not None else ()
+            out: object = [self._fn(*args, x) for x in share]
+        except EOFError:
+            return  # held, and never started: the parent let go of the runs
         except BaseException as e:  # noqa: BLE001 -- carried to the parent, raised there
             out = e
         send.send(out)
@@ -65,13 +95,15 @@ class Begun(Generic[T, R]):
 
     def results(self) -> list[R]:
         """Each item's result, in order (waiting for those still running)."""
+        if self._args is None:
+            raise RuntimeError("held runs collected before they were started (Begun.go)")
         if not self._running:
-            return [self._fn(x) for x in self._items]
+            return [self._fn(*self._args, x) for x in self._items]
         n = len(self._running)
         out: list = [None] * len(self._items)
         try:
             for k in range(n):
-                proc, recv = self._running[0]
+                proc, recv, _ = self._running[0]
                 try:
                     got = recv.recv()
                 except EOFError:
@@ -90,8 +122,10 @@ class Begun(Generic[T, R]):
     def close(self) -> None:
         """Stop whatever still runs (its results no longer wanted, or an error came first)."""
         while self._running:
-            proc, recv = self._running.pop()
+            proc, recv, go = self._running.pop()
             if proc.is_alive():
                 proc.terminate()
             proc.join()
             recv.close()
+            if go is not None:
+                go.close()

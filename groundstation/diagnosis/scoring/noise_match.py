@@ -113,6 +113,18 @@ def sensor_r(model: LinearModel, sensor: str) -> float | None:
     return float(np.atleast_2d(mm.R)[0, 0]) if mm is not None else None
 
 
+def sensor_noise(model: LinearModel) -> dict[str, float]:
+    """Each matched sensor's R in ``model`` (:data:`MATCHED`): all that :func:`match_noise` changes."""
+    return {s: r for s in MATCHED if (r := sensor_r(model, s)) is not None}
+
+
+def with_noise(model: LinearModel, noise: dict[str, float]) -> LinearModel:
+    """``model`` with each sensor's R from ``noise`` (:func:`sensor_noise`'s)."""
+    for s, r in noise.items():
+        model = with_r(model, s, r)
+    return model
+
+
 #: [m] the GPS error's slow part (its Gauss-Markov sigma) is chosen from these by the likelihood
 GPS_SLOW = (0.03, 0.1, 0.3, 1.0)
 #: [m] a single-frequency receiver's vertical wander, as a model without the log would set it: what
@@ -166,7 +178,7 @@ def match_noise(
     when the last iteration changed nothing (that run is the model's own; else None). ``probes``:
     the runs are taped with them, so that run can start a ranking; ``first``: the model's run
     already made (the first iteration's)."""
-    original = {s: r for s in MATCHED if (r := sensor_r(model, s)) is not None}
+    original = sensor_noise(model)
     if not original:
         return model, [], first
     pairs: dict[str, int] = {}
