@@ -337,8 +337,9 @@ def test_two_workers_leave_each_sensor_out_exactly_as_one(flight):
 
 
 def test_a_run_read_for_its_scores_is_the_full_run_without_its_covariances(flight):
-    """``run_model(scores_only=True)``, the leave-one-out runs' form: the same innovations, states and
-    likelihood as the full run, and of the covariances the last alone (where the run ended)."""
+    """``run_model(scores_only=True)``, the leave-one-out runs' and a linear model's trials' form: the
+    same innovations, states and likelihood as the full run, and of the covariances the last alone
+    (where the run ended); asked for more, it says so."""
     su, base = flight
     full = run_model(su.model, su.prep, su.make)
     lean = run_model(su.model, su.prep, su.make, scores_only=True)
@@ -347,9 +348,11 @@ def test_a_run_read_for_its_scores_is_the_full_run_without_its_covariances(fligh
         np.testing.assert_array_equal(lean.sensors[name].nu, tr.nu)
     np.testing.assert_array_equal(lean.t, full.t)
     np.testing.assert_array_equal(lean.x, full.x)
-    assert lean.P.shape == (1, su.model.n, su.model.n)
-    np.testing.assert_array_equal(lean.P[0], full.P[-1])
+    np.testing.assert_array_equal(lean.P_rows(slice(-1, None)), full.P[-1:])
     assert lean.final("z") == full.final("z")
+    for asked in (lambda: lean.P, lambda: lean.P_rows(slice(0, 10))):
+        with pytest.raises(ValueError, match="last covariance alone"):
+            asked()
 
 
 def test_the_model_befores_runs_forked_early_are_the_noise_matched_models_own(flight):

@@ -246,16 +246,24 @@ class Run:
     taped: Taped | None = None
     #: the two-stage filter's account of an augmented model's run (gains.virtual_run), not a run of it
     through_gains: bool = False
+    #: read for its scores alone (``run_model(scores_only=True)``): its covariance the last alone, no signals
+    scores_only: bool = False
 
     @property
     def P(self) -> np.ndarray:
         """The covariance after each update (computed now if it was left for later, and kept)."""
+        if self.scores_only:
+            raise ValueError("a run read for its scores holds its last covariance alone (Run.final)")
         if callable(self.covariance):
             self.covariance = self.covariance(slice(None))
         return self.covariance
 
     def P_rows(self, k: slice) -> np.ndarray:
         """Rows ``k`` of :attr:`P`, without computing the others."""
+        if self.scores_only:
+            if k != slice(-1, None):
+                raise ValueError("a run read for its scores holds its last covariance alone (Run.final)")
+            return np.asarray(self.covariance)
         return self.covariance(k) if callable(self.covariance) else self.covariance[k]
 
     def final(self, state: str) -> tuple[float, float]:
@@ -264,7 +272,8 @@ class Run:
 
     def __getstate__(self) -> dict:
         """Pickled with :attr:`P` computed (a function of arrays held elsewhere does not cross processes)."""
-        _ = self.P
+        if callable(self.covariance):
+            _ = self.P
         return self.__dict__
 
 
@@ -370,6 +379,7 @@ def run_model(
         ll_by,
         inflation,
         recorded,
+        scores_only=scores_only,
     )
 
 

@@ -231,7 +231,10 @@ def rank(
             cands, model, base, prep, ms, sig, columns, best, read_off, t_score, exact_gains
         )
     if to_run:
-        out += _by_runs(to_run, shaped, model, base, prep, make, ms, progress, workers, started, t_score)
+        # with columns, the effect added is run again with their probes (search.Search._take): its trials are read
+        # for their scores alone
+        scores_only = columns is not None
+        out += _by_runs(to_run, shaped, model, base, prep, make, ms, progress, workers, started, t_score, scores_only)
     out.sort(key=lambda p: p[0])
     ranked = [s for _, s in out]
     ranked.sort(key=lambda s: s.delta_bic)
@@ -323,11 +326,13 @@ def _by_runs(
     workers: int,
     started: trials.Started | None,
     t_score: float,
+    scores_only: bool,
 ) -> list[tuple[int, Scored]]:
     """The candidates scored by their own runs, on ``workers`` processes (:mod:`.trials`), those
-    begun beside the base run (``started``) taken as made."""
+    begun beside the base run (``started``) taken as made; ``scores_only``: runs without covariances or signals
+    (:func:`.trials.trial`)."""
     out: list[tuple[int, Scored]] = []
-    made = Trials([c for _, c in to_run], model, prep, make, ms, workers=workers, base=base)
+    made = Trials([c for _, c in to_run], model, prep, make, ms, workers=workers, base=base, scores_only=scores_only)
     if started is not None:
         begun = started.take([c for _, c in to_run])
         for j, (_, c) in enumerate(to_run):

@@ -74,19 +74,23 @@ def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearMod
     return cand.augment(model) if key is None else cand.augment(model, key)
 
 
-def trial(cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms) -> Run | None:
+def trial(
+    cand: Candidate, key: Hashable, model: LinearModel, prep: Prepared, make, ms, scores_only: bool = False
+) -> Run | None:
     """One trial's run; None when the augmented filter ran away (its innovation covariance went
     singular): not a finding, and not the end of the diagnosis. Not taped: of a ranking's dozen
     trials only an added effect's run starts the next ranking, and it is taped then (the same run,
-    number for number: the tape only records); a trial's gains and probes are some 40 MB on a 1-hour log."""
+    number for number: the tape only records); a trial's gains and probes are some 40 MB on a 1-hour log.
+    ``scores_only``: without its covariances and signals as well (``run_model``'s), where the added
+    effect's run is made again with the probes (a linear model's: ``search.Search._take``)."""
     if key == SIGNATURE:
         assert cand.perturb is not None
-        return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE))
+        return run_model(model, prep, make, measurements=cand.perturb(ms, SIGNATURE_SIZE), scores_only=scores_only)
     if cand.delays:
         d = float(key)  # type: ignore[arg-type]
-        return run_model(model, prep, make, measurements=delayed(cand, ms, d))
+        return run_model(model, prep, make, measurements=delayed(cand, ms, d), scores_only=scores_only)
     try:
-        return run_model(trial_model(cand, key, model), prep, make, measurements=ms)
+        return run_model(trial_model(cand, key, model), prep, make, measurements=ms, scores_only=scores_only)
     except np.linalg.LinAlgError:
         return None
 
@@ -289,9 +293,11 @@ class Trials:
         *,
         workers: int = 1,
         base: Run | None = None,
+        scores_only: bool = False,
     ) -> None:
         self.cands, self.model, self.prep, self.make, self.ms = cands, model, prep, make, ms
         self.workers = max(1, workers)
+        self.scores_only = scores_only  #: the trials run for their scores alone (:func:`trial`)
         self.base = base
         self.runs: list[dict[Hashable, Run | None]] = [
             {0.0: base} if base is not None and 0.0 in c.delays else {} for c in cands
@@ -309,7 +315,7 @@ class Trials:
         """Candidate ``i``'s run at ``key``: computed once, here when no pool computed it before."""
         runs = self.runs[i]
         if key not in runs:
-            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms)
+            runs[key] = trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.scores_only)
             self._ended_below_best(i)
         return runs[key]
 
@@ -352,7 +358,7 @@ class Trials:
 
     def _portable_trial(self, task: tuple[int, Hashable]) -> Run | None:
         i, key = task
-        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms))
+        return portable(trial(self.cands[i], key, self.model, self.prep, self.make, self.ms, self.scores_only))
 
     def _portable_refinement(self, grid: tuple[int, dict[float, float]]) -> dict[float, Run | None]:
         i, lik = grid
@@ -391,7 +397,8 @@ class Started:
         ms: Sequence[Measurement],
     ) -> None:
         self._tasks = tasks
-        self._trials = Trials([c for c, _ in tasks], model, prep, make, ms)
+        # begun only beside a linear model's base run, whose added effect is run again with the probes
+        self._trials = Trials([c for c, _ in tasks], model, prep, make, ms, scores_only=True)
         self._running: dict[int, tuple] = {}  # task -> (process, its pipe's reading end)
         ctx = multiprocessing.get_context("fork")
         with threadpool_limits(limits=1, user_api="blas"):  # as fork_map: one BLAS thread in the children
