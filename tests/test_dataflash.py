@@ -10,7 +10,7 @@ import pytest
 from drivers.logs.dataflash import DataFlashError, read_dataflash
 from groundstation.core.measurement import Kind
 
-from .conftest import real_file
+from .conftest import foreign2_file, real_file
 
 DURATIONS = {
     "ardupilot_loganalyzer_underpowered.log": 430.1,
@@ -240,3 +240,60 @@ def test_a_simulated_flight_as_the_vehicles_own_dataflash_log_diagnoses_as_its_t
         assert -40.0 < scale.value < -30.0 and "lags the throttle by 0.4" in scale.why  # (the simulator's 0.5 s)
     assert found[".bin"] == found[".tlog"] and found[".bin"][0][0] == "baro_thrust", found
     assert found[".bin"][0][1] == pytest.approx(3.0, abs=0.2)
+
+
+def _same_reading(fast, slow) -> None:
+    """``read_dataflash(imu_columns=True)`` against the record-by-record read split as ``load_log`` split it:
+    the same readings, IMU columns, counts, clock, duration and tables, number for number."""
+    from groundstation.core.imu import ImuColumns
+    from groundstation.core.readings import Readings
+
+    rest, imu = ImuColumns.split(slow.measurements)
+    a, b = list(Readings.of(fast.measurements)), list(Readings.of(rest))
+    assert [(m.t, m.kind, m.instance, m.t_rx, m.source) for m in a] == [
+        (m.t, m.kind, m.instance, m.t_rx, m.source) for m in b
+    ]
+    assert all(np.array_equal(x.value, y.value, equal_nan=True) for x, y in zip(a, b))
+    assert fast.imu.series.keys() == imu.series.keys()
+    for key, s in imu.series.items():
+        g = fast.imu.series[key]
+        for got, want in ((g.t, s.t), (g.t_rx, s.t_rx), (g.value, s.value), (g.samples, s.samples)):
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert (fast.counts, fast.skipped, fast.clock, fast.duration) == (
+        slow.counts,
+        slow.skipped,
+        slow.clock,
+        slow.duration,
+    )
+    assert fast.tables.tables.keys() == slow.tables.tables.keys() and fast.tables.params == slow.tables.params
+    for name, want in slow.tables.tables.items():
+        got = fast.tables.tables[name]
+        assert np.array_equal(got.t, want.t) and list(got.cols) == list(want.cols)
+        for c, col in want.cols.items():
+            assert col.dtype == object or np.array_equal(got.cols[c], col, equal_nan=True)
+            assert col.dtype != object or got.cols[c].tolist() == col.tolist()
+
+
+def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record(tmp_path):
+    """A 1 kHz IMU is most of a log's records: read as arrays per record type (``imu_columns``) it
+    gives what DFReader's records of it give, on a simulated vehicle's own log and on each foreign
+    and real binary log the fast read takes; a log it cannot take so (the IMU on a TimeMS clock,
+    records without a time of their own, damage) is read record by record, as before."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    log = tmp_path / "sim.bin"
+    run_fast(Scenario.from_args("quad", 5, 20.0, ["range_tilt"], []), log)
+    fast = read_dataflash(log, imu_columns=True)
+    assert fast.imu is not None and len(fast.imu) == 2 * fast.counts["IMU"] > 10_000
+    _same_reading(fast, read_dataflash(log))
+    for rel in ("clean_s1.bin", "range_tilt_s1.bin"):
+        p = foreign2_file(rel)
+        fast = read_dataflash(p, imu_columns=True)
+        assert fast.imu is not None
+        _same_reading(fast, read_dataflash(p))
+    for rel in (
+        "ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin",
+        "ardupilot_dataflash/pyflightcoach_pilot_0004.BIN",
+    ):
+        assert read_dataflash(real_file(rel), imu_columns=True).imu is None  # TimeMS; FILE records, a cut end

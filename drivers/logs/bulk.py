@@ -281,7 +281,7 @@ class DataFlashWalk:
 
     length: dict[int, int]  # record length per type id (header included)
     fmts: dict[int, tuple[str, str, list[str]]]  # type id -> (name, format, columns)
-    offsets: dict[int, array]  # type id -> record offsets (8 bytes each, not a Python int's 32)
+    offsets: dict[int, array]  # type id -> record offsets (8 bytes each, not a Python int's 32), the FMT's too
     skipped: list[tuple[int, int]]  # (offset, bytes) of bad headers resynced over
     truncated_at: int | None  # offset of an incomplete last record
 
@@ -349,11 +349,10 @@ def walk_dataflash(data: bytes) -> DataFlashWalk:
             if t2 != _FMT_TYPE and fmt_length_ok(l2, fmt):
                 length[t2] = l2
                 fmts[t2] = (name, fmt, cols)
-        else:
-            lst = offsets.get(typ)
-            if lst is None:
-                lst = offsets[typ] = array("q")
-            lst.append(pos)
+        lst = offsets.get(typ)
+        if lst is None:
+            lst = offsets[typ] = array("q")
+        lst.append(pos)
         pos += L
     else:
         if pos < n:

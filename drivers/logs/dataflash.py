@@ -52,15 +52,17 @@ from pathlib import Path
 import numpy as np
 from pymavlink import DFReader
 
+from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
-from .bulk import fmt_length_ok, walk_dataflash
+from .bulk import DataFlashWalk, fmt_length_ok, struct_dtype, walk_dataflash
 from .dataflash_text import TextReader
 from .quiet import quiet
 from .scratch import scratch_copy
 from .tables import FIRMWARE, LogTables, Table
 
 CONTROL_RATE = 10.0  # CTUN's rate in logs without a clock [Hz]
+_FMT_RECORD = 128  # the FMT record's own type id
 
 #: ArduCopter 3.0-3.1's SONAR_TYPE: (min, max) [cm] of its MaxBotix driver
 #: (libraries/AP_RangeFinder/AP_RangeFinder_MaxsonarXL.h: XL-EZ0, LV-EZ0, XL-EZL0; HRLV-EZ4)
@@ -92,15 +94,27 @@ class DataFlashLog:
     range_limits: tuple[float, float] | None = None  # [m], from the log's parameters, if it has them
     #: every record type as columns on the measurements' clock, and the parameters (for triage)
     tables: LogTables = field(default_factory=LogTables)
+    #: with ``imu_columns``, where the log allows (:func:`read_dataflash`): the IMU records' readings as
+    #: columns, not among :attr:`measurements`
+    imu: ImuColumns | None = None
 
     @property
     def duration(self) -> float:
-        return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
+        ts = [t for t in (self.measurements[0].t, self.measurements[-1].t)] if self.measurements else []
+        for series in self.imu.series.values() if self.imu is not None else ():
+            if len(series):
+                ts += [float(series.t[0]), float(series.t[-1])]
+        return max(ts) - min(ts) if ts else 0.0
 
 
-def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = True) -> DataFlashLog:
+def read_dataflash(
+    path: str | Path, source: str = "df/1.1", *, tables: bool = True, imu_columns: bool = False
+) -> DataFlashLog:
     """The log's measurements and, with ``tables``, every record as columns (:attr:`DataFlashLog.tables`;
-    a third of the reading time, which a caller of the measurements alone does not pay)."""
+    a third of the reading time, which a caller of the measurements alone does not pay). ``imu_columns``:
+    the IMU records' readings as columns (:attr:`DataFlashLog.imu`) where the log allows
+    (:func:`_imu_records`), read as arrays, not through DFReader a record at a time: they are most of
+    a log's records, and most of its reading time."""
     p = Path(path)
     if not p.exists():
         raise DataFlashError(f"{p}: cannot read: no such file")
@@ -108,7 +122,8 @@ def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = T
         raise DataFlashError(f"{p}: not a DataFlash log (no FMT record in the first 4096 bytes)")
     data = p.read_bytes()
     binary = data[:2] == b"\xa3\x95"
-    damage = walk_dataflash(data).damage(p) if binary else ""
+    walk = walk_dataflash(data) if binary else None
+    damage = walk.damage(p) if walk is not None else ""
     cleaned = None
     if binary:
         clean_bin, bad_fmts = clean_binary_formats(data)
@@ -123,11 +138,15 @@ def read_dataflash(path: str | Path, source: str = "df/1.1", *, tables: bool = T
             damage = f"{p}: {dropped} damaged line(s) skipped"
             cleaned = clean
     banner = "" if binary else _text_banner(data)
-    del data  # DFReader maps the file itself
+    imu = None
+    if imu_columns and walk is not None and cleaned is None and not damage:
+        with contextlib.suppress(ValueError, KeyError, TypeError):  # formats it cannot view: record by record
+            imu = _imu_records(data, walk, source, tables)
+    del data, walk  # DFReader maps the file itself
     with contextlib.ExitStack() as stack:
         read_from = p if cleaned is None else stack.enter_context(scratch_copy(cleaned, ".bin" if binary else ".log"))
         del cleaned
-        log = _read(p, read_from, binary, damage, source, tables)
+        log = _read(p, read_from, binary, damage, source, tables, imu)
     log.tables.firmware = _firmware(log.tables) or banner
     return log
 
@@ -212,11 +231,14 @@ def _fields_read(fmt: str, values: list[str]) -> bool:
     return True
 
 
-def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tables: bool) -> DataFlashLog:
+def _read(
+    p: Path, read_from: Path, binary: bool, damage: str, source: str, tables: bool, imu: _ImuRecords | None = None
+) -> DataFlashLog:
     """One pass over DFReader's messages, each converted and tabled as it comes and let go: held as
     a list, a 10 MB log of tiny records took 1.6 GB. What the conversion needs to know of the whole
     log first (its parameters, which sensors it has, whether its records carry a clock) comes from
-    DFReader's own index and formats and a pass over the PARM records alone."""
+    DFReader's own index and formats and a pass over the PARM records alone. With ``imu``, the IMU
+    records read already: DFReader is taken to every other record, and passes over those."""
     # DFReader (and its compiled indexer, at the file-descriptor level) prints a
     # line per bad byte while it resyncs; the walk above has already located the
     # damage, so that chatter is dropped.
@@ -242,7 +264,13 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
         offset: float | None = None
         first_stamp: float | None = None
         out = log.measurements
+        others = iter(imu.others.tolist()) if imu is not None else None
         while True:
+            if others is not None:
+                at = next(others, None)
+                if at is None:
+                    break
+                r.offset = at  # the next record not read already (DFReader's own cursor, as its skip_to_type sets it)
             try:
                 m = r.recv_msg()
             except Exception as e:  # damage after this point: keep what came before
@@ -288,7 +316,78 @@ def _read(p: Path, read_from: Path, binary: bool, damage: str, source: str, tabl
                 log.skipped["damaged_record"] += 1
     out.sort(key=lambda x: x.t)
     log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
+    if imu is not None:
+        log.imu = imu.columns
+        log.counts.update(imu.counts)
+        log.tables.tables.update(imu.tables)
     return log
+
+
+#: the records :func:`_convert` reads the IMU from, and the format characters their fast read takes:
+#: numbers DFReader gives as they are stored (no multiplier, no text)
+_IMU_RECORDS = ("IMU", "IMU2")
+_PLAIN_NUMBERS = set("bBhHiIqQfd")
+
+
+@dataclass
+class _ImuRecords:
+    """A binary log's IMU records read as arrays (:func:`_imu_records`)."""
+
+    columns: ImuColumns
+    tables: dict[str, Table]
+    counts: Counter
+    others: np.ndarray  #: every other record's offset, in the file's order
+
+
+def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) -> _ImuRecords | None:
+    """The IMU records' readings as columns, the same numbers, times and order as :func:`_convert`'s
+    records of them (``ImuColumns.split``) and the same tables, read per record type as arrays.
+    None where the log does not allow it: every record but the formats' own must carry ``TimeUS``
+    (a record's time is then its own, whatever DFReader reads before it: see :func:`_read`), and the
+    IMU's fields must be plain numbers (:data:`_PLAIN_NUMBERS`)."""
+    u8 = np.frombuffer(data, dtype=np.uint8)
+    imu_types: dict[int, str] = {}
+    for typ, (name, fmt, cols) in walk.fmts.items():
+        if typ not in walk.offsets or not len(walk.offsets[typ]):
+            continue
+        if "TimeUS" not in cols and name not in ("FMT", "FMTU", "UNIT", "MULT"):
+            return None
+        if name in _IMU_RECORDS:
+            plain = set(fmt) <= _PLAIN_NUMBERS and len(fmt) == len(cols) == len(set(cols))
+            if not plain or not {"AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"} <= set(cols):
+                return None
+            imu_types[typ] = name
+    if not imu_types or any(typ not in walk.fmts for typ in walk.offsets if typ != _FMT_RECORD):
+        return None
+    growing: dict[tuple[Kind, int], list] = {}
+    out_tables: dict[str, Table] = {}
+    counts: Counter = Counter()
+    for typ, name in imu_types.items():
+        _, fmt, cols = walk.fmts[typ]
+        offs = np.frombuffer(walk.offsets[typ], dtype=np.int64)
+        width = walk.length[typ] - 3
+        rows = np.lib.stride_tricks.sliding_window_view(u8, width)[offs + 3]
+        f = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=struct_dtype("".join(fmt), cols))
+        t = f["TimeUS"].astype(np.float64) * 1e-6
+        inst = f["I"].astype(np.int64) if "I" in cols else np.full(len(f), 1 if name == "IMU2" else 0)
+        counts[name] += len(f)
+        if tables:
+            out_tables[name] = Table(t, {c: f[c].astype(np.float64) for c in cols})
+        for k in np.unique(inst).tolist():
+            mine = inst == k
+            for kind, axes in ((Kind.ACCEL, ("AccX", "AccY", "AccZ")), (Kind.GYRO, ("GyrX", "GyrY", "GyrZ"))):
+                v = np.stack([f[a][mine].astype(np.float64) for a in axes], axis=1)
+                growing.setdefault((kind, int(k)), []).append((t[mine], v))
+    series = {}
+    for key, parts in growing.items():
+        t = np.concatenate([p[0] for p in parts])
+        v = np.concatenate([p[1] for p in parts])
+        order = np.argsort(t, kind="stable")
+        series[key] = ImuSeries(source, t[order], t[order], v[order], np.ones(len(t), dtype=np.int32))
+    others = np.sort(
+        np.concatenate([np.frombuffer(o, dtype=np.int64) for typ, o in walk.offsets.items() if typ not in imu_types])
+    )
+    return _ImuRecords(ImuColumns(series), out_tables, counts, others)
 
 
 def _text_reader(path: Path):

@@ -71,12 +71,15 @@ def load_log(path: Path, *, tables: bool | tuple[str, ...] = True, imu_columns: 
         )
         return LoadedLog(ms, desc + _reader_skipped(log.skipped), "crazyflie", LogTables(fmt="crazyflie"), imu)
     if is_dataflash(path):
-        df = read_dataflash(path, tables=bool(tables))
+        df = read_dataflash(path, tables=bool(tables), imu_columns=imu_columns)
+        n = len(df.measurements) + (len(df.imu) if df.imu is not None else 0)
         desc = (
-            f"ArduPilot DataFlash log, {df.duration:.1f} s, {len(df.measurements)} measurements (clock: {df.clock})"
+            f"ArduPilot DataFlash log, {df.duration:.1f} s, {n} measurements (clock: {df.clock})"
             + (f"; {df.damage}" if df.damage else "")
             + _reader_skipped(df.skipped)
         )
+        if df.imu is not None:  # read as columns already
+            return LoadedLog(Readings.of(df.measurements), desc, None, df.tables, df.imu)
         ms, imu = split(df.measurements)
         return LoadedLog(ms, desc, None, df.tables, imu)
     if is_ulog(path):
