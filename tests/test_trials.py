@@ -20,7 +20,7 @@ from groundstation.diagnosis.runs.run import run_model
 from groundstation.diagnosis.scoring import holdout, trials
 from groundstation.diagnosis.scoring.background import NICENESS, Begun
 from groundstation.diagnosis.scoring.gains import CatalogueColumns
-from groundstation.diagnosis.scoring.noise_match import sensor_noise, with_noise
+from groundstation.diagnosis.scoring.noise_match import GpsSlowBefore, match_gps_slow, sensor_noise, with_noise
 from groundstation.diagnosis.scoring.trace import rank
 from groundstation.diagnosis.scoring.trials import fork_map, log_profile
 from groundstation.estimation.models.altitude import altitude_model
@@ -377,3 +377,29 @@ def test_the_model_befores_runs_forked_early_are_the_noise_matched_models_own(fl
     assert {x.sensor for x in got} == {"baro", "range"}
     for x in got:
         assert x.before == x.after == rms(matched, x.sensor) != rms(su.model, x.sensor)
+
+
+def test_the_gps_slow_error_is_chosen_the_same_on_forked_processes_and_on_a_spare_core(tmp_path):
+    """``match_gps_slow`` over its levels on two processes, and the model before's on a process forked
+    before the noise is known (``GpsSlowBefore``, as the diagnosis begins it), choose the level one
+    process chooses, with the same run."""
+    log = tmp_path / "gps.tlog"
+    run_fast(Scenario.from_args("quad", 12, 25.0, [], ["baro_thrust:k=2.5"]), log, log.with_suffix(".csv"))
+    ms = [m for m in Replay(log).iter_measurements() if m.kind != Kind.RANGE]  # no range: the GPS is measured
+    su = setup(ms, model_name="altitude")
+    assert "b_gps" in su.model.states
+    matched = with_noise(su.model, {s: 2.0 * r for s, r in sensor_noise(su.model).items()})
+    base = run_model(matched, su.prep, su.make)
+    one = match_gps_slow(matched, su.prep, su.make, base=base)
+    two = match_gps_slow(matched, su.prep, su.make, base=base, workers=2)
+    later = GpsSlowBefore(su.model, su.prep, su.make, 1)
+    try:
+        later.start(matched)
+        spare = later.chosen(matched, base)
+    finally:
+        later.close()
+    assert one[2] is not base  # a level other than the model's own: a run of its own, come back from a process
+    for _, level, run in (two, spare):
+        assert level is not None and one[1] is not None and level.as_dict() == one[1].as_dict()
+        assert run.loglik == one[2].loglik and np.array_equal(run.x, one[2].x)
+        assert run.model.P0.tolist() == one[2].model.P0.tolist()

@@ -35,7 +35,7 @@ from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import Run, run_model
 from groundstation.diagnosis.scoring import holdout
-from groundstation.diagnosis.scoring.noise_match import NoiseLevel, match_gps_slow
+from groundstation.diagnosis.scoring.noise_match import GpsSlowBefore, NoiseLevel, match_gps_slow
 from groundstation.diagnosis.scoring.scored import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.stated import RangeClearance, Stated
@@ -124,16 +124,28 @@ def diagnose(
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, stated=stated)
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
-    # each absolute sensor predicted by the others, forked now, while the heap holds little more than the log, and
-    # started with the model before as soon as it is known, on the cores the search leaves idle
+    # runs of the model before that only the report reads (each absolute sensor predicted by the others; the GPS's slow
+    # error chosen), forked now, while the heap holds little more than the log, and started as soon as that model is
+    # known, on the cores the search leaves idle
     left = LeftOutRuns(su.model, su.prep, su.spec.make, truth, workers) if su.model.f is None else None
+    slow = None
+    if workers > 1 and su.model.f is None and "b_gps" in su.model.states:
+        slow = GpsSlowBefore(su.model, su.prep, su.spec.make, workers - 1)
+
+    def matched(model0: LinearModel) -> None:
+        if left is not None:
+            left.before(model0)
+        if slow is not None:
+            slow.start(model0)
+
     try:
         search = Search.begin(
             su,
             say=say,
             workers=workers,
             truth=truth if veto_with_truth else None,
-            matched=left.before if left is not None else lambda _model: None,
+            matched=matched,
+            gps_slow_later=slow is not None,
         )  # steps 1, 2
         search.run()  # steps 3 to 5
         _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
@@ -146,9 +158,13 @@ def diagnose(
             left.then(found, search.stream)
         found_beside, unclaimed = _beside(search, model_name, unobs)
         left_out: list[LeftOut] = left.results() if left is not None else []
+        if slow is not None:
+            search.first = slow.chosen(search.model0, search.first)[2]
     finally:
         if left is not None:
             left.close()
+        if slow is not None:
+            slow.close()
     return Diagnosis(
         source,
         model_name,
@@ -195,7 +211,7 @@ def _together(search: Search) -> None:
         s.effects.append(found)
         s.model, s.base = taken(found, s.prep, s.make, s.stream, None)
     s.say("giving the GPS the slow error the log shows")
-    s.model, slow, s.base = match_gps_slow(s.model, s.prep, s.make, s.stream, base=s.base)
+    s.model, slow, s.base = match_gps_slow(s.model, s.prep, s.make, s.stream, base=s.base, workers=s.workers)
     if slow is not None:
         s.noise.append(slow)
 

@@ -112,11 +112,14 @@ class Search:
         workers: int,
         truth: Truth | None,
         matched: Callable[[LinearModel], object] = lambda _model: None,
+        gps_slow_later: bool = False,
     ) -> Search:
         """Steps 1 and 2: each sensor's noise matched to the log, the absolute sensors' zeros held, the
         model run (before); with cores to spare the first ranking's own trials begun beside it.
         ``matched`` is given the model with its noise matched as soon as it is known, before anything
-        else is made (what it forks holds the log alone)."""
+        else is made (what it forks holds the log alone). ``gps_slow_later``: the run before is the
+        model's own for now, the GPS's slow error chosen for it later
+        (:class:`~groundstation.diagnosis.scoring.noise_match.GpsSlowBefore`)."""
         prep, make, model = su.prep, su.spec.make, su.model
         cands = [
             c
@@ -137,7 +140,7 @@ class Search:
             base = matched_run if matched_run is not None else run_model(model, prep, make, probes=probes())
             # before: the model as the log's noise has it, the GPS's slow error included; the effects are
             # traced against the GPS at the floor of that error (noise_match.match_gps_slow says why)
-            _, _, first = match_gps_slow(model, prep, make, base=base)
+            first = base if gps_slow_later else match_gps_slow(model, prep, make, base=base)[2]
         except BaseException:
             if started is not None:
                 started.close()

@@ -35,6 +35,9 @@ import numpy as np
 from groundstation.core.measurement import Measurement
 from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
 from groundstation.diagnosis.runs.signature import Probes
+from groundstation.diagnosis.scoring.background import Begun
+from groundstation.diagnosis.scoring.trials import fork_map
+from groundstation.estimation.context import Zero
 from groundstation.estimation.models.base import LinearModel
 
 #: scalar sensors whose R is matched (the pseudo-sensor and vector sensors keep theirs)
@@ -142,7 +145,13 @@ def with_gps_slow(model: LinearModel, sigma: float) -> LinearModel:
 
 
 def match_gps_slow(
-    model: LinearModel, prep: Prepared, make, measurements: Sequence[Measurement] | None = None, *, base: Run
+    model: LinearModel,
+    prep: Prepared,
+    make,
+    measurements: Sequence[Measurement] | None = None,
+    *,
+    base: Run,
+    workers: int = 1,
 ) -> tuple[LinearModel, NoiseLevel | None, Run]:
     """The GPS error's slow part by profile likelihood over :data:`GPS_SLOW` (the one noise
     parameter covariance matching cannot reach: a slow error lives in the low frequencies the
@@ -155,20 +164,94 @@ def match_gps_slow(
     the temperature rising 7 K gave it 0.3 m), the estimate followed the baro (0.64 m off) and the
     thermal term gained nothing to be claimed with. So the effects are traced against the GPS at
     the floor of its slow error, each on the catalogue's terms (strong, 3 sigma, held out), and what
-    they leave is then given to the GPS, at the level the log's likelihood picks."""
+    they leave is then given to the GPS, at the level the log's likelihood picks. The levels' runs
+    on up to ``workers`` processes (:func:`.trials.fork_map`), the same numbers on any number."""
     if "b_gps" not in model.states:
         return model, None, base
+    now = _gps_slow_now(model)
+    levels = [s for s in GPS_SLOW if not math.isclose(s, now)]
+    n = max(1, min(workers, len(levels)))
+
+    def best_of(share: list[float]) -> tuple[dict[float, float], float, Run | None]:
+        return _best_of_levels(model, prep, make, measurements, share)
+
+    return _gps_slow_chosen(model, now, base, fork_map(best_of, [levels[k::n] for k in range(n)], n))
+
+
+def _gps_slow_now(model: LinearModel) -> float:
     i = model.index("b_gps")
-    now = math.sqrt(float(model.P0[i, i]))
+    return math.sqrt(float(model.P0[i, i]))
+
+
+def _best_of_levels(
+    model: LinearModel, prep: Prepared, make, measurements: Sequence[Measurement] | None, levels: list[float]
+) -> tuple[dict[float, float], float, Run | None]:
+    """The model's runs at each of ``levels``: (each one's log-likelihood, the first best, its run without its model,
+    as it crosses processes). The best run so far is kept, not all of them (a long log's runs are large)."""
+    lik: dict[float, float] = {}
     best, run = math.nan, None
-    for s in GPS_SLOW:  # the best run so far kept, not all four (a long log's runs are large)
-        r = base if math.isclose(s, now) else run_model(with_gps_slow(model, s), prep, make, measurements=measurements)
+    for s in levels:
+        r = run_model(with_gps_slow(model, s), prep, make, measurements=measurements)
+        lik[s] = r.loglik
         if run is None or r.loglik > run.loglik:
             best, run = s, r
-    assert run is not None
+    return lik, best, (replace(run, model=None) if run is not None else None)  # type: ignore[arg-type]
+
+
+def _gps_slow_chosen(
+    model: LinearModel, now: float, base: Run, shares: list[tuple[dict[float, float], float, Run | None]]
+) -> tuple[LinearModel, NoiseLevel, Run]:
+    """The first best of :data:`GPS_SLOW` (``base`` at ``now``, the others from the shares' bests, each the
+    first best of its own), as one pass over them in order keeps it."""
+    lik = {now: base.loglik}
+    runs: dict[float, Run] = {}
+    for got, s, r in shares:
+        lik.update(got)
+        if r is not None:
+            runs[s] = replace(r, model=with_gps_slow(model, s))
+    best = math.nan
+    for s in GPS_SLOW:
+        if s in lik and (math.isnan(best) or lik[s] > lik[best]):
+            best = s
+    run = base if math.isclose(best, now) else runs[best]
     n = int(run.sensors["gps"].t.size) if "gps" in run.sensors else 0
     level = NoiseLevel("gps (slow)", best, GPS_ERROR_MODEL, n)
     return (model if math.isclose(best, now) else with_gps_slow(model, best)), level, run
+
+
+class GpsSlowBefore:
+    """:func:`match_gps_slow` of the model before (the run the error "before" is read from), made on the
+    cores the search leaves idle. The search reads the model at the floor of the GPS's slow error
+    (match_gps_slow says why), so the runs at the other levels are wanted for the report alone.
+
+    Forked held as the diagnosis starts, while its heap holds little more than the log
+    (:class:`.background.Begun`, ``processes`` of them, each keeping the best run of its share of the
+    levels); :meth:`start` gives them the noise the log shows and the zeros held (numbers);
+    :meth:`chosen` is match_gps_slow's answer for the model before, number for number."""
+
+    def __init__(self, declared: LinearModel, prep: Prepared, make, processes: int) -> None:
+        self._declared, self._prep, self._make = declared, prep, make
+        self._now = _gps_slow_now(declared)
+        levels = [s for s in GPS_SLOW if not math.isclose(s, self._now)]
+        n = max(1, min(processes, len(levels)))
+        self._runs: Begun = Begun(self._best_of, [levels[k::n] for k in range(n)], processes, held=True)
+
+    def _best_of(
+        self, noise: dict[str, float], zeros: dict[str, Zero], levels: list[float]
+    ) -> tuple[dict[float, float], float, Run | None]:
+        prep = replace(self._prep, zeros=zeros)
+        return _best_of_levels(with_noise(self._declared, noise), prep, self._make, None, levels)
+
+    def start(self, model0: LinearModel) -> None:
+        """The runs started: ``model0`` is the declared model with each sensor's noise as the log shows it."""
+        self._runs.go(sensor_noise(model0), dict(self._prep.zeros))
+
+    def chosen(self, model0: LinearModel, base: Run) -> tuple[LinearModel, NoiseLevel, Run]:
+        """:func:`match_gps_slow` ``(model0, ..., base=base)``: ``base`` is ``model0``'s own run."""
+        return _gps_slow_chosen(model0, self._now, base, self._runs.results())
+
+    def close(self) -> None:
+        self._runs.close()
 
 
 def match_noise(
