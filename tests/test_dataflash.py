@@ -276,9 +276,7 @@ def _same_reading(fast, slow) -> None:
 
 def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record(tmp_path):
     """A 1 kHz IMU is most of a log's records: read as arrays per record type (``imu_columns``) it
-    gives what DFReader's records of it give, on a simulated vehicle's own log and on each foreign
-    and real binary log the fast read takes; a log it cannot take so (the IMU on a TimeMS clock,
-    records without a time of their own, damage) is read record by record, as before."""
+    gives what DFReader's records of it give, on a simulated vehicle's own log."""
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
 
@@ -287,6 +285,13 @@ def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record(tmp_path):
     fast = read_dataflash(log, imu_columns=True)
     assert fast.imu is not None and len(fast.imu) == 2 * fast.counts["IMU"] > 10_000
     _same_reading(fast, read_dataflash(log))
+
+
+@pytest.mark.slow
+def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record_on_foreign_and_real_logs():
+    """As above on another generator's logs (Copter 4.5's IMU, with its temperature and error
+    counts); a log the fast read cannot take (the IMU on a TimeMS clock, records without a time of
+    their own, a cut end) is read record by record."""
     for rel in ("clean_s1.bin", "range_tilt_s1.bin"):
         p = foreign2_file(rel)
         fast = read_dataflash(p, imu_columns=True)

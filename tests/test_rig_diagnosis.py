@@ -63,13 +63,19 @@ INJECTED = [
     ("accel_bias:x=0.1,y=-0.08,z=0.15", "accel_bias", "b_az", 0.15, 0.05),
     ("imu_misalignment:roll=2,pitch=-1.5,yaw=0", "imu_misalignment", "m_roll", math.radians(2.0), 0.05),
 ]
+#: one effect of each part of the rig (its motors, their dynamics, its encoders, its IMU) in the
+#: check loop; the rest with the slow tests (``make test``)
+IN_CHECK = {"motor_constant", "motor_lag", "encoder_offset", "accel_bias"}
 
 
 #: what an effect moves besides its own constant
 ALSO = {"motor_constant": {"equilibrium_voltage"}}
 
 
-@pytest.mark.parametrize("effect,name,param,truth,rel", INJECTED, ids=[x[1] for x in INJECTED])
+@pytest.mark.parametrize(
+    "effect,name,param,truth,rel",
+    [pytest.param(*x, id=x[1], marks=() if x[1] in IN_CHECK else pytest.mark.slow) for x in INJECTED],
+)
 def test_each_effect_is_found_with_its_size_and_nothing_else(tmp_path, effect, name, param, truth, rel):
     d = diagnosed(simulate(tmp_path, "--undeclared", effect))
     found = claimed(d)
@@ -81,12 +87,14 @@ def test_each_effect_is_found_with_its_size_and_nothing_else(tmp_path, effect, n
     assert sum(after.rms.values()) < sum(before.rms.values())
 
 
+@pytest.mark.slow
 def test_near_the_linearisation_point_nothing_is_claimed(tmp_path):
     for seed in (1, 2):
         d = diagnosed(simulate(tmp_path, flight="small", seed=seed))
         assert claimed(d) == {}, seed
 
 
+@pytest.mark.slow
 def test_far_from_it_the_full_equations_and_nothing_else(tmp_path):
     d = diagnosed(simulate(tmp_path, flight="large", seed=3, seconds=90))
     found = claimed(d)
@@ -97,6 +105,7 @@ def test_far_from_it_the_full_equations_and_nothing_else(tmp_path):
     assert after.rms["lambda"] < 0.2 * before.rms["lambda"] and after.rms["e"] < 0.5 * before.rms["e"]
 
 
+@pytest.mark.slow
 def test_the_kalman_filter_shows_an_imu_effect_and_its_correction(tmp_path):
     d = diagnosed(simulate(tmp_path, "--undeclared", "gyro_bias:x=0.01,y=-0.008,z=0.005"), with_kalman=True)
     assert d.nis is not None
@@ -105,6 +114,7 @@ def test_the_kalman_filter_shows_an_imu_effect_and_its_correction(tmp_path):
     assert abs(after["gyro"] - 1.0) < 0.5 and abs(after["accel"] - 1.0) < 0.5
 
 
+@pytest.mark.slow
 def test_the_command_line_writes_the_rig_file_and_the_loop_closes_on_it(tmp_path):
     log = simulate(tmp_path, "--undeclared", "encoder_offset:p=1.0,e=-0.8", "--undeclared", "counterweight:dm=0.02")
     out = tmp_path / "diag"
@@ -137,6 +147,7 @@ def test_the_command_line_writes_the_rig_file_and_the_loop_closes_on_it(tmp_path
     assert second["model"] == "heli3dof" and second["effects"] == []
 
 
+@pytest.mark.slow
 def test_a_log_without_encoders_and_a_rig_that_never_flew_are_one_line_errors(tmp_path):
     quad = tmp_path / "quad.tlog"
     subprocess.run(
@@ -201,6 +212,7 @@ def test_on_a_rig_unlike_table_1_its_own_constants_hold_the_pitch_step():
     assert err["rig"][0] < 0.2 * err["lab"][0] and err["rig"][1] < 0.2 * err["lab"][1], err
 
 
+@pytest.mark.slow
 def test_the_live_panel_diagnoses_a_rig_window_as_the_command_line_does(tmp_path):
     log = load_log(simulate(tmp_path, "--undeclared", "gyro_bias:x=0.01,y=-0.008,z=0.005"), tables=False)
     buffer = SessionBuffer()  # the IMU averaged into 10 ms blocks, as the dashboard keeps a session
