@@ -100,8 +100,8 @@ class DataFlashLog:
 
     @property
     def duration(self) -> float:
-        ts = [t for t in (self.measurements[0].t, self.measurements[-1].t)] if self.measurements else []
-        for series in self.imu.series.values() if self.imu is not None else ():
+        ts = [self.measurements[0].t, self.measurements[-1].t] if self.measurements else []
+        for series in self.imu.series.values() if self.imu is not None else ():  # read as columns
             if len(series):
                 ts += [float(series.t[0]), float(series.t[-1])]
         return max(ts) - min(ts) if ts else 0.0
