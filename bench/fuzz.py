@@ -58,10 +58,11 @@ def _df_fmt(type_id: int, length: int, name: str, form: str, cols: str) -> bytes
 
 def seed_bin() -> bytes:
     out = bytearray(_df_fmt(128, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
-    out += _df_fmt(129, 3 + 32, "IMU", "QffffffI", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG")
+    # each record's length is its header and its fields (DFReader's sizes: N is 16 characters)
+    out += _df_fmt(129, 3 + 36, "IMU", "QffffffI", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG")
     out += _df_fmt(130, 3 + 18, "BARO", "Qffh", "TimeUS,Alt,Press,Temp")
-    out += _df_fmt(131, 3 + 24, "PARM", "QNf", "TimeUS,Name,Value")
-    out += _df_fmt(132, 3 + 13, "RFND", "QfBB", "TimeUS,Dist,Stat,Orient")
+    out += _df_fmt(131, 3 + 28, "PARM", "QNf", "TimeUS,Name,Value")
+    out += _df_fmt(132, 3 + 14, "RFND", "QfBB", "TimeUS,Dist,Stat,Orient")
     out += b"\xa3\x95\x83" + struct.pack("<Q16sf", 0, b"RNGFND1_MIN_CM", 20.0)
     for k in range(60):
         t = k * 10_000
