@@ -403,3 +403,48 @@ def test_the_gps_slow_error_is_chosen_the_same_on_forked_processes_and_on_a_spar
         assert level is not None and one[1] is not None and level.as_dict() == one[1].as_dict()
         assert run.loglik == one[2].loglik and np.array_equal(run.x, one[2].x)
         assert run.model.P0.tolist() == one[2].model.P0.tolist()
+
+
+def test_held_processes_end_when_their_parent_is_killed(tmp_path):
+    """A held run's process waits for its start; its parent killed outright (nothing closed, no
+    clean-up), it notices and ends instead of waiting for ever with the log in its memory."""
+    import os
+    import signal
+    import time
+
+    from groundstation.diagnosis.scoring.background import PARENT_CHECK_S
+
+    script = (
+        "import sys, time\n"
+        "from groundstation.diagnosis.scoring.background import Begun\n"
+        "b = Begun(lambda x: x, range(4), 2, held=True)\n"
+        "print(*[p.pid for p, _, _ in b._running], flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+
+    def alive(pid: int) -> bool:
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has ended
+        except OSError:
+            return False
+
+    held: list[int] = []
+    try:
+        assert parent.stdout is not None
+        held = [int(x) for x in parent.stdout.readline().split()]
+        assert len(held) == 2 and all(alive(pid) for pid in held)
+        parent.kill()
+        parent.wait()
+        deadline = time.monotonic() + 20 * PARENT_CHECK_S
+        while any(alive(pid) for pid in held) and time.monotonic() < deadline:
+            time.sleep(PARENT_CHECK_S / 5)
+        assert not any(alive(pid) for pid in held)
+    finally:
+        if parent.poll() is None:
+            parent.kill()
+            parent.wait()
+        for pid in held:
+            if alive(pid):
+                os.kill(pid, signal.SIGKILL)

@@ -30,6 +30,8 @@ R = TypeVar("R")
 #: the begun processes' niceness: under load the scheduler gives them about a tenth of a core each
 #: beside a process at the default priority (the kernel's weights, 110 against 1024)
 NICENESS = 10
+#: [s] how often a held process, not yet started, looks whether its parent is still there
+PARENT_CHECK_S = 0.5
 
 
 class Begun(Generic[T, R]):
@@ -62,7 +64,9 @@ class Begun(Generic[T, R]):
                 for k in range(n):
                     recv, send = ctx.Pipe(duplex=False)
                     go_recv, go_send = ctx.Pipe(duplex=False) if held else (None, None)
-                    proc = ctx.Process(target=self._work, args=(self._items[k::n], send, go_recv), daemon=True)
+                    proc = ctx.Process(
+                        target=self._work, args=(self._items[k::n], send, go_recv, os.getpid()), daemon=True
+                    )
                     proc.start()
                     send.close()
                     if go_recv is not None:
@@ -80,10 +84,16 @@ class Begun(Generic[T, R]):
             go.send(args)
             go.close()
 
-    def _work(self, share: list[T], send, go) -> None:
+    def _work(self, share: list[T], send, go, parent: int) -> None:
         """In the child: at a lower priority, its share's results sent back (or the error that stopped it)."""
         os.nice(NICENESS)
         try:
+            if go is not None:
+                # held: until started, or until the parent is gone (killed, it closed nothing: the
+                # pipe's other end lives on in the processes forked beside this one)
+                while not go.poll(PARENT_CHECK_S):
+                    if os.getppid() != parent:
+                        return
             args = go.recv() if go is not None else ()
             out: object = [self._fn(*args, x) for x in share]
         except EOFError:
