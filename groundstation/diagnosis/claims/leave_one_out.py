@@ -28,8 +28,7 @@ import numpy as np
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.diagnosis.runs.run import Prepared, run_model
 from groundstation.diagnosis.scoring.background import Begun
-from groundstation.diagnosis.scoring.noise_match import sensor_noise, with_noise
-from groundstation.estimation.context import Zero
+from groundstation.diagnosis.scoring.noise_match import MatchedNoise
 from groundstation.estimation.estimator import KalmanEstimator
 from groundstation.estimation.models.base import LinearModel
 
@@ -131,15 +130,15 @@ class LeftOutRuns:
         rms, n = _rms(run, name, prep.t0 + SETTLE_S)
         return rms, n, self._truth.error(run, prep.t0, prep.t1) if self._truth is not None else math.nan
 
-    def _scored_before(self, noise: dict[str, float], zeros: dict[str, Zero], name: str) -> tuple[float, int, float]:
-        """The model before's: the declared model with ``noise``, over the log with ``zeros`` held."""
-        prep = dataclasses.replace(self._prep, zeros=zeros)
-        return self._scored(with_noise(self._declared, noise), prep, None, name)
+    def _scored_before(self, matched: MatchedNoise, name: str) -> tuple[float, int, float]:
+        """The model before's: the declared model with the noise ``matched``, over the log with its zeros."""
+        model, prep = matched.applied(self._declared, self._prep)
+        return self._scored(model, prep, None, name)
 
     def before(self, model0: LinearModel) -> None:
         """The model before's runs started: ``model0`` is the declared model with each sensor's noise as
         the log shows it (:func:`.noise_match.match_noise`), over the prepared log with its zeros held."""
-        self._before.go(sensor_noise(model0), dict(self._prep.zeros))
+        self._before.go(MatchedNoise.of(model0, self._prep))
 
     def then(self, after: LinearModel, after_stream: Sequence[Measurement]) -> None:
         """The model after's runs begun (its readings ``after_stream``: its delays applied), each sensor the

@@ -128,6 +128,24 @@ def with_noise(model: LinearModel, noise: dict[str, float]) -> LinearModel:
     return model
 
 
+@dataclass(frozen=True)
+class MatchedNoise:
+    """What makes the declared model the model before, as numbers a process forked before they were
+    known can be sent: each sensor's R (:func:`sensor_noise`) and the zeros the runs hold
+    (``Prepared.zeros``)."""
+
+    noise: dict[str, float]
+    zeros: dict[str, Zero]
+
+    @classmethod
+    def of(cls, model0: LinearModel, prep: Prepared) -> MatchedNoise:
+        return cls(sensor_noise(model0), dict(prep.zeros))
+
+    def applied(self, declared: LinearModel, prep: Prepared) -> tuple[LinearModel, Prepared]:
+        """The model before and the prepared log it runs over."""
+        return with_noise(declared, self.noise), replace(prep, zeros=self.zeros)
+
+
 #: [m] the GPS error's slow part (its Gauss-Markov sigma) is chosen from these by the likelihood
 GPS_SLOW = (0.03, 0.1, 0.3, 1.0)
 #: [m] a single-frequency receiver's vertical wander, as a model without the log would set it: what
@@ -236,15 +254,13 @@ class GpsSlowBefore:
         n = max(1, min(processes, len(levels)))
         self._runs: Begun = Begun(self._best_of, [levels[k::n] for k in range(n)], processes, held=True)
 
-    def _best_of(
-        self, noise: dict[str, float], zeros: dict[str, Zero], levels: list[float]
-    ) -> tuple[dict[float, float], float, Run | None]:
-        prep = replace(self._prep, zeros=zeros)
-        return _best_of_levels(with_noise(self._declared, noise), prep, self._make, None, levels)
+    def _best_of(self, matched: MatchedNoise, levels: list[float]) -> tuple[dict[float, float], float, Run | None]:
+        model, prep = matched.applied(self._declared, self._prep)
+        return _best_of_levels(model, prep, self._make, None, levels)
 
     def start(self, model0: LinearModel) -> None:
         """The runs started: ``model0`` is the declared model with each sensor's noise as the log shows it."""
-        self._runs.go(sensor_noise(model0), dict(self._prep.zeros))
+        self._runs.go(MatchedNoise.of(model0, self._prep))
 
     def chosen(self, model0: LinearModel, base: Run) -> tuple[LinearModel, NoiseLevel, Run]:
         """:func:`match_gps_slow` ``(model0, ..., base=base)``: ``base`` is ``model0``'s own run."""
