@@ -25,5 +25,8 @@ def pressure_at(h, p0: float = P0):
 
 
 def altitude_at(p, p0: float = P0):
-    """Pressure altitude [m] of static pressure ``p`` [Pa]."""
+    """Pressure altitude [m] of static pressure ``p`` [Pa]; of a float, a float (read at every baro
+    sample of a filter's run, where numpy's scalars cost more than the arithmetic)."""
+    if type(p) is float:
+        return T0 / L * (1.0 - (p / p0) ** (1.0 / _EXP))
     return T0 / L * (1.0 - (np.asarray(p, dtype=float) / p0) ** (1.0 / _EXP))

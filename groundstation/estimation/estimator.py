@@ -8,7 +8,7 @@ dropouts, re-initialisation on clock jumps. The rules of each model are in
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -121,11 +121,12 @@ class KalmanEstimator:
         k = m.kind
         if k not in self.context and k not in self.inputs and k not in self._by_kind:
             return None
-        bad = None if checked else reading_problem(m)
-        if bad is not None:
-            # every component checked: one NaN in a vector reading poisoned the filter for good
-            self.counters.skip(f"{m.kind.value}_{bad}")
-            return None
+        if not checked:
+            bad = reading_problem(m)
+            if bad is not None:
+                # every component checked: one NaN in a vector reading poisoned the filter for good
+                self.counters.skip(f"{m.kind.value}_{bad}")
+                return None
         f = self.filter
         if self.started and f.t - TIME_RESOLUTION_S <= m.t < f.t:
             # on time: taken as current, for every rule too (a hysteresis timed on it must not
@@ -135,8 +136,10 @@ class KalmanEstimator:
         rec = self._handle(m)
         if k not in self.inputs and k not in self._by_kind:
             return None  # a context rule (and an impulse on P): the state was not touched
-        # the sums propagate any NaN or infinity; P only where an update touched it
-        if not math.isfinite(float(f.kf.x.sum())) or (rec is not None and not math.isfinite(float(f.kf.P.sum()))):
+        # the sums propagate any NaN or infinity; P only where an update touched it (summed as floats:
+        # numpy's sum of a few elements costs ten times the addition, at every reading of a run)
+        kf = f.kf
+        if not math.isfinite(sum(kf.x.tolist())) or (rec is not None and not math.isfinite(sum(kf.P.ravel().tolist()))):
             # whatever got it there (a model's own arithmetic), the estimate is no estimate: start over
             self.counters.diverged += 1
             self.started = False
@@ -146,46 +149,51 @@ class KalmanEstimator:
 
     def _handle(self, m: Measurement) -> InnovationRecord | None:
         f = self.filter
-        f.ctx.t = m.t
-        rule = self.context.get(m.kind)
+        ctx = f.ctx
+        kind = m.kind
+        ctx.t = m.t
+        rule = self.context.get(kind)
         if rule is not None:
-            f.ctx.x = f.kf.x
-            f.ctx.u = f.u
-            rule(m, f.ctx)
-        for impulse in self.model.impulses.get(m.kind, ()):
-            added = impulse(m, f.ctx)
-            if added and self.started:
-                f.add_variance({self.model.index(s): q for s, q in added.items()})
-        inp = self.inputs.get(m.kind)
-        mms = self._by_kind.get(m.kind)
+            ctx.x = f.kf.x
+            ctx.u = f.u
+            rule(m, ctx)
+        impulses = self.model.impulses
+        if impulses:
+            for impulse in impulses.get(kind, ()):
+                added = impulse(m, ctx)
+                if added and self.started:
+                    f.add_variance({self.model.index(s): q for s, q in added.items()})
+        inp = self.inputs.get(kind)
+        mms = self._by_kind.get(kind)
         if inp is None and not mms:
             return None
-        if m.kind in self._untimed:
-            return self._update(m, mms or []) if self.started else None
+        if kind in self._untimed:
+            return self._update(m, mms or ()) if self.started else None
         if not self._time(m.t):
             self.counters.skip("out_of_order")
             return None
         f.predict_to(m.t)
         self.counters.predictions += 1
         if inp is not None:
-            u = inp(m, f.ctx)
+            u = inp(m, ctx)
             if u is not None:
                 f.u = u
-        return self._update(m, mms or [])
+        return self._update(m, mms) if mms else None
 
-    def _update(self, m: Measurement, mms: list) -> InnovationRecord | None:
+    def _update(self, m: Measurement, mms: Sequence) -> InnovationRecord | None:
         f = self.filter
+        ctx = f.ctx
         rec = None
         for mm in mms:
             if mm.instance is not None and m.instance != mm.instance:
                 continue
-            f.ctx.z = float(f.x[0])
-            z = mm.extract(m, f.ctx)
-            why, f.ctx.skip_why = f.ctx.skip_why, None  # an extract's own reason (models.range_gate)
+            ctx.z = float(f.kf.x[0])
+            z = mm.extract(m, ctx)
+            why, ctx.skip_why = ctx.skip_why, None  # an extract's own reason (models.range_gate)
             if z is None:
                 self.counters.skip(f"{mm.name}_{why or 'not_used'}")  # calibrating, out of range
                 continue
-            if not np.isfinite(z).all():
+            if not all(map(math.isfinite, (z if isinstance(z, np.ndarray) else np.asarray(z)).ravel().tolist())):
                 self.counters.skip(f"{mm.name}_invalid")
                 continue
             rec = f.update(mm, z, R=mm.R / m.samples if mm.per_sample and m.samples > 1 else None)

@@ -25,6 +25,17 @@ from .models.base import LinearModel, MeasurementModel, discretize, discretize_s
 SERIES_LIMIT = 0.2
 
 
+_F64 = np.dtype(float)
+
+
+def _matrix(a) -> np.ndarray:
+    """``a`` as a 2-D array of doubles: itself where it is one already (an H, an R, an S: read at
+    every update, where ``np.atleast_2d(a).astype(float)`` costs more than the arithmetic)."""
+    if type(a) is np.ndarray and a.ndim == 2 and a.dtype is _F64:
+        return a
+    return np.atleast_2d(a).astype(float, copy=False)
+
+
 @dataclass(slots=True)  # no __dict__: a long log's run holds one per update
 class InnovationRecord:
     t: float
@@ -258,6 +269,7 @@ class ModelFilter:
         self._pending_k = 0
         self._pending_akey: Hashable = None
         self._pending_A: np.ndarray | None = None
+        self._pending_u: np.ndarray | None = None
         self._pending_n = 0
         if self.tape is not None:
             self.tape.restart(t0)
@@ -291,7 +303,8 @@ class ModelFilter:
         n = self._pending_n
         if n:
             self._pending_n = 0
-            Phi, _, Qk = self._discrete(self._pending_k * n * 1e-7, self._pending_akey, self._pending_A)
+            dt = self._pending_k * n * 1e-7
+            Phi, _, Qk = self._discrete(dt, self._pending_akey, self._pending_A, self._pending_u)
             kf = self.kf
             kf.P = Phi @ kf.P @ Phi.T + Qk
 
@@ -306,16 +319,17 @@ class ModelFilter:
         A = self.model.A(self.u)
         return A.tobytes(), A
 
-    def _discrete(self, dt: float, akey: Hashable, A: np.ndarray | None):
-        """(Phi, G, Q_k) over ``dt`` with the A of key ``akey`` (``A`` itself, or the held input's when
-        None), cached on the step's length and that key: a model whose A takes one input of several
-        (the altitude model's cos_tilt) reuses a discretisation while the others change."""
+    def _discrete(self, dt: float, akey: Hashable, A: np.ndarray | None, u: np.ndarray | None = None):
+        """(Phi, G, Q_k) over ``dt`` with the A of key ``akey`` (``A`` itself, or when None that of the
+        input ``u``, by default the held one), cached on the step's length and that key: a model whose
+        A takes one input of several (the altitude model's cos_tilt) reuses a discretisation while the
+        others change."""
         k = int(dt * 1e7 + 0.5)
         key = (k, akey)
         d = self._cache.get(key)
         if d is None:
             if A is None:
-                A = self.model.A(self.u)
+                A = self.model.A(self.u if u is None else u)
             if np.abs(A).sum(axis=1).max() * dt < SERIES_LIMIT:
                 # a step not seen before (A changes with the input; a live clock jitters, so each
                 # step has its own dt): a fourth-order series of the same integrals (error
@@ -369,9 +383,9 @@ class ModelFilter:
             self._pending_n += 1
         else:
             self._apply_pending()
-            if A is None and akey is not None:
-                A = self.model.A(self.u)  # the run's A, for its covariance's one step when it ends
+            # the run's A, or the input that makes it (computed only if its one step misses the cache)
             self._pending_k, self._pending_akey, self._pending_A, self._pending_n = k, akey, A, 1
+            self._pending_u = self.u
         self.t = t
 
     def checkpoint(self) -> tuple:
@@ -465,19 +479,23 @@ class ModelFilter:
         self._apply_pending()
         kf = self.kf
         R = mm.R if R is None else R
-        H = np.atleast_2d(mm.row(self.ctx))
+        H = _matrix(mm.row(self.ctx))
         if mm.offset is not None:
             z = z - mm.offset(self.ctx)
-        z = np.atleast_1d(z).astype(float)
+        z = np.array(z, dtype=float, ndmin=1)  # a copy: the record keeps it
         if mm.corrects is None:
-            nis = self._update_written_out(z, H, np.atleast_2d(R).astype(float, copy=False))
+            nis = self._update_written_out(z, H, _matrix(R))
         else:
             self._update_only(mm, z, H, np.atleast_2d(R))
             nis = float(kf.y @ np.linalg.solve(kf.S, kf.y))
-        # each update makes its own y and S (nothing writes into them after): kept as they are
-        nu = np.atleast_1d(kf.y).astype(float, copy=False)
-        S = np.atleast_2d(kf.S).astype(float, copy=False)
-        rec = InnovationRecord(self.t, mm.name, nu, S, nis, np.array(kf.K, dtype=float), self.u.copy(), z)
+        # each update makes its own y, S and K (nothing writes into them after): kept as they are
+        nu, S, K = kf.y, kf.S, kf.K
+        if not (type(nu) is np.ndarray and nu.ndim == 1 and nu.dtype is _F64):
+            nu = np.atleast_1d(nu).astype(float, copy=False)
+        S = _matrix(S)
+        if not (type(K) is np.ndarray and K.dtype is _F64):
+            K = np.array(K, dtype=float)
+        rec = InnovationRecord(self.t, mm.name, nu, S, nis, K, self.u.copy(), z)
         if self.tape is not None:
             self.tape.update(mm.name, H, rec.K, mm.corrects if mm.reset else None, len(self.log))
         self.log.append(rec)

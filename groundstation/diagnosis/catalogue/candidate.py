@@ -72,11 +72,15 @@ def with_regressor(
     for key, mm in model.measurements.items():
         if mm.name == sensor:
             old = mm.row
+            last: list = [None, None, None]  # (old's last H, the regressor's value, the row they made)
 
-            def row(ctx, old=old):
-                r = pad_row(old(ctx), 1)
-                r[0, n] = regressor(ctx)
-                return r
+            def row(ctx, old=old, last=last):
+                h, c = old(ctx), regressor(ctx)
+                if h is not last[0] or c != last[1]:  # the same H and value: the same row (no one writes into an H)
+                    r = pad_row(h, 1)
+                    r[0, n] = c
+                    last[0], last[1], last[2] = h, c, r
+                return last[2]
 
             meas[key] = replace(mm, row=row)
     return model.augmented(states=[state], Qc_extra=[Q], x0_extra=[0.0], P0_extra=[P0], measurements=meas)

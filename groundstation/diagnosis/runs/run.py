@@ -19,6 +19,7 @@ import math
 from array import array
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
+from operator import attrgetter
 
 import numpy as np
 
@@ -329,6 +330,8 @@ def run_model(
     ts, xs, Ps, x_record = array("d"), array("d"), array("d"), array("q")
     # each signal as doubles as it comes (not a float object a value: a long log's run holds millions)
     sig: dict[str, dict[str, array[float]]] = {}
+    sig_cols: dict[str, list[array[float]]] = {}  # the same columns, in SIGNALS' order
+    signals_of = attrgetter(*SIGNALS)
     f = est.filter
     for m in ms:
         rec = est.handle(m, checked=True)  # prepare() checked every reading
@@ -341,15 +344,15 @@ def run_model(
         Ps.extend(f.kf.P.ravel().tolist())
         if taped:
             x_record.append(len(f.log) - 1)
-        d = sig.get(rec.sensor)
+        d = sig_cols.get(rec.sensor)
         if d is None:
-            d = sig[rec.sensor] = {k: array("d") for k in SIGNALS}
+            sig[rec.sensor] = {k: array("d") for k in SIGNALS}
+            d = sig_cols[rec.sensor] = list(sig[rec.sensor].values())
         ctx = f.ctx
         if probes is not None:
             probes.record(rec.sensor, ctx, f.kf.x - rec.K @ rec.nu)
-        for k in SIGNALS:
-            value = getattr(ctx, k)
-            d[k].append(math.nan if value is None else value)
+        for col, value in zip(d, signals_of(ctx)):
+            col.append(math.nan if value is None else value)
     if scores_only and len(ts):
         Ps.extend(f.kf.P.ravel().tolist())  # the last one alone: where the run ended
     log = est.filter.log

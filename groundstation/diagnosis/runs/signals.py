@@ -110,13 +110,26 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         ctx.current = float(m.value[0])
 
     def vibration(m, ctx):
-        # the accelerometer's deviation from its own low-passed value: rotors turning
+        # the accelerometer's deviation from its own low-passed value: rotors turning (the two
+        # low-passes of :func:`lowpass` written out: this runs at the IMU blocks' rate)
         if m.instance != 0:
             return
         v = m.value.tolist()
-        f = math.sqrt(sum(x * x for x in v))
-        lowpass(ctx, "f_lp", f, m.t, 1.0)
-        lowpass(ctx, "vibration", (f - ctx.f_lp) ** 2, m.t, VIBRATION_TC)
+        f = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) if len(v) == 3 else math.sqrt(sum(x * x for x in v))
+        t = m.t
+        t_last = ctx.f_lp_t
+        if t_last is None:
+            ctx.f_lp = f
+        elif t > t_last:
+            ctx.f_lp += (f - ctx.f_lp) * (1.0 - math.exp(-(t - t_last) / 1.0))
+        ctx.f_lp_t = t
+        dev = (f - ctx.f_lp) ** 2
+        t_last = ctx.vibration_t
+        if t_last is None:
+            ctx.vibration = dev
+        elif t > t_last:
+            ctx.vibration += (dev - ctx.vibration) * (1.0 - math.exp(-(t - t_last) / VIBRATION_TC))
+        ctx.vibration_t = t
         if ratio is not None and ctx.landed is False and len(v) == 3:
             # in the air the accelerometer reads the thrust over the mass along the body's z axis
             # (f_z = -T/m, FRD): the thrust as it is, which the command's map only predicts. Not more

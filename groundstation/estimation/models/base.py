@@ -236,7 +236,7 @@ def barometer(row: Callable[[Context], np.ndarray], R: np.ndarray) -> dict[str, 
     BARO.Alt, Crazyflie baro.asl, ``baro_alt``), both named ``baro``. One barometer, one update: a
     log that gives the same sample as a pressure and as an altitude (DataFlash BARO: Press and Alt)
     is read from the pressure."""
-    from_pressure = relative_to_estimate(lambda m: float(altitude_at(m.value[0])), "baro_ref", 50)
+    from_pressure = relative_to_estimate(lambda m: altitude_at(float(m.value[0])), "baro_ref", 50)
     from_altitude = relative_to_estimate(lambda m: float(m.value[0]), "baro_alt_ref", 25)
 
     def baro_pressure(m, ctx):
@@ -265,8 +265,18 @@ def state_row(n: int, i: int) -> Callable[[Context], np.ndarray]:
 
 
 def padded(row: Callable[[Context], np.ndarray], k: int) -> Callable[[Context], np.ndarray]:
-    """H(ctx) of ``row`` extended with k zero columns (for augmented states)."""
-    return lambda ctx: pad_row(row(ctx), k)
+    """H(ctx) of ``row`` extended with k zero columns (for augmented states). A row that returns the
+    same array each time (a constant H: no one writes into an H) gets the same padded array back,
+    made once: a filter reads its rows at every update."""
+    last: list = [None, None]  # (row's last H, held so its id stays its own; that H padded)
+
+    def padded_row(ctx: Context) -> np.ndarray:
+        r = row(ctx)
+        if r is not last[0]:
+            last[0], last[1] = r, pad_row(r, k)
+        return last[1]
+
+    return padded_row
 
 
 def pad_row(row: np.ndarray, k: int) -> np.ndarray:
