@@ -114,13 +114,16 @@ def diagnose(
     workers: int = 1,
     imu: ImuColumns | None = None,
     stated: Stated | None = None,
+    meanwhile: Callable[[Run, Run], object] | None = None,
 ) -> Diagnosis:
     """``truth`` (motion capture, a simulator's sidecar) is used for the error before and after and, unless
     ``veto_with_truth`` is off, to reject an effect whose fix makes that error worse (see
     :data:`~groundstation.diagnosis.claims.search.VETO_FACTOR`); it never ranks or sizes an effect. ``workers``: the
     processes the candidates' runs are spread over (:mod:`~groundstation.diagnosis.scoring.trials`; the findings are the
     same on any number). ``imu``: the log's raw IMU as columns, when ``ms`` does not hold it. ``stated``: what the log
-    states besides its readings (the range's ground clearance, the motors' thrust curve: :func:`.models.setup`)."""
+    states besides its readings (the range's ground clearance, the motors' thrust curve: :func:`.models.setup`).
+    ``meanwhile(before, after)``: given the runs before and after once they are final, while the runs that each absolute
+    sensor's evidence reads still go (the report's parts made of those two runs alone)."""
     su = setup(ms, source=source, model_name=model_name, declared=declared, vehicle=vehicle, imu=imu, stated=stated)
     imu = None  # averaged into the prepared log's blocks: the raw columns are no longer needed
     say = progress or (lambda _s: None)
@@ -138,6 +141,17 @@ def diagnose(
         if slow is not None:
             slow.start(model0)
 
+    #: what the model after's left-out runs were begun for: (model, run, readings) as the search held them
+    begun_for: list[tuple[LinearModel, Run, object]] = []
+
+    def added(s: Search) -> None:
+        """Each effect added: the model after's left-out runs begun for the model as it now is, on the
+        cores the search's next ranking leaves idle (the last ranking finds nothing, so they are usually
+        the ones the report reads); the same runs as those begun once the search ends, or replaced then."""
+        if left is not None and s.model.f is None:
+            left.then(_found_model(s), s.stream)
+            begun_for[:] = [(s.model, s.base, s.stream)]
+
     try:
         search = Search.begin(
             su,
@@ -146,20 +160,27 @@ def diagnose(
             truth=truth if veto_with_truth else None,
             matched=matched,
             gps_slow_later=slow is not None,
+            on_added=added,
         )  # steps 1, 2
         search.run()  # steps 3 to 5
         _together(search)  # step 6: the effects estimated together, then what lies outside the catalogue
         unobs = {**su.spec.unobservable, **(unobservable_in(su.prep.kinds) if model_name == "altitude" else {})}
         against = _against_truth(search, truth, unobs)
+        held = (search.model, search.base, search.stream)
         found = _as_found(search)
         if left is not None and search.model.f is None:
             say("predicting each absolute sensor from the others")
-            # the model after's, begun on the cores the thrust curve, read beside the model meanwhile, leaves idle
-            left.then(found, search.stream)
+            # the model after's, begun on the cores the thrust curve, read beside the model meanwhile, leaves idle;
+            # begun already where nothing moved since the last effect was added (the same model, run and readings:
+            # the model after is made of those alone)
+            if not (begun_for and all(a is b for a, b in zip(begun_for[0], held))):
+                left.then(found, search.stream)
         found_beside, unclaimed = _beside(search, model_name, unobs)
-        left_out: list[LeftOut] = left.results() if left is not None else []
         if slow is not None:
             search.first = slow.chosen(search.model0, search.first)[2]
+        if meanwhile is not None:
+            meanwhile(search.first, search.base)
+        left_out: list[LeftOut] = left.results() if left is not None else []
     finally:
         if left is not None:
             left.close()
@@ -237,13 +258,21 @@ def _as_found(search: Search) -> LinearModel:
     (:func:`~groundstation.diagnosis.scoring.holdout.fixed`, carried back to the log's start), and its run (the search's
     base from here on): the error after is the fix's, not a filter's still learning it."""
     s = search
-    if s.model.f is not None or s.model.n <= s.model0.n:
-        return s.model
+    found = _found_model(s)
+    if found is s.model:
+        return found
     s.say("running the model with the effects as found")
-    n0 = s.model0.n
-    found = holdout.fixed(s.model, n0, holdout.carried_back(s.model, n0, s.base, s.prep.t0))
     s.base = run_model(found, s.prep, s.make, measurements=s.stream)
     return found
+
+
+def _found_model(s: Search) -> LinearModel:
+    """The model after as :func:`_as_found` makes it of the search's model and run as they are now (the
+    model itself where no effect added a state)."""
+    if s.model.f is not None or s.model.n <= s.model0.n:
+        return s.model
+    n0 = s.model0.n
+    return holdout.fixed(s.model, n0, holdout.carried_back(s.model, n0, s.base, s.prep.t0))
 
 
 def _beside(search: Search, model_name: str, unobs: dict[str, str]) -> tuple[list[Effect], list[dict]]:

@@ -140,6 +140,7 @@ def _diagnosed(
     ms_all = log.measurements
     describes = craft.describes(model) or craft.kind == "unknown"
     notch = []
+    drawn: list[report.Drawn] = []  # the report's CSVs and figures, made while the left-out runs go
     if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
         notch = suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
     d = diagnose(
@@ -154,6 +155,7 @@ def _diagnosed(
         workers=workers,
         imu=_usable_imu(log, tr, keep=False),
         stated=stated_by(log.tables, ms_all),
+        meanwhile=lambda before, after: drawn.append(report.draw(before, after, out)),
     )
     suggestions = []
     if log.tables.fmt != "crazyflie" and describes:
@@ -168,6 +170,7 @@ def _diagnosed(
         vehicle=craft,
         model_chosen=chose,
         not_described=None if describes else craft.why_not(model),
+        drawn=drawn[-1] if drawn else None,
     )
     return j, suggestions
 

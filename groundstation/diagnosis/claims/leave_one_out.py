@@ -142,7 +142,9 @@ class LeftOutRuns:
 
     def then(self, after: LinearModel, after_stream: Sequence[Measurement]) -> None:
         """The model after's runs begun (its readings ``after_stream``: its delays applied), each sensor the
-        model before has too."""
+        model before has too; in place of those begun before (stopped, where still running)."""
+        if self._after is not None:
+            self._after.close()
         self._names = [name for name in absolute(after) if name in self._names_before]
         self._after = Begun(
             partial(self._scored, after, self._prep, after_stream),

@@ -91,6 +91,9 @@ class Search:
     discoveries: list[Discovery] = field(default_factory=list)
     tried: set[tuple[str, str]] = field(default_factory=set)  #: (sensor, expression) of discoveries tried
     scored: list[Scored] = field(default_factory=list)  #: the last ranking, as its scores
+    #: told of each effect the search adds, once the model and its run hold it (the engine begins then
+    #: what the model after needs, in case the search ends there)
+    on_added: Callable[[Search], object] = lambda _search: None
 
     @property
     def prep(self) -> Prepared:
@@ -113,13 +116,14 @@ class Search:
         truth: Truth | None,
         matched: Callable[[LinearModel], object] = lambda _model: None,
         gps_slow_later: bool = False,
+        on_added: Callable[[Search], object] = lambda _search: None,
     ) -> Search:
         """Steps 1 and 2: each sensor's noise matched to the log, the absolute sensors' zeros held, the
         model run (before); with cores to spare the first ranking's own trials begun beside it.
         ``matched`` is given the model with its noise matched as soon as it is known, before anything
         else is made (what it forks holds the log alone). ``gps_slow_later``: the run before is the
         model's own for now, the GPS's slow error chosen for it later
-        (:class:`~groundstation.diagnosis.scoring.noise_match.GpsSlowBefore`)."""
+        (:class:`~groundstation.diagnosis.scoring.noise_match.GpsSlowBefore`). ``on_added``: see :attr:`on_added`."""
         prep, make, model = su.prep, su.spec.make, su.model
         cands = [
             c
@@ -146,7 +150,9 @@ class Search:
                 started.close()
             raise
         stream = prep.measurements
-        return cls(su, say, workers, truth, model, first, noise, columns, model, base, stream, cands, started)
+        s = cls(su, say, workers, truth, model, first, noise, columns, model, base, stream, cands, started)
+        s.on_added = on_added
+        return s
 
     def run(self) -> None:
         """Steps 3 to 5, an effect at a time (at most :data:`MAX_EFFECTS`), until the residuals pass or
@@ -248,6 +254,7 @@ class Search:
         self.labels.append("discovered")
         self.model, self.base = taken(found, self.prep, self.make, self.stream, self.probes())
         self.effects.append(found)
+        self.on_added(self)
 
     def _take(self, best: Scored, held: holdout.Holdout | None) -> None:
         """Step 5: the best candidate added, with its own run, which the next ranking starts from."""
@@ -277,6 +284,7 @@ class Search:
         if best.name == "baro_bias_drift":
             self.cands = [c for c in self.cands if c.name != "baro_bias_drift"]
         self.say(f"added {best.name} ({best.delta_bic:.0f})")
+        self.on_added(self)
 
     def _drop(self, c: Candidate) -> None:
         self.cands = [k for k in self.cands if not (k.name == c.name and k.sensor == c.sensor)]

@@ -13,6 +13,7 @@ import numpy as np
 from groundstation.diagnosis.engine import Diagnosis
 from groundstation.diagnosis.report.autopilot_params import ParamSuggestion
 from groundstation.diagnosis.report.conclusion import COLOURED, format_params
+from groundstation.diagnosis.runs.run import Run
 from groundstation.diagnosis.triage import Triage
 from groundstation.estimation.models.ground import LANDED
 
@@ -27,15 +28,16 @@ def _broken_at_gaps(t: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return np.insert(t.astype(float), gaps, np.nan), np.insert(y.astype(float), gaps, np.nan)
 
 
-def _figures(d: Diagnosis) -> str:
+def figures(before: Run, after: Run) -> str:
+    """The figures of each sensor's innovations and their autocorrelation, before and after, as SVG."""
     from matplotlib.figure import Figure  # (here: a second of every command's start-up otherwise)
 
     out = []
-    for s in sorted((set(d.before.sensors) & set(d.after.sensors)) - {LANDED}):
+    for s in sorted((set(before.sensors) & set(after.sensors)) - {LANDED}):
         # matplotlib's object API: no pyplot, so no global backend or figure registry to manage
         fig = Figure(figsize=(11, 3.0))
         ax = fig.subplots(1, 2)
-        for run, label, col in ((d.before, "before", "#c0392b"), (d.after, "after", "#2e7d32")):
+        for run, label, col in ((before, "before", "#c0392b"), (after, "after", "#2e7d32")):
             tr = run.sensors[s]
             ax[0].plot(*_broken_at_gaps(tr.t, tr.nu[:, 0]), lw=0.6, color=col, label=label, alpha=0.8)
             e = tr.nu_normalised[tr.t >= tr.t[0] + 5.0]
@@ -43,7 +45,7 @@ def _figures(d: Diagnosis) -> str:
             lags = min(50, len(e) // 4)
             acf = [np.dot(ec[:-k], ec[k:]) / np.dot(ec, ec) for k in range(1, lags + 1)]
             ax[1].plot(range(1, lags + 1), acf, marker=".", lw=0.8, color=col, label=label)
-        n = len(d.after.sensors[s].t)
+        n = len(after.sensors[s].t)
         for sign in (-1, 1):
             ax[1].axhline(sign * 1.96 / math.sqrt(max(n, 1)), color="#888", lw=0.8, ls="--")
         ax[0].set_title(f"{s}: innovation")
@@ -132,9 +134,11 @@ def _table(rows: list[list], head: list[str]) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def report_html(d: Diagnosis, j: dict, triage: Triage | None, parameters: list[ParamSuggestion] | None) -> str:
+def report_html(
+    d: Diagnosis, j: dict, triage: Triage | None, parameters: list[ParamSuggestion] | None, drawn: str | None = None
+) -> str:
     """report.html: the conclusion, the triage, the error against truth, the effects and what to set,
-    then the evidence, section by section."""
+    then the evidence, section by section; ``drawn``: its :func:`figures`, where drawn already."""
     ranking = "".join(
         f"<p>iteration {i + 1}: " + ", ".join(f"{n} ({b:+.1f})" for n, b in it) + "</p>"
         for i, it in enumerate(j["ranking"])
@@ -162,7 +166,7 @@ th{{background:#f3f3f3}}.concl{{background:#f6fbf6;border-left:4px solid #2e7d32
 <h2>Effects found</h2>{_effects_html(j)}{_parameters_html(parameters)}
 <h2>Evidence: candidates ranked (Delta BIC, negative is better)</h2>{ranking}
 <h2>Each absolute sensor predicted by the others (left out of the filter; its unit, m)</h2>{_left_out_html(j)}
-<h2>Residuals before and after</h2>{_sensors_html(j)}{_figures(d)}
+<h2>Residuals before and after</h2>{_sensors_html(j)}{figures(d.before, d.after) if drawn is None else drawn}
 <h2>Tests that failed before</h2>{failed}
 <h2>Tests that still fail after</h2>{still}
 <h2>What this log could have shown: the size of each effect not found that it would claim about half the time</h2>

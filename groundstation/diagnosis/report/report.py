@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +54,7 @@ from groundstation.diagnosis.catalogue.thrust_model import ThrustContext
 from groundstation.diagnosis.engine import Diagnosis
 from groundstation.diagnosis.report.autopilot_params import ParamSuggestion
 from groundstation.diagnosis.report.conclusion import conclusion
-from groundstation.diagnosis.report.html import report_html
+from groundstation.diagnosis.report.html import figures, report_html
 from groundstation.diagnosis.runs.run import Run
 from groundstation.diagnosis.triage import Triage
 from groundstation.estimation.export import EstimateCsvWriter
@@ -187,23 +188,42 @@ def write(
     vehicle: Vehicle | None = None,
     model_chosen: str = "",
     not_described: str | None = None,
+    drawn: Drawn | None = None,
 ) -> dict:
     """report.json, report.html and the estimates' CSVs in ``out``. With the triage: what the log
     says happened opens both, with the stretches the fit used and those it cut; with parameters:
     what to set on the autopilot for each effect found; with the vehicle, what wrote the log, why the
     model was chosen, and (``not_described``) why the model does not describe it and no parameter is
-    written."""
-    out.mkdir(parents=True, exist_ok=True)
+    written. ``drawn``: the CSVs and figures of ``d``'s runs, made already (:func:`draw`)."""
+    if drawn is None or drawn.before is not d.before or drawn.after is not d.after:
+        drawn = draw(d.before, d.after, out)
     j = _report_json(d, triage, used, cut, parameters, vehicle, model_chosen, not_described)
     (out / "report.json").write_text(json.dumps(j, indent=2, default=float))
-    for run, name in ((d.before, "estimates_before.csv"), (d.after, "estimates_after.csv")):
+    (out / "report.html").write_text(report_html(d, j, triage, parameters, drawn.figures))
+    return j
+
+
+@dataclass
+class Drawn:
+    """What :func:`draw` made of the runs before and after."""
+
+    before: Run
+    after: Run
+    figures: str  #: report.html's figures, as SVG
+
+
+def draw(before: Run, after: Run, out: Path) -> Drawn:
+    """The parts of the report made of the runs before and after alone: the estimates' CSVs in ``out``
+    and the figures (made while the runs the rest of the report reads are still going,
+    ``engine.diagnose``'s ``meanwhile``)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for run, name in ((before, "estimates_before.csv"), (after, "estimates_after.csv")):
         w = EstimateCsvWriter(out / name, "x", run.model.states)
         sigma = np.sqrt(np.clip(np.diagonal(run.P, axis1=1, axis2=2), 0, None))
         for t, x, s in zip(run.t, run.x, sigma):
             w.write(_Snap(t, x, s))
         w.close()
-    (out / "report.html").write_text(report_html(d, j, triage, parameters))
-    return j
+    return Drawn(before, after, figures(before, after))
 
 
 def _report_json(
