@@ -16,6 +16,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
+	@# the sources byte-compiled once, as pip compiles what it installs: an editable install's are not,
+	@# and where PYTHONDONTWRITEBYTECODE is set every command would compile them again as it starts
+	$(BIN)/python -m compileall -q groundstation drivers web sim_bridge > /dev/null
 	touch $(STAMP)
 
 setup: $(STAMP)

@@ -23,6 +23,7 @@ from groundstation.diagnosis.report.autopilot_params import ParamSuggestion, sug
 from groundstation.diagnosis.report.report import triage_headline
 from groundstation.diagnosis.rig import report as rig_report
 from groundstation.diagnosis.rig.diagnose import diagnose_rig
+from groundstation.diagnosis.scoring.background import Begun
 from groundstation.diagnosis.triage import Triage, triage, usable, usable_imu
 from groundstation.estimation.identity import Vehicle, identify
 from groundstation.estimation.logs import LoadedLog, load_log
@@ -139,27 +140,35 @@ def _diagnosed(
     content, and the parameters to set (none where the model does not describe the vehicle)."""
     ms_all = log.measurements
     describes = craft.describes(model) or craft.kind == "unknown"
-    notch = []
     drawn: list[report.Drawn] = []  # the report's CSVs and figures, made while the left-out runs go
-    if log.tables.fmt != "crazyflie":  # its firmware takes neither ArduPilot's nor PX4's parameters
-        notch = suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
-    d = diagnose(
-        ms,
-        source=str(path),
-        model_name=model,
-        declared=declared or [],
-        vehicle=vehicle or log.vehicle,
-        truth=truth_from(ms, path, truth_csv),
-        progress=progress,
-        veto_with_truth=veto_with_truth,
-        workers=workers,
-        imu=_usable_imu(log, tr, keep=False),
-        stated=stated_by(log.tables, ms_all),
-        meanwhile=lambda before, after: drawn.append(report.draw(before, after, out)),
+    # the rotors' notch read from the IMU's spectrum, on the core the log's preparation leaves idle (a Crazyflie's
+    # firmware takes neither ArduPilot's nor PX4's parameters)
+    notch: Begun[None, list[ParamSuggestion]] = Begun(
+        lambda _none: suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True)),
+        [None] if log.tables.fmt != "crazyflie" else [],
+        1 if workers > 1 else 0,
     )
-    suggestions = []
-    if log.tables.fmt != "crazyflie" and describes:
-        suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot) + notch
+    try:
+        d = diagnose(
+            ms,
+            source=str(path),
+            model_name=model,
+            declared=declared or [],
+            vehicle=vehicle or log.vehicle,
+            truth=truth_from(ms, path, truth_csv),
+            progress=progress,
+            veto_with_truth=veto_with_truth,
+            workers=workers,
+            imu=_usable_imu(log, tr, keep=False),
+            stated=stated_by(log.tables, ms_all),
+            meanwhile=lambda before, after: drawn.append(report.draw(before, after, out)),
+        )
+        suggestions = []
+        if log.tables.fmt != "crazyflie" and describes:
+            suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot)
+            suggestions += [p for ps in notch.results() for p in ps]
+    finally:
+        notch.close()
     j = report.write(
         d,
         out,
