@@ -448,3 +448,48 @@ def test_held_processes_end_when_their_parent_is_killed(tmp_path):
         for pid in held:
             if alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+def test_the_model_afters_left_out_runs_begun_at_the_effect_added_are_its_own(tmp_path, monkeypatch):
+    """The diagnosis begins the model after's left-out runs when it adds an effect, before its last
+    ranking and the effects' joint estimate (``Search.on_added``); where nothing moves after, the
+    report reads those. Each is the run of the model the diagnosis ends with, with that sensor left out,
+    over the same readings; begun again (``LeftOutRuns.then``), the earlier ones are stopped."""
+    from groundstation.diagnosis.engine import diagnose
+
+    log = tmp_path / "w.tlog"
+    run_fast(Scenario.from_args("quad", 5, 30.0, [], ["baro_thrust:k=2.5"]), log, log.with_suffix(".csv"))
+    begun: list[tuple] = []
+    then = LeftOutRuns.then
+
+    def recorded(self, after, stream):
+        begun.append((self._prep, self._make, after, stream, self._after))
+        then(self, after, stream)
+
+    monkeypatch.setattr(LeftOutRuns, "then", recorded)
+    d = diagnose(list(Replay(log).iter_measurements()), model_name="altitude", workers=2)
+    assert [e.name for e in d.effects] == ["baro_thrust"]
+    assert len(begun) == 1  # begun as the effect was added; not again once the search had ended
+    prep, make, after, stream, earlier = begun[0]
+    assert earlier is None and after is not d.after.model and d.after.model.n == after.n
+    assert {x.sensor for x in d.left_out} == {"baro", "range"}
+    for x in d.left_out:
+        tr = run_model(without(d.after.model, x.sensor), prep, make, measurements=stream).sensors[x.sensor]
+        nu = tr.nu[tr.t >= prep.t0 + LEFT_OUT_SETTLE_S]
+        assert x.after == float(np.sqrt(np.mean(np.sum(nu * nu, axis=1))))
+
+
+def test_left_out_runs_begun_again_replace_those_begun_before(flight):
+    su, _ = flight
+    louder = with_noise(su.model, {s: 4.0 * r for s, r in sensor_noise(su.model).items()})
+    runs = LeftOutRuns(su.model, su.prep, su.make, None, 2)
+    try:
+        runs.before(su.model)
+        runs.then(louder, su.prep.measurements)
+        first = runs._after
+        runs.then(su.model, su.prep.measurements)
+        assert first is not None and not first._running  # stopped, its processes joined
+        got = runs.results()
+    finally:
+        runs.close()
+    assert got and all(x.before == x.after for x in got)  # the model before's own, not the louder one's
