@@ -15,7 +15,7 @@ in order, with their parameters (within 5 % or half a standard error), and the c
 away. Logs: a 60 s simulated quadcopter flight with a late range sensor and rotor wash on the
 baro, and a 10-minute one with a 1 kHz IMU, baro, range and GPS (both written here); a foreign
 flight (``../shared/data/foreign``), a Crazyflie log and a 23-minute ArduPilot tlog
-(``../shared/data/real``), and the 10-minute flight written as DataFlash and two foreign flights as
+(``../shared/data/real``), and the 10-minute flight written as DataFlash and as ULog, and two foreign flights as
 DataFlash and ULog (``../shared/data/foreign2``); one that is not there is listed as skipped.
 
 Beside the baseline, the plain read of each file (pymavlink's ``recv_match`` loop, pyulog's
@@ -47,6 +47,7 @@ LOGS: list[tuple[str, Path | str]] = [
     ("sim quad 60 s", "sim60"),
     ("sim quad 10 min, 1 kHz IMU", "sim600"),
     ("the same flight as DataFlash .bin", "sim600bin"),
+    ("the same flight as ULog .ulg", "sim600ulg"),
     ("foreign baro_thermal_s1", DATA / "foreign" / "baro_thermal_s1.tlog"),
     ("crazyflie 0425-traj4", DATA / "real" / "crazyflie_util" / "0425-traj4"),
     ("dronekit tlog 23 min", DATA / "real" / "mavlink_tlog" / "dronekit_flight_replay_flight.tlog"),
@@ -59,7 +60,7 @@ def simulated(folder: Path, which: str, minutes: float) -> Path:
     from sim_bridge.fast import run_fast
     from sim_bridge.scenario import Scenario
 
-    log = folder / (f"{which[:-3]}.bin" if which.endswith("bin") else f"{which}.tlog")
+    log = folder / (f"{which[:-3]}.{which[-3:]}" if which.endswith(("bin", "ulg")) else f"{which}.tlog")
     if which == "sim60":
         sc = Scenario.from_args(
             "quad", 7, 60.0, ["range_tilt"], ["sensor_delay:sensor=range,seconds=0.06", "baro_thrust:k=2.5"]
@@ -204,7 +205,7 @@ def main() -> int:
                 checks.append(same_findings(j0, j1))
             if path == "sim600":
                 reference.update(cost=tn / seconds, report=j1)
-            if path == "sim600bin" and reference:
+            if path in ("sim600bin", "sim600ulg") and reference:
                 same, why = same_findings(reference["report"], j1)
                 checks.append((same, f"against the tlog: {why}"))
             wrong = [why for same, why in checks if not same]

@@ -4,7 +4,8 @@
 
 * ``OUT.tlog``: the MAVLink stream the vehicle would have sent, with receive
   timestamps ``epoch + t`` (deterministic for a seed); or, named ``OUT.bin``, the DataFlash log
-  the vehicle itself would have kept from boot (:mod:`.flight_log`);
+  the vehicle itself would have kept from boot (:mod:`.flight_log`); or, named ``OUT.ulg``, the
+  ULog PX4's logger would have kept (:mod:`.px4_log`);
 * ``OUT.csv``: the truth sidecar, every state at 100 Hz (``t`` is vehicle time);
 * ``OUT.truth.json``: the whole scenario, undeclared effects included (scoring only);
 * ``OUT.declared.json`` beside the log: what the ground station may be told.
@@ -21,6 +22,7 @@ from pathlib import Path
 
 from .flight_log import FlightLogs
 from .mavlink_out import MavlinkEncoder
+from .px4_log import Px4Log
 from .scenario import Scenario
 from .simulator import Simulator
 
@@ -63,6 +65,8 @@ def run_fast(
     t0 = time.perf_counter()
     if log.suffix.lower() == ".bin":
         frames = _dataflash(sim, scenario.vehicle, log, seconds)
+    elif log.suffix.lower() == ".ulg":
+        frames = _ulog(sim, scenario.vehicle, log, seconds)
     else:
         frames = _tlog(sim, enc, log, seconds)
     wall = time.perf_counter() - t0
@@ -98,6 +102,18 @@ def _tlog(sim: Simulator, enc: MavlinkEncoder, log: Path, seconds: float) -> int
                     write(stamp + fr)
                     frames += 1
     return frames
+
+
+def _ulog(sim: Simulator, vehicle: str, log: Path, seconds: float) -> int:
+    """What PX4's logger would keep from boot, as a ULog (:mod:`.px4_log`); the samples written."""
+    n = 0
+    with open(log, "wb") as f:
+        px4 = Px4Log(f, vehicle)
+        for _ in range(int(round(seconds / sim.dt))):
+            samples = sim.step()
+            n += len(samples)
+            px4.step(sim.t, samples)
+    return n
 
 
 def _dataflash(sim: Simulator, vehicle: str, log: Path, seconds: float) -> int:

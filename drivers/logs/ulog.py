@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
 from .quiet import quiet
@@ -68,13 +69,22 @@ class UlogLog:
     skipped: Counter = field(default_factory=Counter)
     damage: str = ""
     hardware: str = ""
+    #: with ``imu_columns``: sensor_combined's accelerometer and gyro as columns, not among ``measurements``
+    imu: ImuColumns | None = None
 
     @property
     def duration(self) -> float:
-        return self.measurements[-1].t - self.measurements[0].t if self.measurements else 0.0
+        ts = [self.measurements[0].t, self.measurements[-1].t] if self.measurements else []
+        for series in self.imu.series.values() if self.imu is not None else ():
+            if len(series):
+                ts += [float(series.t[0]), float(series.t[-1])]
+        return max(ts) - min(ts) if ts else 0.0
 
 
-def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
+def read_ulog(path: str | Path, source: str = "ulog/1.1", *, imu_columns: bool = False) -> UlogLog:
+    """The log's measurements and tables. ``imu_columns``: sensor_combined's samples as columns
+    (:class:`~groundstation.core.imu.ImuColumns`, :attr:`UlogLog.imu`) straight from pyulog's arrays,
+    not a record each (a 1 kHz IMU is most of a log's readings)."""
     from pyulog import ULog  # imported here: its import costs 0.3 s that other logs do not need
 
     p = Path(path)
@@ -133,7 +143,7 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1") -> UlogLog:
         damage.append(f"last message cut at offset {checked.end}")
     if damage:
         log.damage = f"{p}: " + "; ".join(damage)
-    _measurements(tables, log, source)
+    _measurements(tables, log, source, imu_columns)
     log.measurements.sort(key=lambda m: m.t)
     return log
 
@@ -150,7 +160,7 @@ def _vec(tb: Table, base: str, n: int) -> np.ndarray | None:
     return np.column_stack(cols)  # type: ignore[arg-type]
 
 
-def _measurements(tables: LogTables, log: UlogLog, s: str) -> None:
+def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = False) -> None:
     out, skipped = log.measurements, log.skipped
 
     def add_rows(kind: Kind, t: np.ndarray, values: np.ndarray, instance: int = 0) -> None:
@@ -161,9 +171,13 @@ def _measurements(tables: LogTables, log: UlogLog, s: str) -> None:
     if sc is not None:
         gyro, acc = _vec(sc, "gyro_rad", 3), _vec(sc, "accelerometer_m_s2", 3)
         if gyro is not None and acc is not None:
-            add_rows(Kind.GYRO, sc.t, gyro)
             rel = sc.numeric("accelerometer_timestamp_relative")
-            add_rows(Kind.ACCEL, sc.t + (rel * 1e-6 if rel is not None else 0.0), acc)
+            imu = ((Kind.GYRO, sc.t, gyro), (Kind.ACCEL, sc.t + (rel * 1e-6 if rel is not None else 0.0), acc))
+            if imu_columns:
+                log.imu = ImuColumns({(kind, 0): _series(s, times, vals) for kind, times, vals in imu})
+            else:
+                for kind, times, vals in imu:
+                    add_rows(kind, times, vals)
     ad = tables.get("vehicle_air_data")
     if ad is not None:
         t = _sample_time(ad)
@@ -230,6 +244,13 @@ def _measurements(tables: LogTables, log: UlogLog, s: str) -> None:
             skipped["battery_not_connected"] += int((~ok).sum())
             add_rows(Kind.BATTERY_VOLTAGE, bat.t[ok], v[ok][:, None])
             add_rows(Kind.BATTERY_CURRENT, bat.t[ok], i[ok][:, None])
+
+
+def _series(source: str, t: np.ndarray, values: np.ndarray) -> ImuSeries:
+    """One IMU sensor's samples as a series, in time order (as its records would be, sorted)."""
+    order = np.argsort(t, kind="stable")
+    t = np.asarray(t, dtype=float)[order]
+    return ImuSeries(source, t, t, np.asarray(values, dtype=float)[order], np.ones(len(t), dtype=np.int32))
 
 
 def _px4_version(u) -> str:

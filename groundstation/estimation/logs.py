@@ -83,13 +83,15 @@ def load_log(path: Path, *, tables: bool | tuple[str, ...] = True, imu_columns: 
         ms, imu = split(df.measurements)
         return LoadedLog(ms, desc, None, df.tables, imu)
     if is_ulog(path):
-        ul = read_ulog(path)
+        ul = read_ulog(path, imu_columns=imu_columns)
         desc = (
             f"PX4 ULog{f' ({ul.hardware})' if ul.hardware else ''}, {ul.duration:.1f} s, "
-            f"{len(ul.measurements)} measurements"
+            f"{len(ul.measurements) + (len(ul.imu) if ul.imu is not None else 0)} measurements"
             + (f"; {ul.damage}" if ul.damage else "")
             + _reader_skipped(ul.skipped)
         )
+        if ul.imu is not None:  # read as columns already
+            return LoadedLog(Readings.of(ul.measurements), desc, None, ul.tables, ul.imu)
         ms, imu = split(ul.measurements)
         return LoadedLog(ms, desc, None, ul.tables, imu)
     if imu_columns:

@@ -1,0 +1,94 @@
+"""PX4 ULog: the simulated vehicle's own ULog (sim_bridge.px4_log, drivers.logs.ulog_writer), read
+back by pyulog and by the reader; the IMU read as columns against the IMU read record by record."""
+
+import io
+
+import numpy as np
+import pytest
+from pyulog import ULog
+
+from drivers.logs.ulog import read_ulog
+from drivers.logs.ulog_writer import UlogWriter
+from groundstation.core.imu import ImuColumns
+from groundstation.core.measurement import Kind
+from groundstation.estimation.logs import load_log
+from sim_bridge.fast import run_fast
+from sim_bridge.scenario import Scenario
+from tests.conftest import foreign2_file
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    log = tmp_path_factory.mktemp("ulog") / "f.ulg"
+    run_fast(Scenario.from_args("quad", 7, 60.0, ["range_tilt"], ["baro_thrust:k=3"], flight="high"), log)
+    return log
+
+
+def test_a_simulated_flight_as_px4s_ulog_reads_back_topic_by_topic(flight):
+    u = ULog(str(flight))
+    counts = {d.name: len(d.data["timestamp"]) for d in u.data_list}
+    assert counts["sensor_combined"] == 30_000 and counts["vehicle_air_data"] == 3001, counts
+    assert {"distance_sensor", "vehicle_gps_position", "vehicle_attitude", "actuator_outputs"} <= set(counts)
+    assert u.msg_info_dict["sys_name"] == "PX4" and u.initial_parameters["MAV_TYPE"] == 2
+    sc = next(d for d in u.data_list if d.name == "sensor_combined").data
+    assert np.median(sc["accelerometer_m_s2[2]"]) == pytest.approx(-9.81, abs=0.3)  # FRD: z down, at rest
+    loaded = load_log(flight)
+    assert "PX4 ULog (SITL (simulated)), 60.0 s" in loaded.description and "PX4 v1.14.0" == loaded.tables.firmware
+    kinds = {m.kind for m in loaded.measurements}
+    assert {Kind.ACCEL, Kind.BARO_PRESSURE, Kind.RANGE, Kind.GPS, Kind.ATTITUDE, Kind.ACTUATOR} <= kinds
+
+
+def _same_imu(path) -> None:
+    """``read_ulog(imu_columns=True)`` against the records, split as ``load_log`` splits them."""
+    fast, slow = read_ulog(path, imu_columns=True), read_ulog(path)
+    rest, imu = ImuColumns.split(slow.measurements)
+    assert fast.imu is not None and fast.imu.series.keys() == imu.series.keys() and len(imu) > 0
+    for key, s in imu.series.items():
+        g = fast.imu.series[key]
+        for got, want in ((g.t, s.t), (g.t_rx, s.t_rx), (g.value, s.value), (g.samples, s.samples)):
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert [(m.t, m.kind) for m in fast.measurements] == [(m.t, m.kind) for m in rest]
+    assert fast.duration == slow.duration and fast.skipped == slow.skipped
+
+
+def test_the_imu_read_as_columns_is_the_imu_read_record_by_record(flight):
+    _same_imu(flight)
+    loaded = load_log(flight, imu_columns=True)
+    assert loaded.imu is not None and len(loaded.imu) == 60_000
+    assert f", {len(loaded.measurements) + 60_000} measurements" in loaded.description
+
+
+@pytest.mark.slow
+def test_the_imu_read_as_columns_is_the_imu_read_record_by_record_on_foreign_logs():
+    for rel in ("clean_s2.ulg", "range_tilt_s2.ulg"):
+        _same_imu(foreign2_file(rel))
+
+
+def test_a_simulated_flight_as_px4s_ulog_diagnoses_as_its_tlog(flight):
+    """The same hidden effect named with the same size as the tlog's (test_dataflash's twin: k = 3.0
+    within 0.2), from the ULog alone."""
+    from groundstation.diagnosis.engine import diagnose
+
+    loaded = load_log(flight, imu_columns=True)
+    d = diagnose(loaded.measurements, source=str(flight), declared=[{"name": "range_tilt"}], imu=loaded.imu)
+    assert [e.name for e in d.effects][:1] == ["baro_thrust"]
+    assert d.effects[0].params["k"] == pytest.approx(3.0, abs=0.2)
+
+
+def test_the_writer_refuses_what_a_ulog_cannot_hold():
+    w = UlogWriter(io.BytesIO())
+    with pytest.raises(ValueError, match="begin with 'uint64_t timestamp'"):
+        w.define("x", "float a;uint64_t timestamp")
+    with pytest.raises(ValueError, match="not one of"):
+        w.define("x", "uint64_t timestamp;float16 a")
+    w.define("x", "uint64_t timestamp;float[2] a")
+    with pytest.raises(ValueError, match="written before it was added"):
+        w.write("x", 0, 1.0, 2.0)
+    with pytest.raises(ValueError, match="added before it was defined"):
+        w.add("y")
+    w.add("x")
+    w.write("x", 5, 1.0, 2.0)
+    with pytest.raises(ValueError, match="come before its first sample"):
+        w.parameter("P", 1.0)
+    with pytest.raises(ValueError, match="level is 0 to 7"):
+        w.log(9, 0, "no")
