@@ -221,7 +221,9 @@ def add_sim_parser(sub) -> None:
     s.add_argument("--speed", type=float, default=1.0, help="times real time (real-time mode)")
     s.add_argument("--fast", action="store_true", help="as fast as possible into --log (no transport)")
     s.add_argument(
-        "--log", type=Path, help="with --fast: the tlog to write (.bin: the DataFlash log the vehicle keeps)"
+        "--log",
+        type=Path,
+        help="with --fast: the tlog to write (.bin: the DataFlash log the vehicle keeps; .ulg: PX4's ULog)",
     )
     s.add_argument("--truth", type=Path, help="truth sidecar CSV (every state at 100 Hz)")
     s.add_argument("--list-effects", action="store_true", help="print the effect catalogue and exit")
