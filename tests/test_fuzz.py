@@ -19,6 +19,7 @@ from drivers import board_protocol as bp
 from drivers.board import BinaryBoardReceiver, NmeaReceiver
 from drivers.logs.crazyflie import CrazyflieLogError, measurements, read_crazyflie
 from drivers.logs.dataflash import DataFlashError, read_dataflash
+from drivers.logs.ulog_writer import TYPES as C_TYPES
 from drivers.mavlink.decode import DECODED_TYPES
 from drivers.mavlink.receiver import MavlinkReceiver
 from drivers.replay import Replay
@@ -44,19 +45,7 @@ def _random_message(rng: random.Random, cls):
     """An instance of a pymavlink message class with every field random (arrays too)."""
     args = []
     for t, length in zip(cls.fieldtypes, cls.array_lengths):
-        code = {
-            "float": "f",
-            "double": "d",
-            "int8_t": "b",
-            "uint8_t": "B",
-            "int16_t": "h",
-            "uint16_t": "H",
-            "int32_t": "i",
-            "uint32_t": "I",
-            "int64_t": "q",
-            "uint64_t": "Q",
-            "char": "c",
-        }.get(t, "B")
+        code = C_TYPES.get(t, "B")  # MAVLink's field types are C's, as ULog's
         if code == "c":
             args.append(bytes(rng.randrange(32, 127) for _ in range(max(length, 1))).decode())
         elif length:

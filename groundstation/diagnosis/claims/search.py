@@ -157,12 +157,22 @@ class Search:
     def run(self) -> None:
         """Steps 3 to 5, an effect at a time (at most :data:`MAX_EFFECTS`), until the residuals pass or
         nothing more is claimed."""
-        for _ in range(MAX_EFFECTS):
-            if not self.cands or not self._step():
+        for k in range(MAX_EFFECTS):
+            if not self.cands:
+                break
+            more = self._step()
+            if more is None:
+                break
+            if more and self.cands and k + 1 < MAX_EFFECTS:
+                # the next ranking lets go of this one first; let go now, before what is begun for the
+                # effect added forks (a forked process keeps every page its parent frees after it)
+                self.scored = []
+            self.on_added(self)
+            if not more:
                 break
 
-    def _step(self) -> bool:
-        """One effect found and added, or none; whether to look for another. What the ranking scored
+    def _step(self) -> bool | None:
+        """One effect found and added (whether to look for another), or none (None). What the ranking scored
         lives in this step (the one added in the model and its run)."""
         self.scored = []  # the last ranking's candidates hold its signatures and runs: let go first
         self.scored = self._rank()
@@ -171,7 +181,7 @@ class Search:
         if rival is not None:
             self._take_discovery(*rival)
         elif best is None:
-            return False
+            return None
         else:
             self._take(best, held)
         return not residuals_pass(sensor_findings(self.base))
@@ -254,7 +264,6 @@ class Search:
         self.labels.append("discovered")
         self.model, self.base = taken(found, self.prep, self.make, self.stream, self.probes())
         self.effects.append(found)
-        self.on_added(self)
 
     def _take(self, best: Scored, held: holdout.Holdout | None) -> None:
         """Step 5: the best candidate added, with its own run, which the next ranking starts from."""
@@ -284,7 +293,6 @@ class Search:
         if best.name == "baro_bias_drift":
             self.cands = [c for c in self.cands if c.name != "baro_bias_drift"]
         self.say(f"added {best.name} ({best.delta_bic:.0f})")
-        self.on_added(self)
 
     def _drop(self, c: Candidate) -> None:
         self.cands = [k for k in self.cands if not (k.name == c.name and k.sensor == c.sensor)]
