@@ -366,6 +366,19 @@ def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
     assert suggest_notch(load_log(p).measurements, "ardupilot") == []
 
 
+def test_the_diagnosis_suggests_the_notch_alike_on_one_process_and_beside_it(tmp_path):
+    """``diagnose`` reads the notch from the raw IMU before the diagnosis lets go of it: on one process
+    there and then, on two in a process forked for it; the same parameters either way."""
+    from groundstation.diagnosis.pipeline import run
+
+    p, _ = _sim(tmp_path, "vibration:A=20")
+    got = []
+    for workers in (1, 2):
+        d = run(p, tmp_path / f"out{workers}", workers=workers)
+        got.append({x["name"]: x["value"] for x in d.report["parameters"] if x["name"].startswith("INS_HNTCH")})
+    assert got[0] == got[1] and got[0]["INS_HNTCH_FREQ"] == pytest.approx(123, abs=1.0), got
+
+
 def _text_log(path: Path, params: dict[str, str], seconds: float, att, acc) -> Path:
     """A text DataFlash log as an ArduCopter 3.1 writes one (FMT lines, then records on TimeMS): its
     parameters, ATT at 10 Hz from ``att(t) -> (roll, pitch)`` [deg] and IMU at 50 Hz from

@@ -141,13 +141,16 @@ def _diagnosed(
     ms_all = log.measurements
     describes = craft.describes(model) or craft.kind == "unknown"
     drawn: list[report.Drawn] = []  # the report's CSVs and figures, made while the left-out runs go
-    # the rotors' notch read from the IMU's spectrum, on the core the log's preparation leaves idle (a Crazyflie's
-    # firmware takes neither ArduPilot's nor PX4's parameters)
-    notch: Begun[None, list[ParamSuggestion]] = Begun(
-        lambda _none: suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True)),
-        [None] if log.tables.fmt != "crazyflie" else [],
-        1 if workers > 1 else 0,
-    )
+
+    # the rotors' notch read from the IMU's spectrum (a Crazyflie's firmware takes neither ArduPilot's nor PX4's
+    # parameters): with cores to spare on the one the log's preparation leaves idle; else here, now, while the log
+    # still holds its raw IMU (the diagnosis takes it out)
+    def notch_of(_none: None = None) -> list[ParamSuggestion]:
+        return suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
+
+    wanted = log.tables.fmt != "crazyflie"
+    notch = Begun(notch_of, [None], 1) if wanted and workers > 1 else None
+    notch_here = notch_of() if wanted and notch is None else []
     try:
         d = diagnose(
             ms,
@@ -166,9 +169,10 @@ def _diagnosed(
         suggestions = []
         if log.tables.fmt != "crazyflie" and describes:
             suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot)
-            suggestions += [p for ps in notch.results() for p in ps]
+            suggestions += notch.results()[0] if notch is not None else notch_here
     finally:
-        notch.close()
+        if notch is not None:
+            notch.close()
     j = report.write(
         d,
         out,
