@@ -142,15 +142,16 @@ def diagnose(
             slow.start(model0)
 
     #: what the model after's left-out runs were begun for: (model, run, readings) as the search held them
-    begun_for: list[tuple[LinearModel, Run, object]] = []
+    begun_for: tuple[LinearModel, Run, object] | None = None
 
     def added(s: Search) -> None:
         """Each effect added: the model after's left-out runs begun for the model as it now is, on the
         cores the search's next ranking leaves idle (the last ranking finds nothing, so they are usually
         the ones the report reads); the same runs as those begun once the search ends, or replaced then."""
+        nonlocal begun_for
         if left is not None and s.model.f is None:
             left.then(_found_model(s), s.stream)
-            begun_for[:] = [(s.model, s.base, s.stream)]
+            begun_for = (s.model, s.base, s.stream)
 
     try:
         search = Search.begin(
@@ -173,7 +174,7 @@ def diagnose(
             # the model after's, begun on the cores the thrust curve, read beside the model meanwhile, leaves idle;
             # begun already where nothing moved since the last effect was added (the same model, run and readings:
             # the model after is made of those alone)
-            if not (begun_for and all(a is b for a, b in zip(begun_for[0], held))):
+            if begun_for is None or not all(a is b for a, b in zip(begun_for, held)):
                 left.then(found, search.stream)
         found_beside, unclaimed = _beside(search, model_name, unobs)
         if slow is not None:

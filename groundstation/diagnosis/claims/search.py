@@ -150,9 +150,10 @@ class Search:
                 started.close()
             raise
         stream = prep.measurements
-        s = cls(su, say, workers, truth, model, first, noise, columns, model, base, stream, cands, started)
-        s.on_added = on_added
-        return s
+        return cls(
+            su, say, workers, truth, model, first, noise, columns, model, base, stream, cands, started,
+            on_added=on_added,
+        )  # fmt: skip
 
     def run(self) -> None:
         """Steps 3 to 5, an effect at a time (at most :data:`MAX_EFFECTS`), until the residuals pass or
