@@ -54,6 +54,28 @@ def test_the_series_discretisation_matches_the_exponentials_where_the_filter_use
             assert np.abs(series - exact).max() <= tol * np.abs(exact).max()
 
 
+def test_a_longer_step_is_halved_and_doubled_to_the_exponentials_accuracy():
+    """Past |A| dt = 0.2 (a 10 Hz log's step, a stiff A) the series is summed over dt / 2^s and
+    doubled back: it agrees with Van Loan's exponentials as closely as one short step does, up to
+    the most halvings; beyond those, and on a NaN, the exponentials themselves are used."""
+    from groundstation.estimation.filters import MAX_HALVINGS, SERIES_LIMIT, discretized
+
+    rng = np.random.default_rng(1)
+    for size in (0.21, 0.5, 1.7, 6.0, SERIES_LIMIT * 2**MAX_HALVINGS * 0.99):
+        for _ in range(10):
+            A = rng.standard_normal((8, 8)) - np.eye(8)
+            A *= size / np.abs(A).sum(axis=1).max()
+            B, Qc = rng.standard_normal((8, 3)), np.diag(rng.uniform(0.0, 1.0, 8))
+            for exact, fast, tol in zip(discretize(A, B, Qc, 1.0), discretized(A, B, Qc, 1.0), (1e-6, 1e-6, 5e-5)):
+                assert np.abs(fast - exact).max() <= tol * np.abs(exact).max(), size
+    A = np.eye(3) * 20.0
+    B, Qc = np.ones((3, 1)), np.eye(3)
+    for exact, fast in zip(discretize(A, B, Qc, 1.0), discretized(A, B, Qc, 1.0)):
+        np.testing.assert_array_equal(fast, exact)  # past the halvings: the exponentials
+    A[0, 0] = np.nan
+    assert np.isnan(discretized(A, B, Qc, 1.0)[0]).any()  # no exception: the divergence check reads it
+
+
 def test_altitude_model_is_observable_from_the_range_sensor():
     m = altitude_model()
     assert observability_rank(m.A(None), m.measurements["range"].row(None)) == 3
