@@ -33,6 +33,7 @@ between readings is ``V_oc(t) - k tau(t)^2``.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
 from collections.abc import Sequence
 
 import numpy as np
@@ -144,6 +145,7 @@ class OpenCircuitVoltage:
         x = kf.rts_smoother(np.array(xs), np.array(Ps), np.array(Fs), np.array(Qs))[0]
         self.t = np.asarray(t, dtype=float)
         self.level, self.drift = x[:, 0], x[:, 1]
+        self._t, self._level = self.t.tolist(), self.level.tolist()  # read by :meth:`at` at every step
 
     @classmethod
     def from_log(
@@ -158,9 +160,15 @@ class OpenCircuitVoltage:
 
     def at(self, t: float) -> float:
         """The level at ``t``: between readings on the line between theirs, beyond the last on its drift."""
-        if t >= self.t[-1]:
-            return float(self.level[-1] + self.drift[-1] * (t - self.t[-1]))
-        return float(np.interp(t, self.t, self.level))
+        ts, level = self._t, self._level
+        if t >= ts[-1]:
+            return float(self.level[-1] + self.drift[-1] * (t - ts[-1]))
+        # np.interp's arithmetic on floats: a thrust model reads this at every step
+        j = bisect_right(ts, t)
+        if j == 0:
+            return level[0]
+        t0, v0 = ts[j - 1], level[j - 1]
+        return (level[j] - v0) / (ts[j] - t0) * (t - t0) + v0
 
 
 def loaded_voltage(
