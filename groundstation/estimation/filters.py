@@ -28,18 +28,19 @@ SERIES_LIMIT = 0.2
 MAX_HALVINGS = 6
 
 
-def discretized(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float):
+def discretized(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, *, with_q: bool = True):
     """(Phi, G, Q_k) of a step not seen before: by the series (:func:`discretize_series`), halved until
-    |A| dt / 2^s < :data:`SERIES_LIMIT`, or by Van Loan's exponentials past :data:`MAX_HALVINGS`."""
+    |A| dt / 2^s < :data:`SERIES_LIMIT`, or by Van Loan's exponentials past :data:`MAX_HALVINGS`.
+    ``with_q=False``: Q_k is None (a step of the state alone)."""
     size = float(np.abs(A).sum(axis=1).max()) * dt
     if size < SERIES_LIMIT:
-        return discretize_series(A, B, Qc, dt)
+        return discretize_series(A, B, Qc, dt, with_q=with_q)
     if not math.isfinite(size):  # a NaN in A: the exponentials, which the divergence check then reads
-        return discretize(A, B, Qc, dt)
+        return discretize(A, B, Qc, dt, with_q=with_q)
     halvings = math.ceil(math.log2(size / SERIES_LIMIT) + 1e-12)
     if halvings <= MAX_HALVINGS:
-        return discretize_series(A, B, Qc, dt, halvings)
-    return discretize(A, B, Qc, dt)
+        return discretize_series(A, B, Qc, dt, halvings, with_q=with_q)
+    return discretize(A, B, Qc, dt, with_q=with_q)
 
 
 _F64 = np.dtype(float)
@@ -282,7 +283,8 @@ class ModelFilter:
         self.kf = kf
         self.t = t0
         self.u = np.zeros(len(m.inputs))
-        # the covariance's steps not yet applied: their length (1e-7 s units) and A's key (all equal)
+        # the covariance's steps not yet applied: their total length (1e-7 s units), A's key (the
+        # same for all), and how many
         self._pending_k = 0
         self._pending_akey: Hashable = None
         self._pending_A: np.ndarray | None = None
@@ -311,17 +313,18 @@ class ModelFilter:
         self.kf.P = P
 
     def _apply_pending(self) -> None:
-        """P = Phi_n P Phi_n^T + Q_n for the n equal steps not yet applied.
+        """P = Phi P Phi^T + Q_k over the steps not yet applied.
 
-        n steps of length dt with the same A are one step of n dt exactly (Phi(dt)^n = Phi(n dt),
-        and the accumulated Q_k is Q_k(n dt)), so the covariance is propagated only when someone
-        reads it or A changes: a 1 kHz IMU's steps between two 50 Hz attitudes share their A.
+        Steps of lengths a and b with the same A are one step of a + b exactly (Phi(b) Phi(a) =
+        Phi(a + b), Phi(b) Q_k(a) Phi(b)^T + Q_k(b) = Q_k(a + b)), so the covariance is propagated
+        only when someone reads it or A changes: a 1 kHz IMU's steps between two 50 Hz attitudes
+        share their A, and a logged IMU's jittered steps (each its own length, each a new
+        discretisation were the covariance stepped with them) are summed.
         """
-        n = self._pending_n
-        if n:
+        if self._pending_n:
             self._pending_n = 0
-            dt = self._pending_k * n * 1e-7
-            Phi, _, Qk = self._discrete(dt, self._pending_akey, self._pending_A, self._pending_u)
+            dt = self._pending_k * 1e-7
+            Phi, _, Qk, _ = self._discrete(dt, self._pending_akey, self._pending_A, self._pending_u)
             kf = self.kf
             kf.P = Phi @ kf.P @ Phi.T + Qk
 
@@ -336,21 +339,26 @@ class ModelFilter:
         A = self.model.A(self.u)
         return A.tobytes(), A
 
-    def _discrete(self, dt: float, akey: Hashable, A: np.ndarray | None, u: np.ndarray | None = None):
+    def _discrete(
+        self, dt: float, akey: Hashable, A: np.ndarray | None, u: np.ndarray | None = None, *, with_q: bool = True
+    ):
         """(Phi, G, Q_k) over ``dt`` with the A of key ``akey`` (``A`` itself, or when None that of the
         input ``u``, by default the held one), cached on the step's length and that key: a model whose
         A takes one input of several (the altitude model's cos_tilt) reuses a discretisation while the
-        others change."""
+        others change; and the length it was made at. ``with_q=False``: Q_k may be None (a step of the
+        state alone)."""
         k = int(dt * 1e7 + 0.5)
         key = (k, akey)
         d = self._cache.get(key)
-        if d is None:
+        if d is None or (with_q and d[2] is None):
             if A is None:
                 A = self.model.A(self.u if u is None else u)
             # a step not seen before (A changes with the input; a live clock jitters, so each step
             # has its own dt): a fourth-order series of the same integrals, 20x cheaper than two
-            # matrix exponentials
-            d = discretized(A, self.model.B, self.model.Qc, dt)
+            # matrix exponentials. An entry made without Q_k gains it at the length it was made for,
+            # so that its Phi and G stay the ones its steps took
+            at = dt if d is None else d[3]
+            d = (*discretized(A, self.model.B, self.model.Qc, at, with_q=with_q), at)
             if len(self._cache) > 4096:
                 self._cache.clear()
             self._cache[key] = d
@@ -381,7 +389,7 @@ class ModelFilter:
             self.t = t
             return
         akey, A = self._a_key()
-        Phi, G, Qk = self._discrete(dt, akey, A)
+        Phi, G, _, _ = self._discrete(dt, akey, A, with_q=False)
         # x = F x + B u every step; P = F P F^T + Q deferred (see _apply_pending).
         # (filterpy's predict, written out: its copies of the priors cost three
         # times the arithmetic at 1 kHz.)
@@ -390,7 +398,8 @@ class ModelFilter:
         if self.tape is not None:
             self.tape.predict(Phi, G, self.u)
         k = int(dt * 1e7 + 0.5)
-        if k == self._pending_k and akey == self._pending_akey:
+        if self._pending_n and akey == self._pending_akey:
+            self._pending_k += k
             self._pending_n += 1
         else:
             self._apply_pending()

@@ -287,13 +287,16 @@ def pad_row(row: np.ndarray, k: int) -> np.ndarray:
     return out
 
 
-def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def discretize(
+    A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, *, with_q: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Exact zero-order-hold discretisation (coaxial doc. eq. 9.11, 9.15, 9.23).
 
     Phi = e^{A dt}, G = int_0^dt e^{A s} ds B, Q_k = int_0^dt e^{A s} Qc e^{A^T s} ds,
     all from matrix exponentials of block matrices (Van Loan, 1978), so the
     closed forms of eq. (9.14), (9.16), (9.24) come out for the altitude model
-    and no model needs them written by hand.
+    and no model needs them written by hand. ``with_q=False``: Phi and G alone (Q_k None), for a
+    step of the state whose covariance is propagated later, over a longer stretch.
     """
     n, m = A.shape[0], B.shape[1]
     M = np.zeros((n + m, n + m))
@@ -301,6 +304,8 @@ def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple
     M[:n, n:] = B * dt
     E = expm(M)
     Phi, G = E[:n, :n], E[:n, n:]
+    if not with_q:
+        return Phi, G, None
     V = np.zeros((2 * n, 2 * n))
     V[:n, :n] = -A * dt
     V[:n, n:] = Qc * dt
@@ -310,7 +315,9 @@ def discretize(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float) -> tuple
     return Phi, G, 0.5 * (Qk + Qk.T)
 
 
-def discretize_series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, halvings: int = 0):
+def discretize_series(
+    A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, halvings: int = 0, *, with_q: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The integrals of :func:`discretize` by their Taylor series to fourth order in ``A dt``
     (for steps that each have their own A or dt, where the exponentials would dominate)::
 
@@ -327,20 +334,24 @@ def discretize_series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, h
 
     so a longer step (a 10 Hz log's, a fast rotor's) keeps the series' accuracy at a few small
     products per doubling, where the exponentials of the block matrices cost twenty times more.
+    ``with_q=False``: Phi and G alone, as :func:`discretize`'s.
     """
     if halvings:
-        Phi, G, Qk = discretize_series(A, B, Qc, dt / 2**halvings)
+        Phi, G, Qk = discretize_series(A, B, Qc, dt / 2**halvings, with_q=with_q)
         for _ in range(halvings):
             G = G + Phi @ G
-            Qk = Qk + Phi @ Qk @ Phi.T
+            if Qk is not None:
+                Qk = Qk + Phi @ Qk @ Phi.T
             Phi = Phi @ Phi
-        return Phi, G, 0.5 * (Qk + Qk.T)
+        return Phi, G, 0.5 * (Qk + Qk.T) if Qk is not None else None
     eye = np.eye(A.shape[0])
     AT = A * dt
     # Gamma = I + AT/2 + (AT)^2/6 + (AT)^3/24 in Horner's form; then Phi = I + AT Gamma, G = Gamma B T
     Gam = eye + AT @ (eye + AT @ (eye + AT / 4) / 3) / 2
     Phi = eye + AT @ Gam
     G = Gam @ B * dt
+    if not with_q:
+        return Phi, G, None
     # the covariance integral's series: M_k = A M_{k-1} + M_{k-1} A^T, M_0 = Qc (each M_k symmetric)
     M1 = A @ Qc
     M1 = M1 + M1.T
