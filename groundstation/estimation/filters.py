@@ -342,11 +342,11 @@ class ModelFilter:
     def _discrete(
         self, dt: float, akey: Hashable, A: np.ndarray | None, u: np.ndarray | None = None, *, with_q: bool = True
     ):
-        """(Phi, G, Q_k) over ``dt`` with the A of key ``akey`` (``A`` itself, or when None that of the
-        input ``u``, by default the held one), cached on the step's length and that key: a model whose
-        A takes one input of several (the altitude model's cos_tilt) reuses a discretisation while the
-        others change; and the length it was made at. ``with_q=False``: Q_k may be None (a step of the
-        state alone)."""
+        """(Phi, G, Q_k, the length they were made at) over ``dt`` with the A of key ``akey`` (``A``
+        itself, or when None that of the input ``u``, by default the held one), cached on the step's
+        length and that key: a model whose A takes one input of several (the altitude model's
+        cos_tilt) reuses a discretisation while the others change. ``with_q=False``: Q_k may be None
+        (a step of the state alone)."""
         k = int(dt * 1e7 + 0.5)
         key = (k, akey)
         d = self._cache.get(key)

@@ -61,7 +61,7 @@ G = 9.80665
 #: cos_tilt's step in A: the filter caches each distinct A's discretisation and sums the covariance's
 #: steps while A stays the same (filters.ModelFilter._apply_pending). Half a step of 0.4 m/s^2 of bias
 #: is 2e-4 m/s^2, under a hundredth of the accelerometer's noise over a 10 ms step (0.055 m/s^2); a
-#: step of 1e-4 changed A at 45 % of a logged 400 Hz IMU's samples in flight
+#: step of 1e-4 changed A at 45 % of the steps on a logged 400 Hz IMU (another generator's .bin)
 COS_TILT_STEP = 1e-3
 
 
