@@ -39,7 +39,7 @@ from groundstation.control.response import classify, step_fit
 from groundstation.control.uplink import AttitudeTarget, BoardMotors
 from groundstation.core.measurement import Kind
 from groundstation.estimation.routing import altitude_estimator
-from sim_bridge.bridge import SimBridge
+from sim_bridge.bridge import MAX_CATCH_UP, SimBridge
 from sim_bridge.effects import parse_effect
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import Scenario
@@ -168,8 +168,8 @@ class _Live:
     """A live loop: the simulated vehicle, the ground station's link and commander, each
     task stopped on exit; waits are on what the loop publishes."""
 
-    #: how the simulated vehicle runs (SimBridge.run's options)
-    bridge_run: dict = {}
+    #: [s] of the wall clock the simulated vehicle catches up at once (SimBridge.run)
+    catch_up = MAX_CATCH_UP
 
     async def _start(self, link, commander) -> None:
         """The bridge is open already (a pty must exist before the link opens it)."""
@@ -178,7 +178,7 @@ class _Live:
         self.records = commander.records.subscribe()
         await link.open()
         self.tasks = [
-            asyncio.create_task(self.bridge.run(**self.bridge_run)),
+            asyncio.create_task(self.bridge.run(catch_up=self.catch_up)),
             asyncio.create_task(commander.run()),
             asyncio.create_task(commander.follow(sub)),
         ]
@@ -218,7 +218,7 @@ class Live3dof(_Live):
     measured against their design, and 20 ms at a time on a loaded machine (3 workers on 2 cores)
     the PD step with a stall was fitted at omega 4.68 rad/s for the designed 4 in one run of five."""
 
-    bridge_run = {"catch_up": 0.004}
+    catch_up = 0.004
 
     def __init__(self, tmp_path, controller, feedback, scenario=None):
         self.port = PtyPort(tmp_path / "ttyMOTORS")

@@ -148,9 +148,9 @@ def _diagnosed(
     def notch_of(_none: None = None) -> list[ParamSuggestion]:
         return suggest_notch(ms, log.tables.autopilot, _usable_imu(log, tr, keep=True))
 
-    wanted = log.tables.fmt != "crazyflie"
-    notch = Begun(notch_of, [None], 1) if wanted and workers > 1 else None
-    notch_here = notch_of() if wanted and notch is None else []
+    takes_params = log.tables.fmt != "crazyflie"
+    notch = Begun(notch_of, [None], 1) if takes_params and workers > 1 else None
+    notch_here = notch_of() if takes_params and notch is None else []
     try:
         d = diagnose(
             ms,
@@ -167,7 +167,7 @@ def _diagnosed(
             meanwhile=lambda before, after: drawn.append(report.draw(before, after, out)),
         )
         suggestions = []
-        if log.tables.fmt != "crazyflie" and describes:
+        if takes_params and describes:
             suggestions = suggest(d, ms, log.tables.params, log.tables.autopilot)
             suggestions += notch.results()[0] if notch is not None else notch_here
     finally:
