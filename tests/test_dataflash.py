@@ -290,12 +290,14 @@ def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record(tmp_path):
 @pytest.mark.slow
 def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record_on_foreign_and_real_logs():
     """As above on another generator's logs (Copter 4.5's IMU, with its temperature and error
-    counts); a log the fast read cannot take (the IMU on a TimeMS clock, records without a time of
-    their own, a cut end) is read record by record."""
-    for rel in ("clean_s1.bin", "range_tilt_s1.bin"):
+    counts, and its attitude at the IMU's 400 Hz, in centidegrees, read as arrays too); one of them
+    holds an FMT header's bytes inside a record, which is data and no damage. A log the fast read
+    cannot take (the IMU on a TimeMS clock, records without a time of their own, a cut end) is read
+    record by record."""
+    for rel in ("clean_s1.bin", "range_tilt_s1.bin", "baro_thrust_s1.bin"):
         p = foreign2_file(rel)
         fast = read_dataflash(p, imu_columns=True)
-        assert fast.imu is not None
+        assert fast.imu is not None and fast.damage == "" and fast.counts["ATT"] == fast.counts["IMU"] > 50_000
         _same_reading(fast, read_dataflash(p))
     for rel in (
         "ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin",

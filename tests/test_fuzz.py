@@ -430,6 +430,33 @@ def test_a_dataflash_fmt_of_length_zero_is_damage_not_a_loop(tmp_path):
     assert not log.measurements and "damaged FMT" in log.damage
 
 
+def test_an_fmt_header_inside_a_records_data_is_data(tmp_path):
+    """The three bytes of an FMT record's header (0xA3 0x95 0x80) inside a record's fields, as another
+    generator's 5.9 MB log had them once in a float: data, not a damaged FMT. Read as an FMT, two
+    bytes of the record were zeroed and the log was said to be damaged."""
+    from drivers.logs.bulk import walk_dataflash
+    from drivers.logs.dataflash import clean_binary_formats
+
+    def fmt(type_id, length, name, form, cols):
+        return b"\xa3\x95\x80" + struct.pack(
+            "<BB4s16s64s", type_id, length, name.encode(), form.encode(), cols.encode()
+        )
+
+    data = fmt(128, 89, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns") + fmt(129, 15, "TST", "Qf", "TimeUS,Val")
+    stamps = [1_000_000 * k for k in range(1, 20)]
+    stamps[3] = int.from_bytes(b"\x00\xa3\x95\x80\x00\x00\x00\x00", "little")  # the header in a field
+    for us in stamps:
+        data += b"\xa3\x95\x81" + struct.pack("<Qf", us, 1.5)
+    assert data.count(b"\xa3\x95\x80") == 3 and len(data) - data.rfind(b"\xa3\x95\x80") >= 89
+    assert clean_binary_formats(data)[1] == 1  # scanned for the pattern alone, the field is an FMT
+    assert clean_binary_formats(data, walk_dataflash(data)) == (data, 0)
+    p = tmp_path / "inside.bin"
+    p.write_bytes(data)
+    log = read_dataflash(p)
+    assert log.damage == "" and log.counts["TST"] == len(stamps)
+    assert log.tables.tables["TST"].cols["TimeUS"].tolist() == [float(us) for us in stamps]
+
+
 def _mutants_give_no_traceback_hang_or_blowup(tmp_path, per_format: int, jobs: int) -> None:
     """bench/fuzz.py in a process of its own, capped at 1.5 GB, each mutant at 5 s: ``per_format``
     mutants of each of the five formats (tlog, binary and text DataFlash, ULog, Crazyflie) through

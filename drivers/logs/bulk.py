@@ -395,9 +395,24 @@ def load_dataflash_bin(path: str | Path) -> BulkLog:
     return log
 
 
+def dataflash_dtype(fmt: str, cols) -> np.dtype:
+    """The packed numpy dtype of a record of DataFlash format ``fmt`` (DFReader's struct characters)."""
+    return struct_dtype("".join(DFReader.FORMAT_TO_STRUCT[ch][0] for ch in fmt), cols)
+
+
+def dataflash_values(raw: np.ndarray, ch: str) -> np.ndarray:
+    """A field's values of format character ``ch`` as doubles, as DFReader gives them: a scaled integer
+    (``c``: centi-units, ``L``: 1e-7 degrees) divided by the inverse of its multiplier, the operation
+    DFReader performs (it divides for accuracy), so that the numbers are the same to the bit."""
+    v = raw.astype(np.float64)
+    mult = DFReader.FORMAT_TO_STRUCT[ch][1]
+    if mult is None:
+        return v
+    return v / (1 / mult) if 0.0 < mult < 1.0 else v * mult
+
+
 def _df_fields(u8, offs, L, fmt, cols) -> np.ndarray:
-    structs = "".join(DFReader.FORMAT_TO_STRUCT[c][0] for c in fmt)
-    raw_dt = struct_dtype(structs, cols)
+    raw_dt = dataflash_dtype(fmt, cols)
     if raw_dt.itemsize != L - 3:
         raise ValueError("FMT length disagrees with its format")
     rows = np.ascontiguousarray(_gather(u8, offs + 3, L - 3))
@@ -407,8 +422,8 @@ def _df_fields(u8, offs, L, fmt, cols) -> np.ndarray:
         return raw
     out_dt = np.dtype([(c, "<f8") if mults[c] else (c, raw_dt[c]) for c in cols])
     out = np.empty(len(raw), dtype=out_dt)
-    for c in cols:
-        out[c] = raw[c] * mults[c] if mults[c] else raw[c]
+    for c, ch in zip(cols, fmt):
+        out[c] = dataflash_values(raw[c], ch) if mults[c] else raw[c]
     return out
 
 

@@ -55,7 +55,7 @@ from pymavlink import DFReader
 from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
-from .bulk import DataFlashWalk, fmt_length_ok, struct_dtype, walk_dataflash
+from .bulk import DataFlashWalk, dataflash_dtype, dataflash_values, fmt_length_ok, struct_dtype, walk_dataflash
 from .dataflash_text import TextReader
 from .quiet import quiet
 from .scratch import scratch_copy
@@ -126,7 +126,7 @@ def read_dataflash(
     damage = walk.damage(p) if walk is not None else ""
     cleaned = None
     if binary:
-        clean_bin, bad_fmts = clean_binary_formats(data)
+        clean_bin, bad_fmts = clean_binary_formats(data, walk)
         if bad_fmts:
             damage = "; ".join(x for x in (damage, f"{p}: {bad_fmts} damaged FMT record(s) skipped") if x)
             cleaned = clean_bin
@@ -157,16 +157,26 @@ _FLOAT_FORMATS = set("gfcCeELd")
 _KNOWN_FORMATS = _INT_FORMATS | _FLOAT_FORMATS | set("anNZ")
 
 
-def clean_binary_formats(data: bytes) -> tuple[bytes, int]:
+def clean_binary_formats(data: bytes, walk: DataFlashWalk | None = None) -> tuple[bytes, int]:
     """A binary DataFlash log with its damaged FMT records (a format character DFReader does not
     know, a name that is not a name, columns that do not match the format, a length that is not the
     format's: DFReader steps by it, and a 0 never leaves the record) unmade: their header
     bytes zeroed, so that DFReader resyncs over them and skips that type's records instead of
-    rejecting the whole log."""
+    rejecting the whole log.
+
+    With the log's ``walk``, an FMT header's three bytes inside a record the walk stepped over are
+    that record's data, not an FMT (a 5.9 MB log of another generator's had them once, in a float):
+    only the FMT records the walk found and what lies in its damaged stretches, where DFReader
+    resyncs byte by byte, are looked at. Read as an FMT, the payload's two bytes were zeroed and the
+    log was said to be damaged."""
     out: bytearray | None = None
     bad = 0
+    walked = set(walk.offsets.get(_FMT_RECORD, ())) if walk is not None else set()
     pos = data.find(b"\xa3\x95\x80")
     while pos >= 0 and pos + 89 <= len(data):
+        if walk is not None and pos not in walked and not _in_damage(walk, pos):
+            pos = data.find(b"\xa3\x95\x80", pos + 3)
+            continue
         name = data[pos + 5 : pos + 9].rstrip(b"\0")
         fmt = data[pos + 9 : pos + 25].rstrip(b"\0")
         cols = data[pos + 25 : pos + 89].rstrip(b"\0").split(b",")
@@ -184,6 +194,13 @@ def clean_binary_formats(data: bytes) -> tuple[bytes, int]:
             bad += 1
         pos = data.find(b"\xa3\x95\x80", pos + 3)
     return (bytes(out) if out is not None else data), bad
+
+
+def _in_damage(walk: DataFlashWalk, pos: int) -> bool:
+    """``pos`` lies in bytes the walk resynced over, or past where it found the log cut."""
+    if walk.truncated_at is not None and pos >= walk.truncated_at:
+        return True
+    return any(start <= pos < start + n for start, n in walk.skipped)
 
 
 def clean_text_log(data: bytes) -> tuple[bytes, int]:
@@ -265,12 +282,17 @@ def _read(
         first_stamp: float | None = None
         out = log.measurements
         others = iter(imu.others.tolist()) if imu is not None else None
+        #: with records read as arrays: each measurement's record offset, the tie-break of the sort by
+        #: time (the file's order, as the stable sort of the records read one by one keeps it)
+        at_offset = array("q")
+        here = 0
         while True:
             if others is not None:
                 at = next(others, None)
                 if at is None:
                     break
-                r.offset = at  # the next record not read already (DFReader's own cursor, as its skip_to_type sets it)
+                # the next record not read already (DFReader's own cursor, as its skip_to_type sets it)
+                r.offset = here = at
             try:
                 m = r.recv_msg()
             except Exception as e:  # damage after this point: keep what came before
@@ -314,7 +336,15 @@ def _read(
                 # a record whose fields do not read as their format says (a damaged line or block):
                 # skipped and counted, the rest of the log kept
                 log.skipped["damaged_record"] += 1
-    out.sort(key=lambda x: x.t)
+            if others is not None:
+                at_offset.extend([here] * (len(out) - len(at_offset)))
+    if imu is not None and imu.measured:
+        out.extend(imu.measured)
+        at_offset.extend(imu.measured_at.tolist())
+        order = np.lexsort((np.frombuffer(at_offset, dtype=np.int64), np.array([m.t for m in out])))
+        log.measurements = out = [out[i] for i in order.tolist()]
+    else:
+        out.sort(key=lambda x: x.t)
     log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
     if imu is not None:
         log.imu = imu.columns
@@ -327,6 +357,12 @@ def _read(
 #: numbers DFReader gives as they are stored (no multiplier, no text)
 _IMU_RECORDS = ("IMU", "IMU2")
 _PLAIN_NUMBERS = set("bBhHiIqQfd")
+#: the attitude's record, read as arrays beside the IMU where its fields allow: Copter 4.x logs it at
+#: the IMU's rate (400 Hz), and record by record it was most of the reading time left (5 of a 5.9 MB
+#: log's 6.3 s); and the format characters that read takes besides the plain numbers: DFReader's
+#: scaled integers (centi-units, 1e-7 degrees), scaled as DFReader scales them (:func:`.bulk.dataflash_values`)
+_ATTITUDE = "ATT"
+_SCALED_NUMBERS = set("cCeEL")
 
 
 @dataclass
@@ -337,6 +373,9 @@ class _ImuRecords:
     tables: dict[str, Table]
     counts: Counter
     others: np.ndarray  #: every other record's offset, in the file's order
+    #: the attitude's measurements where read as arrays (:data:`_ATTITUDE`), and their records' offsets
+    measured: list[Measurement] = field(default_factory=list)
+    measured_at: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) -> _ImuRecords | None:
@@ -347,6 +386,7 @@ def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) ->
     IMU's fields must be plain numbers (:data:`_PLAIN_NUMBERS`)."""
     u8 = np.frombuffer(data, dtype=np.uint8)
     imu_types: dict[int, str] = {}
+    att_type = None
     for typ, (name, fmt, cols) in walk.fmts.items():
         if typ not in walk.offsets or not len(walk.offsets[typ]):
             continue
@@ -357,6 +397,9 @@ def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) ->
             if not plain or not {"AccX", "AccY", "AccZ", "GyrX", "GyrY", "GyrZ"} <= set(cols):
                 return None
             imu_types[typ] = name
+        elif name == _ATTITUDE and set(fmt) <= _PLAIN_NUMBERS | _SCALED_NUMBERS:
+            distinct = len(fmt) == len(cols) == len(set(cols))
+            att_type = typ if distinct and {"Roll", "Pitch"} <= set(cols) else None
     if not imu_types or any(typ not in walk.fmts for typ in walk.offsets if typ != _FMT_RECORD):
         return None
     growing: dict[tuple[Kind, int], list] = {}
@@ -384,10 +427,27 @@ def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) ->
         v = np.concatenate([p[1] for p in parts])
         order = np.argsort(t, kind="stable")
         series[key] = ImuSeries(source, t[order], t[order], v[order], np.ones(len(t), dtype=np.int32))
+    measured: list[Measurement] = []
+    measured_at = np.zeros(0, dtype=np.int64)
+    if att_type is not None:
+        _, fmt, cols = walk.fmts[att_type]
+        measured_at = np.frombuffer(walk.offsets[att_type], dtype=np.int64)
+        width = walk.length[att_type] - 3
+        rows = np.lib.stride_tricks.sliding_window_view(u8, width)[measured_at + 3]
+        raw = np.frombuffer(np.ascontiguousarray(rows).tobytes(), dtype=dataflash_dtype(fmt, cols))
+        values = {c: dataflash_values(raw[c], ch) for c, ch in zip(cols, fmt)}
+        t = raw["TimeUS"].astype(np.float64) * 1e-6
+        counts[_ATTITUDE] += len(raw)
+        if tables:
+            out_tables[_ATTITUDE] = Table(t, values)
+        yaw = values.get("Yaw", np.full(len(t), math.nan))
+        angles = np.radians(np.stack([values["Roll"], values["Pitch"], yaw], axis=1))
+        measured = [Measurement(tk, Kind.ATTITUDE, a, source, tk, None, 0) for tk, a in zip(t.tolist(), angles)]
+    skip = {*imu_types, att_type}
     others = np.sort(
-        np.concatenate([np.frombuffer(o, dtype=np.int64) for typ, o in walk.offsets.items() if typ not in imu_types])
+        np.concatenate([np.frombuffer(o, dtype=np.int64) for typ, o in walk.offsets.items() if typ not in skip])
     )
-    return _ImuRecords(ImuColumns(series), out_tables, counts, others)
+    return _ImuRecords(ImuColumns(series), out_tables, counts, others, measured, measured_at)
 
 
 def _text_reader(path: Path):
