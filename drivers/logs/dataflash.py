@@ -167,8 +167,8 @@ def clean_binary_formats(data: bytes, walk: DataFlashWalk | None = None) -> tupl
     With the log's ``walk``, an FMT header's three bytes inside a record the walk stepped over are
     that record's data, not an FMT (a 5.9 MB log of another generator's had them once, in a float):
     only the FMT records the walk found and what lies in its damaged stretches, where DFReader
-    resyncs byte by byte, are looked at. Read as an FMT, the payload's two bytes were zeroed and the
-    log was said to be damaged."""
+    resyncs byte by byte, are looked at. Read as an FMT, the payload's two bytes would be zeroed and
+    a whole log read record by record, said to be damaged."""
     out: bytearray | None = None
     bad = 0
     walked = set(walk.offsets.get(_FMT_RECORD, ())) if walk is not None else set()
@@ -358,9 +358,10 @@ def _read(
 _IMU_RECORDS = ("IMU", "IMU2")
 _PLAIN_NUMBERS = set("bBhHiIqQfd")
 #: the attitude's record, read as arrays beside the IMU where its fields allow: Copter 4.x logs it at
-#: the IMU's rate (400 Hz), and record by record it was most of the reading time left (5 of a 5.9 MB
-#: log's 6.3 s); and the format characters that read takes besides the plain numbers: DFReader's
-#: scaled integers (centi-units, 1e-7 degrees), scaled as DFReader scales them (:func:`.bulk.dataflash_values`)
+#: the IMU's rate (400 Hz), and record by record it is most of the reading the IMU's arrays leave (2.0
+#: of a 5.9 MB log's 2.7 s); and the format characters that read takes besides the plain numbers:
+#: DFReader's scaled integers (centi-units, 1e-7 degrees), scaled as DFReader scales them
+#: (:func:`.bulk.dataflash_values`)
 _ATTITUDE = "ATT"
 _SCALED_NUMBERS = set("cCeEL")
 
@@ -380,7 +381,8 @@ class _ImuRecords:
 
 def _imu_records(data: bytes, walk: DataFlashWalk, source: str, tables: bool) -> _ImuRecords | None:
     """The IMU records' readings as columns, the same numbers, times and order as :func:`_convert`'s
-    records of them (``ImuColumns.split``) and the same tables, read per record type as arrays.
+    records of them (``ImuColumns.split``) and the same tables, read per record type as arrays; and
+    the attitude's measurements, the same as :func:`_convert`'s, where its fields allow (:data:`_ATTITUDE`).
     None where the log does not allow it: every record but the formats' own must carry ``TimeUS``
     (a record's time is then its own, whatever DFReader reads before it: see :func:`_read`), and the
     IMU's fields must be plain numbers (:data:`_PLAIN_NUMBERS`)."""
