@@ -63,6 +63,8 @@ from .vehicles.quad import QuadCommand
 
 #: [s] of the wall clock the simulated vehicle catches up at once; a longer stall pauses it (:meth:`SimBridge.run`)
 MAX_CATCH_UP = 0.02
+#: [s] the wall clock between two steps of the real-time loop (SimBridge.run)
+TICK = 0.004
 
 #: ArduPilot's REQUEST_DATA_STREAM groups -> our sensor streams
 DATA_STREAM_GROUPS = {
@@ -495,7 +497,7 @@ class SimBridge:
         self._last_out[key] = t
         return True
 
-    async def run(self, duration: float | None = None, tick: float = 0.004, catch_up: float = MAX_CATCH_UP) -> None:
+    async def run(self, duration: float | None = None, tick: float = TICK, catch_up: float = MAX_CATCH_UP) -> None:
         """Run in real time (times ``speed``) until ``duration`` or :meth:`close`.
 
         The vehicle catches up at most ``catch_up`` s of the wall clock at once: a longer

@@ -39,7 +39,7 @@ from groundstation.control.response import classify, step_fit
 from groundstation.control.uplink import AttitudeTarget, BoardMotors
 from groundstation.core.measurement import Kind
 from groundstation.estimation.routing import altitude_estimator
-from sim_bridge.bridge import MAX_CATCH_UP, SimBridge
+from sim_bridge.bridge import MAX_CATCH_UP, TICK, SimBridge
 from sim_bridge.effects import parse_effect
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import Scenario
@@ -218,7 +218,7 @@ class Live3dof(_Live):
     measured against their design, and 20 ms at a time on a loaded machine (3 workers on 2 cores)
     the PD step with a stall was fitted at omega 4.68 rad/s for the designed 4 in one run of five."""
 
-    catch_up = 0.004
+    catch_up = TICK
 
     def __init__(self, tmp_path, controller, feedback, scenario=None):
         self.port = PtyPort(tmp_path / "ttyMOTORS")

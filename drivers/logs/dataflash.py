@@ -125,7 +125,7 @@ def read_dataflash(
     walk = walk_dataflash(data) if binary else None
     damage = walk.damage(p) if walk is not None else ""
     cleaned = None
-    if binary:
+    if walk is not None:
         clean_bin, bad_fmts = clean_binary_formats(data, walk)
         if bad_fmts:
             damage = "; ".join(x for x in (damage, f"{p}: {bad_fmts} damaged FMT record(s) skipped") if x)
@@ -157,24 +157,24 @@ _FLOAT_FORMATS = set("gfcCeELd")
 _KNOWN_FORMATS = _INT_FORMATS | _FLOAT_FORMATS | set("anNZ")
 
 
-def clean_binary_formats(data: bytes, walk: DataFlashWalk | None = None) -> tuple[bytes, int]:
+def clean_binary_formats(data: bytes, walk: DataFlashWalk) -> tuple[bytes, int]:
     """A binary DataFlash log with its damaged FMT records (a format character DFReader does not
     know, a name that is not a name, columns that do not match the format, a length that is not the
     format's: DFReader steps by it, and a 0 never leaves the record) unmade: their header
     bytes zeroed, so that DFReader resyncs over them and skips that type's records instead of
     rejecting the whole log.
 
-    With the log's ``walk``, an FMT header's three bytes inside a record the walk stepped over are
+    An FMT header's three bytes inside a record the log's ``walk`` stepped over are
     that record's data, not an FMT (a 5.9 MB log of another generator's had them once, in a float):
     only the FMT records the walk found and what lies in its damaged stretches, where DFReader
     resyncs byte by byte, are looked at. Read as an FMT, the payload's two bytes would be zeroed and
     a whole log read record by record, said to be damaged."""
     out: bytearray | None = None
     bad = 0
-    walked = set(walk.offsets.get(_FMT_RECORD, ())) if walk is not None else set()
+    walked = set(walk.offsets.get(_FMT_RECORD, ()))
     pos = data.find(b"\xa3\x95\x80")
     while pos >= 0 and pos + 89 <= len(data):
-        if walk is not None and pos not in walked and not _in_damage(walk, pos):
+        if pos not in walked and not _in_damage(walk, pos):
             pos = data.find(b"\xa3\x95\x80", pos + 3)
             continue
         name = data[pos + 5 : pos + 9].rstrip(b"\0")
@@ -285,6 +285,7 @@ def _read(
         #: with records read as arrays: each measurement's record offset, the tie-break of the sort by
         #: time (the file's order, as the stable sort of the records read one by one keeps it)
         at_offset = array("q")
+        merged = imu is not None and bool(imu.measured)
         here = 0
         while True:
             if others is not None:
@@ -336,9 +337,9 @@ def _read(
                 # a record whose fields do not read as their format says (a damaged line or block):
                 # skipped and counted, the rest of the log kept
                 log.skipped["damaged_record"] += 1
-            if others is not None:
+            if merged:
                 at_offset.extend([here] * (len(out) - len(at_offset)))
-    if imu is not None and imu.measured:
+    if imu is not None and merged:
         out.extend(imu.measured)
         at_offset.extend(imu.measured_at.tolist())
         order = np.lexsort((np.frombuffer(at_offset, dtype=np.int64), np.array([m.t for m in out])))
