@@ -189,7 +189,7 @@ class FlightLogs:
             gps_s = self.epoch + s.t - GPS_EPOCH_UNIX + GPS_LEAP_S
             week, ms = int(gps_s // 604800), int(round(gps_s % 604800 * 1000))
             course = math.degrees(math.atan2(ve, vn)) % 360
-            w.write("GPS", us, 0, 3, ms, week, 12, 0.8, lat, lon, alt, math.hypot(vn, ve), course, -vd, 0.0, 1)
+            w.write("GPS", us, 0, 3, ms, week, 12, 0.8, lat, lon, alt, math.hypot(vn, ve), course, vd, 0.0, 1)
         elif s.sensor == "range":
             d = v[0]
             lo, hi = RANGE_LIMITS_CM

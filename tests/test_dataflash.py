@@ -294,7 +294,7 @@ def test_the_imu_read_as_arrays_is_the_imu_read_record_by_record_on_foreign_and_
     holds an FMT header's bytes inside a record, which is data and no damage. A log the fast read
     cannot take (the IMU on a TimeMS clock, records without a time of their own, a cut end) is read
     record by record."""
-    for rel in ("clean_s1.bin", "range_tilt_s1.bin", "baro_thrust_s1.bin"):
+    for rel in ("clean_s1.bin", "baro_thrust_s1.bin"):
         p = foreign2_file(rel)
         fast = read_dataflash(p, imu_columns=True)
         assert fast.imu is not None and fast.damage == "" and fast.counts["ATT"] == fast.counts["IMU"] > 50_000

@@ -23,6 +23,8 @@ BAT        Volt [V], Curr [A], Inst               BATTERY_VOLTAGE, BATTERY_CURRE
 MAG        MagX/Y/Z [milligauss], I               MAG [T]
 ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
 GPS        Lat, Lng [deg], Alt [m], Status, I     GPS (3-D fix only)
+           Spd [m/s], GCrs [deg], VZ [m/s]        VELOCITY_NED (vn, ve from the ground speed and
+                                                  course; vd = VZ, NED), with the fix
 RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
 =========  =====================================  ====================================
 
@@ -616,7 +618,12 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
         add(Kind.ATTITUDE, np.radians([m.Roll, m.Pitch, getattr(m, "Yaw", math.nan)]))
     elif typ == "GPS":
         if getattr(m, "Status", 0) >= 3:
-            add(Kind.GPS, [m.Lat, m.Lng, m.Alt], int(getattr(m, "I", 0)))
+            instance = int(getattr(m, "I", 0))
+            add(Kind.GPS, [m.Lat, m.Lng, m.Alt], instance)
+            spd, crs = getattr(m, "Spd", None), getattr(m, "GCrs", None)
+            if spd is not None and crs is not None:
+                c = math.radians(crs)
+                add(Kind.VELOCITY_NED, [spd * math.cos(c), spd * math.sin(c), getattr(m, "VZ", math.nan)], instance)
         else:
             skipped["gps_no_3d_fix"] += 1
     elif typ == "RFND":

@@ -15,6 +15,8 @@ distance_sensor           current_distance [m], min/max_distance,     RANGE (dow
                           orientation (25 = down), signal_quality     its limits, quality not 0)
 vehicle_gps_position      lat, lon [1e-7 deg], alt [mm], fix_type     GPS (3-D fix only)
                           (newer PX4: latitude_deg, altitude_msl_m)
+                          vel_n_m_s, vel_e_m_s, vel_d_m_s,            VELOCITY_NED (3-D fix and
+                          vel_ned_valid                               vel_ned_valid only)
 vehicle_attitude          q[4] (w, x, y, z; FRD to NED)               ATTITUDE [rad]
 actuator_outputs          output[0..3] [us]                           ACTUATOR, (us - 1000) / 1000
 actuator_controls_0       control[3] (thrust 0..1)                    THROTTLE
@@ -219,6 +221,11 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
             ok = fix >= 3 if fix is not None else np.ones(len(gps), bool)
             skipped["gps_no_3d_fix"] += int((~ok).sum())
             add_rows(Kind.GPS, gps.t[ok], np.column_stack([lat, lon, alt])[ok])
+            vn, ve, vd = (gps.numeric(f"vel_{a}_m_s") for a in "ned")
+            if vn is not None and ve is not None and vd is not None:
+                valid = gps.numeric("vel_ned_valid")
+                ok_v = ok & (valid != 0) if valid is not None else ok
+                add_rows(Kind.VELOCITY_NED, gps.t[ok_v], np.column_stack([vn, ve, vd])[ok_v])
     att = tables.get("vehicle_attitude")
     if att is not None:
         q = _vec(att, "q", 4)

@@ -232,6 +232,7 @@ def _together(search: Search) -> None:
         s.say(f"added the discovered {d.expression} on the {d.sensor}")
         s.discoveries.append(d)
         s.effects.append(found)
+        s.added.append(found.evidence["candidate"])  # read again from the final run, as the others
         s.model, s.base = taken(found, s.prep, s.make, s.stream, None)
     s.say("giving the GPS the slow error the log shows")
     s.model, slow, s.base = match_gps_slow(s.model, s.prep, s.make, s.stream, base=s.base, workers=s.workers)

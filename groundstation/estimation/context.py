@@ -71,6 +71,7 @@ class Context:
     temperature_0: float | None = None  #: the first reading [K]
     voltage: float | None = None  #: battery [V]
     current: float | None = None  #: battery [A]
+    ground_speed: float | None = None  #: horizontal speed over the ground [m/s] (the GNSS velocity)
     throttle_lp: float | None = None  #: the throttle low-passed (rotor wash)
     throttle_lp_t: float | None = None
     #: the throttle low-passed at each rotor-wash time constant [s] the model asks for (its

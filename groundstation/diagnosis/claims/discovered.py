@@ -40,15 +40,20 @@ def rival_discovery(
     workers: int = 1,
 ) -> tuple[Discovery, Effect] | None:
     """The strongest discovery that holds (:func:`add_discovery`) on a sensor whose residuals fail,
-    with its effect; one tried before (same sensor and correlate) is not tried again. A failed one
-    goes to ``rejected`` when given."""
+    with its effect: the correlate the regression names, or where it names none on the baro the
+    dynamic pressure's strongest (:func:`.discover`'s ``weak``), each claimed only on the filter's
+    own evidence. One tried before
+    (same sensor and correlate) is not tried again. A failed one goes to ``rejected`` when given."""
     best: tuple[Discovery, Effect] | None = None
     if model.f is not None:  # a nonlinear model is rebuilt from its options: no regressor to add
         return None
     for sensor in base.sensors:
         if sensor == LANDED or residuals_pass([f for f in findings if f.sensor == sensor]):
             continue
-        d = discover(base, sensor)
+        # named by the regression, or on a static port failing that the dynamic pressure's strongest
+        # correlate, for the filter to weigh (of any slow regressor, the GPS's slow error makes a
+        # correlate: on a clean flight the tilt low-passed over 2 s scored Delta BIC -1335 there)
+        d = discover(base, sensor) or (discover(base, sensor, weak=True) if sensor == "baro" else None)
         if d is None or (sensor, d.expression) in tried:
             continue
         tried.add((sensor, d.expression))
@@ -62,7 +67,19 @@ def rival_discovery(
     return best
 
 
-def discovered_column(sensor: str, t_sig: np.ndarray, sig: np.ndarray, nu_sd: float) -> Column:
+def discovered_state(model: LinearModel) -> str:
+    """The state a discovered correlate's coefficient takes in ``model``: one of its own beside any
+    discovered before (sharing a name, a second discovery read the first one's coefficient)."""
+    name, i = "k_discovered", 1
+    while name in model.states:
+        i += 1
+        name = f"k_discovered_{i}"
+    return name
+
+
+def discovered_column(
+    sensor: str, t_sig: np.ndarray, sig: np.ndarray, nu_sd: float, state: str = "k_discovered"
+) -> Column:
     """A discovered correlate as a column on its sensor (:mod:`~groundstation.diagnosis.runs.signature`): its values at
     the times given, held between them; prior: ten times the innovations' spread per signal spread (diffuse against any
     plausible coefficient), as the augmented model's."""
@@ -70,7 +87,7 @@ def discovered_column(sensor: str, t_sig: np.ndarray, sig: np.ndarray, nu_sd: fl
     def values(t: np.ndarray, t0: np.ndarray) -> np.ndarray:
         return np.interp(t, t_sig, sig)
 
-    return Column("k_discovered", (10.0 * nu_sd / (float(np.std(sig)) or 1.0)) ** 2, sensor, of_time=values)
+    return Column(state, (10.0 * nu_sd / (float(np.std(sig)) or 1.0)) ** 2, sensor, of_time=values)
 
 
 #: refits of a discovered correlate on the estimate it corrects (settled_signal), at most
@@ -92,7 +109,7 @@ def settled_signal(d: Discovery, base: Run, model: LinearModel, nu_sd: float) ->
         return sig
     k_last = None
     for _ in range(SETTLE_ITERATIONS):
-        column = discovered_column(d.sensor, t_sig, sig, nu_sd)
+        column = discovered_column(d.sensor, t_sig, sig, nu_sd, discovered_state(model))
         sig_d = run_signatures(base, model.n, [column], probed=False)  # its own alone: each column's is its own
         if sig_d is None:
             return sig
@@ -125,14 +142,16 @@ def add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, workers
 
     def augment(m):
         # prior: ten times the innovations' spread per signal spread (diffuse against any plausible k)
-        return with_regressor(m, d.sensor, "k_discovered", regressor, (10.0 * nu_sd / spread) ** 2)
+        return with_regressor(m, d.sensor, state, regressor, (10.0 * nu_sd / spread) ** 2)
 
-    cand = Candidate("discovered", 1, set(), d.sensor, augment, state_param("k", "k_discovered"))
+    state = discovered_state(model)
+    read_k = state_param("k", state)
+    cand = Candidate("discovered", 1, set(), d.sensor, augment, read_k)
     aug = augment(model)
     params: dict = {"expression": d.expression}
     # through the base run's gains where the two-stage filter applies (the regressor is a function of
     # time alone, so it is exact there): the effect's own run only once it is claimed
-    column = discovered_column(d.sensor, t_sig, sig, nu_sd)
+    column = discovered_column(d.sensor, t_sig, sig, nu_sd, state)
     sig_d = None if trials.BY_RUNS else run_signatures(base, model.n, [column], probed=False)
     f = fit(sig_d, [column]) if sig_d is not None else None
     try:
@@ -144,7 +163,7 @@ def add_discovery(d: Discovery, model, base: Run, prep, make, stream, *, workers
         return Effect(
             "discovered", params, {"sensor": d.sensor, "reason": "its filter diverged", "delta_bic": math.nan}
         )
-    params.update(state_param("k", "k_discovered")(run))
+    params.update(read_k(run))
     n = max(base.sensors[d.sensor].t.size, 1)
     dbic = -2.0 * (run.loglik - base.loglik) + math.log(n)
     ho = holdout.check(
@@ -180,8 +199,9 @@ def taken(found: Effect, prep: Prepared, make, stream, probes: Probes | None) ->
     was scored through the base run's gains (taped, with ``probes``: a ranking may start from it),
     its coefficient read from that run."""
     model, run = found.evidence.pop("model"), found.evidence.pop("run")
-    found.evidence.pop("candidate", None)
+    read_k = found.evidence.pop("candidate").params
     if run.through_gains or (probes is not None and run.taped is None):
         run = run_model(model, prep, make, measurements=stream, taped=True, probes=probes)
-        found.params.update(state_param("k", "k_discovered")(run))
+        assert read_k is not None  # a discovery's candidate reads its coefficient (add_discovery)
+        found.params.update(read_k(run))
     return model, run

@@ -297,7 +297,17 @@ def hold_zeros(prep: Prepared, run: Run) -> None:
 SETTLE_S = 5.0
 
 #: context values recorded beside every innovation (for cross-correlation and regression)
-SIGNALS = ("throttle", "throttle_lp", "roll", "pitch", "temperature", "voltage", "current", "vibration")
+SIGNALS = (
+    "throttle",
+    "throttle_lp",
+    "roll",
+    "pitch",
+    "temperature",
+    "voltage",
+    "current",
+    "vibration",
+    "ground_speed",
+)
 
 
 def run_model(

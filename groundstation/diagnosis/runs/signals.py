@@ -1,7 +1,8 @@
 """The signals the catalogue's regressors and the discovery library read, kept current as a run goes:
 the throttle and its low-passes at each rotor-wash time constant the model asks for (and the thrust
 over the weight the throttle makes, with its own, where the log shows how it makes it), the
-temperature, the battery, and the rotors' vibration from the accelerometer."""
+temperature, the battery, the speed over the ground (the GNSS velocity's), and the rotors'
+vibration from the accelerometer."""
 
 from __future__ import annotations
 
@@ -109,6 +110,11 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
     def current(m, ctx):
         ctx.current = float(m.value[0])
 
+    def ground_speed(m, ctx):
+        vn, ve = m.value.tolist()[:2]
+        if math.isfinite(vn) and math.isfinite(ve):
+            ctx.ground_speed = math.hypot(vn, ve)
+
     def vibration(m, ctx):
         # the accelerometer's deviation from its own low-passed value: rotors turning (the two
         # low-passes of :func:`lowpass` written out: this runs at the IMU blocks' rate)
@@ -142,4 +148,5 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
     chain(Kind.TEMPERATURE, temperature)
     chain(Kind.BATTERY_VOLTAGE, voltage)
     chain(Kind.BATTERY_CURRENT, current)
+    chain(Kind.VELOCITY_NED, ground_speed)
     chain(Kind.ACCEL, vibration)
