@@ -41,8 +41,8 @@ def rival_discovery(
 ) -> tuple[Discovery, Effect] | None:
     """The strongest discovery that holds (:func:`add_discovery`) on a sensor whose residuals fail,
     with its effect: the correlate the regression names, or where it names none on the baro the
-    dynamic pressure's strongest (:func:`.discover`'s ``weak``), each claimed only on the filter's
-    own evidence. One tried before
+    dynamic pressure over the ground (:func:`.discover`'s ``weak``), each claimed only on the
+    filter's own evidence. One tried before
     (same sensor and correlate) is not tried again. A failed one goes to ``rejected`` when given."""
     best: tuple[Discovery, Effect] | None = None
     if model.f is not None:  # a nonlinear model is rebuilt from its options: no regressor to add
@@ -50,9 +50,9 @@ def rival_discovery(
     for sensor in base.sensors:
         if sensor == LANDED or residuals_pass([f for f in findings if f.sensor == sensor]):
             continue
-        # named by the regression, or on a static port failing that the dynamic pressure's strongest
-        # correlate, for the filter to weigh (of any slow regressor, the GPS's slow error makes a
-        # correlate: on a clean flight the tilt low-passed over 2 s scored Delta BIC -1335 there)
+        # named by the regression, or on a static port failing that the flight's dynamic pressure over
+        # the ground (discover.WEAK_CORRELATES), for the filter to weigh (of any slow regressor the
+        # GPS's slow error makes a correlate: the tilt low-passed over 2 s scored Delta BIC -1335 there)
         d = discover(base, sensor) or (discover(base, sensor, weak=True) if sensor == "baro" else None)
         if d is None or (sensor, d.expression) in tried:
             continue
