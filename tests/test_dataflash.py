@@ -166,6 +166,30 @@ def test_current_messages_rangefinder_battery_compass_and_instances(tmp_path):
     assert vibe.t[0] == pytest.approx(1.0) and vibe["VibeZ"][0] == pytest.approx(12.0)
 
 
+def test_the_gps_records_velocity_is_ned_and_a_damaged_one_is_left_out(tmp_path):
+    """ArduPilot's GPS record: Spd and GCrs (ground speed, course over the ground) and VZ (its
+    velocity.z: down) are VELOCITY_NED. A speed or course that is not a number (a damaged record)
+    gives no velocity and no traceback; the position still reads."""
+    lines = [
+        "FMT, 128, 89, FMT, BBnNZ, Type,Length,Name,Format,Columns",
+        "FMT, 129, 31, IMU, QBffffff, TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+        "FMT, 130, 45, GPS, QBBIHBcLLeffff, TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw",
+    ]
+    for k, (spd, crs) in enumerate([(5.0, 90.0), (2.0, 180.0), ("nan", 90.0), (3.0, "inf")]):
+        us = 1_000_000 + 200_000 * k
+        lines += [
+            f"IMU, {us}, 0, 0, 0, 0, 0, 0, -9.8",
+            f"GPS, {us}, 0, 3, 1000, 2200, 12, 0.8, 47.39, 8.54, 490.5, {spd}, {crs}, -1.5, 0",
+        ]
+    p = tmp_path / "gps.log"
+    p.write_text("\n".join(lines) + "\n")
+    log = read_dataflash(p)
+    gps = [m for m in log.measurements if m.kind is Kind.GPS]
+    vel = [m.value for m in log.measurements if m.kind is Kind.VELOCITY_NED]
+    assert len(gps) == 4 and len(vel) == 2
+    assert np.allclose(vel[0], [0.0, 5.0, -1.5], atol=1e-9) and np.allclose(vel[1], [-2.0, 0.0, -1.5], atol=1e-9)
+
+
 def test_records_without_a_clock_share_the_imus():
     """The erle log's ERR records and its ArduCopter 3.3 GPS (boot time in T) on the IMU's clock:
     the crash check's ERR comes as logging resumes after the 22 s gap, and the first GPS fix

@@ -621,7 +621,7 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
             instance = int(getattr(m, "I", 0))
             add(Kind.GPS, [m.Lat, m.Lng, m.Alt], instance)
             spd, crs = getattr(m, "Spd", None), getattr(m, "GCrs", None)
-            if spd is not None and crs is not None:
+            if spd is not None and crs is not None and math.isfinite(spd) and math.isfinite(crs):
                 c = math.radians(crs)
                 add(Kind.VELOCITY_NED, [spd * math.cos(c), spd * math.sin(c), getattr(m, "VZ", math.nan)], instance)
         else:
