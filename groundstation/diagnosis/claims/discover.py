@@ -141,8 +141,7 @@ def discover(run: Run, sensor: str, max_terms: int = 3, *, weak: bool = False) -
     """The sparse regression's correlate of ``sensor``'s innovations, named when it explains enough of
     them out of sample (the module's docstring). ``weak``: its strongest correlate among
     :data:`WEAK_CORRELATES`, whatever it explains, in or out of sample: a correlate for the filter
-    itself to weigh
-    (:func:`~groundstation.diagnosis.claims.discovered.rival_discovery`). The raw innovations show a
+    itself to weigh (:func:`~groundstation.diagnosis.claims.discovered.rival_discovery`). The raw innovations show a
     slow error only as the filter fails to follow it: a baro reading high by 0.01 m per (m/s)^2 of
     speed over the ground, which the baro's weight in the height estimate carries along, explained
     6 % of them, while added to the filter it scored Delta BIC -498 (a clean flight: -1.5)."""

@@ -42,8 +42,8 @@ def rival_discovery(
     """The strongest discovery that holds (:func:`add_discovery`) on a sensor whose residuals fail,
     with its effect: the correlate the regression names, or where it names none on the baro the
     dynamic pressure over the ground (:func:`.discover`'s ``weak``), each claimed only on the
-    filter's own evidence. One tried before
-    (same sensor and correlate) is not tried again. A failed one goes to ``rejected`` when given."""
+    filter's own evidence. One tried before (same sensor and correlate) is not tried again. A failed
+    one goes to ``rejected`` when given."""
     best: tuple[Discovery, Effect] | None = None
     if model.f is not None:  # a nonlinear model is rebuilt from its options: no regressor to add
         return None
