@@ -56,7 +56,7 @@ def test_an_effect_the_model_after_holds_near_zero_is_not_claimed():
     ms.sort(key=in_time_order)
     d = diagnose(ms, source=str(path), imu=log.imu, vehicle=log.vehicle)
     assert [e.name for e in d.effects] == ["sensor_delay"] and d.effects[0].params["sensor"] == "gps"
-    wash = [e for e in d.rejected if e.name == "baro_thrust" and "standard errors from zero" in e.evidence["reason"]]
+    wash = [e for e in d.rejected if e.name == "baro_thrust" and "sigma from zero" in e.evidence["reason"]]
     assert wash, [(e.name, e.evidence.get("reason")) for e in d.rejected]
 
     def error(run) -> float:  # the data README's scoring: in flight, the datum from the pre-arm ground

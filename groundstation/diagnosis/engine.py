@@ -28,7 +28,7 @@ from groundstation.diagnosis.catalogue.thrust_side import voltage_effect
 from groundstation.diagnosis.claims.detect import Finding, residuals_pass, sensor_findings
 from groundstation.diagnosis.claims.discover import Discovery
 from groundstation.diagnosis.claims.discovered import rival_discovery, taken
-from groundstation.diagnosis.claims.joint import joint_params, joint_shapes
+from groundstation.diagnosis.claims.joint import joint_params, joint_shapes, model_of
 from groundstation.diagnosis.claims.leave_one_out import LeftOut, LeftOutRuns
 from groundstation.diagnosis.claims.search import Search, detectable
 from groundstation.diagnosis.effect import Effect
@@ -240,10 +240,7 @@ def _together(search: Search) -> None:
     joint_params(s.effects, s.added, s.base)
     if _drop_unsupported(s):
         s.say("giving the GPS the slow error the log shows, without what the others explain")
-        model = s.model0
-        for c in s.added:
-            if c.augment is not None:
-                model = c.augment(model)
+        model = model_of(s.model0, s.added)
         first = run_model(model, s.prep, s.make, measurements=s.stream)
         s.model, slow, s.base = match_gps_slow(model, s.prep, s.make, s.stream, base=first, workers=s.workers)
         joint_params(s.effects, s.added, s.base)
@@ -251,37 +248,20 @@ def _together(search: Search) -> None:
         s.noise.append(slow)
 
 
-#: an effect whose every size the final model holds within this many standard errors of zero is not
-#: claimed: the claim's own bar (claims.search: 3 sigma), met when it was added, is met with the effects
-#: added after it too
-KEEP_Z = 3.0
-
-
-def _size_z(e: Effect) -> float | None:
-    """The largest of an effect's sizes in standard errors (|p| / sigma_p), None where none has one."""
-    zs = [
-        abs(float(v)) / float(e.params[f"sigma_{k}"])
-        for k, v in e.params.items()
-        if isinstance(v, (int, float))
-        and isinstance(e.params.get(f"sigma_{k}"), (int, float))
-        and float(e.params[f"sigma_{k}"]) > 0.0
-    ]
-    return max(zs) if zs else None
-
-
 def _drop_unsupported(s: Search) -> bool:
-    """The effects added as states that the final model, with every effect added after them, holds within
-    :data:`KEEP_Z` standard errors of zero, moved to the rejected (their states out of the model); whether any
-    was. A GPS height 0.25 s late on a PX4 flight first drew a rotor wash that the GPS's delay, added after it,
-    explained: the wash was reported at 0.11 +- 0.05 and the height after was 5.3 cm where before it was 4.5."""
+    """The effects added as states that the final model, with every effect added after them, holds too near
+    zero to claim (the claim's own bar, :func:`.holdout.sizes`), moved to the rejected (their states out of the
+    model); whether any was. A GPS height 0.25 s late on a PX4 flight first drew a rotor wash that the GPS's
+    delay, added after it, explained: the wash was reported at 0.11 +- 0.05 and the height after was 5.3 cm
+    where before it was 4.5."""
     dropped = []
     for i, (e, c) in enumerate(zip(s.effects, s.added)):
-        z = _size_z(e)
-        if c.augment is not None and not c.delays and z is not None and z < KEEP_Z:
+        if c.augment is None or c.delays:
+            continue
+        _, why = holdout.sizes(e.params, delay=False)
+        if why is not None:
             dropped.append(i)
-            e.evidence["reason"] = (
-                f"with the effects added after it, the model holds its size {z:.1f} standard errors from zero"
-            )
+            e.evidence["reason"] = f"with the effects added after it, {why}"
     for i in reversed(dropped):
         e = s.effects.pop(i)
         s.added.pop(i)

@@ -21,6 +21,15 @@ from groundstation.diagnosis.scoring.trials import log_profile
 from groundstation.estimation.models.base import LinearModel
 
 
+def model_of(model0: LinearModel, added: Sequence[Candidate]) -> LinearModel:
+    """``model0`` with the effects of ``added`` that are states added to it, in their order."""
+    m = model0
+    for c in added:
+        if c.augment is not None:
+            m = c.augment(m)
+    return m
+
+
 def joint_params(effects: list[Effect], added: list[Candidate], final: Run) -> None:
     """An effect estimated as states is reported as the final model estimates it, jointly with every
     effect added after it; its value when it was added goes to the evidence. Read when it was added,
@@ -62,13 +71,10 @@ def joint_shapes(
             continue
         unshaped, e = c.unshaped, effects[j]
 
-        def build(shape: float | None, j=j, unshaped=unshaped) -> LinearModel:
+        def build(shape: float | None, j=j, c=c, unshaped=unshaped) -> LinearModel:
             """The final model with the shaped effect at ``shape`` (None: without it)."""
-            m = model0
-            for k, ck in enumerate(added):
-                if ck.augment is not None and not (k == j and shape is None):
-                    m = unshaped(m, shape) if k == j else ck.augment(m)
-            return m
+            at = replace(c, augment=None if shape is None else with_shape(unshaped, shape))
+            return model_of(model0, [*added[:j], at, *added[j + 1 :]])
 
         s0 = float(e.params[c.shape_name])
         if c.columns is not None and not trials.BY_RUNS:
