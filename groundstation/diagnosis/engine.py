@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -35,7 +35,13 @@ from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.runs.run import Run, run_model
 from groundstation.diagnosis.scoring import holdout
-from groundstation.diagnosis.scoring.noise_match import GpsSlowBefore, NoiseLevel, match_gps_slow
+from groundstation.diagnosis.scoring.noise_match import (
+    PROCESS_LEVEL,
+    GpsSlowBefore,
+    NoiseLevel,
+    match_gps_slow,
+    match_process_noise,
+)
 from groundstation.diagnosis.scoring.scored import STRONG
 from groundstation.estimation.models.base import LinearModel
 from groundstation.estimation.stated import RangeClearance, Stated
@@ -179,6 +185,7 @@ def diagnose(
         found_beside, unclaimed = _beside(search, model_name, unobs)
         if slow is not None:
             search.first = slow.chosen(search.model0, search.first)[2]
+        _before_with_process_noise(search)
         if meanwhile is not None:
             meanwhile(search.first, search.base)
         left_out: list[LeftOut] = left.results() if left is not None else []
@@ -219,7 +226,9 @@ def _together(search: Search) -> None:
     a hundred columns found the battery current on the range where a delay of 60 ms was); then the GPS given the slow
     error the log shows; then each effect read from that final run, whose values the model after holds. Read before the
     GPS's level is chosen, a PX4 flight's rotor wash would be reported at 0.88 of the thrust over the weight (traced
-    against the GPS at the floor of its slow error) while the model after holds 0.93 (the GPS at its 1 m)."""
+    against the GPS at the floor of its slow error) while the model after holds 0.93 (the GPS at its 1 m). Last, the
+    vertical speed's process noise the likelihood chooses with the effects in the model (and the effects read again
+    where it moved)."""
     s = search
     s.model, s.base = joint_shapes(s.model0, s.effects, s.added, s.prep, s.make, s.stream, s.model, s.base)
     for e in s.effects:  # an alternative the search added after all is a second effect, not an alternative
@@ -246,6 +255,26 @@ def _together(search: Search) -> None:
         joint_params(s.effects, s.added, s.base)
     if slow is not None:
         s.noise.append(slow)
+    s.say("choosing the process noise the log shows")
+    with_q, level, _ = match_process_noise(s.model, s.prep, s.make, s.base, s.stream)
+    if level is not None:
+        s.model = with_q
+        s.base = run_model(with_q, s.prep, s.make, measurements=s.stream)
+        joint_params(s.effects, s.added, s.base)
+        s.noise.append(level)
+
+
+def _before_with_process_noise(search: Search) -> None:
+    """The run before with the vertical speed's process noise its own likelihood chooses
+    (:func:`~groundstation.diagnosis.scoring.noise_match.match_process_noise`), where that is not the model's; its
+    level reported where the model after took none or another."""
+    s = search
+    with_q, level, _ = match_process_noise(s.first.model, s.prep, s.make, s.first)
+    if level is None:
+        return
+    s.first = run_model(with_q, s.prep, s.make)
+    if not any(n.sensor == PROCESS_LEVEL and n.sigma_data == level.sigma_data for n in s.noise):
+        s.noise.append(replace(level, sensor=f"{PROCESS_LEVEL} before the effects"))
 
 
 def _drop_unsupported(s: Search) -> bool:

@@ -10,6 +10,7 @@ from groundstation.diagnosis.catalogue.candidate import unit_of
 from groundstation.diagnosis.catalogue.thrust_model import LIFTOFF_REACH
 from groundstation.diagnosis.claims.search import CLOSE_CALL
 from groundstation.diagnosis.engine import Diagnosis
+from groundstation.diagnosis.scoring.noise_match import PROCESS_LEVEL
 
 
 def _colour(e) -> tuple[str, float]:
@@ -41,11 +42,13 @@ def _noise_said(d: Diagnosis) -> list[str]:
     differs = [n for n in d.noise if n.differs]
     if not differs:
         return []
+    process = any(n.sensor.startswith(PROCESS_LEVEL) for n in differs)
     return [
         "The log's own noise differs from the model's, and the diagnosis used the log's: "
         + "; ".join(f"{n.sensor} {n.sigma_data:.3g}, the model had {n.sigma_model:.3g}" for n in differs)
-        + " (covariance matching on the innovations). A mis-set noise level is a finding of its own, "
-        "not an effect."
+        + " (covariance matching on the innovations"
+        + ("; the acceleration's, the vertical speed's process noise, by the likelihood" if process else "")
+        + "). A mis-set noise level is a finding of its own, not an effect."
     ]
 
 
