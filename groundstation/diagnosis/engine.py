@@ -41,6 +41,7 @@ from groundstation.diagnosis.scoring.noise_match import (
     NoiseLevel,
     match_gps_slow,
     match_process_noise,
+    with_process_noise,
 )
 from groundstation.diagnosis.scoring.scored import STRONG
 from groundstation.estimation.models.base import LinearModel
@@ -257,24 +258,30 @@ def _together(search: Search) -> None:
         s.noise.append(slow)
     s.say("choosing the process noise the log shows")
     with_q, level, _ = match_process_noise(s.model, s.prep, s.make, s.base, s.stream)
+    s.process_scale = 1.0
     if level is not None:
         s.model = with_q
         s.base = run_model(with_q, s.prep, s.make, measurements=s.stream)
         joint_params(s.effects, s.added, s.base)
         s.noise.append(level)
+        s.process_scale = level.ratio**2
 
 
 def _before_with_process_noise(search: Search) -> None:
     """The run before with the vertical speed's process noise its own likelihood chooses
     (:func:`~groundstation.diagnosis.scoring.noise_match.match_process_noise`), where that is not the model's; its
-    level reported where the model after took none or another."""
+    level reported where it is not the model after's. Where no effect was added the model after is the model before,
+    and its choice is taken as it is."""
     s = search
+    if not s.added and s.process_scale is not None:
+        if s.process_scale != 1.0:
+            s.first = run_model(with_process_noise(s.first.model, s.process_scale), s.prep, s.make)
+        return
     with_q, level, _ = match_process_noise(s.first.model, s.prep, s.make, s.first)
     if level is None:
         return
     s.first = run_model(with_q, s.prep, s.make)
-    if not any(n.sensor == PROCESS_LEVEL and n.sigma_data == level.sigma_data for n in s.noise):
-        s.noise.append(replace(level, sensor=f"{PROCESS_LEVEL} before the effects"))
+    s.noise.append(replace(level, sensor=f"{PROCESS_LEVEL} before the effects"))
 
 
 def _drop_unsupported(s: Search) -> bool:

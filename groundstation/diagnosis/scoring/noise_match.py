@@ -350,16 +350,13 @@ def match_process_noise(
     speed, or with none of its process noise, is left as it is."""
     if PROCESS_STATE not in model.states or model.f is not None:
         return model, None, None
-    i = model.index(PROCESS_STATE)
-    q0 = float(model.Qc[i, i])
+    q0 = float(model.Qc[model.index(PROCESS_STATE), model.index(PROCESS_STATE)])
     if not q0 > 0.0 or base.n_scored < 2:
         return model, None, None
     penalty = math.log(base.n_scored)
 
     def at(scale: float) -> tuple[LinearModel, Run]:
-        Qc = model.Qc.astype(float).copy()
-        Qc[i, i] = q0 * scale
-        m = replace(model, Qc=Qc)
+        m = with_process_noise(model, scale)
         return m, run_model(m, prep, make, measurements=measurements, scores_only=True)
 
     scale, ll = 1.0, base.loglik
@@ -376,3 +373,11 @@ def match_process_noise(
         return model, None, None
     level = NoiseLevel(PROCESS_LEVEL, math.sqrt(q0 * scale), math.sqrt(q0), chosen[1].n_scored)
     return chosen[0], level, chosen[1]
+
+
+def with_process_noise(model: LinearModel, scale: float) -> LinearModel:
+    """``model`` with the vertical speed's process noise ``scale`` times its own."""
+    i = model.index(PROCESS_STATE)
+    Qc = model.Qc.astype(float).copy()
+    Qc[i, i] *= scale
+    return replace(model, Qc=Qc)
