@@ -257,7 +257,7 @@ def _together(search: Search) -> None:
     if slow is not None:
         s.noise.append(slow)
     s.say("choosing the process noise the log shows")
-    with_q, level, _ = match_process_noise(s.model, s.prep, s.make, s.base, s.stream)
+    with_q, level = match_process_noise(s.model, s.prep, s.make, s.base, s.stream, workers=s.workers)
     s.process_scale = 1.0
     if level is not None:
         s.model = with_q
@@ -277,7 +277,7 @@ def _before_with_process_noise(search: Search) -> None:
         if s.process_scale != 1.0:
             s.first = run_model(with_process_noise(s.first.model, s.process_scale), s.prep, s.make)
         return
-    with_q, level, _ = match_process_noise(s.first.model, s.prep, s.make, s.first)
+    with_q, level = match_process_noise(s.first.model, s.prep, s.make, s.first, workers=s.workers)
     if level is None:
         return
     s.first = run_model(with_q, s.prep, s.make)

@@ -336,43 +336,61 @@ def match_noise(
 
 
 def match_process_noise(
-    model: LinearModel, prep: Prepared, make, base: Run, measurements: Sequence[Measurement] | None = None
-) -> tuple[LinearModel, NoiseLevel | None, Run | None]:
+    model: LinearModel,
+    prep: Prepared,
+    make,
+    base: Run,
+    measurements: Sequence[Measurement] | None = None,
+    *,
+    workers: int = 1,
+) -> tuple[LinearModel, NoiseLevel | None]:
     """The model with the vertical speed's process noise (``Qc[vz, vz]``, the altitude document's
-    G_acc of eq. 9.22) the log's innovations choose, its level, and the run at it (scores alone);
-    the model unchanged, None and None where no other level is chosen.
+    G_acc of eq. 9.22) the log's innovations choose, and its level; the model unchanged and None
+    where no other level is chosen.
 
     The level is scaled by :data:`PROCESS_STEP` up from the model's, and where the first step up is not
-    taken, down, each trial run over the whole log and taken while its likelihood beats the level
-    before it by very strong evidence: Delta BIC = -2 Delta l + ln n < :data:`PROCESS_STRONG`, n the
-    updates scored (one parameter, the scale). ``base``: the model's own run over ``measurements`` (by
-    default the prepared log's), whose likelihood the first trial must beat. A model without a vertical
-    speed, or with none of its process noise, is left as it is."""
+    taken, down, each trial run over the whole log (its scores alone) and taken while its likelihood
+    beats the level before it by very strong evidence: Delta BIC = -2 Delta l + ln n <
+    :data:`PROCESS_STRONG`, n the updates scored (one parameter, the scale). ``base``: the model's own
+    run over ``measurements`` (by default the prepared log's), whose likelihood the first trial must
+    beat. With ``workers`` > 1 the first step each way runs at once, and then the next steps two at a
+    time (:func:`.trials.fork_map`): the same level on any number. A model without a vertical speed, or
+    with none of its process noise, is left as it is."""
     if PROCESS_STATE not in model.states or model.f is not None:
-        return model, None, None
+        return model, None
     q0 = float(model.Qc[model.index(PROCESS_STATE), model.index(PROCESS_STATE)])
     if not q0 > 0.0 or base.n_scored < 2:
-        return model, None, None
+        return model, None
     penalty = math.log(base.n_scored)
+    n = 2 if workers > 1 else 1
 
-    def at(scale: float) -> tuple[LinearModel, Run]:
+    def loglik(scale: float) -> float:
         m = with_process_noise(model, scale)
-        return m, run_model(m, prep, make, measurements=measurements, scores_only=True)
+        return run_model(m, prep, make, measurements=measurements, scores_only=True).loglik
 
-    scale, ll = 1.0, base.loglik
-    chosen: tuple[LinearModel, Run] | None = None
-    for step in (PROCESS_STEP, 1.0 / PROCESS_STEP):
-        for _ in range(PROCESS_STEPS):
-            m, run = at(scale * step)
-            if not -2.0 * (run.loglik - ll) + penalty < PROCESS_STRONG:
+    def taken(new: float, old: float) -> bool:
+        return -2.0 * (new - old) + penalty < PROCESS_STRONG
+
+    up, down = PROCESS_STEP, 1.0 / PROCESS_STEP
+    first = dict(zip((up, down), fork_map(loglik, [up, down], n))) if n > 1 else {up: loglik(up)}
+    if down not in first and not taken(first[up], base.loglik):
+        first[down] = loglik(down)
+    step = next((k for k in (up, down) if k in first and taken(first[k], base.loglik)), None)
+    if step is None:
+        return model, None
+    scale, ll, k = step, first[step], 1
+    while k < PROCESS_STEPS:
+        ahead = [scale * step**j for j in range(1, min(n, PROCESS_STEPS - k) + 1)]
+        moved = 0
+        for trial, got in zip(ahead, fork_map(loglik, ahead, n)):
+            if not taken(got, ll):
                 break
-            scale, ll, chosen = scale * step, run.loglik, (m, run)
-        if chosen is not None:
+            scale, ll, moved = trial, got, moved + 1
+        k += moved
+        if moved < len(ahead):
             break
-    if chosen is None:
-        return model, None, None
-    level = NoiseLevel(PROCESS_LEVEL, math.sqrt(q0 * scale), math.sqrt(q0), chosen[1].n_scored)
-    return chosen[0], level, chosen[1]
+    level = NoiseLevel(PROCESS_LEVEL, math.sqrt(q0 * scale), math.sqrt(q0), base.n_scored)
+    return with_process_noise(model, scale), level
 
 
 def with_process_noise(model: LinearModel, scale: float) -> LinearModel:
