@@ -16,7 +16,6 @@ from groundstation.diagnosis.models import setup
 from groundstation.diagnosis.report.conclusion import conclusion
 from groundstation.diagnosis.report.report import as_json
 from groundstation.diagnosis.runs.outputs import interval_means
-from groundstation.diagnosis.scoring.noise_match import PROCESS_LEVEL
 from groundstation.estimation.models.ground import TAU_GROUND
 from groundstation.estimation.truth import truth_from
 from groundstation.estimation.vehicles import declared_effects
@@ -85,9 +84,7 @@ def test_a_log_the_curve_cannot_be_read_from_gives_none_and_the_hover_prior_stay
 def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     """No vehicle file: the thrust curve from the accelerometer (alpha 22.47, beta -1.44 here). With the
     hover prior (alpha 19.8, beta held at 0, G_acc 0.006) this lag was found on none of three flights, and
-    0.1 s read 0.084-0.086 s. The report gives the curve it started from. The run before takes the process
-    noise its own likelihood chooses, 27 times the model's here, which follows part of the lag: before 0.62 cm
-    (1.01 at the model's level), after 0.35."""
+    0.1 s read 0.084-0.086 s. The report gives the curve it started from."""
     log, ms = _flight(tmp_path, 1000, ["actuator_lag:tc=0.05"])
     d = diagnose(
         ms,
@@ -101,8 +98,7 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     assert d.vehicle is None and d.airframe["source"] == "accelerometer"
     assert d.airframe["alpha"] == pytest.approx(22.0, rel=0.03)
     before, after = (d.truth.error(r, 8.0, 50.0) for r in (d.before, d.after))
-    assert after < 0.7 * before, (before, after)
-    assert any(n.sensor.startswith(PROCESS_LEVEL) and n.ratio > 3.0 for n in d.noise), d.noise
+    assert after < 0.5 * before, (before, after)
     # the conclusion sets the accelerometer's own reading of the lag beside the filter's
     text = conclusion(d, as_json(d))
     assert "from the accelerometer" in text and "for actuator_lag's 0.0" in text, text

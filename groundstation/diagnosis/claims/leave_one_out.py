@@ -104,8 +104,8 @@ class LeftOutRuns:
     begins the model after's, on ``workers``, while the diagnosis reads the thrust curve beside the
     model. Each gives back its numbers alone, the same on any number of ``workers``; with one, all are
     made here when collected. The model before's runs hold the model's process noise (they begin before
-    the run before's level is chosen, ``noise_match.match_process_noise``): where the log chose another,
-    what the model after gains on them holds that level's share too."""
+    the level is chosen, ``noise_match.match_process_noise``): where the log chose another, what the
+    model after gains on them holds that level's share too."""
 
     def __init__(
         self,

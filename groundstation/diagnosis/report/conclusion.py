@@ -42,7 +42,7 @@ def _noise_said(d: Diagnosis) -> list[str]:
     differs = [n for n in d.noise if n.differs]
     if not differs:
         return []
-    process = any(n.sensor.startswith(PROCESS_LEVEL) for n in differs)
+    process = any(n.sensor == PROCESS_LEVEL for n in differs)
     return [
         "The log's own noise differs from the model's, and the diagnosis used the log's: "
         + "; ".join(f"{n.sensor} {n.sigma_data:.3g}, the model had {n.sigma_model:.3g}" for n in differs)

@@ -21,10 +21,11 @@ The process noise of the vertical speed (``G_acc``: the accelerometer's noise an
 model misses, the attitude's error in the rotation among it) is set by the likelihood
 (:func:`match_process_noise`): the model's level is what our simulator's flights need, and another
 airframe's IMU, mounting and vibration, or an accelerometer whose bias steps as it warms, needs more.
-It is chosen for the model before and for the model after, each with what it holds, and the effects
-are traced at the model's level: chosen before them, a rotor wash's baro error the model lacked drew
-a level 30-100 times the model's, the wash then read smaller, and the height after it was twice as far
-off the truth (another generator's two wash flights: 8.7 and 9.5 cm became 18.0 and 20.7).
+It is chosen once, for the model after (the effects in it), and the run before takes the same level:
+the effects are traced at the model's level. Chosen before them, a rotor wash's baro error the model
+lacked drew a level 30-100 times the model's, the wash then read smaller, and the height after it was
+twice as far off the truth (another generator's two wash flights: 8.7 and 9.5 cm became 18.0 and
+20.7); chosen for the model before on its own, an effect it lacks draws the level up in the same way.
 Taken as the model's on another generator's lidar flight with a bias step of 0.3 m/s^2, the height
 lagged the lidar by 9 cm for seconds, and came out 2.96 cm off the truth where a plain filter with an
 autopilot's default process noise was 1.48 cm off; at the level the likelihood chose, 1.16 cm.
