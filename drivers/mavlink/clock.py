@@ -125,6 +125,11 @@ class VehicleClock:
         self.offset = 0.0
         self.assumed = True
 
+    @property
+    def newest(self) -> float:
+        """The newest vehicle time a timed message has carried [s] (NaN before the first)."""
+        return self._newest
+
     def vehicle_time(self, t_rx: float) -> float:
         """Vehicle time for a message without a time field (nan until known): by the offset, and
         no later than the newest timed message carried forward by receive time (module docstring)."""
