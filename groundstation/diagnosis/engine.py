@@ -257,7 +257,6 @@ def _together(search: Search) -> None:
         s.noise.append(slow)
     s.say("choosing the process noise the log shows")
     with_q, level = match_process_noise(s.model, s.prep, s.make, s.base, s.stream, workers=s.workers)
-    s.process_scale = 1.0
     if level is not None:
         s.model = with_q
         s.base = run_model(with_q, s.prep, s.make, measurements=s.stream)
@@ -273,7 +272,7 @@ def _before_with_process_noise(search: Search) -> None:
     simulator's 10-minute flight with a range read under tilt: 729 times the model's level, where the model with the
     slant keeps the model's)."""
     s = search
-    if s.process_scale is not None and s.process_scale != 1.0:
+    if s.process_scale != 1.0:
         s.first = run_model(with_process_noise(s.first.model, s.process_scale), s.prep, s.make)
 
 

@@ -91,8 +91,8 @@ class Search:
     discoveries: list[Discovery] = field(default_factory=list)
     tried: set[tuple[str, str]] = field(default_factory=set)  #: (sensor, expression) of discoveries tried
     scored: list[Scored] = field(default_factory=list)  #: the last ranking, as its scores
-    #: the model after's process noise against the model's, once chosen (engine._together): 1 where the model's stays
-    process_scale: float | None = None
+    #: the model after's process noise against the model's (engine._together): 1 where the model's stays
+    process_scale: float = 1.0
     #: told of each effect the search adds, once the model and its run hold it (the engine begins then
     #: what the model after needs, in case the search ends there)
     on_added: Callable[[Search], object] = lambda _search: None
