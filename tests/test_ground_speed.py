@@ -31,7 +31,7 @@ def velocities(log_path: Path) -> tuple[np.ndarray, np.ndarray]:
     return a[:, 0], a[:, 1:]
 
 
-@pytest.mark.parametrize("name", ["clean_s1.bin", "clean_s2.ulg"])
+@pytest.mark.parametrize("name", [pytest.param("clean_s1.bin", marks=pytest.mark.slow), "clean_s2.ulg"])
 def test_the_gnss_velocity_is_read_as_velocity_ned(name):
     """ArduPilot's GPS record (Spd, GCrs, and VZ, which is velocity.z: down) and PX4's
     vehicle_gps_position (vel_n/e/d_m_s, where vel_ned_valid) give VELOCITY_NED: its horizontal

@@ -38,6 +38,7 @@ def _at(snaps, t):
     return min(snaps, key=lambda s: abs(s.t - t))
 
 
+@pytest.mark.slow
 def test_thrust_coefficients_and_height_on_a_simulated_flight(tmp_path):
     est, snaps, rows = _fly(tmp_path, 120.0)
     s = _at(snaps, 110.0)

@@ -366,6 +366,7 @@ def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
     assert suggest_notch(load_log(p).measurements, "ardupilot") == []
 
 
+@pytest.mark.slow
 def test_the_diagnosis_suggests_the_notch_alike_on_one_process_and_beside_it(tmp_path):
     """``diagnose`` reads the notch from the raw IMU before the diagnosis lets go of it: on one process
     there and then, on two in a process forked for it; the same parameters either way."""

@@ -379,6 +379,7 @@ def test_the_model_befores_runs_forked_early_are_the_noise_matched_models_own(fl
         assert x.before == x.after == rms(matched, x.sensor) != rms(su.model, x.sensor)
 
 
+@pytest.mark.slow
 def test_the_gps_slow_error_is_chosen_the_same_on_forked_processes_and_on_a_spare_core(tmp_path):
     """``match_gps_slow`` over its levels on two processes, and the model before's on a process forked
     before the noise is known (``GpsSlowBefore``, as the diagnosis begins it), choose the level one
@@ -450,6 +451,7 @@ def test_held_processes_end_when_their_parent_is_killed(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_the_model_afters_left_out_runs_begun_at_the_effect_added_are_its_own(tmp_path, monkeypatch):
     """The diagnosis begins the model after's left-out runs when it adds an effect, before its last
     ranking and the effects' joint estimate (``Search.on_added``); where nothing moves after, the

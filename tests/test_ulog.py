@@ -64,6 +64,7 @@ def test_the_imu_read_as_columns_is_the_imu_read_record_by_record_on_foreign_log
         _same_imu(foreign2_file(rel))
 
 
+@pytest.mark.slow
 def test_a_simulated_flight_as_px4s_ulog_diagnoses_as_its_tlog(flight):
     """The same hidden effect named with the same size as the tlog's (test_dataflash's twin: k = 3.0
     within 0.2), from the ULog alone."""
