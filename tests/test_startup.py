@@ -47,6 +47,33 @@ def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path
         assert r.returncode == 2 and why in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
 
 
+def test_a_bad_connection_string_and_a_command_short_of_its_confirmation_answer_before_any_import():
+    """What the user typed wrong is said in one line, from the arguments alone: no transport, no
+    pymavlink, nothing numerical loaded first (each had waited a second and a half for them)."""
+    for argv, why in (
+        (["connect", "bogus://x"], "unknown connection"),
+        (["param", "udpin:nohost", "fetch"], "expected host:port"),
+        (["logs", "bogus://x", "list"], "unknown connection"),
+        (["command", "udpin:0.0.0.0:14550", "arm"], "add --yes to confirm"),
+        (["command", "udpin:0.0.0.0:14550", "takeoff", "high", "--yes"], "an altitude in metres"),
+        (["command", "udpin:0.0.0.0:14550", "mode"], "needs a mode name"),
+    ):
+        code = (
+            "import contextlib, io\n"
+            "from groundstation.app.main import main\n"
+            "err = io.StringIO()\n"
+            "with contextlib.redirect_stderr(err):\n"
+            f"    rc = main({argv!r})\n"
+            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
+            f"assert {why!r} in err.getvalue(), err.getvalue()"
+        )
+        mods = _loaded_after(code)
+        assert not {m for m in mods if m.split(".")[0] in HEAVY}, (
+            argv,
+            sorted(m for m in mods if m.split(".")[0] in HEAVY),
+        )
+
+
 def test_the_entrys_start_up_is_a_small_multiple_of_a_bare_interpreters():
     """``python -m groundstation --help`` against ``python -c pass``, the best of five each (one run
     measures the machine's load as much as the code): it had been 4 s of imports, about 200 times."""

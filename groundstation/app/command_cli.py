@@ -10,22 +10,14 @@ from drivers.mavlink.link import MavlinkLink
 
 from .options import key_of
 from .param_cli import wait_for_vehicle
-
-#: commands that start the motors: only with --yes
-STARTS_MOTORS = {"arm", "takeoff"}
+from .parser import command_usage_problem
 
 
 async def run_command_cli(args) -> int:
-    if args.what in STARTS_MOTORS and not args.yes:
-        raise CommandError(f"{args.what} starts the motors: add --yes to confirm")
-    if args.what in ("mode", "takeoff") and args.arg is None:
-        raise CommandError(f"{args.what} needs {'a mode name' if args.what == 'mode' else 'an altitude [m]'}")
-    arg: str | float | None = args.arg
-    if args.what == "takeoff":
-        try:
-            arg = float(args.arg)
-        except ValueError:
-            raise CommandError(f"takeoff {args.arg!r}: an altitude in metres") from None
+    why = command_usage_problem(args)
+    if why is not None:
+        raise CommandError(why)
+    arg: str | float | None = float(args.arg) if args.what == "takeoff" else args.arg
     link = MavlinkLink(args.connection, streams={}, signing_key=key_of(args))
     await link.open()
     try:

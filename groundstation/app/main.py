@@ -1,7 +1,8 @@
 """The ``groundstation`` script's entry: the arguments are read (:mod:`.parser`, which imports
 nothing numerical), and only then the command's code. ``groundstation --help`` and a usage error
 answer before numpy, scipy, filterpy or viser are loaded (they had made every one-line error wait
-for 4 s of imports); so does a file that is missing or is no log, checked here by its first bytes.
+for 4 s of imports); so does a file that is missing or is no log, checked here by its first bytes,
+a connection string that names no transport, and a vehicle command short of what it needs.
 """
 
 from __future__ import annotations
@@ -11,13 +12,15 @@ import os
 import sys
 from pathlib import Path
 
-from .parser import build_parser
+from .parser import build_parser, command_usage_problem
 
 #: the commands that read a log file given as ``file``
 READS_A_LOG = frozenset({"replay", "info", "noise", "evaluate", "diagnose", "triage"})
 #: a log's first bytes, by format: a DataFlash record header, a ULog magic, a Crazyflie uSD log's
 #: magic; a tlog begins with a big-endian UNIX time [us] (its first byte 0x00 until 2106)
 MAGIC = (b"\xa3\x95", b"ULog\x01\x12\x35", b"\xbc")
+#: the commands that talk to a vehicle -> the argument holding its connection string
+CONNECTS = {"connect": "url", "param": "connection", "logs": "connection", "command": "connection"}
 
 
 def problem_with(path: Path) -> str | None:
@@ -53,6 +56,18 @@ def main(argv: list[str] | None = None) -> int:
         if why is not None:
             print(f"groundstation: error: {why}", file=sys.stderr)
             return 2
+    if args.command in CONNECTS:
+        from drivers.connection import ConnectionStringError, parse_connection  # pure parsing, no imports
+
+        try:
+            parse_connection(getattr(args, CONNECTS[args.command]))
+        except ConnectionStringError as e:
+            print(f"groundstation: error: {e}", file=sys.stderr)
+            return 2
+    why = command_usage_problem(args) if args.command == "command" else None
+    if why is not None:
+        print(f"groundstation: error: {why}", file=sys.stderr)
+        return 2
     if args.command == "triage":  # about a second a log: the reader and the checks, nothing else
         return one_line_errors(importlib.import_module("groundstation.app.triage_cli").cmd_triage, args)
     cli = importlib.import_module("groundstation.app.cli")  # the commands, loaded once they are asked for

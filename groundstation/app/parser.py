@@ -162,6 +162,24 @@ def add_command_parser(sub) -> None:
     add_signing_option(c)
 
 
+#: ``command``'s commands that start the motors: only with --yes
+STARTS_MOTORS = frozenset({"arm", "takeoff"})
+
+
+def command_usage_problem(args) -> str | None:
+    """Why ``command``'s arguments cannot be run (one line), or None: read before anything is loaded."""
+    if args.what in STARTS_MOTORS and not args.yes:
+        return f"{args.what} starts the motors: add --yes to confirm"
+    if args.what in ("mode", "takeoff") and args.arg is None:
+        return f"{args.what} needs {'a mode name' if args.what == 'mode' else 'an altitude [m]'}"
+    if args.what == "takeoff":
+        try:
+            float(args.arg)
+        except ValueError:
+            return f"takeoff {args.arg!r}: an altitude in metres"
+    return None
+
+
 def add_sim_parser(sub) -> None:
     s = sub.add_parser("sim", help="run a simulated vehicle (real time on UDP/serial, or --fast into a tlog)")
     s.add_argument("--vehicle", choices=VEHICLES, default="quad")
