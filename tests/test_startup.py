@@ -74,6 +74,45 @@ def test_a_bad_connection_string_and_a_command_short_of_its_confirmation_answer_
         )
 
 
+def test_a_file_an_option_names_that_is_not_there_and_a_duration_of_nothing_are_usage_errors(tmp_path):
+    """Said before anything loads, in one line: a truth file that is not there had been passed over in
+    silence (the diagnosis ran without the error it was asked for), and ``sim --duration -5`` wrote
+    an empty log."""
+    log = tmp_path / "flight.tlog"
+    log.write_bytes(b"\x00" * 64)  # a tlog's first byte: past the check of the log itself
+    gone = tmp_path / "gone"
+    for argv, why in (
+        (["diagnose", str(log), "--truth", f"{gone}.csv"], "no such truth file"),
+        (["evaluate", str(log), "--truth", f"{gone}.csv"], "no such truth file"),
+        (["diagnose", str(log), "--declared", f"{gone}.json"], "no such file of declared effects"),
+        (["fleet", "diagnose", str(gone), "--out", str(tmp_path / "fleet")], "not a folder"),
+        (["param", "udpin:0.0.0.0:14550", "load", f"{gone}.param"], "cannot read: no such file"),
+    ):
+        code = (
+            "import contextlib, io\n"
+            "from groundstation.app.main import main\n"
+            "err = io.StringIO()\n"
+            "with contextlib.redirect_stderr(err):\n"
+            f"    rc = main({argv!r})\n"
+            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
+            f"assert {why!r} in err.getvalue(), err.getvalue()"
+        )
+        mods = _loaded_after(code)
+        assert not {m for m in mods if m.split(".")[0] in HEAVY}, (
+            argv,
+            sorted(m for m in mods if m.split(".")[0] in HEAVY),
+        )
+    assert not (tmp_path / "fleet").exists() and not log.with_name("flight.tlog.diagnosis").exists()
+    gs = [sys.executable, "-m", "groundstation"]
+    for argv in (
+        ["sim", "--fast", "--duration", "-5", "--log", str(tmp_path / "x.tlog")],
+        ["demo", "--duration", "nan"],
+    ):
+        r = subprocess.run([*gs, *argv], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 2 and "expected seconds above 0" in r.stderr, r.stderr
+    assert not (tmp_path / "x.tlog").exists()
+
+
 def test_the_entrys_start_up_is_a_small_multiple_of_a_bare_interpreters():
     """``python -m groundstation --help`` against ``python -c pass``, the best of five each (one run
     measures the machine's load as much as the code): it had been 4 s of imports, about 200 times."""

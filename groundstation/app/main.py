@@ -2,7 +2,8 @@
 nothing numerical), and only then the command's code. ``groundstation --help`` and a usage error
 answer before numpy, scipy, filterpy or viser are loaded (they had made every one-line error wait
 for 4 s of imports); so does a file that is missing or is no log, checked here by its first bytes,
-a connection string that names no transport, and a vehicle command short of what it needs.
+a file another argument names that is not there, a connection string that names no transport, and
+a vehicle command short of what it needs.
 """
 
 from __future__ import annotations
@@ -40,6 +41,26 @@ def problem_with(path: Path) -> str | None:
     return f"{path}: not a MAVLink tlog, nor an ArduPilot DataFlash, PX4 ULog or Crazyflie log (by its first bytes)"
 
 
+def argument_problem(args) -> str | None:
+    """Why a file or folder an argument names cannot be read (one line), or None: the truth a
+    diagnosis is scored against, the effects it is told of, the archive a fleet reads, the parameter
+    file loaded onto a vehicle. A truth file that is not there had been passed over in silence, and
+    the diagnosis ran for minutes without the error it was asked for."""
+    named: list[tuple[Path | None, str]] = []
+    if args.command in ("diagnose", "evaluate"):
+        named.append((getattr(args, "truth", None), "no such truth file"))
+    if args.command == "diagnose":
+        named.append((args.declared, "no such file of declared effects"))
+    if args.command == "param" and args.param_command == "load":
+        named.append((args.file, "cannot read: no such file"))
+    for path, why in named:
+        if path is not None and not path.is_file():
+            return f"{path}: {why}"
+    if args.command == "fleet" and not args.archive.is_dir():
+        return f"{args.archive}: not a folder"
+    return None
+
+
 #: BLAS's own threads, one (unless the user's environment says otherwise): the estimators' matrices
 #: are a few states wide, where OpenBLAS's worker threads only spin: a diagnosis of
 #: ``underpowered.log`` takes the same 71 s with one thread as with two, and half the processor time
@@ -56,6 +77,10 @@ def main(argv: list[str] | None = None) -> int:
         if why is not None:
             print(f"groundstation: error: {why}", file=sys.stderr)
             return 2
+    why = argument_problem(args)
+    if why is not None:
+        print(f"groundstation: error: {why}", file=sys.stderr)
+        return 2
     if args.command in CONNECTS:
         from drivers.connection import ConnectionStringError, parse_connection  # pure parsing, no imports
 

@@ -91,6 +91,18 @@ def positive_int(text: str) -> int:
     return n
 
 
+def positive_seconds(text: str) -> float:
+    """A length of time above 0 [s], for argparse (its one-line error otherwise: a negative or NaN
+    duration had run a simulation of nothing and written an empty log)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = math.nan
+    if not (x > 0.0 and math.isfinite(x)):
+        raise argparse.ArgumentTypeError(f"expected seconds above 0, got {text!r}")
+    return x
+
+
 def add_triage_parser(sub) -> None:
     t = sub.add_parser(
         "triage", help="what the log says happened (crash, failsafes, vibration, motors, EKF), in seconds"
@@ -209,7 +221,9 @@ def add_sim_parser(sub) -> None:
         help="an effect that acts but is told to nobody; repeatable",
     )
     s.add_argument(
-        "--duration", type=float, help="seconds of simulated time (default: run until stopped; 60 with --fast)"
+        "--duration",
+        type=positive_seconds,
+        help="seconds of simulated time (default: run until stopped; 60 with --fast)",
     )
     s.add_argument(
         "--udp",
@@ -247,7 +261,7 @@ def add_sim_parser(sub) -> None:
     s.add_argument("--list-effects", action="store_true", help="print the effect catalogue and exit")
 
     d = sub.add_parser("demo", help="simulated quadcopter + ground station on loopback, no hardware")
-    d.add_argument("--duration", type=float, default=60.0)
+    d.add_argument("--duration", type=positive_seconds, default=60.0)
     d.add_argument("--vehicle", choices=VEHICLES, default="quad")
     d.add_argument("--seed", type=int, default=1)
     d.add_argument(
@@ -318,8 +332,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     c.add_argument("--record", type=Path, help="tlog path (default sessions/<date-time>.tlog)")
     c.add_argument("--no-record", action="store_true", help="do not record the session")
-    c.add_argument("--lost-after", type=float, default=3.0, help="seconds of silence before the link counts as lost")
-    c.add_argument("--duration", type=float, help="stop after this many seconds")
+    c.add_argument(
+        "--lost-after", type=positive_seconds, default=3.0, help="seconds of silence before the link counts as lost"
+    )
+    c.add_argument("--duration", type=positive_seconds, help="stop after this many seconds")
     c.add_argument(
         "--max-rate", type=float, help="the link's budget [bytes/s] the streams are fitted to (serial: baud/10)"
     )
