@@ -13,6 +13,8 @@ import os
 import sys
 from pathlib import Path
 
+from drivers.connection import ConnectionStringError, parse_connection  # pure parsing: nothing numerical
+
 from .parser import build_parser, command_usage_problem
 
 #: the commands that read a log file given as ``file``
@@ -82,8 +84,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"groundstation: error: {why}", file=sys.stderr)
         return 2
     if args.command in CONNECTS:
-        from drivers.connection import ConnectionStringError, parse_connection  # pure parsing, no imports
-
         try:
             parse_connection(getattr(args, CONNECTS[args.command]))
         except ConnectionStringError as e:
