@@ -74,22 +74,62 @@ def test_the_thrust_forms_are_offered_only_with_the_map():
 def test_another_generators_thrust_over_weight_is_read_from_its_log(name):
     """The map, applied to the log's own commands, against the truth's thrust over the weight in the
     air: within a few percent of the hover's (what is left is the rotors' lag and the controller's
-    jitter, which the accelerometer reads in the air), and no thrust at idle on the ground."""
+    jitter, which the accelerometer reads in the air); on the ground idling, the thrust the rotors'
+    frequency says (the line had put 0.21 and 0 of the weight there, for the truth's 0.053); none
+    before the motors are armed."""
     path = foreign2_file(name)
     log = load_log(path, imu_columns=True)
     stated = stated_by(log.tables, log.measurements)
     su = setup(log.measurements, imu=log.imu, stated=stated)
     r = su.model.options.get("thrust_ratio")
     assert isinstance(r, ThrustRatio) and r.rms < 0.06
-    cmd = [(m.t, command(m, stated.motors, 4)) for m in log.measurements if m.kind is Kind.ACTUATOR]
+    cmd = [(m.t, command(m, stated.motors, 4, clip=False)) for m in log.measurements if m.kind is Kind.ACTUATOR]
     t = np.array([x for x, c in cmd if c is not None])
     tw = np.array([r.of(c) for _, c in cmd if c is not None])
     truth = np.genfromtxt(path.with_name(path.stem + "_truth.csv"), delimiter=",", names=True)
     fl = np.interp(t, truth["t"], truth["in_flight"]) > 0.5
-    err = tw - np.interp(t, truth["t"], truth["thrust_over_weight"])
+    true_tw = np.interp(t, truth["t"], truth["thrust_over_weight"])
+    err = tw - true_tw
     assert abs(err[fl].mean()) < 0.02 and np.sqrt(np.mean(err[fl] ** 2)) < 0.05
-    idle = ~fl & (t < json.loads(path.with_name(path.stem + "_meta.json").read_text())["times"]["arm"])
-    assert np.all(tw[idle] == 0.0)
+    times = json.loads(path.with_name(path.stem + "_meta.json").read_text())["times"]
+    assert np.all(tw[t < times["arm"]] == 0.0)
+    idling = (t > times["arm"] + 0.5) & (t < times["liftoff"] - 0.5)
+    assert r.idle_tw is not None and r.rotor_hz is not None
+    assert np.abs(tw[idling] - true_tw[idling]).max() < 0.012, (tw[idling].mean(), true_tw[idling].mean())
+
+
+def test_the_rotors_frequency_is_read_from_the_accelerometers_spectrum():
+    """A rotor's vibration at 15.4 Hz and its harmonic, under white noise and a slow sway, sampled at
+    200 Hz: read to a tenth of a hertz; a spectrum with no peak standing out gives none."""
+    from groundstation.estimation.thrust_ratio import rotor_frequency
+
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 4.0, 0.005)
+    x = np.stack(
+        [
+            0.05 * np.sin(2 * np.pi * 15.4 * t) + 0.01 * np.sin(2 * np.pi * 30.8 * t + 1.0),
+            0.03 * np.sin(2 * np.pi * 15.4 * t + 0.5) + 0.2 * np.sin(2 * np.pi * 0.7 * t),
+            0.04 * np.cos(2 * np.pi * 15.4 * t),
+        ],
+        axis=1,
+    ) + rng.normal(0.0, 0.02, (len(t), 3))
+    f = rotor_frequency(x, 200.0)
+    assert f is not None and f == pytest.approx(15.4, abs=0.1)
+    assert rotor_frequency(rng.normal(0.0, 0.02, (len(t), 3)), 200.0) is None
+    assert rotor_frequency(x[:100], 200.0) is None  # half a second: not enough to read it on
+
+
+def test_below_the_airborne_commands_the_map_runs_to_the_idle_and_to_nothing():
+    """The map with its idle point: the line from its lowest airborne command up, the idle's thrust at
+    the idle command, nothing at the stopped motors', continuous and rising in between."""
+    r = ThrustRatio(2.1, 0.0, 0.03, 100.0, low=0.42, zero=-0.1875, idle=-0.0625, idle_tw=0.053, rotor_hz=(15.4, 66.0))
+    assert r.of(0.5) == pytest.approx(1.05) and r.of(0.42) == pytest.approx(2.1 * 0.42)
+    assert r.of(-0.0625) == pytest.approx(0.053) and r.of(-0.1875) == 0.0 and r.of(-0.5) == 0.0
+    c = np.linspace(-0.3, 0.6, 901)
+    tw = np.array([r.of(x) for x in c])
+    assert np.all(np.diff(tw) >= -1e-12) and np.max(np.abs(np.diff(tw))) < 0.01
+    plain = ThrustRatio(2.1, 0.0, 0.03, 100.0)
+    assert plain.of(-0.0625) == 0.0 and plain.of(0.1) == pytest.approx(0.21)
 
 
 def test_the_ground_holds_the_height_from_a_lift_off_until_the_range_reads():

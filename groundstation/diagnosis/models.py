@@ -274,7 +274,9 @@ def setup(
         model = replace(model, options={**model.options, "motor_curve": curve})
     if prep.logged_throttle and model.f is None:  # a nonlinear model is rebuilt from its options
         motors = motor_outputs_of(prep.measurements.only({Kind.VEHICLE_STATUS}))
-        ratio = thrust_ratio(prep.measurements, curve, motors)
+        if imu is None:  # the raw accelerometer among the readings: its spectrum says the idle's thrust
+            imu = ImuColumns.split(readings.only((Kind.ACCEL,)))[1]
+        ratio = thrust_ratio(prep.measurements, curve, motors, imu)
         if ratio is not None:
             model = replace(model, options={**model.options, "thrust_ratio": ratio})
     return Setup(prep, model, spec, names, base.airframe, clearance)

@@ -80,10 +80,12 @@ class MotorCurve:
     high: float  #: ... at full thrust
     source: str  #: the parameters it was read from
 
-    def thrust(self, outputs: list[float]) -> float:
-        """The motors' mean output as a fraction of their working range, 0 at idle."""
+    def thrust(self, outputs: list[float], *, clip: bool = True) -> float:
+        """The motors' mean output as a fraction of their working range, 0 at idle; with ``clip``
+        off, below 0 under the spin minimum (the motors stopped, or turning at ArduPilot's
+        ``MOT_SPIN_ARM``) and above 1 over the spin maximum."""
         r = (sum(outputs) / len(outputs) - self.low) / (self.high - self.low)
-        return min(max(r, 0.0), 1.0)
+        return min(max(r, 0.0), 1.0) if clip else r
 
     def as_dict(self) -> dict:
         return {"expo": self.expo, "low": round(self.low, 4), "high": round(self.high, 4), "from": self.source}

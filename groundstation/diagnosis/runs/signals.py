@@ -64,15 +64,19 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
             return
         set_throttle(ctx, tau, m.t)
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
-        wash = tau
+        wash = share = tau
         if curve is not None and m.kind is Kind.ACTUATOR and (tcs or ratio is not None):
-            c = command(m, curve, motor_outputs(ctx))
+            n = motor_outputs(ctx)
+            c = command(m, curve, n)
             wash = c if c is not None else tau
+            if ratio is not None:  # the map's own command: below 0 under the spin minimum (idle, stopped)
+                c = command(m, curve, n, clip=False)
+                share = c if c is not None else tau
         if ratio is not None:
-            ctx.thrust_most = ratio.most(wash)
+            ctx.thrust_most = ratio.most(share)
             if ctx.landed is not False:
                 # on the ground the accelerometer reads the ground's support: the command says the thrust
-                thrust(ctx, ratio.of(wash), m.t)
+                thrust(ctx, ratio.of(share), m.t)
         if tcs:
             t_last = ctx.throttle_lps_t
             _lowpasses(ctx.throttle_lps, wash, m.t - t_last if t_last is not None else None)
