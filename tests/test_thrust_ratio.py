@@ -158,8 +158,8 @@ def test_a_wash_in_its_thrust_form_is_said_so_in_the_conclusion():
 
 def test_touching_down_the_accelerometer_is_held_to_the_thrust_the_command_makes():
     """In the air the thrust over the weight is the accelerometer's; once the gear takes the weight and
-    the throttle winds down, the accelerometer reads the support as well, and the thrust is held to the
-    most the command makes (the map and three times its residual above it)."""
+    the throttle winds down, the accelerometer reads more than the command can make (the map and three
+    times its residual above it): the support is in it, and the thrust is the map's."""
     from groundstation.diagnosis.runs.signals import add_signal_rules
     from groundstation.estimation.models.altitude import altitude_model
     from groundstation.estimation.routing import altitude_estimator
@@ -180,4 +180,4 @@ def test_touching_down_the_accelerometer_is_held_to_the_thrust_the_command_makes
         est.filter.ctx.landed = False  # (before any land detector says so)
         est.handle(_m(0.01 * k, Kind.THROTTLE, 0.2))
         est.handle(_m(0.01 * k + 0.005, Kind.ACCEL, [0.0, 0.0, -G]))
-    assert est.filter.ctx.thrust_ratio == pytest.approx(ratio.most(0.2), abs=0.01)
+    assert est.filter.ctx.thrust_ratio == pytest.approx(ratio.of(0.2), abs=0.01)

@@ -86,6 +86,7 @@ class Context:
     #: the most thrust over the weight the latest command can make (ThrustRatio.most): where the
     #: accelerometer reads more, the ground holds the rest
     thrust_most: float | None = None
+    thrust_map: float | None = None  #: the thrust over the weight the latest command makes (ThrustRatio.of)
     f_lp: float | None = None  #: |f| low-passed over 1 s
     f_lp_t: float | None = None
     vibration: float | None = None  #: (|f| - f_lp)^2 low-passed: the rotors' vibration

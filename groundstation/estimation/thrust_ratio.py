@@ -102,8 +102,9 @@ class ThrustRatio:
     def most(self, command: float) -> float:
         """The most thrust over the weight ``command`` makes: the map's, and :data:`SPREAD_SIGMAS` times
         its residual above it (at least :data:`SPREAD_FLOOR`). Where the accelerometer reads more, the
-        ground carries the rest: touching down, the gear takes the weight while the throttle winds
-        down, before any land detector says so."""
+        ground carries part of the weight: touching down, the gear takes it while the throttle winds
+        down, before any land detector says so, and the accelerometer then measures the thrust no
+        longer (:func:`~groundstation.diagnosis.runs.signals.add_signal_rules` takes the map's there)."""
         return self.of(command) + SPREAD_SIGMAS * max(self.rms, SPREAD_FLOOR)
 
     def as_dict(self) -> dict:
