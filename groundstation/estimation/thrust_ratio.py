@@ -14,8 +14,9 @@ command through it. On the ground the accelerometer reads the ground's support, 
 map is what says the thrust there, and a command at idle or below (c <= 0) makes none.
 
 **The thrust at idle.** Fitted where the vehicle flies, the line says little of the idle on the
-ground: the airborne commands span a tenth of the range, and its value at the idle command was 0.24,
-0.12, 0.56 and -0.11 of the weight on four flights of one airframe whose rotors made 0.053 there.
+ground: the airborne commands span a tenth of the range, and a line through the truth's own thrust
+in the air put the idle at 0.24, 0.12, 0.56 and -0.11 of the weight on four flights of one airframe
+whose rotors made 0.053 there.
 The rotors say it themselves: a blade's thrust goes with its speed squared (T = C_T rho n^2 D^4,
 momentum theory's static thrust), and the speed shows in the accelerometer's spectrum as the
 rotors' own vibration (the peak a harmonic notch is set on). :func:`idle_thrust` reads that
@@ -257,9 +258,11 @@ def rotor_frequency(x: np.ndarray, rate: float) -> float | None:
     contiguous: a stretch's samples, its gaps joined), or None where no peak stands out
     (:data:`ROTOR_PROMINENCE`) or there are fewer than :data:`ROTOR_MIN_S` of them. SciPy's Welch PSD,
     summed over the axes; its strongest peak, refined by the parabola through the log-PSD at the
-    peak and its neighbours. The strongest is the rotors' own frequency on the ground at idle and in
-    the air alike on the flights measured (its second harmonic 14 times weaker at idle); where a
-    frame makes the blades' passing the stronger, it does so in both, and the ratio holds."""
+    peak and its neighbours. On the flights measured the strongest is the rotors' own frequency on the
+    ground at idle and in the air alike (its second harmonic 14 times weaker at idle). Where a frame
+    made the blades' passing the stronger in both, the ratio would hold; in one alone it would not,
+    and what guards that is :func:`idle_thrust`'s check that the idle's thrust lies between nothing
+    and the line's lowest."""
     from scipy.signal import welch  # the standard spectrum estimate
 
     if len(x) < max(ROTOR_MIN_S * rate, 64):
