@@ -47,6 +47,22 @@ def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path
         assert r.returncode == 2 and why in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
 
 
+def _one_line_before_any_import(argv: list[str], why: str) -> None:
+    """The entry given ``argv`` answers with exit status 2 and one line saying ``why``, with nothing
+    numerical loaded."""
+    code = (
+        "import contextlib, io\n"
+        "from groundstation.app.main import main\n"
+        "err = io.StringIO()\n"
+        "with contextlib.redirect_stderr(err):\n"
+        f"    rc = main({argv!r})\n"
+        "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
+        f"assert {why!r} in err.getvalue(), err.getvalue()"
+    )
+    heavy = sorted(m for m in _loaded_after(code) if m.split(".")[0] in HEAVY)
+    assert not heavy, (argv, heavy)
+
+
 def test_a_bad_connection_string_and_a_command_short_of_its_confirmation_answer_before_any_import():
     """What the user typed wrong is said in one line, from the arguments alone: no transport, no
     pymavlink, nothing numerical loaded first (each had waited a second and a half for them)."""
@@ -58,20 +74,7 @@ def test_a_bad_connection_string_and_a_command_short_of_its_confirmation_answer_
         (["command", "udpin:0.0.0.0:14550", "takeoff", "high", "--yes"], "an altitude in metres"),
         (["command", "udpin:0.0.0.0:14550", "mode"], "needs a mode name"),
     ):
-        code = (
-            "import contextlib, io\n"
-            "from groundstation.app.main import main\n"
-            "err = io.StringIO()\n"
-            "with contextlib.redirect_stderr(err):\n"
-            f"    rc = main({argv!r})\n"
-            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
-            f"assert {why!r} in err.getvalue(), err.getvalue()"
-        )
-        mods = _loaded_after(code)
-        assert not {m for m in mods if m.split(".")[0] in HEAVY}, (
-            argv,
-            sorted(m for m in mods if m.split(".")[0] in HEAVY),
-        )
+        _one_line_before_any_import(argv, why)
 
 
 def test_a_file_an_option_names_that_is_not_there_and_a_duration_of_nothing_are_usage_errors(tmp_path):
@@ -88,20 +91,7 @@ def test_a_file_an_option_names_that_is_not_there_and_a_duration_of_nothing_are_
         (["fleet", "diagnose", str(gone), "--out", str(tmp_path / "fleet")], "not a folder"),
         (["param", "udpin:0.0.0.0:14550", "load", f"{gone}.param"], "cannot read: no such file"),
     ):
-        code = (
-            "import contextlib, io\n"
-            "from groundstation.app.main import main\n"
-            "err = io.StringIO()\n"
-            "with contextlib.redirect_stderr(err):\n"
-            f"    rc = main({argv!r})\n"
-            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
-            f"assert {why!r} in err.getvalue(), err.getvalue()"
-        )
-        mods = _loaded_after(code)
-        assert not {m for m in mods if m.split(".")[0] in HEAVY}, (
-            argv,
-            sorted(m for m in mods if m.split(".")[0] in HEAVY),
-        )
+        _one_line_before_any_import(argv, why)
     assert not (tmp_path / "fleet").exists() and not log.with_name("flight.tlog.diagnosis").exists()
     gs = [sys.executable, "-m", "groundstation"]
     for argv in (
