@@ -44,10 +44,18 @@ def problem_with(path: Path) -> str | None:
 
 
 def argument_problem(args) -> str | None:
-    """Why a file or folder an argument names cannot be read (one line), or None: the truth a
-    diagnosis is scored against, the effects it is told of, the archive a fleet reads, the parameter
-    file loaded onto a vehicle. A truth file that is not there had been passed over in silence, and
-    the diagnosis ran for minutes without the error it was asked for."""
+    """Why the arguments cannot be run (one line), or None: a file or folder an argument names that
+    cannot be read (the truth a diagnosis is scored against, the effects it is told of, the archive a
+    fleet reads, the parameter file loaded onto a vehicle), a connection string that names no
+    transport, a vehicle command short of what it needs. A truth file that is not there had been
+    passed over in silence, and the diagnosis ran for minutes without the error it was asked for."""
+    if args.command in CONNECTS:
+        try:
+            parse_connection(getattr(args, CONNECTS[args.command]))
+        except ConnectionStringError as e:
+            return str(e)
+    if args.command == "command":
+        return command_usage_problem(args)
     named: list[tuple[Path | None, str]] = []
     if args.command in ("diagnose", "evaluate"):
         named.append((getattr(args, "truth", None), "no such truth file"))
@@ -80,16 +88,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"groundstation: error: {why}", file=sys.stderr)
             return 2
     why = argument_problem(args)
-    if why is not None:
-        print(f"groundstation: error: {why}", file=sys.stderr)
-        return 2
-    if args.command in CONNECTS:
-        try:
-            parse_connection(getattr(args, CONNECTS[args.command]))
-        except ConnectionStringError as e:
-            print(f"groundstation: error: {e}", file=sys.stderr)
-            return 2
-    why = command_usage_problem(args) if args.command == "command" else None
     if why is not None:
         print(f"groundstation: error: {why}", file=sys.stderr)
         return 2

@@ -83,10 +83,9 @@ class Context:
     thrust_ratio: float | None = None
     thrust_lps: dict[float, float] = field(default_factory=dict)
     thrust_lps_t: float | None = None
-    #: the most thrust over the weight the latest command can make (ThrustRatio.most): where the
-    #: accelerometer reads more, the ground holds the rest
-    thrust_most: float | None = None
-    thrust_map: float | None = None  #: the thrust over the weight the latest command makes (ThrustRatio.of)
+    #: the thrust over the weight the latest command makes (ThrustRatio.of); where the accelerometer
+    #: reads more than the most it can make (ThrustRatio.most), the ground holds part of the weight
+    thrust_map: float | None = None
     f_lp: float | None = None  #: |f| low-passed over 1 s
     f_lp_t: float | None = None
     vibration: float | None = None  #: (|f| - f_lp)^2 low-passed: the rotors' vibration

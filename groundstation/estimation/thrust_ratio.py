@@ -106,7 +106,12 @@ class ThrustRatio:
         ground carries part of the weight: touching down, the gear takes it while the throttle winds
         down, before any land detector says so, and the accelerometer then measures the thrust no
         longer (:func:`~groundstation.diagnosis.runs.signals.add_signal_rules` takes the map's there)."""
-        return self.of(command) + SPREAD_SIGMAS * max(self.rms, SPREAD_FLOOR)
+        return self.of(command) + self.spread
+
+    @property
+    def spread(self) -> float:
+        """How far above the map the thrust may read in the air (:meth:`most`)."""
+        return SPREAD_SIGMAS * max(self.rms, SPREAD_FLOOR)
 
     def as_dict(self) -> dict:
         d: dict = {"a": round(self.a, 4), "b": round(self.b, 4), "rms": round(self.rms, 4)}

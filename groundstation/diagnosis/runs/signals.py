@@ -57,6 +57,7 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
     #: the map from that command to the thrust over the weight (estimation.thrust_ratio), where the
     #: log shows it: the wash's other form follows the thrust (``ctx.thrust_lps``)
     ratio = est.model.options.get("thrust_ratio")
+    spread = ratio.spread if ratio is not None else 0.0  # the most above the map the air's thrust reads
 
     def throttle(m, ctx):
         tau = collective(m, ctx)
@@ -66,18 +67,16 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
         lowpass(ctx, "throttle_lp", tau, m.t, THROTTLE_TC)
         wash = share = tau
         if curve is not None and m.kind is Kind.ACTUATOR and (tcs or ratio is not None):
-            n = motor_outputs(ctx)
-            c = command(m, curve, n)
-            wash = c if c is not None else tau
-            if ratio is not None:  # the map's own command: below 0 under the spin minimum (idle, stopped)
-                c = command(m, curve, n, clip=False)
-                share = c if c is not None else tau
+            # the map's own command, below 0 under the spin minimum (idle, stopped); the wash's, clipped to
+            # the working range
+            c = command(m, curve, motor_outputs(ctx), clip=False)
+            if c is not None:
+                share, wash = c, min(max(c, 0.0), 1.0)
         if ratio is not None:
-            ctx.thrust_most = ratio.most(share)
             ctx.thrust_map = ratio.of(share)
             if ctx.landed is not False:
                 # on the ground the accelerometer reads the ground's support: the command says the thrust
-                thrust(ctx, ratio.of(share), m.t)
+                thrust(ctx, ctx.thrust_map, m.t)
         if tcs:
             t_last = ctx.throttle_lps_t
             _lowpasses(ctx.throttle_lps, wash, m.t - t_last if t_last is not None else None)
@@ -149,7 +148,8 @@ def add_signal_rules(est: KalmanEstimator, throttle_tcs: tuple[float, ...] = ())
             # Held to that most instead, the thrust read up to 0.12 of the weight high through a touchdown's
             # second, and a wash's size 4 % small (0.96 for 1.02; with the map, 0.99)
             tw = -v[2] / G
-            thrust(ctx, tw if ctx.thrust_most is None or tw <= ctx.thrust_most else ctx.thrust_map, m.t)
+            held = ctx.thrust_map
+            thrust(ctx, tw if held is None or tw <= held + spread else held, m.t)
 
     chain(Kind.THROTTLE, throttle)
     chain(Kind.ACTUATOR, throttle)
