@@ -25,7 +25,9 @@ ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
 GPS        Lat, Lng [deg], Alt [m], Status, I     GPS (3-D fix only)
            Spd [m/s], GCrs [deg], VZ [m/s]        VELOCITY_NED (vn, ve from the ground speed and
                                                   course; vd = VZ, NED), with the fix
-RCOU       C1..C4 [us]                            ACTUATOR, (us - 1000) / 1000
+RCOU       C1..C14 [us]                           ACTUATOR, (us - 1000) / 1000
+PARM, MSG  FRAME_CLASS, "Frame: HEXA/X"           VEHICLE_STATUS's mav_type, at the first sample
+                                                  (:mod:`.frame`: which outputs are motors)
 =========  =====================================  ====================================
 
 Every record, these and the rest (ERR, EV, MODE, MSG, VIBE, XKF*, NKF*, EKF*, ...), is also kept
@@ -53,12 +55,14 @@ from pathlib import Path
 
 import numpy as np
 from pymavlink import DFReader
+from pymavlink.dialects.v20 import common as mavlink
 
 from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import DataFlashWalk, dataflash_dtype, dataflash_values, fmt_length_ok, struct_dtype, walk_dataflash
 from .dataflash_text import TextReader
+from .frame import mav_type_of_params, mav_type_of_text
 from .quiet import quiet
 from .scratch import scratch_copy
 from .tables import FIRMWARE, LogTables, Table
@@ -276,6 +280,7 @@ def _read(
         if not timed:
             log.clock = f"row count of CTUN / {CONTROL_RATE:g} Hz"
         has_baro, has_rfnd = present["BARO"] > 0, present["RFND"] > 0
+        mav_type = mav_type_of_params(params)
         rows: dict[str, _Columns] = {}
         n_ctun = 0
         # DFReader's clock minus the records' own (TimeUS/TimeMS): a record without a time field
@@ -308,6 +313,8 @@ def _read(
                 break
             typ = m.get_type()
             log.counts[typ] += 1
+            if mav_type is None and typ == "MSG":
+                mav_type = mav_type_of_text(str(getattr(m, "Message", "")))
             if typ == "CTUN":
                 n_ctun += 1
             stamp = getattr(m, "_timestamp", None)
@@ -348,6 +355,11 @@ def _read(
         log.measurements = out = [out[i] for i in order.tolist()]
     else:
         out.sort(key=lambda x: x.t)
+    if mav_type is not None and out:
+        # the frame the log states, as the HEARTBEAT a tlog would carry: from the log's first sample
+        t0 = min(out[0].t, imu.columns.start) if imu is not None else out[0].t
+        status = [math.nan, math.nan, math.nan, float(mav_type), float(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)]
+        out.insert(0, Measurement(t0, Kind.VEHICLE_STATUS, np.array(status), source, t0))
     log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
     if imu is not None:
         log.imu = imu.columns
@@ -653,5 +665,14 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
         else:  # milligauss -> tesla
             add(Kind.MAG, [m.MagX * 1e-7, m.MagY * 1e-7, m.MagZ * 1e-7], int(getattr(m, "I", 0)))
     elif typ == "RCOU":
-        ch = [getattr(m, f"C{k}", 0) or getattr(m, f"Ch{k}", 0) for k in range(1, 5)]
-        add(Kind.ACTUATOR, [(c - 1000.0) / 1000.0 if c else math.nan for c in ch])
+        # every output the record has: which of them are motors is the frame's to say (a hexacopter's
+        # six), and :mod:`.frame` states it as a vehicle status
+        outputs: list[float] = []
+        for k in range(1, 15):
+            us = getattr(m, f"C{k}", None)
+            if us is None:
+                us = getattr(m, f"Ch{k}", None)
+            if us is None:
+                break
+            outputs.append((us - 1000.0) / 1000.0 if us else math.nan)
+        add(Kind.ACTUATOR, outputs)

@@ -18,7 +18,10 @@ vehicle_gps_position      lat, lon [1e-7 deg], alt [mm], fix_type     GPS (3-D f
                           vel_n_m_s, vel_e_m_s, vel_d_m_s,            VELOCITY_NED (3-D fix and
                           vel_ned_valid                               vel_ned_valid only)
 vehicle_attitude          q[4] (w, x, y, z; FRD to NED)               ATTITUDE [rad]
-actuator_outputs          output[0..3] [us]                           ACTUATOR, (us - 1000) / 1000
+actuator_outputs          output[0..n] [us] (the motors': PWM_MAIN_   ACTUATOR, (us - 1000) / 1000
+                          FUNCn, else the first noutputs)
+vehicle_status            system_type (MAV_TYPE), CA_ROTOR_COUNT      VEHICLE_STATUS's mav_type, at
+                                                                      the first sample (.frame)
 actuator_controls_0       control[3] (thrust 0..1)                    THROTTLE
 battery_status            voltage_v [V], current_a [A]                BATTERY_VOLTAGE, BATTERY_CURRENT
 ========================  ==========================================  ==============================
@@ -36,10 +39,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
+from .frame import px4_logs_mav_type, px4_motor_columns
 from .quiet import quiet
 from .tables import LogTables, Table
 from .ulog_check import ULogStructureError, check
@@ -147,6 +152,9 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1", *, imu_columns: bool =
         log.damage = f"{p}: " + "; ".join(damage)
     _measurements(tables, log, source, imu_columns)
     log.measurements.sort(key=lambda m: m.t)
+    t0 = min(log.measurements[0].t if log.measurements else math.inf, log.imu.start if log.imu else math.inf)
+    if math.isfinite(t0) and (status := _vehicle_status(tables, t0, source)) is not None:
+        log.measurements.insert(0, status)
     return log
 
 
@@ -237,7 +245,7 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
             add_rows(Kind.ATTITUDE, att.t, np.column_stack([roll, pitch, yaw]))
     ao = tables.get("actuator_outputs")
     if ao is not None:
-        pwm = _vec(ao, "output", 4)
+        pwm = _motor_outputs(ao, tables.params)
         if pwm is not None:
             add_rows(Kind.ACTUATOR, ao.t, np.where(pwm > 0, (pwm - 1000.0) / 1000.0, math.nan))
     ac = tables.get("actuator_controls_0")
@@ -251,6 +259,30 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
             skipped["battery_not_connected"] += int((~ok).sum())
             add_rows(Kind.BATTERY_VOLTAGE, bat.t[ok], v[ok][:, None])
             add_rows(Kind.BATTERY_CURRENT, bat.t[ok], i[ok][:, None])
+
+
+def _motor_outputs(ao: Table, params: dict[str, float]) -> np.ndarray | None:
+    """``actuator_outputs``' motor columns in the motors' order where the outputs' functions say
+    which (:func:`.frame.px4_motor_columns`), else the outputs it has (``noutputs``)."""
+    columns = px4_motor_columns(params)
+    if columns is None:
+        n = ao.numeric("noutputs")
+        count = int(np.max(n)) if n is not None and len(n) else 4
+        columns = list(range(max(1, min(count, 16))))
+    cols = [ao.numeric(f"output[{i}]") for i in columns]
+    if any(c is None for c in cols):
+        return None
+    return np.column_stack(cols)  # type: ignore[arg-type]
+
+
+def _vehicle_status(tables: LogTables, t0: float, source: str) -> Measurement | None:
+    """The frame the log states (:func:`.frame.px4_mav_type`) as the HEARTBEAT a tlog would carry,
+    at the log's first sample: which outputs are motors."""
+    mav_type = px4_logs_mav_type(tables)
+    if mav_type is None:
+        return None
+    status = [math.nan, math.nan, math.nan, float(mav_type), float(mavlink.MAV_AUTOPILOT_PX4)]
+    return Measurement(t0, Kind.VEHICLE_STATUS, np.array(status), source, t0)
 
 
 def _series(source: str, t: np.ndarray, values: np.ndarray) -> ImuSeries:

@@ -14,6 +14,7 @@ are the receiver's float64 exactly, so whatever computes with them widens them f
 
 from __future__ import annotations
 
+import math
 from array import array
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -89,6 +90,11 @@ class ImuColumns:
 
     def __len__(self) -> int:
         return sum(len(s) for s in self.series.values())
+
+    @property
+    def start(self) -> float:
+        """The first sample's time (inf with none)."""
+        return min((float(s.t[0]) for s in self.series.values() if len(s)), default=math.inf)
 
     def get(self, kind: Kind, instance: int = 0) -> ImuSeries | None:
         return self.series.get((kind, instance))

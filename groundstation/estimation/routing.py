@@ -106,6 +106,8 @@ MOTOR_OUTPUTS = {
     mavlink.MAV_TYPE_HEXAROTOR: 6,
     mavlink.MAV_TYPE_OCTOROTOR: 8,
     mavlink.MAV_TYPE_TRICOPTER: 3,
+    mavlink.MAV_TYPE_DECAROTOR: 10,
+    mavlink.MAV_TYPE_DODECAROTOR: 12,
 }
 
 

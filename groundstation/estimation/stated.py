@@ -25,10 +25,11 @@ to correct.
 **The motors' working range.** A motor makes thrust between the output its autopilot spins it at
 when armed and idle and its full output: ArduPilot's ``MOT_SPIN_MIN``/``MOT_SPIN_MAX`` within
 ``MOT_PWM_MIN``/``MOT_PWM_MAX`` (``AP_MotorsMulticopter::thrust_to_actuator``), PX4's
-``PWM_MAIN_MIN1``/``PWM_MAIN_MAX1``. The rotor wash on a static port scales with the thrust, so its
-signal is the motors' mean output as a fraction of that range, zero at idle: with the raw output,
-a vehicle idling on the ground at ``MOT_SPIN_ARM`` (0.1) showed a wash that was not there, and on
-another generator's flight a correlate of the battery current was claimed in its place. The
+``PWM_MAIN_MINn``/``PWM_MAIN_MAXn`` of the first motor's output (``PWM_MAIN_FUNCn`` says which).
+The rotor wash on a static port scales with the thrust, so its signal is the motors' mean output
+as a fraction of that range, zero at idle: with the raw output, a vehicle idling on the ground at
+``MOT_SPIN_ARM`` (0.1) showed a wash that was not there, and on another generator's flight a
+correlate of the battery current was claimed in its place. The
 autopilots also state a thrust curve over that range (ArduPilot's ``MOT_THST_EXPO``, PX4's
 ``THR_MDL_FAC``: thrust = e r^2 + (1 - e) r). It is read and reported, not applied: it is what the
 autopilot was told (often its default), and on that generator's flights, whose thrust is linear in
@@ -44,6 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivers.logs.frame import px4_motor_columns
 from drivers.logs.tables import LogTables
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
@@ -111,8 +113,10 @@ def motor_curve(params: dict[str, float]) -> MotorCurve | None:
             return MotorCurve(expo, lo, hi, f"MOT_THST_EXPO {expo:g}, MOT_SPIN_MIN/MAX {spin_lo:g}/{spin_hi:g}")
     fac = _param(params, "THR_MDL_FAC")
     if fac is not None and 0.0 <= fac <= 1.0:
-        main_lo = _param(params, "PWM_MAIN_MIN1", _param(params, "PWM_MAIN_MIN"))
-        main_hi = _param(params, "PWM_MAIN_MAX1", _param(params, "PWM_MAIN_MAX"))
+        # the first motor's output (its function says which: ``PWM_MAIN_FUNCn``), else output 1
+        n = (px4_motor_columns(params) or [0])[0] + 1
+        main_lo = _param(params, f"PWM_MAIN_MIN{n}", _param(params, "PWM_MAIN_MIN"))
+        main_hi = _param(params, f"PWM_MAIN_MAX{n}", _param(params, "PWM_MAIN_MAX"))
         low, high = main_lo if main_lo is not None else 1000.0, main_hi if main_hi is not None else 2000.0
         if high > low:
             return MotorCurve(fac, (low - 1000.0) / 1000.0, (high - 1000.0) / 1000.0, f"THR_MDL_FAC {fac:g}")

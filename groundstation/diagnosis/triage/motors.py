@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from drivers.logs.frame import mav_type_of_params, mav_type_of_text, px4_logs_mav_type, px4_motor_columns
 from drivers.logs.tables import LogTables
+from groundstation.estimation.routing import MOTOR_OUTPUTS
 
 from .finding import DOCS, TriageFinding, runs
 
@@ -20,27 +22,20 @@ IMBALANCE_WARN, IMBALANCE_BAD = 50.0, 75.0  # us
 SATURATION_FRACTION = 0.02  # of the output range, from its top
 SATURATION_WARN = 0.05  # of the flight's samples
 
-#: MAV_TYPE -> motors (quad, hexa, octo, tri, coaxial, helicopter)
-MOTORS_OF_TYPE = {2: 4, 13: 6, 14: 8, 15: 3, 3: 2, 4: 1}
-#: ArduCopter FRAME_CLASS -> motors (1 quad, 2 hexa, 3 octa, 4 octaquad, 5 Y6, 7 tri)
-MOTORS_OF_FRAME_CLASS = {1: 4, 2: 6, 3: 8, 4: 8, 5: 6, 7: 3}
-
 
 def _motor_count(tables: LogTables) -> int:
-    fc = tables.params.get("FRAME_CLASS")
-    if fc is not None and int(fc) in MOTORS_OF_FRAME_CLASS:
-        return MOTORS_OF_FRAME_CLASS[int(fc)]
+    """The motors the log's frame has (:mod:`drivers.logs.frame`; a tlog's HEARTBEAT), else four."""
+    mav_type = mav_type_of_params(tables.params)
+    if mav_type is None and tables.autopilot == "px4":
+        mav_type = px4_logs_mav_type(tables)
     hb = tables.get("HEARTBEAT")
-    if hb is not None and (ty := hb.numeric("type")) is not None and len(ty):
+    if mav_type is None and hb is not None and (ty := hb.numeric("type")) is not None and len(ty):
         vals, counts = np.unique(ty, return_counts=True)
-        return MOTORS_OF_TYPE.get(int(vals[np.argmax(counts)]), 4)
+        mav_type = int(vals[np.argmax(counts)])
     msg = tables.get("MSG")
-    if msg is not None and "Message" in msg:
-        for text in msg["Message"]:
-            for word, n in (("HEXA", 6), ("OCTA", 8), ("Y6", 6), ("TRI", 3), ("QUAD", 4)):
-                if f"Frame: {word}" in str(text).upper().replace("FRAME: ", "Frame: "):
-                    return n
-    return 4
+    if mav_type is None and msg is not None and "Message" in msg:
+        mav_type = next((m for text in msg["Message"] if (m := mav_type_of_text(str(text))) is not None), None)
+    return MOTOR_OUTPUTS.get(mav_type, 4) if mav_type is not None else 4
 
 
 def _outputs(tables: LogTables, n: int) -> tuple[np.ndarray, np.ndarray, str] | None:
@@ -55,8 +50,11 @@ def _outputs(tables: LogTables, n: int) -> tuple[np.ndarray, np.ndarray, str] | 
         tb = tables.get(name)
         if tb is None:
             continue
-        base = 0 if name == "actuator_outputs" else 1
-        cols = [tb.numeric(pattern.format(base + i)) for i in range(n)]
+        if name == "actuator_outputs":  # PX4's motors are where their output functions put them
+            columns = (px4_motor_columns(tables.params) or list(range(n)))[:n]
+        else:
+            columns = list(range(1, n + 1))
+        cols = [tb.numeric(pattern.format(i)) for i in columns]
         if all(c is not None for c in cols):
             return tb.t, np.column_stack(cols), name  # type: ignore[arg-type]
     return None
