@@ -117,5 +117,5 @@ def test_the_triage_weighs_a_hexacopters_six_motors(rel):
 
     from .conftest import foreign2_file
 
-    loaded = load_log(foreign2_file(rel))
+    loaded = load_log(foreign2_file(rel), imu_columns=True)
     assert _motor_count(loaded.tables) == 6 and motor_outputs_of(loaded.measurements) == 6
