@@ -24,7 +24,8 @@ MAG        MagX/Y/Z [milligauss], I               MAG [T]
 ATT        Roll, Pitch, Yaw [deg]                 ATTITUDE [rad]
 GPS        Lat, Lng [deg], Alt [m], Status, I     GPS (3-D fix only)
            Spd [m/s], GCrs [deg], VZ [m/s]        VELOCITY_NED (vn, ve from the ground speed and
-                                                  course; vd = VZ, NED), with the fix
+                                                  course; vd = VZ, NED), with the fix; VZ
+                                                  alone as GPS_VD, the fix's own
 RCOU       C1..C14 [us]                           ACTUATOR, (us - 1000) / 1000
 PARM, MSG  FRAME_CLASS, "Frame: HEXA/X"           VEHICLE_STATUS's mav_type, at the first sample
                                                   (:mod:`.frame`: which outputs are motors)
@@ -632,6 +633,9 @@ def _convert(typ, m, t, s, has_baro, has_rfnd, range_limits, out, skipped) -> No
         if getattr(m, "Status", 0) >= 3:
             instance = int(getattr(m, "I", 0))
             add(Kind.GPS, [m.Lat, m.Lng, m.Alt], instance)
+            vz = getattr(m, "VZ", None)
+            if vz is not None and math.isfinite(vz):  # the fix's own vertical velocity (down)
+                add(Kind.GPS_VD, [vz], instance)
             spd, crs = getattr(m, "Spd", None), getattr(m, "GCrs", None)
             if spd is not None and crs is not None and math.isfinite(spd) and math.isfinite(crs):
                 c = math.radians(crs)

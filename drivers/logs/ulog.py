@@ -16,7 +16,8 @@ distance_sensor           current_distance [m], min/max_distance,     RANGE (dow
 vehicle_gps_position      lat, lon [1e-7 deg], alt [mm], fix_type     GPS (3-D fix only)
                           (newer PX4: latitude_deg, altitude_msl_m)
                           vel_n_m_s, vel_e_m_s, vel_d_m_s,            VELOCITY_NED (3-D fix and
-                          vel_ned_valid                               vel_ned_valid only)
+                          vel_ned_valid                               vel_ned_valid only); vel_d
+                                                                      alone as GPS_VD
 vehicle_attitude          q[4] (w, x, y, z; FRD to NED)               ATTITUDE [rad]
 actuator_outputs          output[0..n] [us] (the motors': PWM_MAIN_   ACTUATOR, (us - 1000) / 1000
                           FUNCn, else the first noutputs)
@@ -234,6 +235,7 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
                 valid = gps.numeric("vel_ned_valid")
                 ok_v = ok & (valid != 0) if valid is not None else ok
                 add_rows(Kind.VELOCITY_NED, gps.t[ok_v], np.column_stack([vn, ve, vd])[ok_v])
+                add_rows(Kind.GPS_VD, gps.t[ok_v], vd[ok_v][:, None])  # the fix's own, as DataFlash's VZ
     att = tables.get("vehicle_attitude")
     if att is not None:
         q = _vec(att, "q", 4)

@@ -48,6 +48,7 @@ class Kind(enum.Enum):
     GLOBAL_POSITION = "global_position"  # lat [deg], lon [deg], alt AMSL [m], height above home [m]
     POSITION_NED = "position_ned"  # local position NED [m]
     VELOCITY_NED = "velocity_ned"  # velocity NED [m/s]
+    GPS_VD = "gps_vd"  # a GNSS receiver's own vertical velocity, down [m/s] (its fix's, not a filter's)
     ALTITUDE = "altitude"  # autopilot altitude estimate, positive up [m]
     CLIMB_RATE = "climb_rate"  # vertical speed, positive up [m/s]
     AIRSPEED = "airspeed"  # airspeed, groundspeed [m/s], heading [rad]
@@ -92,6 +93,7 @@ KIND_COMPONENTS: dict[Kind, tuple[str, ...] | None] = {
     Kind.GLOBAL_POSITION: ("lat", "lon", "alt", "relative_alt"),
     Kind.POSITION_NED: ("n", "e", "d"),
     Kind.VELOCITY_NED: ("vn", "ve", "vd"),
+    Kind.GPS_VD: ("vd",),
     Kind.ALTITUDE: ("h",),
     Kind.CLIMB_RATE: ("climb",),
     Kind.AIRSPEED: ("airspeed", "groundspeed", "heading"),

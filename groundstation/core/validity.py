@@ -39,6 +39,7 @@ ABS_LIMIT: dict[Kind, float] = {
     Kind.ALTITUDE: 2e4,
     Kind.CLIMB_RATE: 200.0,  # m/s
     Kind.VELOCITY_NED: 500.0,
+    Kind.GPS_VD: 200.0,  # m/s
     Kind.POSITION_NED: 1e6,  # m
     Kind.ATTITUDE: 2 * math.pi,  # rad (yaw may be reported in 0..2 pi)
     Kind.ATTITUDE_QUATERNION: 1.5,

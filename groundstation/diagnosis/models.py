@@ -107,6 +107,10 @@ def altitude_base(prep: Prepared, names: set, vehicle: str | None) -> LinearMode
         # the GPS is the absolute height the baro is seen against when no range sensor is: with its
         # slow error as a state
         config = {**config, "use_gps": True, "gps_error": GPS_ERROR}
+        # the receiver's own vertical velocity, where the log has it (a DataFlash GPS record's VZ, a
+        # ULog's vel_d_m_s; a tlog's GPS_RAW_INT has none)
+        if "gps_velocity" not in config and Kind.GPS_VD in prep.kinds:
+            config = {**config, "gps_velocity": True}
     model = altitude_model(range_tilt="range_tilt" in names, **config)
     if prep.logged_throttle:
         # a logged throttle only: a stand-in derived from the range or the vibration would feed

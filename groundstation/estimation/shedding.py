@@ -41,6 +41,7 @@ THINNED = frozenset(
         Kind.AIRSPEED,
         Kind.POSITION_NED,
         Kind.VELOCITY_NED,
+        Kind.GPS_VD,
         Kind.BARO_ALTITUDE,
         Kind.ENCODERS,
         Kind.MOTOR_VOLTAGE,

@@ -357,7 +357,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
         sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}),
     ]
     if gps_in_altitude(kinds):
-        cands.append(sensor_delay("gps", GPS_DELAYS, {Kind.GPS}))
+        cands.append(sensor_delay("gps", GPS_DELAYS, SENSOR_KINDS["gps"]))  # the fix and its velocity
     if has_baro and kinds & BARO_REFERENCES:
         cands += [
             Candidate(
@@ -473,4 +473,4 @@ def shift(ms: Iterable[Measurement], kinds: set, d: float) -> Readings:
 #: effects of geometry and timing: the sweep's bar for their height error is 80 % down, not 50 %
 GEOMETRIC = {"range_tilt", "sensor_delay", "imu_misalignment"}
 
-SENSOR_KINDS = {"range": {Kind.RANGE}, "baro": {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}, "gps": {Kind.GPS}}
+SENSOR_KINDS = {"range": {Kind.RANGE}, "baro": {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}, "gps": {Kind.GPS, Kind.GPS_VD}}

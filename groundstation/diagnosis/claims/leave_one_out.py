@@ -66,8 +66,9 @@ def _r(v: float) -> float:
 
 
 def without(model: LinearModel, name: str) -> LinearModel:
-    """``model`` with sensor ``name``'s readings scored and correcting nothing."""
-    meas = {k: dataclasses.replace(mm, corrects=(), reset=False) if mm.name == name else mm
+    """``model`` with sensor ``name``'s readings scored and correcting nothing (a GPS's with its
+    velocity, ``gps_vz``: one receiver)."""
+    meas = {k: dataclasses.replace(mm, corrects=(), reset=False) if mm.name in (name, f"{name}_vz") else mm
             for k, mm in model.measurements.items()}  # fmt: skip
     return dataclasses.replace(model, measurements=meas)
 

@@ -55,7 +55,7 @@ from groundstation.estimation.context import Zero
 from groundstation.estimation.models.base import LinearModel
 
 #: scalar sensors whose R is matched (the pseudo-sensor and vector sensors keep theirs)
-MATCHED = ("range", "baro", "gps")
+MATCHED = ("range", "baro", "gps", "gps_vz")
 ITERATIONS = 2
 #: a level from the data this many times the model's (or less than 1/this) is reported as a finding
 DIFFERS = 1.5

@@ -24,7 +24,9 @@ Measurement models, one per sensor (eq. 9.8 is the range sensor's):
 * ``baro``: pressure altitude (ISA, or the log's own baro altitude) minus its
   value at initialisation, ``= z``; each has its own zero, and a log that gives
   both for one sample (DataFlash BARO) is read once, from the pressure;
-* ``gps``: GPS altitude minus its value at initialisation, ``= z``.
+* ``gps``: GPS altitude minus its value at initialisation, ``= z``;
+* ``gps_vz`` (``gps_velocity=True``, with ``use_gps``): the fix's own vertical velocity, ``= z_dot``
+  (H = (0, 1, 0)): what both autopilots' height filters take from a receiver.
 
 Corrections to the document, made knowingly:
 
@@ -90,6 +92,8 @@ def altitude_model(
     range_offset: float = 0.0,
     use_gps: bool = False,
     gps_error: tuple[float, float] | None = None,
+    gps_velocity: bool = False,
+    sigma_gps_vz: float = 0.3,
 ) -> LinearModel:
     """The document's 3-state filter with our default noise densities.
 
@@ -106,6 +110,7 @@ def altitude_model(
     """
     B = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
     H = np.array([[1.0, 0.0, 0.0]])
+    H_VZ = np.array([[0.0, 1.0, 0.0]])
 
     def range_row(ctx):
         return np.array([[slant(ctx), 0.0, 0.0]])
@@ -127,6 +132,18 @@ def altitude_model(
         ),
         **barometer(lambda ctx: H, np.array([[sigma_baro**2]])),
     }
+    if use_gps and gps_velocity:
+        # the fix's own vertical velocity (ArduPilot's GPS VZ, PX4's vel_d_m_s), as both autopilots'
+        # height filters take it (EK3_SRC1_VELZ, EKF2_GPS_CTRL): v_up = -v_down, H = (0, 1, 0). A
+        # receiver's velocity comes from its carrier's Doppler, 0.1-0.3 m/s, with no slow wander: it
+        # ties the accelerometer's integral between the baro's samples, and its timing is the fix's
+        meas["gps_vz"] = MeasurementModel(
+            "gps_vz",
+            Kind.GPS_VD,
+            lambda m, ctx: np.array([-float(m.value[0])]),
+            lambda ctx: H_VZ,
+            np.array([[sigma_gps_vz**2]]),
+        )
     if not use_gps:
         # GPS altitude errors are correlated over tens of seconds (2 m over 20 s in the
         # simulator, worse on real receivers): taken as white they fail every whiteness
