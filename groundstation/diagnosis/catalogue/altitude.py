@@ -21,7 +21,7 @@ so a parameter found here compares directly with the one injected there.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import replace
 from functools import partial
 
@@ -157,6 +157,17 @@ def delay_screen(sensor: str, delays: tuple[float, ...]) -> Callable[[LinearMode
         return out
 
     return columns
+
+
+def gps_delays(kinds: set) -> list[Candidate]:
+    """A late GPS: its fix (the height and, where the log has it, the receiver's vertical velocity with
+    it, as one fix is late), and where it has that velocity, the height alone (a receiver that filters
+    its height apart from its Doppler velocity): two forms of one delay, the likelihood taking one."""
+    fix = sensor_delay("gps", GPS_DELAYS, {Kind.GPS})
+    if Kind.GPS_VD not in kinds:
+        return [fix]
+    height = replace(fix, form="height", shifts=frozenset({Kind.GPS}))
+    return [replace(fix, form="fix"), height]
 
 
 def sensor_delay(sensor: str, delays: tuple[float, ...], needs: set | None = None) -> Candidate:
@@ -357,7 +368,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
         sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}),
     ]
     if gps_in_altitude(kinds):
-        cands.append(sensor_delay("gps", GPS_DELAYS, SENSOR_KINDS["gps"]))  # the fix and its velocity
+        cands += gps_delays(kinds)
     if has_baro and kinds & BARO_REFERENCES:
         cands += [
             Candidate(
@@ -465,7 +476,7 @@ UNOBSERVABLE = {
 }
 
 
-def shift(ms: Iterable[Measurement], kinds: set, d: float) -> Readings:
+def shift(ms: Iterable[Measurement], kinds: Collection[Kind], d: float) -> Readings:
     """The given kinds' measurements taken as of ``t - d`` (a sensor delay undone), re-sorted."""
     return Readings.of(ms).shifted(kinds, d).in_time_order(CONTEXT_KINDS)
 

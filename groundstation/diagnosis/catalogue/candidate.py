@@ -22,6 +22,8 @@ class Candidate:
     augment: Callable[..., LinearModel] | None = None
     params: Callable[..., dict] | None = None  # (run) -> {name: value}
     delays: tuple[float, ...] = ()  # sensor_delay: the grid
+    #: sensor_delay: the kinds its delay moves (None: all of its sensor's, catalogue.altitude.SENSOR_KINDS)
+    shifts: frozenset | None = None
     #: (measurements, grid value) -> measurements, at 0 the measurements themselves (the base run is
     #: that trial); default: the sensor's readings shifted by the delay
     reshape: Callable | None = None

@@ -64,7 +64,9 @@ def first_keys(cand: Candidate) -> list[Hashable]:
 def delayed(cand: Candidate, ms: Sequence[Measurement], d: float) -> Sequence[Measurement]:
     """The stream a grid candidate is run on at grid value ``d``: its sensor's readings taken as of
     ``t - d``, or the candidate's own reshaping (an actuator lag)."""
-    return cand.reshape(ms, d) if cand.reshape else shift(ms, SENSOR_KINDS.get(cand.sensor or "", set()), d)
+    if cand.reshape:
+        return cand.reshape(ms, d)
+    return shift(ms, cand.shifts if cand.shifts is not None else SENSOR_KINDS.get(cand.sensor or "", set()), d)
 
 
 def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearModel:
