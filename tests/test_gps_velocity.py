@@ -105,5 +105,12 @@ def test_a_late_gps_fix_on_another_generators_dataflash_flight_is_named_as_its_d
     )
     assert [(e.name, e.params["sensor"]) for e in d.effects] == [("sensor_delay", "gps")]
     assert abs(d.effects[0].params["seconds"] - late) < 0.06, d.effects[0].params
+    assert d.effects[0].evidence["form"] == "fix"
+    from groundstation.diagnosis.report.autopilot_params import suggest
+
+    # the fix's delay is the autopilot's GPS delay (written where inside AP_GPS's 0-250 ms)
+    (p,) = [p for p in suggest(d, ms, log.tables.params, "ardupilot") if p.name == "GPS_DELAY_MS"]
+    ms_ = round(1000 * d.effects[0].params["seconds"])
+    assert p.value == ms_ if ms_ <= 250 else (p.value is None and "not written" in p.why), p
     before, after = (d.truth.error(r, r.t[0] + 3.0, r.t[-1] - 3.0) for r in (d.before, d.after))
     assert after < before, (before, after)

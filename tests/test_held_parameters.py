@@ -56,6 +56,11 @@ def test_an_effect_the_model_after_holds_near_zero_is_not_claimed():
     ms.sort(key=in_time_order)
     d = diagnose(ms, source=str(path), imu=log.imu, vehicle=log.vehicle)
     assert [e.name for e in d.effects] == ["sensor_delay"] and d.effects[0].params["sensor"] == "gps"
+    # the height alone late, the fix's vertical velocity on time: PX4's one GPS delay would move both
+    assert d.effects[0].evidence["form"] == "height"
+    from groundstation.diagnosis.report.autopilot_params import suggest
+
+    assert not [p for p in suggest(d, ms, log.tables.params, "px4") if p.name == "EKF2_GPS_DELAY"]
     wash = [e for e in d.rejected if e.name == "baro_thrust" and "sigma from zero" in e.evidence["reason"]]
     assert wash, [(e.name, e.evidence.get("reason")) for e in d.rejected]
 

@@ -165,6 +165,12 @@ def _sensor_delay(add: Add, e: Effect, sensor: str, facts: _LogFacts) -> bool:
     if sensor == "baro":
         add("ArduPilot", "EK3_HGT_DELAY", ms_, e.name, why)
         add("PX4", "EKF2_BARO_DELAY", ms_, e.name, why)
+    elif sensor == "gps" and e.evidence.get("form") == "height":
+        # the height late and the velocity of the same fix on time: the EKFs' one GPS delay would make
+        # the velocity late instead
+        why += ", its vertical velocity on time; the EKF's GPS delay moves both, so none is set"
+        add("ArduPilot", "", None, e.name, why)
+        add("PX4", "", None, e.name, why)
     elif sensor == "gps":
         add("ArduPilot", "GPS_DELAY_MS", ms_, e.name, why + " (GPS1_DELAY_MS from ArduPilot 4.6)")
         add("PX4", "EKF2_GPS_DELAY", ms_, e.name, why)
