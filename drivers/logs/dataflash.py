@@ -63,7 +63,7 @@ from groundstation.core.measurement import Kind, Measurement
 
 from .bulk import DataFlashWalk, dataflash_dtype, dataflash_values, fmt_length_ok, struct_dtype, walk_dataflash
 from .dataflash_text import TextReader
-from .frame import mav_type_of_params, mav_type_of_text
+from .frame import frame_status, mav_type_of_params, mav_type_of_text
 from .quiet import quiet
 from .scratch import scratch_copy
 from .tables import FIRMWARE, LogTables, Table
@@ -359,8 +359,7 @@ def _read(
     if mav_type is not None and out:
         # the frame the log states, as the HEARTBEAT a tlog would carry: from the log's first sample
         t0 = min(out[0].t, imu.columns.start) if imu is not None else out[0].t
-        status = [math.nan, math.nan, math.nan, float(mav_type), float(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)]
-        out.insert(0, Measurement(t0, Kind.VEHICLE_STATUS, np.array(status), source, t0))
+        out.insert(0, frame_status(t0, mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, source))
     log.tables.tables = {typ: cols.table() for typ, cols in rows.items()}
     if imu is not None:
         log.imu = imu.columns

@@ -15,7 +15,12 @@ are not the first motors, and a count would mix servos into the collective.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
+
+from groundstation.core.measurement import Kind, Measurement
 
 from .tables import LogTables
 
@@ -106,3 +111,10 @@ def px4_logs_mav_type(tables: LogTables) -> int | None:
     vs = tables.get("vehicle_status")
     said = vs.numeric("system_type") if vs is not None else None
     return px4_mav_type(tables.params, float(said[0]) if said is not None and len(said) else None)
+
+
+def frame_status(t: float, mav_type: int, autopilot: int, source: str) -> Measurement:
+    """The frame a log states as the VEHICLE_STATUS a tlog's HEARTBEAT gives (its MAV_TYPE; armed, mode
+    and state not said), at time ``t``: the log's first sample, so that every output is read by it."""
+    status = np.array([math.nan, math.nan, math.nan, float(mav_type), float(autopilot)])
+    return Measurement(t, Kind.VEHICLE_STATUS, status, source, t)

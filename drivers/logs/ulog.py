@@ -45,7 +45,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
-from .frame import px4_logs_mav_type, px4_motor_columns
+from .frame import frame_status, px4_logs_mav_type, px4_motor_columns
 from .quiet import quiet
 from .tables import LogTables, Table
 from .ulog_check import ULogStructureError, check
@@ -153,9 +153,10 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1", *, imu_columns: bool =
         log.damage = f"{p}: " + "; ".join(damage)
     _measurements(tables, log, source, imu_columns)
     log.measurements.sort(key=lambda m: m.t)
+    # the frame the log states, as the HEARTBEAT a tlog would carry: from the log's first sample
     t0 = min(log.measurements[0].t if log.measurements else math.inf, log.imu.start if log.imu else math.inf)
-    if math.isfinite(t0) and (status := _vehicle_status(tables, t0, source)) is not None:
-        log.measurements.insert(0, status)
+    if math.isfinite(t0) and (mav_type := px4_logs_mav_type(tables)) is not None:
+        log.measurements.insert(0, frame_status(t0, mav_type, mavlink.MAV_AUTOPILOT_PX4, source))
     return log
 
 
@@ -275,16 +276,6 @@ def _motor_outputs(ao: Table, params: dict[str, float]) -> np.ndarray | None:
     if any(c is None for c in cols):
         return None
     return np.column_stack(cols)  # type: ignore[arg-type]
-
-
-def _vehicle_status(tables: LogTables, t0: float, source: str) -> Measurement | None:
-    """The frame the log states (:func:`.frame.px4_mav_type`) as the HEARTBEAT a tlog would carry,
-    at the log's first sample: which outputs are motors."""
-    mav_type = px4_logs_mav_type(tables)
-    if mav_type is None:
-        return None
-    status = [math.nan, math.nan, math.nan, float(mav_type), float(mavlink.MAV_AUTOPILOT_PX4)]
-    return Measurement(t0, Kind.VEHICLE_STATUS, np.array(status), source, t0)
 
 
 def _series(source: str, t: np.ndarray, values: np.ndarray) -> ImuSeries:
