@@ -112,5 +112,8 @@ def test_a_late_gps_fix_on_another_generators_dataflash_flight_is_named_as_its_d
     (p,) = [p for p in suggest(d, ms, log.tables.params, "ardupilot") if p.name == "GPS_DELAY_MS"]
     ms_ = round(1000 * d.effects[0].params["seconds"])
     assert p.value == ms_ if ms_ <= 250 else (p.value is None and "not written" in p.why), p
+    # and the receiver's vertical-velocity noise as the log shows it (the generator's: 0.10 m/s)
+    (v,) = [p for p in suggest(d, ms, log.tables.params, "ardupilot") if p.name == "EK3_VELD_M_NSE"]
+    assert v.value is not None and 0.07 < v.value < 0.15, v
     before, after = (d.truth.error(r, r.t[0] + 3.0, r.t[-1] - 3.0) for r in (d.before, d.after))
     assert after < before, (before, after)

@@ -391,7 +391,9 @@ def _contradicted(truth: Truth, base: Run, s: Scored) -> Effect | None:
 
 
 def _label(s: Scored) -> str:
-    return s.name + (f"({s.candidate.sensor})" if s.candidate.delays else "")
+    """A candidate's name, with a delay's sensor and its form (a GPS's fix, or its height alone)."""
+    c = s.candidate
+    return s.name + (f"({', '.join(x for x in (c.sensor, c.form) if x)})" if c.delays else "")
 
 
 def _alternative(best: Scored, runner_up: Scored | None) -> dict:

@@ -143,10 +143,12 @@ def suggest(
         add("ArduPilot", "RNGFND1_GNDCLEAR", round(c.metres * 100.0), "range_clearance", why + " [cm]")
         add("PX4", "EKF2_MIN_RNG", c.metres, "range_clearance", why + " [m]")
     names = {"baro": ("EK3_ALT_M_NSE", "EKF2_BARO_NOISE"), "range": ("EK3_RNG_M_NSE", "EKF2_RNG_NOISE"),
-             "gps": ("EK3_POSNE_M_NSE", "EKF2_GPS_P_NOISE")}  # fmt: skip
+             "gps": ("EK3_POSNE_M_NSE", "EKF2_GPS_P_NOISE"),
+             "gps_vz": ("EK3_VELD_M_NSE", "EKF2_GPS_V_NOISE")}  # fmt: skip
     for n in d.noise:
         if n.differs and n.sensor in names:
-            why = f"{n.sensor} noise in this log {n.sigma_data:.3g} m (the model had {n.sigma_model:.3g})"
+            unit = "m/s" if n.sensor == "gps_vz" else "m"
+            why = f"{n.sensor} noise in this log {n.sigma_data:.3g} {unit} (the model had {n.sigma_model:.3g})"
             add("ArduPilot", names[n.sensor][0], n.sigma_data, f"noise({n.sensor})", why)
             add("PX4", names[n.sensor][1], n.sigma_data, f"noise({n.sensor})", why)
     return out
