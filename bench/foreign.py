@@ -15,6 +15,11 @@ at most 1.5 times the reference and never above the error before; an effect outs
 
 Scoring, as the data README gives it: RMSE from 3 s after the start to 3 s before the end; for the
 ``gps`` suite, estimate and truth are both zeroed on the ground (t in 0.5-1.8 s).
+
+``--late baro=0.2`` (the second source's flights): a sensor made late, its readings re-stamped that
+many seconds later as the log is read (``baro``, ``gps`` the whole fix, ``gps-height`` its height
+alone, ``range``). It becomes the flight's hidden effect, ``sensor_delay``; the oracle is the plain
+filter on the log as written, the nominal the plain filter on the late one.
 """
 
 from __future__ import annotations
@@ -41,13 +46,21 @@ from groundstation.diagnosis.engine import diagnose  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
 from groundstation.diagnosis.runs.run import in_time_order, run_model  # noqa: E402
 from groundstation.diagnosis.scoring.noise_match import match_noise  # noqa: E402
-from groundstation.estimation.logs import load_measurements  # noqa: E402
+from groundstation.estimation.logs import load_log, load_measurements  # noqa: E402
 from groundstation.estimation.truth import truth_from  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "bench"))
 import plain_kf  # noqa: E402
 
 from groundstation.diagnosis import pipeline  # noqa: E402
+
+#: the sensors ``--late`` can make late: the kinds re-stamped
+LATE_KINDS = {
+    "baro": (Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE),
+    "gps": (Kind.GPS, Kind.GPS_VD),
+    "gps-height": (Kind.GPS,),
+    "range": (Kind.RANGE,),
+}
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA", ROOT.parent / "shared" / "data")) / "foreign"
 DATA2 = DATA.with_name("foreign2")
@@ -216,18 +229,43 @@ def _estimate_csv(p: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array([float(r["t"]) for r in rows]), np.array([float(r["z"]) for r in rows])
 
 
-def evaluate2(name: str, data: Path = DATA2) -> dict:
+def late_reader(late: dict[str, float]):
+    """``load_log`` with the sensors of ``late`` re-stamped that many seconds later."""
+
+    def load(path: Path, **kw):
+        log = load_log(path, **kw)
+        ms = log.measurements
+        for sensor, d in late.items():
+            ms = ms.shifted(LATE_KINDS[sensor], -d)
+        log.measurements = ms.in_time_order()
+        return log
+
+    return load
+
+
+def evaluate2(name: str, data: Path = DATA2, late: dict[str, float] | None = None) -> dict:
     """One flight of the second source (ArduPilot .bin, PX4 .ulg), as a pilot runs it: ``diagnose``
     on the log alone (a copy of the log where no truth file lies beside it), scored against truth
-    afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect."""
+    afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect.
+    ``late``: sensors made late (the module docstring), the flight's hidden effect then."""
     meta = json.loads((data / f"{name}_meta.json").read_text())
     truth = np.genfromtxt(data / f"{name}_truth.csv", delimiter=",", names=True)
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
-    sensors = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
     arm = meta["times"]["arm"]
+    if late:
+        if hidden:
+            raise SystemExit(f"--late is for a clean flight; {name} hides {hidden}")
+        written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
+        pipeline.load_log = plain_kf.load_log = late_reader(late)
+        meta = {**meta, "hidden_effects": [{"name": "sensor_delay"}], "false_if_claimed": []}
+        hidden = ["sensor_delay"]
+    sensors = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
     nominal = flight_error(*plain_kf.run(sensors, arm), truth, meta)
-    oracle = flight_error(*plain_kf.run(plain_kf.without_hidden(sensors, truth, set(hidden)), arm), truth, meta)
+    if late:
+        oracle = flight_error(*plain_kf.run(written, arm), truth, meta)
+    else:
+        oracle = flight_error(*plain_kf.run(plain_kf.without_hidden(sensors, truth, set(hidden)), arm), truth, meta)
     with tempfile.TemporaryDirectory() as tmp:
         alone = Path(tmp) / log.name
         alone.symlink_to(log.resolve())
@@ -296,11 +334,15 @@ def main() -> int:
     ap.add_argument("--suite", choices=("tlog", "bin-ulg", "both"), default="both")
     ap.add_argument("--flights", default="")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--late", default="", help="sensors made late, e.g. baro=0.2,gps=0.25 (bin-ulg)")
     a = ap.parse_args()
+    late = {k: float(v) for k, v in (x.split("=") for x in a.late.split(",") if x)}
+    if set(late) - set(LATE_KINDS):
+        ap.error(f"--late takes {', '.join(LATE_KINDS)}")
     if a.suite in ("bin-ulg", "both") and a.data2.is_dir():
         names2 = [n for n in (a.flights.split(",") if a.flights else flights2(a.data2)) if n in flights2(a.data2)]
         with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
-            rows2 = list(pool.map(evaluate2, names2, [a.data2] * len(names2)))
+            rows2 = list(pool.map(evaluate2, names2, [a.data2] * len(names2), [late] * len(names2)))
         table2(rows2)
         if a.suite == "bin-ulg":
             return 0

@@ -17,6 +17,17 @@ also needs, for each parameter and over the log cut into :data:`BLOCKS` consecut
    error (the per-update differences paired by time: more than chance gives) or a tenth of the
    effect's whole held-out gain (a model that reads one sensor right re-weighs the others).
 
+Each sensor's gain (and its standard error) is counted at its innovations' effective sample size,
+as Delta BIC's effective form counts it (:func:`.scored.delta_bic_effective`): divided by the
+candidate's run's ``n / n_eff`` for that sensor. A sensor whose innovations carry a slow error the
+model leaves in them (a GPS height's wander while the effects are traced at the floor of its slow
+error: ``noise_match.match_gps_slow``) gains or loses on a block as the model's height happens to
+move with that wander, and every one of its updates says the same thing. Counted update by update,
+such a sensor outvotes the ones the effect acts on: a baro made 0.2 s late on an outdoor flight was
+fitted at 0.16 s, gained 36 on the baro's held-out blocks and 40 on the receiver's velocity, and was
+turned away by a loss of 98 on GPS heights whose innovations were worth one in eight (the GPS
+error's wander rising 2.4 m in 30 s through the descent).
+
 How each kind of candidate is fitted without a block:
 
 * a state (an unknown constant, a drift, a coefficient): the augmented filter run with the
@@ -178,9 +189,20 @@ def _blinded(model: LinearModel, n0: int, lo: float, hi: float, kinds: set) -> L
     return replace(model, measurements=meas)  # type: ignore[arg-type]
 
 
-def _gains(run: Run, base: Run, lo: float, hi: float) -> dict[str, float]:
+def effective_weights(run: Run) -> dict[str, float]:
+    """Each sensor's weight in a held-out gain: ``n_eff / n`` of its innovations in ``run`` (at most 1;
+    module docstring)."""
+    return {s: 1.0 / max(v, 1.0) for s, v in run.inflation.items()}
+
+
+def _gains(run: Run, base: Run, lo: float, hi: float, w: dict[str, float]) -> dict[str, float]:
     a, b = window_loglik(run, lo, hi), window_loglik(base, lo, hi)
-    return {s: a.get(s, 0.0) - b.get(s, 0.0) for s in sorted(set(a) | set(b))}  # sorted: the same report every run
+    # sorted: the same report every run
+    return {s: w.get(s, 1.0) * (a.get(s, 0.0) - b.get(s, 0.0)) for s in sorted(set(a) | set(b))}
+
+
+def _weighted(ll: dict[str, float], w: dict[str, float]) -> float:
+    return sum(w.get(s, 1.0) * v for s, v in ll.items())
 
 
 def paired_se(runs: list[tuple[Run, float, float]], base: Run, sensor: str) -> float:
@@ -285,17 +307,20 @@ def check(
     per_block: list[dict[str, float]] = []
     held_runs: list[tuple[Run, float, float]] = []
     se: dict[str, float] | None = None
+    w = effective_weights(run)
     if fit is not None and fit.exact:
         per_block, se = two_stage_blocks(fit, prep)
+        per_block = [{s: w.get(s, 1.0) * v for s, v in g.items()} for g in per_block]
+        se = {s: w.get(s, 1.0) * v for s, v in se.items()}
     elif cand.delays and profile:
         for lo, hi in blocks(prep):
             others = [(a, b) for a, b in blocks(prep) if (a, b) != (lo, hi)]
-            best = max(profile, key=lambda d: sum(sum(window_loglik(profile[d], a, b).values()) for a, b in others))
-            per_block.append(_gains(profile[best], base, lo, hi))
+            best = max(profile, key=lambda d: sum(_weighted(window_loglik(profile[d], a, b), w) for a, b in others))
+            per_block.append(_gains(profile[best], base, lo, hi, w))
             held_runs.append((profile[best], lo, hi))
     elif aug.n == base_model.n:  # nothing fitted (a changed measurement function)
         for lo, hi in blocks(prep):
-            per_block.append(_gains(run, base, lo, hi))
+            per_block.append(_gains(run, base, lo, hi, w))
             held_runs.append((run, lo, hi))
     else:
         n0 = base_model.n
@@ -308,7 +333,7 @@ def check(
                 h.reason = held
                 return h
             if held is not None:
-                per_block.append(_gains(held, base, lo, hi))
+                per_block.append(_gains(held, base, lo, hi, w))
                 held_runs.append((held, lo, hi))
     h.gain_by_block = [sum(g.values()) for g in per_block]
     for g in per_block:
@@ -325,7 +350,7 @@ def check(
             if v
             < -max(
                 SENSOR_TOLERANCE,
-                SENSOR_SE * (se.get(s, 0.0) if se is not None else paired_se(held_runs, base, s)),
+                SENSOR_SE * (se.get(s, 0.0) if se is not None else w.get(s, 1.0) * paired_se(held_runs, base, s)),
                 SENSOR_SHARE * h.gain,
             )
         }
