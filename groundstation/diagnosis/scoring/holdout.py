@@ -23,10 +23,10 @@ candidate's run's ``n / n_eff`` for that sensor. A sensor whose innovations carr
 model leaves in them (a GPS height's wander while the effects are traced at the floor of its slow
 error: ``noise_match.match_gps_slow``) gains or loses on a block as the model's height happens to
 move with that wander, and every one of its updates says the same thing. Counted update by update,
-such a sensor outvotes the ones the effect acts on: a baro made 0.2 s late on an outdoor flight was
-fitted at 0.16 s, gained 36 on the baro's held-out blocks and 40 on the receiver's velocity, and was
-turned away by a loss of 98 on GPS heights whose innovations were worth one in eight (the GPS
-error's wander rising 2.4 m in 30 s through the descent).
+such a sensor outvotes the ones the effect acts on: a baro made 0.2 s late on an outdoor flight is
+fitted at 0.16 s, gains 36 on the baro's held-out blocks and 40 on the receiver's velocity, and loses
+98 on GPS heights whose innovations are worth one in eight (the GPS error's wander rising 2.4 m in
+30 s through the descent): counted update by update it would be turned away.
 
 How each kind of candidate is fitted without a block:
 
