@@ -94,7 +94,7 @@ def test_a_late_baro_on_another_generators_outdoor_dataflash_flight_is_named_as_
     """Another generator's outdoor .bin flight with its baro readings 0.2 s late: named as the baro's
     delay within 0.06 s, handed back as ``EK3_HGT_DELAY``, and the height after is nearer the truth.
     Counted update by update, the GPS heights' held-out loss (their slow wander rising through the
-    descent) had turned it away."""
+    descent) would turn it away."""
     from groundstation.diagnosis.engine import diagnose
     from groundstation.diagnosis.report.autopilot_params import suggest
     from groundstation.estimation.logs import load_log
