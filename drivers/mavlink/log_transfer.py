@@ -6,7 +6,7 @@ many to expect); the numbers still missing are asked for one by one. A download:
 ``LOG_REQUEST_DATA`` for the whole log, answered by ``LOG_DATA`` of 90 bytes each with its offset;
 once the stretch asked for has been served (or the stream goes quiet), the first stretch still
 missing is asked for (the offsets are multiples of 90, so a block is either there or not), until
-the log is complete or nothing comes for :data:`RETRIES` rounds; then ``LOG_REQUEST_END``
+the log is complete or nothing comes for :data:`RETRIES` rounds and :data:`GIVE_UP_S`; then ``LOG_REQUEST_END``
 (ArduPilot holds its logging while a transfer is open). The vehicle serves one request at a time,
 so the gaps are asked for one after the other, those close together as one. This is MAVProxy's
 ``log`` module's method; pymavlink has the messages but no transfer, so the loop is here.
@@ -29,6 +29,10 @@ RETRIES = 5
 #: [s] without a LOG_DATA before what is missing is asked for again: three round trips as measured
 #: (a request to its first block), within these bounds (this long before the first is measured)
 QUIET_S, MIN_QUIET_S = 0.5, 0.02
+#: [s] the least silence since the last LOG_DATA before a download is given up, however short the
+#: rounds: at the round trip's 3 x 5 ms, five rounds were 0.1 s, and a vehicle that stalled that long
+#: (its logging busy, its process not scheduled) lost the transfer with 96 % of the log in hand
+GIVE_UP_S = RETRIES * QUIET_S
 #: missing blocks this close together are asked for as one stretch (resending the few between costs
 #: less than a round trip each)
 MERGE_BLOCKS = 16
@@ -114,10 +118,11 @@ class LogClient(Exchange):
             rtt: float | None = None  # [s] from a request to its first block: how long silence means loss
             self._ask(d, 0, d.size)
             asked_at, idle = loop.time(), 0
+            heard = asked_at  # the last LOG_DATA (or the first request)
             while not d.complete():
                 quiet = QUIET_S if rtt is None else min(QUIET_S, max(MIN_QUIET_S, 3.0 * rtt))
                 if await self._wait_change(quiet):
-                    idle = 0
+                    idle, heard = 0, loop.time()
                     if d.replied and math.isfinite(asked_at):  # the first block since the request
                         sample = loop.time() - asked_at
                         rtt = sample if rtt is None else 0.8 * rtt + 0.2 * sample
@@ -128,7 +133,7 @@ class LogClient(Exchange):
                         continue  # the stretch asked for is still coming
                 else:
                     idle += 1
-                    if idle > RETRIES:
+                    if idle > RETRIES and loop.time() - heard >= GIVE_UP_S:
                         break
                 self._ask(d, *d.next_stretch())
                 asked_at = loop.time()
