@@ -30,8 +30,10 @@ RETRIES = 5
 #: (a request to its first block), within these bounds (this long before the first is measured)
 QUIET_S, MIN_QUIET_S = 0.5, 0.02
 #: [s] the least silence since the last LOG_DATA before a download is given up, however short the
-#: rounds: at the round trip's 3 x 5 ms, five rounds were 0.1 s, and a vehicle that stalled that long
-#: (its logging busy, its process not scheduled) lost the transfer with 96 % of the log in hand
+#: rounds: at a round trip of 5 ms five rounds are 0.1 s, and a vehicle that stalls that long (its
+#: logging busy, its process not scheduled) would lose a transfer with 96 % of the log in hand. After
+#: :data:`RETRIES` short rounds the rounds are :data:`QUIET_S` long: a stalled vehicle is asked again
+#: a few times, not flooded with requests
 GIVE_UP_S = RETRIES * QUIET_S
 #: missing blocks this close together are asked for as one stretch (resending the few between costs
 #: less than a round trip each)
@@ -120,7 +122,10 @@ class LogClient(Exchange):
             asked_at, idle = loop.time(), 0
             heard = asked_at  # the last LOG_DATA (or the first request)
             while not d.complete():
-                quiet = QUIET_S if rtt is None else min(QUIET_S, max(MIN_QUIET_S, 3.0 * rtt))
+                if rtt is None or idle >= RETRIES:
+                    quiet = QUIET_S
+                else:
+                    quiet = min(QUIET_S, max(MIN_QUIET_S, 3.0 * rtt))
                 if await self._wait_change(quiet):
                     idle, heard = 0, loop.time()
                     if d.replied and math.isfinite(asked_at):  # the first block since the request
