@@ -389,7 +389,11 @@ class ModelFilter:
             self.t = t
             return
         akey, A = self._a_key()
-        Phi, G, _, _ = self._discrete(dt, akey, A, with_q=False)
+        # a step whose A is not the last step's: its covariance step is applied alone unless the next
+        # steps hold this A (a thrust model's A moves with every throttle record and an update reads P
+        # between them), so Q_k is made with Phi and G, not by a second series when P is read
+        fresh = self._u_dependent and akey != self._pending_akey
+        Phi, G, _, _ = self._discrete(dt, akey, A, with_q=fresh)
         # x = F x + B u every step; P = F P F^T + Q deferred (see _apply_pending).
         # (filterpy's predict, written out: its copies of the priors cost three
         # times the arithmetic at 1 kHz.)
