@@ -253,6 +253,9 @@ def evaluate2(name: str, data: Path = DATA2, late: dict[str, float] | None = Non
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
     arm = meta["times"]["arm"]
+    # as written (a late flight's oracle), and read as the loaders stand: a late flight before this one in the same
+    # process left its reader in them
+    pipeline.load_log = plain_kf.load_log = load_log
     if late:
         written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
         pipeline.load_log = plain_kf.load_log = late_reader(late)
