@@ -188,7 +188,7 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
             await s.press(a, s.panel.take)
             await s.said(a, "control held by tab")
             await s.press(a, s.panel.altitude, value=2.0)
-            await until(lambda: s.panel.accepted["altitude"] == 2.0, 10.0, "the holder's 2 m accepted")
+            await until(lambda: s.panel.accepted["altitude"] == 2.0, 30.0, "the holder's 2 m accepted")
 
             async with Browser() as b:
                 await b.goto(s.dash.url)
@@ -210,7 +210,7 @@ async def test_in_chromium_a_view_only_tab_and_a_page_from_elsewhere_command_not
                 before = s.panel.refused
                 with _ForeignPage(ws_url, presses) as elsewhere:
                     await b.goto(elsewhere.url)
-                    await until(lambda: s.panel.refused == before + 3, 10.0, "the page's three presses refused")
+                    await until(lambda: s.panel.refused == before + 3, 30.0, "the page's three presses refused")
                     await s.said(a, f"a page from {elsewhere.url.rstrip('/')} may not command this vehicle")
             assert f"{before + 3} refused to tabs without control" in s.panel.status_md.content  # the holder is told
             assert not guided.armed
