@@ -247,15 +247,20 @@ def evaluate2(name: str, data: Path = DATA2, late: dict[str, float] | None = Non
     """One flight of the second source (ArduPilot .bin, PX4 .ulg), as a pilot runs it: ``diagnose``
     on the log alone (a copy of the log where no truth file lies beside it), scored against truth
     afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect.
-    ``late``: sensors made late (the module docstring), the flight's hidden effect then."""
+    ``late``: sensors made late (the module docstring), the flight's hidden effect then; the late reader
+    is the loaders' for this flight alone (a pool's process goes on to the next flight)."""
+    try:
+        return _evaluate2(name, data, late)
+    finally:
+        pipeline.load_log = plain_kf.load_log = load_log
+
+
+def _evaluate2(name: str, data: Path, late: dict[str, float] | None) -> dict:
     meta = json.loads((data / f"{name}_meta.json").read_text())
     truth = np.genfromtxt(data / f"{name}_truth.csv", delimiter=",", names=True)
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
     arm = meta["times"]["arm"]
-    # as written (a late flight's oracle), and read as the loaders stand: a late flight before this one in the same
-    # process left its reader in them
-    pipeline.load_log = plain_kf.load_log = load_log
     if late:
         written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
         pipeline.load_log = plain_kf.load_log = late_reader(late)
