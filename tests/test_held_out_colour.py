@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from groundstation.core.measurement import Kind
+from groundstation.diagnosis.catalogue.altitude import sensor_delay
 from groundstation.diagnosis.runs.run import SETTLE_S, Run, SensorTrace
 from groundstation.diagnosis.scoring import holdout
+from groundstation.estimation.models.altitude import altitude_model
 
 #: three blocks of 60 updates a sensor, one update a second
 N_BLOCK = 60
@@ -57,11 +59,11 @@ def check(gps_colour: float) -> holdout.Holdout:
     late = run(30.0, (10.0, 10.0, -60.0), gps_colour)
     prep = SimpleNamespace(t0=0.0, t1=SETTLE_S + 3 * N_BLOCK - 1e-6, kinds={Kind.BARO_PRESSURE})
     return holdout.check(
-        SimpleNamespace(delays=(0.0, 0.2)),
+        sensor_delay("baro", (0.0, 0.2)),
         SimpleNamespace(f=None, n=3),  # type: ignore[arg-type]
         late,
         {"seconds": 0.2, "sigma_seconds": 0.01},
-        SimpleNamespace(n=3),  # type: ignore[arg-type]
+        altitude_model(use_gps=True),
         base,
         prep,  # type: ignore[arg-type]
         None,

@@ -24,7 +24,8 @@ STRONG = -10.0  # Delta BIC: very strong evidence (Kass & Raftery 1995)
 #: and material: the log-likelihood gain per innovation of the sensor it acts on (a
 #: mean-NIS change of about 4 %; for an effect on the input, of the sensor that gains most),
 #: counted over the updates it can act on (a candidate's ``support``, or its signature's:
-#: :func:`signature_support`).
+#: :func:`signature_support`, which also counts a delay's: a late reading differs only while
+#: what it measures changes).
 #: With thousands of updates BIC alone picks up every slight mismatch between the model and
 #: the world: a clean simulated flight "had" 0.08 m of baro_thrust (1/40 of a realistic one)
 #: at Delta BIC = -28.
