@@ -19,7 +19,10 @@ Scoring, as the data README gives it: RMSE from 3 s after the start to 3 s befor
 ``--late baro=0.2`` (the second source's clean flights): a sensor made late, its readings re-stamped that
 many seconds later as the log is read (``baro``, ``gps`` the whole fix, ``gps-height`` its height
 alone, ``range``). It becomes the flight's hidden effect, ``sensor_delay``; the oracle is the plain
-filter on the log as written, the nominal the plain filter on the late one.
+filter on the log as written, the nominal the plain filter on the late one. ``--baro-error
+thermal=0.1`` (m/K, on the truth file's IMU temperature from the log's start: ``baro_thermal``) or
+``drift=0.01`` (m/s from the log's start: ``baro_bias_drift``) adds a baro error as the log is read
+instead, scored alike.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ import os
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -41,6 +45,7 @@ from threadpoolctl import threadpool_limits
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from groundstation.core.measurement import Kind, Measurement  # noqa: E402
+from groundstation.core.readings import Readings, Stream  # noqa: E402
 from groundstation.diagnosis.claims.discover import lowpass  # noqa: E402
 from groundstation.diagnosis.engine import diagnose  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
@@ -61,6 +66,24 @@ LATE_KINDS = {
     "gps-height": (Kind.GPS,),
     "range": (Kind.RANGE,),
 }
+
+#: the data README's name of the sensor each of ``LATE_KINDS`` is (its meta file's ``sensors``)
+LATE_SENSOR = {"baro": "baro", "gps": "gps", "gps-height": "gps", "range": "rangefinder"}
+#: the baro errors ``--baro-error`` can add: the catalogue name each is, and its height error [m] at
+#: the times ``t`` of a flight with the truth file ``truth``, of size ``k``
+BARO_ERRORS = {
+    "thermal": ("baro_thermal", lambda t, truth, k: k * (_imu_temperature(t, truth) - truth["imu_temp_c"][0])),
+    "drift": ("baro_bias_drift", lambda t, truth, k: k * (t - truth["t"][0])),
+}
+
+
+def _imu_temperature(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    return np.interp(t, truth["t"], truth["imu_temp_c"])
+
+
+#: [J/(kg K)] dry air's gas constant, for the pressure a height error is (rho = p / (R T), T at 15 C)
+R_AIR, T_AIR = 287.05, 288.15
+G = 9.80665
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA", ROOT.parent / "shared" / "data")) / "foreign"
 DATA2 = DATA.with_name("foreign2")
@@ -243,32 +266,73 @@ def late_reader(late: dict[str, float]):
     return load
 
 
-def evaluate2(name: str, data: Path = DATA2, late: dict[str, float] | None = None) -> dict:
+def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> Readings:
+    """``ms`` with ``error(t)`` [m] added to each baro height, and the pressure it is taken from each
+    baro pressure (dp = -rho g dh)."""
+    streams = list(ms.streams)
+    for i, s in enumerate(streams):
+        if s.kind not in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
+            continue
+        sel = ms.stream == i
+        t = np.full(len(s.values), np.nan)
+        t[ms.row[sel]] = ms.t[sel]
+        v = np.array(s.values, dtype=float)
+        e = np.nan_to_num(error(t))
+        v[:, 0] += e if s.kind is Kind.BARO_ALTITUDE else -v[:, 0] / (R_AIR * T_AIR) * G * e
+        streams[i] = Stream(s.kind, s.source, s.instance, v, s.variance)
+    return Readings(ms.t, ms.t_rx, ms.samples, ms.stream, ms.row, streams)
+
+
+def changed_reader(late: dict[str, float], error: Callable[[np.ndarray], np.ndarray] | None = None):
+    """``load_log`` with the sensors of ``late`` re-stamped that many seconds later, and the baro
+    reading ``error(t)`` high."""
+
+    def load(path: Path, **kw):
+        log = late_reader(late)(path, **kw)
+        if error is not None:
+            log.measurements = with_baro_error(log.measurements, error)
+        return log
+
+    return load
+
+
+def evaluate2(
+    name: str, data: Path = DATA2, late: dict[str, float] | None = None, baro: tuple[str, float] | None = None
+) -> dict:
     """One flight of the second source (ArduPilot .bin, PX4 .ulg), as a pilot runs it: ``diagnose``
     on the log alone (a copy of the log where no truth file lies beside it), scored against truth
     afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect.
     ``late``: sensors made late (the module docstring), the flight's hidden effect then; the late reader
-    is the loaders' for this flight alone (a pool's process goes on to the next flight)."""
+    is the loaders' for this flight alone (a pool's process goes on to the next flight). ``baro``: a baro
+    error added (``BARO_ERRORS``' form and size), alike."""
     try:
-        return _evaluate2(name, data, late)
+        return _evaluate2(name, data, late, baro)
     finally:
         pipeline.load_log = plain_kf.load_log = load_log
 
 
-def _evaluate2(name: str, data: Path, late: dict[str, float] | None) -> dict:
+def _evaluate2(name: str, data: Path, late: dict[str, float] | None, baro: tuple[str, float] | None) -> dict:
     meta = json.loads((data / f"{name}_meta.json").read_text())
     truth = np.genfromtxt(data / f"{name}_truth.csv", delimiter=",", names=True)
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
     arm = meta["times"]["arm"]
-    if late:
+    changed = bool(late) or baro is not None
+    if changed:
         written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
-        pipeline.load_log = plain_kf.load_log = late_reader(late)
-        meta = {**meta, "hidden_effects": [{"name": "sensor_delay"}], "false_if_claimed": []}
-        hidden = ["sensor_delay"]
+        error = None
+        if baro is not None:
+            form, k = BARO_ERRORS[baro[0]][1], baro[1]
+
+            def error(t: np.ndarray) -> np.ndarray:
+                return form(t, truth, k)
+
+        pipeline.load_log = plain_kf.load_log = changed_reader(late or {}, error)
+        hidden = (["sensor_delay"] if late else []) + ([BARO_ERRORS[baro[0]][0]] if baro is not None else [])
+        meta = {**meta, "hidden_effects": [{"name": h} for h in hidden], "false_if_claimed": []}
     sensors = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
     nominal = flight_error(*plain_kf.run(sensors, arm), truth, meta)
-    if late:
+    if changed:
         oracle = flight_error(*plain_kf.run(written, arm), truth, meta)
     else:
         oracle = flight_error(*plain_kf.run(plain_kf.without_hidden(sensors, truth, set(hidden)), arm), truth, meta)
@@ -341,16 +405,29 @@ def main() -> int:
     ap.add_argument("--flights", default="")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--late", default="", help="sensors made late, e.g. baro=0.2,gps=0.25 (bin-ulg)")
+    ap.add_argument("--baro-error", default="", help="a baro error added: thermal=K [m/K] or drift=R [m/s] (bin-ulg)")
     a = ap.parse_args()
     late = {k: float(v) for k, v in (x.split("=") for x in a.late.split(",") if x)}
     if set(late) - set(LATE_KINDS):
         ap.error(f"--late takes {', '.join(LATE_KINDS)}")
+    baro = None
+    if a.baro_error:
+        form, _, size = a.baro_error.partition("=")
+        if form not in BARO_ERRORS or not size:
+            ap.error(f"--baro-error takes {' or '.join(f'{f}=SIZE' for f in BARO_ERRORS)}")
+        baro = (form, float(size))
     if a.suite in ("bin-ulg", "both") and a.data2.is_dir():
         names2 = [n for n in (a.flights.split(",") if a.flights else flights2(a.data2)) if n in flights2(a.data2)]
-        if late:  # a clean flight's, whose only hidden effect is then the late sensor
-            names2 = [n for n in names2 if not json.loads((a.data2 / f"{n}_meta.json").read_text())["hidden_effects"]]
+        if late or baro:  # a clean flight's with the sensors made late, whose only hidden effect is then the one added
+            metas = {n: json.loads((a.data2 / f"{n}_meta.json").read_text()) for n in names2}
+            names2 = [
+                n
+                for n in names2
+                if not metas[n]["hidden_effects"] and all(metas[n]["sensors"][LATE_SENSOR[k]] for k in late)
+            ]
+        n = len(names2)
         with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
-            rows2 = list(pool.map(evaluate2, names2, [a.data2] * len(names2), [late] * len(names2)))
+            rows2 = list(pool.map(evaluate2, names2, [a.data2] * n, [late] * n, [baro] * n))
         table2(rows2)
         if a.suite == "bin-ulg":
             return 0

@@ -119,3 +119,27 @@ def _time_since_start_of(flag: np.ndarray, t: np.ndarray) -> np.ndarray:
         start = (t[i] if start is None else start) if f else None
         out[i] = t[i] - start if start is not None else 0.0
     return out
+
+
+def test_a_baro_error_added_as_the_log_is_read_moves_its_heights_and_pressures_alike():
+    """bench/foreign.py --baro-error: the error added to each baro height, and the pressure that height
+    is (dp = -rho g dh) taken from each baro pressure, at each reading's own time; other kinds as read."""
+    from groundstation.core.measurement import Measurement
+    from groundstation.core.readings import Readings
+
+    ms = []
+    for k in range(20):
+        t = 0.1 * k
+        ms.append(Measurement(t, Kind.BARO_ALTITUDE, np.array([10.0]), "baro"))
+        ms.append(Measurement(t + 0.01, Kind.BARO_PRESSURE, np.array([100000.0]), "baro"))
+        ms.append(Measurement(t + 0.02, Kind.RANGE, np.array([2.0]), "lidar"))
+    out = list(bench_foreign.with_baro_error(Readings.of(ms), lambda t: 0.5 * t))
+    assert [m.t for m in out] == [m.t for m in ms]
+    for a, b in zip(ms, out):
+        if a.kind is Kind.BARO_ALTITUDE:
+            assert b.value[0] == pytest.approx(10.0 + 0.5 * a.t)
+        elif a.kind is Kind.BARO_PRESSURE:
+            rho = 100000.0 / (bench_foreign.R_AIR * bench_foreign.T_AIR)
+            assert b.value[0] == pytest.approx(100000.0 - rho * bench_foreign.G * 0.5 * a.t)
+        else:
+            assert b.value[0] == 2.0
