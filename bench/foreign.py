@@ -22,7 +22,8 @@ alone, ``range``). It becomes the flight's hidden effect, ``sensor_delay``; the 
 filter on the log as written, the nominal the plain filter on the late one. ``--baro-error
 thermal=0.1`` (m/K, on the truth file's IMU temperature from the log's start: ``baro_thermal``) or
 ``drift=0.01`` (m/s from the log's start: ``baro_bias_drift``) adds a baro error as the log is read
-instead, scored alike.
+instead, and ``--accel-scale 0.05`` the accelerometer's body-z axis reading 5 % high (``accel_scale``),
+scored alike.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from threadpoolctl import threadpool_limits
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+from groundstation.core.imu import ImuColumns, ImuSeries  # noqa: E402
 from groundstation.core.measurement import Kind, Measurement  # noqa: E402
 from groundstation.core.readings import Readings, Stream  # noqa: E402
 from groundstation.diagnosis.claims.discover import lowpass  # noqa: E402
@@ -51,7 +53,7 @@ from groundstation.diagnosis.engine import diagnose  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
 from groundstation.diagnosis.runs.run import in_time_order, run_model  # noqa: E402
 from groundstation.diagnosis.scoring.noise_match import match_noise  # noqa: E402
-from groundstation.estimation.logs import load_log, load_measurements  # noqa: E402
+from groundstation.estimation.logs import LoadedLog, load_log, load_measurements  # noqa: E402
 from groundstation.estimation.truth import truth_from  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "bench"))
@@ -257,7 +259,7 @@ def late_reader(late: dict[str, float]):
 
     def load(path: Path, **kw):
         log = load_log(path, **kw)
-        ms = log.measurements
+        ms = Readings.of(log.measurements)
         for sensor, d in late.items():
             ms = ms.shifted(LATE_KINDS[sensor], -d)
         log.measurements = ms.in_time_order()
@@ -283,41 +285,66 @@ def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> 
     return Readings(ms.t, ms.t_rx, ms.samples, ms.stream, ms.row, streams)
 
 
-def changed_reader(late: dict[str, float], error: Callable[[np.ndarray], np.ndarray] | None = None):
-    """``load_log`` with the sensors of ``late`` re-stamped that many seconds later, and the baro
-    reading ``error(t)`` high."""
+def with_accel_scale(log: LoadedLog, scale: float) -> LoadedLog:
+    """``log`` with its accelerometers' body-z readings ``1 + scale`` times what they were, as
+    records and as columns."""
+    gain = np.array([1.0, 1.0, 1.0 + scale])
+    log.measurements = Readings.of(log.measurements).with_values(Kind.ACCEL, lambda v: v * gain[: v.shape[1]])
+    if log.imu is not None:
+        log.imu = ImuColumns(
+            {
+                key: ImuSeries(s.source, s.t, s.t_rx, s.values() * gain, s.samples) if key[0] is Kind.ACCEL else s
+                for key, s in log.imu.series.items()
+            }
+        )
+    return log
+
+
+def changed_reader(
+    late: dict[str, float], error: Callable[[np.ndarray], np.ndarray] | None = None, scale: float | None = None
+):
+    """``load_log`` with the sensors of ``late`` re-stamped that many seconds later, the baro
+    reading ``error(t)`` high, and the accelerometer's body z ``1 + scale`` times what it reads."""
 
     def load(path: Path, **kw):
         log = late_reader(late)(path, **kw)
         if error is not None:
             log.measurements = with_baro_error(log.measurements, error)
+        if scale is not None:
+            log = with_accel_scale(log, scale)
         return log
 
     return load
 
 
 def evaluate2(
-    name: str, data: Path = DATA2, late: dict[str, float] | None = None, baro: tuple[str, float] | None = None
+    name: str,
+    data: Path = DATA2,
+    late: dict[str, float] | None = None,
+    baro: tuple[str, float] | None = None,
+    scale: float | None = None,
 ) -> dict:
     """One flight of the second source (ArduPilot .bin, PX4 .ulg), as a pilot runs it: ``diagnose``
     on the log alone (a copy of the log where no truth file lies beside it), scored against truth
     afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect.
     ``late``: sensors made late (the module docstring), the flight's hidden effect then; the late reader
     is the loaders' for this flight alone (a pool's process goes on to the next flight). ``baro``: a baro
-    error added (``BARO_ERRORS``' form and size), alike."""
+    error added (``BARO_ERRORS``' form and size), and ``scale`` the accelerometer's, alike."""
     try:
-        return _evaluate2(name, data, late, baro)
+        return _evaluate2(name, data, late, baro, scale)
     finally:
         pipeline.load_log = plain_kf.load_log = load_log
 
 
-def _evaluate2(name: str, data: Path, late: dict[str, float] | None, baro: tuple[str, float] | None) -> dict:
+def _evaluate2(
+    name: str, data: Path, late: dict[str, float] | None, baro: tuple[str, float] | None, scale: float | None
+) -> dict:
     meta = json.loads((data / f"{name}_meta.json").read_text())
     truth = np.genfromtxt(data / f"{name}_truth.csv", delimiter=",", names=True)
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
     arm = meta["times"]["arm"]
-    changed = bool(late) or baro is not None
+    changed = bool(late) or baro is not None or scale is not None
     if changed:
         written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
         error = None
@@ -327,8 +354,9 @@ def _evaluate2(name: str, data: Path, late: dict[str, float] | None, baro: tuple
             def error(t: np.ndarray) -> np.ndarray:
                 return form(t, truth, k)
 
-        pipeline.load_log = plain_kf.load_log = changed_reader(late or {}, error)
+        pipeline.load_log = plain_kf.load_log = changed_reader(late or {}, error, scale)
         hidden = (["sensor_delay"] if late else []) + ([BARO_ERRORS[baro[0]][0]] if baro is not None else [])
+        hidden += ["accel_scale"] if scale is not None else []
         meta = {**meta, "hidden_effects": [{"name": h} for h in hidden], "false_if_claimed": []}
     sensors = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
     nominal = flight_error(*plain_kf.run(sensors, arm), truth, meta)
@@ -406,6 +434,9 @@ def main() -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--late", default="", help="sensors made late, e.g. baro=0.2,gps=0.25 (bin-ulg)")
     ap.add_argument("--baro-error", default="", help="a baro error added: thermal=K [m/K] or drift=R [m/s] (bin-ulg)")
+    ap.add_argument(
+        "--accel-scale", type=float, default=None, help="the accelerometer's body z this much high (bin-ulg)"
+    )
     a = ap.parse_args()
     late = {k: float(v) for k, v in (x.split("=") for x in a.late.split(",") if x)}
     if set(late) - set(LATE_KINDS):
@@ -418,7 +449,9 @@ def main() -> int:
         baro = (form, float(size))
     if a.suite in ("bin-ulg", "both") and a.data2.is_dir():
         names2 = [n for n in (a.flights.split(",") if a.flights else flights2(a.data2)) if n in flights2(a.data2)]
-        if late or baro:  # a clean flight's with the sensors made late, whose only hidden effect is then the one added
+        if (
+            late or baro or a.accel_scale is not None
+        ):  # a clean flight's with the sensors made late, whose only hidden effect is then the one added
             metas = {n: json.loads((a.data2 / f"{n}_meta.json").read_text()) for n in names2}
             names2 = [
                 n
@@ -427,7 +460,7 @@ def main() -> int:
             ]
         n = len(names2)
         with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
-            rows2 = list(pool.map(evaluate2, names2, [a.data2] * n, [late] * n, [baro] * n))
+            rows2 = list(pool.map(evaluate2, names2, [a.data2] * n, [late] * n, [baro] * n, [a.accel_scale] * n))
         table2(rows2)
         if a.suite == "bin-ulg":
             return 0

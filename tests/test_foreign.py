@@ -143,3 +143,29 @@ def test_a_baro_error_added_as_the_log_is_read_moves_its_heights_and_pressures_a
             assert b.value[0] == pytest.approx(100000.0 - rho * bench_foreign.G * 0.5 * a.t)
         else:
             assert b.value[0] == 2.0
+
+
+def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
+    """bench/foreign.py --accel-scale: each accelerometer's body-z reading 1 + s times what it was, as
+    columns and as records; x, y and the gyro as read."""
+    from groundstation.core.imu import ImuColumns
+    from groundstation.core.measurement import Measurement
+    from groundstation.core.readings import Readings
+    from groundstation.estimation.logs import LoadedLog
+
+    ms = [
+        Measurement(0.01 * k, kind, np.array([1.0, 2.0, -9.8]), "imu")
+        for k in range(10)
+        for kind in (Kind.ACCEL, Kind.GYRO)
+    ]
+    _, imu = ImuColumns.split(ms)
+    log = LoadedLog(measurements=Readings.of(ms), description="", vehicle=None, imu=imu)
+    out = bench_foreign.with_accel_scale(log, 0.05)
+    for m in out.measurements:
+        want = [1.0, 2.0, -9.8 * 1.05] if m.kind is Kind.ACCEL else [1.0, 2.0, -9.8]
+        assert np.allclose(m.value, want)
+    assert out.imu is not None
+    accel, gyro = out.imu.get(Kind.ACCEL), out.imu.get(Kind.GYRO)
+    assert accel is not None and gyro is not None
+    assert np.allclose(accel.values(), [1.0, 2.0, -9.8 * 1.05])
+    assert np.allclose(gyro.values(), [1.0, 2.0, -9.8])
