@@ -71,3 +71,20 @@ def test_an_effect_the_model_after_holds_near_zero_is_not_claimed():
         return float(np.sqrt(np.mean((est - truth["z"][fl]) ** 2)))
 
     assert error(d.after) <= error(d.before) + 1e-4, (error(d.before), error(d.after))
+
+
+def test_a_parameter_restated_in_another_unit_is_counted_once():
+    """A rotor wash in its thrust form is one state, reported per unit thrust over weight (k_tw) and per
+    unit of the command (k): 2.34 sigma each is 2.34 sigma, not 3.3 together, and is not claimed. Two
+    parameters fitted apart (a gyro bias on two axes) still count together."""
+    from groundstation.core.measurement import Kind
+    from groundstation.diagnosis.catalogue.altitude import altitude_catalogue
+    from groundstation.diagnosis.scoring.holdout import sizes
+
+    wash = {"k": 0.0203, "sigma_k": 0.00867, "k_tw": 0.0625, "sigma_k_tw": 0.0267, "tc": 0.22}
+    kinds = {Kind.BARO_PRESSURE, Kind.RANGE, Kind.THROTTLE, Kind.ACCEL}
+    thrust_form = next(c for c in altitude_catalogue(kinds) if c.name == "baro_thrust" and c.form == "thrust")
+    _, why = sizes(wash, False, thrust_form.fitted)
+    assert why is not None and "2.3 sigma" in why, why
+    assert sizes(wash, False)[1] is None  # counted twice: 3.3 sigma
+    assert sizes({"x": 0.0234, "sigma_x": 0.01, "y": 0.0234, "sigma_y": 0.01}, False)[1] is None

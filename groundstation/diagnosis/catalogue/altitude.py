@@ -409,15 +409,17 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                     columns=columns,
                     form=form,
                     needs_option=option,
+                    fitted=fitted,
                 )
-                for augment, params, columns, form, option in (
-                    (baro_thrust, state_param("k", "k_thrust"), baro_thrust_columns, "throttle", None),
+                for augment, params, columns, form, option, fitted in (
+                    (baro_thrust, state_param("k", "k_thrust"), baro_thrust_columns, "throttle", None, ()),
                     (
                         thrust_form(baro_thrust),
                         _by_thrust_param,
                         thrust_form(baro_thrust_columns),
                         "thrust",
                         "thrust_ratio",
+                        ("k_tw",),
                     ),
                 )
             ]

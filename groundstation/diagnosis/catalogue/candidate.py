@@ -63,6 +63,9 @@ class Candidate:
     form: str = ""
     #: the model option the candidate reads (``LinearModel.options``), without which it is not offered
     needs_option: str | None = None
+    #: the parameters its states are (empty: every one in ``params``); the others restate them in another
+    #: unit (a wash per unit thrust over weight, also per unit of the command) and add no evidence of size
+    fitted: tuple[str, ...] = ()
 
 
 def with_regressor(

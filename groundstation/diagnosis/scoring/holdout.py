@@ -131,8 +131,9 @@ def window_loglik(run: Run, lo: float, hi: float) -> dict[str, float]:
     return out
 
 
-def sizes(params: dict, delay: bool) -> tuple[dict[str, float], str | None]:
-    """Each parameter's |estimate| / sigma, and the reason it is too small to claim (or None)."""
+def sizes(params: dict, delay: bool, fitted: tuple[str, ...] = ()) -> tuple[dict[str, float], str | None]:
+    """Each parameter's |estimate| / sigma, and the reason it is too small to claim (or None); ``fitted``: the
+    parameters that count (``Candidate.fitted``; empty: all), the others one of them in another unit."""
     z = {}
     for key, v in params.items():
         if key.startswith("sigma_") or not isinstance(v, (int, float)) or isinstance(v, bool):
@@ -143,11 +144,13 @@ def sizes(params: dict, delay: bool) -> tuple[dict[str, float], str | None]:
         elif delay:
             return z, f"{key} = {v:.3g} is not located: its likelihood profile is flat"
     # jointly for an effect of several parameters (a gyro bias on two axes, one of them zero): the
-    # Wald statistic's root, sqrt(sum z^2), against the same bar
-    joint = math.sqrt(sum(v * v for v in z.values()))
-    if z and joint < MIN_Z:
-        k = max(z, key=lambda q: z[q])
-        if len(z) == 1:
+    # Wald statistic's root, sqrt(sum z^2), against the same bar; a parameter restated in another unit
+    # counted once (a wash's k_tw and k, one state, made 2.3 sigma each 3.3 together)
+    counted = {q: v for q, v in z.items() if not fitted or q in fitted}
+    joint = math.sqrt(sum(v * v for v in counted.values()))
+    if counted and joint < MIN_Z:
+        k = max(counted, key=lambda q: counted[q])
+        if len(counted) == 1:
             return z, f"{k} = {params[k]:.3g} is {z[k]:.1f} sigma from zero (a claim needs {MIN_Z:.0f})"
         return z, f"its parameters are {joint:.1f} sigma from zero together (a claim needs {MIN_Z:.0f})"
     return z, None
@@ -306,7 +309,7 @@ def check(
     blocks are then sums over the others (:func:`two_stage_blocks`), exactly what fitted runs give
     where the filter's gains do not depend on the data. Otherwise a fitted effect's blocks are
     fitted on up to ``workers`` processes."""
-    z, reason = sizes(params, bool(cand.delays))
+    z, reason = sizes(params, bool(cand.delays), cand.fitted)
     h = Holdout(z=z, reason=reason)
     if reason is not None:
         return h
