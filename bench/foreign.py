@@ -51,6 +51,7 @@ from groundstation.core.readings import Readings, Stream  # noqa: E402
 from groundstation.diagnosis.claims.discover import lowpass  # noqa: E402
 from groundstation.diagnosis.engine import diagnose  # noqa: E402
 from groundstation.diagnosis.models import setup  # noqa: E402
+from groundstation.diagnosis.report.autopilot_params import rho_g  # noqa: E402
 from groundstation.diagnosis.runs.run import in_time_order, run_model  # noqa: E402
 from groundstation.diagnosis.scoring.noise_match import match_noise  # noqa: E402
 from groundstation.estimation.logs import LoadedLog, load_log, load_measurements  # noqa: E402
@@ -82,10 +83,6 @@ BARO_ERRORS = {
 def _imu_temperature(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.interp(t, truth["t"], truth["imu_temp_c"])
 
-
-#: [J/(kg K)] dry air's gas constant, for the pressure a height error is (rho = p / (R T), T at 15 C)
-R_AIR, T_AIR = 287.05, 288.15
-G = 9.80665
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA", ROOT.parent / "shared" / "data")) / "foreign"
 DATA2 = DATA.with_name("foreign2")
@@ -270,7 +267,8 @@ def late_reader(late: dict[str, float]):
 
 def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> Readings:
     """``ms`` with ``error(t)`` [m] added to each baro height, and the pressure it is taken from each
-    baro pressure (dp = -rho g dh)."""
+    baro pressure (dp = -rho g dh, rho g at the log's own pressure and temperature)."""
+    weight = rho_g(ms)
     streams = list(ms.streams)
     for i, s in enumerate(streams):
         if s.kind not in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
@@ -280,7 +278,7 @@ def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> 
         t[ms.row[sel]] = ms.t[sel]
         v = np.array(s.values, dtype=float)
         e = np.nan_to_num(error(t))
-        v[:, 0] += e if s.kind is Kind.BARO_ALTITUDE else -v[:, 0] / (R_AIR * T_AIR) * G * e
+        v[:, 0] += e if s.kind is Kind.BARO_ALTITUDE else -weight * e
         streams[i] = Stream(s.kind, s.source, s.instance, v, s.variance)
     return Readings(ms.t, ms.t_rx, ms.samples, ms.stream, ms.row, streams)
 

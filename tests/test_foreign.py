@@ -139,8 +139,7 @@ def test_a_baro_error_added_as_the_log_is_read_moves_its_heights_and_pressures_a
         if a.kind is Kind.BARO_ALTITUDE:
             assert b.value[0] == pytest.approx(10.0 + 0.5 * a.t)
         elif a.kind is Kind.BARO_PRESSURE:
-            rho = 100000.0 / (bench_foreign.R_AIR * bench_foreign.T_AIR)
-            assert b.value[0] == pytest.approx(100000.0 - rho * bench_foreign.G * 0.5 * a.t)
+            assert b.value[0] == pytest.approx(100000.0 - bench_foreign.rho_g(ms) * 0.5 * a.t)
         else:
             assert b.value[0] == 2.0
 

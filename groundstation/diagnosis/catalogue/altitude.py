@@ -487,3 +487,8 @@ def shift(ms: Iterable[Measurement], kinds: Collection[Kind], d: float) -> Readi
 GEOMETRIC = {"range_tilt", "sensor_delay", "imu_misalignment"}
 
 SENSOR_KINDS = {"range": {Kind.RANGE}, "baro": {Kind.BARO_PRESSURE, Kind.BARO_ALTITUDE}, "gps": {Kind.GPS, Kind.GPS_VD}}
+
+
+def delayed_kinds(cand: Candidate) -> Collection[Kind]:
+    """The kinds a sensor's delay moves: its own (``Candidate.shifts``), else all of its sensor's."""
+    return cand.shifts if cand.shifts is not None else SENSOR_KINDS.get(cand.sensor or "", set())

@@ -83,7 +83,7 @@ def _mean(ms: Sequence[Measurement], kind: Kind) -> float | None:
     return float(np.mean(v)) if v else None
 
 
-def _rho_g(ms: Sequence[Measurement]) -> float:
+def rho_g(ms: Sequence[Measurement]) -> float:
     """rho g [Pa/m] at the log's mean pressure and temperature (ISA sea level if it has neither)."""
     p, t = _mean(ms, Kind.BARO_PRESSURE), _mean(ms, Kind.TEMPERATURE)
     if p and t and p > 1e4 and t > 150:
@@ -127,7 +127,7 @@ def suggest(
                 why, v = f"{why}; {refused}", None
             out.append(ParamSuggestion(which, name, v, effect, why))
 
-    facts = _LogFacts(params, _rho_g(ms), ms)
+    facts = _LogFacts(params, rho_g(ms), ms)
     for e in [*d.effects, *d.beside]:
         base, _, sensor = e.name.partition("(")
         sensor = sensor.rstrip(")") or str(e.evidence.get("sensor", ""))

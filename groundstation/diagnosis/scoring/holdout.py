@@ -62,7 +62,7 @@ from scipy.linalg import expm
 
 from groundstation.core.measurement import Measurement
 from groundstation.core.readings import Readings
-from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS
+from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS, delayed_kinds
 from groundstation.diagnosis.runs.run import SETTLE_S, Prepared, Run, run_model
 from groundstation.diagnosis.runs.signature import fitted_without, loglik
 from groundstation.diagnosis.scoring.gains import Fit
@@ -376,7 +376,7 @@ def check(
 def _not_on_own_sensor(cand, model: LinearModel, h: Holdout) -> str | None:
     """Why a sensor's delay does not hold out on the readings it moves (rule 4), or None: their
     held-out gain, summed over the measurements of the kinds it shifts, against the whole gain."""
-    kinds = cand.shifts if cand.shifts is not None else SENSOR_KINDS.get(cand.sensor, set())
+    kinds = delayed_kinds(cand)
     own = {name for name, mm in model.measurements.items() if mm.kind in kinds}
     gain = sum(v for s, v in h.gain_by_sensor.items() if s in own)
     if gain >= OWN_SHARE * h.gain:

@@ -28,7 +28,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from groundstation.core.measurement import Measurement
-from groundstation.diagnosis.catalogue.altitude import SENSOR_KINDS, shift
+from groundstation.diagnosis.catalogue.altitude import delayed_kinds, shift
 from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.runs.run import Prepared, Run, ending, run_model
 from groundstation.estimation.models.base import LinearModel
@@ -66,7 +66,7 @@ def delayed(cand: Candidate, ms: Sequence[Measurement], d: float) -> Sequence[Me
     ``t - d``, or the candidate's own reshaping (an actuator lag)."""
     if cand.reshape:
         return cand.reshape(ms, d)
-    return shift(ms, cand.shifts if cand.shifts is not None else SENSOR_KINDS.get(cand.sensor or "", set()), d)
+    return shift(ms, delayed_kinds(cand), d)
 
 
 def trial_model(cand: Candidate, key: Hashable, model: LinearModel) -> LinearModel:
