@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-HEAVY = ("numpy", "scipy", "filterpy", "viser", "pymavlink", "matplotlib", "dask", "pyulog")
+HEAVY = ("numpy", "scipy", "filterpy", "viser", "pymavlink", "matplotlib", "dask", "pyulog", "numba")
 
 
 def _loaded_after(code: str) -> set[str]:

@@ -114,10 +114,17 @@ class KalmanEstimator:
             return True
         return t >= f.t
 
-    def handle(self, m: Measurement, *, checked: bool = False) -> InnovationRecord | None:
+    def handle(
+        self, m: Measurement, *, checked: bool = False, singular_raises: bool = False
+    ) -> InnovationRecord | None:
         """The reading through its context rule, input or measurement update; its innovation when
         it updated the filter. ``checked``: it passed ``core.validity`` already (a prepared log run
-        many times over); else it is checked here, and a bad one counted and skipped."""
+        many times over); else it is checked here, and a bad one counted and skipped.
+
+        A filter run away (a non-finite estimate, or an update whose innovation covariance is
+        singular: garbage that passed its CRC grows P past what a double holds) starts over, counted
+        as a divergence; ``singular_raises``: the singular update raises ``LinAlgError`` instead (a
+        diagnosis' trial, whose run then ends as a model that cannot describe the log)."""
         k = m.kind
         if k not in self.context and k not in self.inputs and k not in self._by_kind:
             return None
@@ -133,19 +140,29 @@ class KalmanEstimator:
             # see time run back: the ground contact, entered at an ATTITUDE, left at the outputs
             # stamped a fraction of a microsecond before it)
             m = m._replace(t=f.t)
-        rec = self._handle(m)
+        try:
+            rec = self._handle(m)
+        except np.linalg.LinAlgError:
+            if singular_raises:
+                raise
+            self._start_over(m.t)
+            return None
         if k not in self.inputs and k not in self._by_kind:
             return None  # a context rule (and an impulse on P): the state was not touched
         # the sums propagate any NaN or infinity; P only where an update touched it (summed as floats:
         # numpy's sum of a few elements costs ten times the addition, at every reading of a run)
         kf = f.kf
         if not math.isfinite(sum(kf.x.tolist())) or (rec is not None and not math.isfinite(sum(kf.P.ravel().tolist()))):
-            # whatever got it there (a model's own arithmetic), the estimate is no estimate: start over
-            self.counters.diverged += 1
-            self.started = False
-            f.reset(m.t)
+            # whatever got it there (a model's own arithmetic), the estimate is no estimate
+            self._start_over(m.t)
             return None
         return rec
+
+    def _start_over(self, t: float) -> None:
+        """A diverged filter started over at ``t`` (counted)."""
+        self.counters.diverged += 1
+        self.started = False
+        self.filter.reset(t)
 
     def _handle(self, m: Measurement) -> InnovationRecord | None:
         f = self.filter

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from filterpy.kalman import KalmanFilter
 
+from . import kernels
 from .context import Context
 from .models.base import LinearModel, MeasurementModel, discretize, discretize_series
 
@@ -32,15 +33,26 @@ def discretized(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, *, with
     """(Phi, G, Q_k) of a step not seen before: by the series (:func:`discretize_series`), halved until
     |A| dt / 2^s < :data:`SERIES_LIMIT`, or by Van Loan's exponentials past :data:`MAX_HALVINGS`.
     ``with_q=False``: Q_k is None (a step of the state alone)."""
+    k = kernels.compiled()
+    if k is not None:  # the same, compiled (kernels.py)
+        Phi, G, Qk, halvings = k[0](_c(A), _c(B), _c(Qc), float(dt), with_q, SERIES_LIMIT, MAX_HALVINGS)
+        if halvings >= 0:
+            return Phi, G, Qk if with_q else None
+        return discretize(A, B, Qc, dt, with_q=with_q)
     size = float(np.abs(A).sum(axis=1).max()) * dt
-    if size < SERIES_LIMIT:
-        return discretize_series(A, B, Qc, dt, with_q=with_q)
     if not math.isfinite(size):  # a NaN in A: the exponentials, which the divergence check then reads
         return discretize(A, B, Qc, dt, with_q=with_q)
-    halvings = math.ceil(math.log2(size / SERIES_LIMIT) + 1e-12)
-    if halvings <= MAX_HALVINGS:
-        return discretize_series(A, B, Qc, dt, halvings, with_q=with_q)
-    return discretize(A, B, Qc, dt, with_q=with_q)
+    halvings = 0 if size < SERIES_LIMIT else math.ceil(math.log2(size / SERIES_LIMIT) + 1e-12)
+    if halvings > MAX_HALVINGS:
+        return discretize(A, B, Qc, dt, with_q=with_q)
+    return discretize_series(A, B, Qc, dt, halvings, with_q=with_q)
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """``a`` as contiguous doubles (itself where it is: the kernels compile once per layout)."""
+    if type(a) is np.ndarray and a.dtype is _F64 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=float)
 
 
 _F64 = np.dtype(float)
@@ -472,6 +484,14 @@ class ModelFilter:
         y^T S^-1 y."""
         kf = self.kf
         P = kf.P
+        k = kernels.compiled() if H.shape[0] == 1 else None
+        if k is not None:
+            x, P, K, s, y0 = k[1](_c(kf.x), _c(P), _c(H), float(R[0, 0]), float(z[0]))
+            if s == 0.0:  # as the reference: a filter run away is the caller's to catch
+                raise np.linalg.LinAlgError("singular innovation covariance")
+            kf.x, kf.P, kf.y, kf.S, kf.K = x, P, np.array([y0]), np.array([[s]]), K
+            si = 1.0 / s
+            return y0 * si * y0
         PHt = P @ H.T
         S = H @ PHt + R
         y = z - H @ kf.x

@@ -344,7 +344,7 @@ def run_model(
     signals_of = attrgetter(*SIGNALS)
     f = est.filter
     for m in ms:
-        rec = est.handle(m, checked=True)  # prepare() checked every reading
+        rec = est.handle(m, checked=True, singular_raises=True)  # prepare() checked every reading
         if rec is None:
             continue
         ts.append(rec.t)

@@ -1,0 +1,52 @@
+"""The filter's two inner steps compiled: the discretisation's series and a scalar reading's update.
+
+A diagnosis runs its model over a log a hundred times and more, and in each run nearly half the time
+went to two small steps: the fourth-order series of a step's (Phi, G, Q_k) where A moves with the
+input (a thrust model's A with every throttle record), and the Joseph-form update of a scalar
+reading (a baro, a range). Each is a few dozen 6x6 products, where numpy's cost is its call, not
+its arithmetic. numba compiles both to loops (:mod:`.kernels_numba`; ``cache=True``: once a machine,
+in ``__pycache__``): a diagnosis of the thrust model on a 7-minute DataFlash log takes 131 s
+where the numpy forms take 181 s, with the same findings.
+
+The numpy forms stay the reference: :func:`groundstation.estimation.models.base.discretize_series`
+and ``ModelFilter._update_written_out``'s. ``GROUNDSTATION_KERNELS=python``, or numba missing, runs
+them alone, and ``tests/test_kernels.py`` holds the compiled ones to them. numba is imported at the
+first step a filter takes, never by a command that runs none (``groundstation --help`` stays quick).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from collections.abc import Callable
+
+import numpy as np
+
+#: the kernels, compiled at first use; None: the numpy reference (numba missing or not wanted)
+_compiled: tuple[Callable, Callable] | None | bool = False
+
+
+def compiled() -> tuple[Callable, Callable] | None:
+    """(discretized_step, scalar_update) compiled (:mod:`.kernels_numba`), or None where the numpy
+    reference runs."""
+    global _compiled
+    if _compiled is False:
+        _compiled = None if os.environ.get("GROUNDSTATION_KERNELS") == "python" else _compile()
+    return _compiled  # type: ignore[return-value]
+
+
+def warm() -> None:
+    """Compile the kernels now, into numba's cache (``make setup``: not at a diagnosis' first step)."""
+    k = compiled()
+    if k is not None:
+        for n in (3, 6):
+            k[0](np.eye(n), np.ones((n, 1)), np.eye(n), 0.01, True, 0.2, 6)
+            k[1](np.zeros(n), np.eye(n), np.ones((1, n)), 1.0, 0.0)
+
+
+def _compile() -> tuple[Callable, Callable] | None:
+    try:  # imported here, not above: numba takes half a second to import
+        k = importlib.import_module(f"{__package__}.kernels_numba")
+    except ImportError:
+        return None
+    return k.discretized_step, k.scalar_update

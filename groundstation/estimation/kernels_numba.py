@@ -1,0 +1,189 @@
+"""The compiled forms of :mod:`.kernels` (imported only when a filter takes its first step: numba is
+heavy to import). Each is a loop over a few small matrices; their numpy references and the contract
+are in :mod:`.kernels`."""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# cache: compiled once a machine, into __pycache__ beside this file; error_model "numpy": a zero
+# innovation variance gives an infinite gain, which the caller refuses as the reference does,
+# rather than an exception raised from inside the loop
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_jit
+def discretized_step(A, B, Qc, dt, with_q, limit, max_halvings):
+    """``filters.discretized``'s series branch: the step's size |A|_inf dt, the halvings that bring it
+    under ``limit``, and (Phi, G, Q_k) by :func:`series`; halvings -1 (and zeros) where the
+    exponentials are due (a NaN in A, or more than ``max_halvings``)."""
+    n = A.shape[0]
+    size = 0.0
+    finite = True
+    for i in range(n):
+        r = 0.0
+        for j in range(n):
+            r += abs(A[i, j])
+        if not math.isfinite(r):
+            finite = False
+        elif r > size:
+            size = r
+    size *= dt
+    if not finite or not math.isfinite(size):
+        return np.zeros((n, n)), np.zeros((n, B.shape[1])), np.zeros((n, n)), -1
+    halvings = 0 if size < limit else int(math.ceil(math.log2(size / limit) + 1e-12))
+    if halvings > max_halvings:
+        return np.zeros((n, n)), np.zeros((n, B.shape[1])), np.zeros((n, n)), -1
+    Phi, G, Qk = series(A, B, Qc, dt, halvings, with_q)
+    return Phi, G, Qk, halvings
+
+
+@_jit
+def series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, halvings: int, with_q: bool):
+    """``discretize_series(A, B, Qc, dt, halvings, with_q=with_q)`` as loops (models/base.py gives the
+    series and the doublings): (Phi, G, Q_k), Q_k zeros when not ``with_q``."""
+    n, m = A.shape[0], B.shape[1]
+    T = dt / 2.0**halvings
+    AT = A * T
+    # Gamma = I + AT/2 + (AT)^2/6 + (AT)^3/24 in Horner's form; Phi = I + AT Gamma; G = Gamma B T
+    Gam = np.eye(n) + AT / 4.0
+    for c in (3.0, 2.0):
+        nxt = np.eye(n)
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for k in range(n):
+                    s += AT[i, k] * Gam[k, j]
+                nxt[i, j] += s / c
+        Gam = nxt
+    Phi = np.eye(n)
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += AT[i, k] * Gam[k, j]
+            Phi[i, j] += s
+    G = np.zeros((n, m))
+    for i in range(n):
+        for j in range(m):
+            s = 0.0
+            for k in range(n):
+                s += Gam[i, k] * B[k, j]
+            G[i, j] = s * T
+    Qk = np.zeros((n, n))
+    if with_q:
+        # M_k = A M_{k-1} + M_{k-1} A^T, M_0 = Qc; Q_k = sum T^{k+1}/(k+1)! M_k
+        M = Qc.copy()
+        f = T
+        for i in range(n):
+            for j in range(n):
+                Qk[i, j] = Qc[i, j] * T
+        for order in range(1, 4):
+            AM = np.zeros((n, n))
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k in range(n):
+                        s += A[i, k] * M[k, j]
+                    AM[i, j] = s
+            f = f * T / (order + 1)
+            for i in range(n):
+                for j in range(n):
+                    M[i, j] = AM[i, j] + AM[j, i]
+                    Qk[i, j] += M[i, j] * f
+        for i in range(n):
+            for j in range(i + 1, n):
+                q = 0.5 * (Qk[i, j] + Qk[j, i])
+                Qk[i, j] = q
+                Qk[j, i] = q
+    for _ in range(halvings):
+        # Phi(2T) = Phi^2, G(2T) = G + Phi G, Q_k(2T) = Q_k + Phi Q_k Phi^T
+        G2 = G.copy()
+        for i in range(n):
+            for j in range(m):
+                s = 0.0
+                for k in range(n):
+                    s += Phi[i, k] * G[k, j]
+                G2[i, j] += s
+        G = G2
+        if with_q:
+            PQ = np.zeros((n, n))
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k in range(n):
+                        s += Phi[i, k] * Qk[k, j]
+                    PQ[i, j] = s
+            Q2 = Qk.copy()
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k in range(n):
+                        s += PQ[i, k] * Phi[j, k]
+                    Q2[i, j] += s
+            Qk = Q2
+        P2 = np.zeros((n, n))
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for k in range(n):
+                    s += Phi[i, k] * Phi[k, j]
+                P2[i, j] = s
+        Phi = P2
+    if with_q and halvings:
+        for i in range(n):
+            for j in range(i + 1, n):
+                q = 0.5 * (Qk[i, j] + Qk[j, i])
+                Qk[i, j] = q
+                Qk[j, i] = q
+    return Phi, G, Qk
+
+
+@_jit
+def scalar_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, r: float, z: float):
+    """One scalar reading's update as ``ModelFilter._update_written_out`` makes it (y = z - H x,
+    s = H P H^T + r, K = P H^T / s, x + K y, Joseph's P = (I - K H) P (I - K H)^T + K r K^T), as loops:
+    (x, P, K as a column, s, y). s == 0 is the caller's to refuse (before the division: here K is
+    then not finite)."""
+    n = x.shape[0]
+    PHt = np.zeros(n)
+    for i in range(n):
+        s = 0.0
+        for k in range(n):
+            s += P[i, k] * H[0, k]
+        PHt[i] = s
+    S = 0.0
+    hx = 0.0
+    for k in range(n):
+        S += H[0, k] * PHt[k]
+        hx += H[0, k] * x[k]
+    S += r
+    y = z - hx
+    si = 1.0 / S
+    K = np.zeros((n, 1))
+    xn = x.copy()
+    for i in range(n):
+        K[i, 0] = PHt[i] * si
+        xn[i] += K[i, 0] * y
+    I_KH = np.eye(n)
+    for i in range(n):
+        for j in range(n):
+            I_KH[i, j] -= K[i, 0] * H[0, j]
+    AP = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += I_KH[i, k] * P[k, j]
+            AP[i, j] = s
+    Pn = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += AP[i, k] * I_KH[j, k]
+            Pn[i, j] = s + K[i, 0] * r * K[j, 0]
+    return xn, Pn, K, S, y

@@ -1,0 +1,120 @@
+"""The compiled inner steps (estimation/kernels.py) against their numpy reference: the series'
+(Phi, G, Q_k) at every halving and without Q_k, a scalar reading's update, and a whole run of the
+model over a log, which scores as the reference's does."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from groundstation.estimation import kernels
+from groundstation.estimation.models.base import discretize_series
+
+from .conftest import REPO
+
+compiled = kernels.compiled()
+pytestmark = pytest.mark.skipif(compiled is None, reason="numba is not installed: the numpy reference runs alone")
+if compiled is not None:
+    from groundstation.estimation import kernels_numba
+
+
+@pytest.mark.parametrize("halvings", [0, 1, 3])
+@pytest.mark.parametrize("with_q", [True, False])
+def test_the_series_is_the_references(halvings, with_q):
+    rng = np.random.default_rng(halvings)
+    for n, m in ((3, 1), (6, 3), (9, 3)):
+        A, B = rng.normal(0.0, 1.0, (n, n)), rng.normal(0.0, 1.0, (n, m))
+        L = rng.normal(0.0, 0.1, (n, n))
+        Qc = L @ L.T
+        dt = 0.02 * 2**halvings
+        ref = discretize_series(A, B, Qc, dt, halvings, with_q=with_q)
+        got = kernels_numba.series(A, B, Qc, dt, halvings, with_q)
+        for r, g in zip(ref[:2], got[:2]):
+            np.testing.assert_allclose(g, r, rtol=1e-12, atol=1e-15)
+        if with_q:
+            np.testing.assert_allclose(got[2], ref[2], rtol=1e-10, atol=1e-18)
+            np.testing.assert_array_equal(got[2], got[2].T)
+
+
+def test_a_step_takes_the_halvings_and_the_exponentials_the_reference_takes():
+    """discretized: the series halved until |A| dt < 0.2, the exponentials past six halvings or with a
+    NaN in A, compiled or not."""
+    from groundstation.estimation import filters
+
+    rng = np.random.default_rng(1)
+    A, B, Qc = rng.normal(0.0, 1.0, (4, 4)), rng.normal(0.0, 1.0, (4, 2)), np.eye(4) * 0.01
+    nan_A = A.copy()
+    nan_A[1, 2] = np.nan
+    for a, dt in ((A, 0.01), (A, 0.3), (A, 2.0), (A, 40.0), (nan_A, 0.01)):
+        got = filters.discretized(a, B, Qc, dt)
+        kernels._compiled = None
+        try:
+            ref = filters.discretized(a, B, Qc, dt)
+        finally:
+            kernels._compiled = compiled
+        for g, r in zip(got, ref):
+            np.testing.assert_allclose(g, r, rtol=1e-9, atol=1e-14)
+    assert compiled[0](A, B, Qc, 40.0, True, 0.2, 6)[3] == -1  # past six halvings: the exponentials
+    assert compiled[0](A, B, Qc, 0.3, True, 0.2, 6)[3] >= 1
+
+
+def test_a_scalar_update_is_the_references():
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.quad_thrust import quad_thrust_model
+
+    rng = np.random.default_rng(3)
+    f = ModelFilter(quad_thrust_model())
+    L = rng.normal(0.0, 0.3, (6, 6))
+    x, P = rng.normal(0.0, 1.0, 6), L @ L.T + 0.01 * np.eye(6)
+    H, R, z = rng.normal(0.0, 1.0, (1, 6)), np.array([[0.04]]), np.array([0.7])
+    f.kf.x, f.kf.P = x.copy(), P.copy()
+    got_x, got_P, got_K, s, y = compiled[1](x, P, H, 0.04, 0.7)
+    kernels._compiled = None  # the reference, as GROUNDSTATION_KERNELS=python runs it
+    try:
+        nis = f._update_written_out(z, H, R)
+    finally:
+        kernels._compiled = compiled
+    np.testing.assert_allclose(got_x, f.kf.x, rtol=1e-12)
+    np.testing.assert_allclose(got_P, f.kf.P, rtol=1e-11, atol=1e-15)
+    np.testing.assert_allclose(got_K, f.kf.K, rtol=1e-12)
+    assert s == pytest.approx(float(f.kf.S[0, 0]), rel=1e-13) and y == pytest.approx(float(f.kf.y[0]), rel=1e-13)
+    assert nis == pytest.approx(y * y / s, rel=1e-12)
+
+
+def test_a_zero_innovation_variance_is_refused_as_the_reference_refuses_it():
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.quad_thrust import quad_thrust_model
+
+    f = ModelFilter(quad_thrust_model())
+    f.kf.P = np.zeros((6, 6))
+    with pytest.raises(np.linalg.LinAlgError, match="singular"):
+        f._update_written_out(np.array([1.0]), np.eye(1, 6), np.array([[0.0]]))
+
+
+def test_a_run_of_the_model_scores_as_the_reference_does(tmp_path):
+    """The thrust model over a simulated flight (its A moves with every throttle record, so every
+    step takes the series), run in a process with the kernels and in one without."""
+    code = (
+        "import sys\n"
+        "from sim_bridge.fast import run_fast\n"
+        "from sim_bridge.scenario import Scenario\n"
+        "from groundstation.estimation.logs import load_log\n"
+        "from groundstation.diagnosis.models import setup\n"
+        "from groundstation.diagnosis.runs.run import run_model\n"
+        f"log = {str(tmp_path / 'f.tlog')!r}\n"
+        "run_fast(Scenario.from_args('quad', 4, 25.0, ['range_tilt'], ['baro_thrust:k=2']), log)\n"
+        "su = setup(load_log(log).measurements, model_name='quad_thrust')\n"
+        "r = run_model(su.model, su.prep, su.make)\n"
+        "print(repr(r.loglik), repr(float(r.x[-1, 0])), repr(float(r.P[-1, 0, 0])))\n"
+    )
+    out = {}
+    for mode in ("numba", "python"):
+        env = dict(os.environ, GROUNDSTATION_KERNELS=mode)
+        r = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        out[mode] = [float(v) for v in r.stdout.split()]
+    (ll_c, h_c, p_c), (ll_r, h_r, p_r) = out["numba"], out["python"]
+    assert ll_c == pytest.approx(ll_r, rel=1e-9)
+    assert h_c == pytest.approx(h_r, rel=1e-8, abs=1e-9) and p_c == pytest.approx(p_r, rel=1e-8)
