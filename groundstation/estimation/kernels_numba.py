@@ -42,103 +42,76 @@ def discretized_step(A, B, Qc, dt, with_q, limit, max_halvings):
 
 
 @_jit
+def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a b, summed in k's order."""
+    out = np.zeros((a.shape[0], b.shape[1]))
+    for i in range(a.shape[0]):
+        for j in range(b.shape[1]):
+            s = 0.0
+            for k in range(a.shape[1]):
+                s += a[i, k] * b[k, j]
+            out[i, j] = s
+    return out
+
+
+@_jit
+def _mm_bt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a b^T, summed in k's order."""
+    out = np.zeros((a.shape[0], b.shape[0]))
+    for i in range(a.shape[0]):
+        for j in range(b.shape[0]):
+            s = 0.0
+            for k in range(a.shape[1]):
+                s += a[i, k] * b[j, k]
+            out[i, j] = s
+    return out
+
+
+@_jit
+def _symmetrised(Q: np.ndarray) -> np.ndarray:
+    """(Q + Q^T) / 2, in place."""
+    n = Q.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            q = 0.5 * (Q[i, j] + Q[j, i])
+            Q[i, j] = q
+            Q[j, i] = q
+    return Q
+
+
+@_jit
 def series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, halvings: int, with_q: bool):
     """``discretize_series(A, B, Qc, dt, halvings, with_q=with_q)`` as loops (models/base.py gives the
     series and the doublings): (Phi, G, Q_k), Q_k zeros when not ``with_q``."""
-    n, m = A.shape[0], B.shape[1]
+    n = A.shape[0]
     T = dt / 2.0**halvings
     AT = A * T
     # Gamma = I + AT/2 + (AT)^2/6 + (AT)^3/24 in Horner's form; Phi = I + AT Gamma; G = Gamma B T
     Gam = np.eye(n) + AT / 4.0
     for c in (3.0, 2.0):
-        nxt = np.eye(n)
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for k in range(n):
-                    s += AT[i, k] * Gam[k, j]
-                nxt[i, j] += s / c
-        Gam = nxt
-    Phi = np.eye(n)
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += AT[i, k] * Gam[k, j]
-            Phi[i, j] += s
-    G = np.zeros((n, m))
-    for i in range(n):
-        for j in range(m):
-            s = 0.0
-            for k in range(n):
-                s += Gam[i, k] * B[k, j]
-            G[i, j] = s * T
+        Gam = np.eye(n) + _mm(AT, Gam) / c
+    Phi = np.eye(n) + _mm(AT, Gam)
+    G = _mm(Gam, B) * T
     Qk = np.zeros((n, n))
     if with_q:
         # M_k = A M_{k-1} + M_{k-1} A^T, M_0 = Qc; Q_k = sum T^{k+1}/(k+1)! M_k
         M = Qc.copy()
         f = T
-        for i in range(n):
-            for j in range(n):
-                Qk[i, j] = Qc[i, j] * T
+        Qk = Qc * T
         for order in range(1, 4):
-            AM = np.zeros((n, n))
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k in range(n):
-                        s += A[i, k] * M[k, j]
-                    AM[i, j] = s
+            AM = _mm(A, M)
             f = f * T / (order + 1)
-            for i in range(n):
-                for j in range(n):
-                    M[i, j] = AM[i, j] + AM[j, i]
-                    Qk[i, j] += M[i, j] * f
-        for i in range(n):
-            for j in range(i + 1, n):
-                q = 0.5 * (Qk[i, j] + Qk[j, i])
-                Qk[i, j] = q
-                Qk[j, i] = q
+            M = AM + AM.T
+            Qk += M * f
+        _symmetrised(Qk)
     for _ in range(halvings):
         # Phi(2T) = Phi^2, G(2T) = G + Phi G, Q_k(2T) = Q_k + Phi Q_k Phi^T
-        G2 = G.copy()
-        for i in range(n):
-            for j in range(m):
-                s = 0.0
-                for k in range(n):
-                    s += Phi[i, k] * G[k, j]
-                G2[i, j] += s
-        G = G2
+        G = G + _mm(Phi, G)
         if with_q:
-            PQ = np.zeros((n, n))
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k in range(n):
-                        s += Phi[i, k] * Qk[k, j]
-                    PQ[i, j] = s
-            Q2 = Qk.copy()
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k in range(n):
-                        s += PQ[i, k] * Phi[j, k]
-                    Q2[i, j] += s
-            Qk = Q2
-        P2 = np.zeros((n, n))
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for k in range(n):
-                    s += Phi[i, k] * Phi[k, j]
-                P2[i, j] = s
-        Phi = P2
+            Qk = Qk + _mm_bt(_mm(Phi, Qk), Phi)
+        Phi = _mm(Phi, Phi)
     if with_q and halvings:
-        for i in range(n):
-            for j in range(i + 1, n):
-                q = 0.5 * (Qk[i, j] + Qk[j, i])
-                Qk[i, j] = q
-                Qk[j, i] = q
+        _symmetrised(Qk)
     return Phi, G, Qk
 
 
@@ -172,18 +145,8 @@ def scalar_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, r: float, z: floa
     for i in range(n):
         for j in range(n):
             I_KH[i, j] -= K[i, 0] * H[0, j]
-    AP = np.zeros((n, n))
+    Pn = _mm_bt(_mm(I_KH, P), I_KH)
     for i in range(n):
         for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += I_KH[i, k] * P[k, j]
-            AP[i, j] = s
-    Pn = np.zeros((n, n))
-    for i in range(n):
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += AP[i, k] * I_KH[j, k]
-            Pn[i, j] = s + K[i, 0] * r * K[j, 0]
+            Pn[i, j] += K[i, 0] * r * K[j, 0]
     return xn, Pn, K, S, y
