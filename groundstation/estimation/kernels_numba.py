@@ -43,26 +43,13 @@ def discretized_step(A, B, Qc, dt, with_q, limit, max_halvings):
 
 @_jit
 def _mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a b, summed in k's order."""
+    """a b, summed in k's order (a b^T as ``_mm(a, b.T)``: the same sums, b read across)."""
     out = np.zeros((a.shape[0], b.shape[1]))
     for i in range(a.shape[0]):
         for j in range(b.shape[1]):
             s = 0.0
             for k in range(a.shape[1]):
                 s += a[i, k] * b[k, j]
-            out[i, j] = s
-    return out
-
-
-@_jit
-def _mm_bt(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a b^T, summed in k's order."""
-    out = np.zeros((a.shape[0], b.shape[0]))
-    for i in range(a.shape[0]):
-        for j in range(b.shape[0]):
-            s = 0.0
-            for k in range(a.shape[1]):
-                s += a[i, k] * b[j, k]
             out[i, j] = s
     return out
 
@@ -108,7 +95,7 @@ def series(A: np.ndarray, B: np.ndarray, Qc: np.ndarray, dt: float, halvings: in
         # Phi(2T) = Phi^2, G(2T) = G + Phi G, Q_k(2T) = Q_k + Phi Q_k Phi^T
         G = G + _mm(Phi, G)
         if with_q:
-            Qk = Qk + _mm_bt(_mm(Phi, Qk), Phi)
+            Qk = Qk + _mm(_mm(Phi, Qk), Phi.T)
         Phi = _mm(Phi, Phi)
     if with_q and halvings:
         _symmetrised(Qk)
@@ -145,7 +132,7 @@ def scalar_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, r: float, z: floa
     for i in range(n):
         for j in range(n):
             I_KH[i, j] -= K[i, 0] * H[0, j]
-    Pn = _mm_bt(_mm(I_KH, P), I_KH)
+    Pn = _mm(_mm(I_KH, P), I_KH.T)
     for i in range(n):
         for j in range(n):
             Pn[i, j] += K[i, 0] * r * K[j, 0]
