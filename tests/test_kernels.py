@@ -118,3 +118,12 @@ def test_a_run_of_the_model_scores_as_the_reference_does(tmp_path):
     (ll_c, h_c, p_c), (ll_r, h_r, p_r) = out["numba"], out["python"]
     assert ll_c == pytest.approx(ll_r, rel=1e-9)
     assert h_c == pytest.approx(h_r, rel=1e-8, abs=1e-9) and p_c == pytest.approx(p_r, rel=1e-8)
+
+
+def test_the_state_step_is_the_references():
+    """x <- Phi x + G u, compiled, against numpy's two products; a model without inputs included."""
+    rng = np.random.default_rng(4)
+    for n, m in ((3, 2), (6, 3), (5, 0)):
+        Phi, G = rng.normal(0.0, 1.0, (n, n)), rng.normal(0.0, 1.0, (n, m))
+        x, u = rng.normal(0.0, 1.0, n), rng.normal(0.0, 1.0, m)
+        np.testing.assert_allclose(compiled[2](Phi, G, x, u), Phi @ x + G @ u, rtol=1e-13, atol=1e-15)

@@ -419,7 +419,11 @@ class ModelFilter:
         # (filterpy's predict, written out: its copies of the priors cost three
         # times the arithmetic at 1 kHz.)
         kf = self.kf
-        kf.x = Phi @ kf.x + G @ self.u
+        kern = kernels.compiled()
+        if kern is not None:  # the same, compiled (kernels.py)
+            kf.x = kern[2](_c(Phi), _c(G), _c(kf.x), _c(self.u))
+        else:
+            kf.x = Phi @ kf.x + G @ self.u
         if self.tape is not None:
             self.tape.predict(Phi, G, self.u)
         k = int(dt * 1e7 + 0.5)

@@ -1,17 +1,21 @@
-"""The filter's two inner steps compiled: the discretisation's series and a scalar reading's update.
+"""The filter's inner steps compiled: the discretisation's series, a scalar reading's update, and the
+state's step.
 
 A diagnosis runs its model over a log a hundred times and more, and in each run nearly half the time
 went to two small steps: the fourth-order series of a step's (Phi, G, Q_k) where A moves with the
 input (a thrust model's A with every throttle record), and the Joseph-form update of a scalar
 reading (a baro, a range). Each is a few dozen 6x6 products, where numpy's cost is its call, not
-its arithmetic. numba compiles both to loops (:mod:`.kernels_numba`; ``cache=True``: once a machine,
-in ``__pycache__``): a diagnosis of the thrust model on a 7-minute DataFlash log takes 131 s
-where the numpy forms take 181 s, with the same findings.
+its arithmetic. So is the state's step x <- Phi x + G u at every IMU sample: two products and a
+sum, 3.4 us in numpy and 1.6 us compiled, most of either the call. numba compiles the three to
+loops (:mod:`.kernels_numba`; ``cache=True``: once a machine, in ``__pycache__``): a diagnosis of
+the thrust model on a 7-minute DataFlash log takes 131 s where the numpy forms take 181 s, with
+the same findings.
 
-The numpy forms stay the reference: :func:`groundstation.estimation.models.base.discretize_series`
-and ``ModelFilter._update_written_out``'s. ``GROUNDSTATION_KERNELS=python``, or numba missing, runs
-them alone, and ``tests/test_kernels.py`` holds the compiled ones to them. numba is imported at the
-first step a filter takes, never by a command that runs none (``groundstation --help`` stays quick).
+The numpy forms stay the reference: :func:`groundstation.estimation.models.base.discretize_series`,
+``ModelFilter._update_written_out``'s and ``ModelFilter.predict_to``'s. ``GROUNDSTATION_KERNELS=python``,
+or numba missing, runs them alone, and ``tests/test_kernels.py`` holds the compiled ones to them.
+numba is imported at the first step a filter takes, never by a command that runs none
+(``groundstation --help`` stays quick).
 """
 
 from __future__ import annotations
@@ -23,11 +27,11 @@ from collections.abc import Callable
 import numpy as np
 
 #: the kernels, compiled at first use; None: the numpy reference (numba missing or not wanted)
-_compiled: tuple[Callable, Callable] | None | bool = False
+_compiled: tuple[Callable, Callable, Callable] | None | bool = False
 
 
-def compiled() -> tuple[Callable, Callable] | None:
-    """(discretized_step, scalar_update) compiled (:mod:`.kernels_numba`), or None where the numpy
+def compiled() -> tuple[Callable, Callable, Callable] | None:
+    """(discretized_step, scalar_update, state_step) compiled (:mod:`.kernels_numba`), or None where the numpy
     reference runs."""
     global _compiled
     if _compiled is False:
@@ -42,11 +46,12 @@ def warm() -> None:
         for n in (3, 6):
             k[0](np.eye(n), np.ones((n, 1)), np.eye(n), 0.01, True, 0.2, 6)
             k[1](np.zeros(n), np.eye(n), np.ones((1, n)), 1.0, 0.0)
+            k[2](np.eye(n), np.ones((n, 1)), np.zeros(n), np.zeros(1))
 
 
-def _compile() -> tuple[Callable, Callable] | None:
+def _compile() -> tuple[Callable, Callable, Callable] | None:
     try:  # imported here, not above: numba takes half a second to import
         k = importlib.import_module(f"{__package__}.kernels_numba")
     except ImportError:
         return None
-    return k.discretized_step, k.scalar_update
+    return k.discretized_step, k.scalar_update, k.state_step

@@ -137,3 +137,19 @@ def scalar_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, r: float, z: floa
         for j in range(n):
             Pn[i, j] += K[i, 0] * r * K[j, 0]
     return xn, Pn, K, S, y
+
+
+@_jit
+def state_step(Phi: np.ndarray, G: np.ndarray, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """``ModelFilter.predict_to``'s x <- Phi x + G u, each row summed over x, then over u."""
+    n = x.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s += Phi[i, j] * x[j]
+        g = 0.0
+        for j in range(u.shape[0]):
+            g += G[i, j] * u[j]
+        out[i] = s + g
+    return out
