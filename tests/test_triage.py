@@ -148,6 +148,31 @@ def test_flip_is_upside_down_and_a_bank_is_not():
     assert f.t_start == pytest.approx(12.1, abs=0.11) and f.cuts and f.t_end == pytest.approx(19.9)
 
 
+def _heartbeats(t, base_mode, system_status) -> LogTables:
+    n = len(t)
+    cols = {
+        "base_mode": np.full(n, 0.0) + base_mode,
+        "system_status": np.full(n, 0.0) + system_status,
+        "type": np.full(n, 2.0),
+        "autopilot": np.full(n, 3.0),
+        "custom_mode": np.zeros(n),
+    }
+    return LogTables({"HEARTBEAT": Table(t, cols)}, fmt="tlog", autopilot="ardupilot")
+
+
+def test_a_heartbeat_states_arming_by_its_armed_bit_or_by_the_active_state():
+    """MAVLink's MAV_STATE_ACTIVE is "motors are engaged": a vehicle whose HEARTBEAT says so without
+    the base mode's armed bit (81: custom mode, stabilize, manual input) flew, and is not a log
+    with nothing in it; with neither, it is."""
+    t = np.arange(0.0, 60.0, 1.0)
+    flying = (t >= 3) & (t < 50)
+    standby_then_active = np.where(flying, 4.0, 3.0)
+    assert not _named(triage(_heartbeats(t, 81.0, standby_then_active), []), "no_flight")
+    assert not _named(triage(_heartbeats(t, np.where(flying, 81.0 + 128.0, 81.0), 3.0), []), "no_flight")
+    (f,) = _named(triage(_heartbeats(t, 81.0, 3.0), []), "no_flight")
+    assert f.severity == "info"
+
+
 def test_crash_is_attitude_not_followed_for_a_second_not_a_brief_lag():
     t = np.arange(0, 20, 0.1)
     asked = np.where(t > 5, 20.0, 0.0)

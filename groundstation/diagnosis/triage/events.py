@@ -70,6 +70,8 @@ TEXT_PATTERNS = (
 #: MAV_TYPE of copters (quad, coaxial, helicopter, hexa, octo, tri)
 COPTER_TYPES = {2, 3, 4, 13, 14, 15}
 MAV_AUTOPILOT_INVALID = 8  # a component that is not an autopilot (a camera, a gimbal) sends this
+MAV_MODE_FLAG_SAFETY_ARMED = 128
+MAV_STATE_ACTIVE = 4  # MAV_STATE: "system is active and might be already airborne; motors are engaged"
 
 
 def autopilot_heartbeats(tables: LogTables) -> Table | None:
@@ -79,6 +81,19 @@ def autopilot_heartbeats(tables: LogTables) -> Table | None:
         return hb
     keep = ap != MAV_AUTOPILOT_INVALID
     return Table(hb.t[keep], {k: v[keep] for k, v in hb.cols.items()})
+
+
+def heartbeat_armed(hb: Table) -> np.ndarray | None:
+    """Armed at each HEARTBEAT: the base mode's SAFETY_ARMED bit, or the system state ACTIVE, which
+    MAVLink defines as "motors are engaged" and ArduPilot and PX4 send exactly while armed. Either
+    alone is not enough: a vehicle (or another generator's log) may state its arming by one of them
+    only, and a flight read as "never armed" is reported as a log with nothing flown."""
+    bm = hb.numeric("base_mode")
+    if bm is None:
+        return None
+    armed = (bm.astype(int) & MAV_MODE_FLAG_SAFETY_ARMED) > 0
+    st = hb.numeric("system_status")
+    return armed | (st == MAV_STATE_ACTIVE) if st is not None else armed
 
 
 def is_copter(tables: LogTables) -> bool:
@@ -113,8 +128,8 @@ def flights(tables: LogTables, t_end: float) -> list[tuple[float, float]]:
         t = np.append(arm.t, t_end)
         return [(float(t[i]), float(t[i + 1])) for i in range(len(state)) if state[i] == 1]
     hb = autopilot_heartbeats(tables)
-    if hb is not None and (bm := hb.numeric("base_mode")) is not None:
-        return [(a, b) for a, b, _, _ in runs((bm.astype(int) & 128) > 0, hb.t, join=3.0)]
+    if hb is not None and (armed := heartbeat_armed(hb)) is not None:
+        return [(a, b) for a, b, _, _ in runs(armed, hb.t, join=3.0)]
     vs = tables.get("vehicle_status")
     if vs is not None and (st := vs.numeric("arming_state")) is not None:
         return [(a, b) for a, b, _, _ in runs(st == 2, vs.t)]
@@ -132,8 +147,8 @@ def armed_at_end(tables: LogTables) -> bool | None:
     if arm is not None and (state := arm.numeric("ArmState")) is not None and len(state):
         return bool(state[-1] == 1)
     hb = autopilot_heartbeats(tables)
-    if hb is not None and (bm := hb.numeric("base_mode")) is not None and len(bm):
-        return bool(int(bm[-1]) & 128)
+    if hb is not None and (armed := heartbeat_armed(hb)) is not None and len(armed):
+        return bool(armed[-1])
     vs = tables.get("vehicle_status")
     if vs is not None and (st := vs.numeric("arming_state")) is not None and len(st):
         return bool(st[-1] == 2)
