@@ -2,6 +2,7 @@
 
 import asyncio
 import csv
+import json
 import os
 import signal
 import subprocess
@@ -363,3 +364,49 @@ def test_evaluate_scores_against_a_named_truth_file_or_says_why_not(tmp_path):
     assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: no truth in it")
     bad.write_bytes(bytes(range(256)) * 4)  # not text at all
     assert_one_line_error(run("evaluate", str(log), "--truth", str(bad)), "bad.csv: not a truth CSV")
+
+
+@pytest.mark.slow
+def test_noise_of_the_altitude_model_before_the_arming_and_replay_takes_it(tmp_path):
+    """``noise`` reads its still window up to the log's arming (the simulated quad arms at 2 s) and
+    gives the baro's R, whose zero it must calibrate within that window; ``replay --noise`` runs the
+    altitude model with it (a range sensor of 1 m noise: the height's sigma in flight is the baro's,
+    not the range's), and a noise file of another model's sensors is a one-line error, not a file
+    silently ignored."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    log = tmp_path / "f.tlog"
+    run_fast(Scenario.from_args("quad", 3, 20.0, [], []), log)
+    noise = tmp_path / "n.json"
+    r = run("noise", str(log), "--out", str(noise))
+    assert r.returncode == 0, r.stderr
+    assert "baro (" in r.stdout and "0-1.8 s" in r.stdout, r.stdout
+    d = json.loads(noise.read_text())
+    assert d["baro"]["n"] > 40 and 0.338 / 1.3 < d["baro"]["R"][0][0] ** 0.5 < 0.338 * 1.3  # the sim's baro
+
+    def sigma_in_flight(noise_file):
+        out = tmp_path / "est.csv"
+        r = run(
+            "replay",
+            str(log),
+            "--speed",
+            "max",
+            "--no-web",
+            "--quiet",
+            "--noise",
+            str(noise_file),
+            "--export",
+            str(out),
+        )
+        assert r.returncode == 0, r.stderr
+        return max(float(row["sigma_z"]) for row in csv.DictReader(open(out)) if 10.0 < float(row["t"]) < 15.0)
+
+    d["range"] = {"R": [[1.0]], "n": 0, "mean": [0.0]}
+    noisy = tmp_path / "noisy.json"
+    noisy.write_text(json.dumps(d))
+    assert sigma_in_flight(noisy) > 10.0 * sigma_in_flight(noise)
+    other = tmp_path / "heli.json"
+    assert run("noise", str(log), "--model", "heli3dof", "--out", str(other)).returncode == 0
+    r = run("replay", str(log), "--speed", "max", "--no-web", "--quiet", "--noise", str(other))
+    assert_one_line_error(r, "the altitude model has no sensor")

@@ -40,7 +40,7 @@ from groundstation.control.station import ControlStation
 from groundstation.estimation.evaluate import evaluate
 from groundstation.estimation.identity import identify
 from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_log, load_measurements
-from groundstation.estimation.noise import stationary_noise
+from groundstation.estimation.noise import first_arming, stationary_noise
 from groundstation.estimation.registry import build_estimator, vehicle_config
 from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
@@ -181,13 +181,24 @@ def info_of_log(path: Path) -> int:
 
 
 # ---------------------------------------------------------------- noise
+#: [s] the stationary window ends this long before the arming: an arming's own checks and the motors'
+#: spin-up are not at rest
+ARMING_MARGIN_S = 0.2
+
+
 def cmd_noise(args) -> int:
     est = build_estimator(args.model)
-    rp = Replay(args.file, speed=math.inf)
-    result = stationary_noise(rp.iter_measurements(), est, args.start, args.end)
+    ms = list(Replay(args.file, speed=math.inf).iter_measurements())
+    end = args.end
+    if end is None:
+        # before the vehicle arms it stands still; a log that states no arming: its first 1.9 s
+        armed = first_arming(ms)
+        end = armed - ARMING_MARGIN_S if armed is not None and armed - ARMING_MARGIN_S > args.start else 1.9
+    args.end = end
+    result = stationary_noise(ms, est, args.start, end)
     if not result:
         raise UsageError(
-            f"{args.file}: no measurements of the {args.model} model between {args.start:g} s and {args.end:g} s"
+            f"{args.file}: no measurements of the {args.model} model between {args.start:g} s and {end:g} s"
         )
     for name, r in result.items():
         R = np.array(r["R"])

@@ -358,9 +358,15 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("file", type=Path)
     n = sub.add_parser("noise", help="measurement covariances (R) from a stationary stretch of a recording")
     n.add_argument("file", type=Path)
-    n.add_argument("--model", default="heli3dof", choices=CLI_MODELS)
+    n.add_argument("--model", default="altitude", choices=CLI_MODELS)
     n.add_argument("--start", type=float, default=0.0, help="window start, vehicle time [s]")
-    n.add_argument("--end", type=float, default=1.9, help="window end, vehicle time [s]")
+    n.add_argument(
+        "--end",
+        type=float,
+        default=None,
+        help="window end, vehicle time [s] (default: just before the log first states the vehicle armed; "
+        "a log that states no arming: 1.9)",
+    )
     n.add_argument("--out", type=Path, help="write the JSON for --noise here")
     e = sub.add_parser("evaluate", help="run the estimators on a log; errors vs truth, NIS, whiteness")
     e.add_argument("file", type=Path)

@@ -23,7 +23,7 @@ from .estimator import KalmanEstimator
 from .model_names import CLI_MODELS
 from .models.altitude import altitude_model
 from .models.attitude_drag import attitude_drag_model
-from .models.base import LinearModel
+from .models.base import LinearModel, with_measurement_noise
 from .models.contact import contact_range, ground_contact
 from .models.ground import on_ground
 from .models.heli3dof import heli3dof_model
@@ -72,7 +72,7 @@ def _altitude(names: set, declared: list[dict], noise, params: dict) -> KalmanEs
     # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one),
     # and a range reading there is no height until the vehicle climbs (models.range_gate)
     model = altitude_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
-    return altitude_estimator(range_gate(on_ground(model)))
+    return altitude_estimator(with_measurement_noise(range_gate(on_ground(model)), noise))
 
 
 def _quad_thrust(names: set, declared: list[dict], noise, params: dict) -> KalmanEstimator:
@@ -83,7 +83,8 @@ def _quad_thrust(names: set, declared: list[dict], noise, params: dict) -> Kalma
     # rotors turning, in contact, the ground holds the vehicle up (models.contact): driven by a touchdown's
     # throttle, the model sank 1.5 m below the ground in the 1.5 s after each landing of a simulated quad
     model = quad_thrust_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
-    return quad_thrust_estimator(range_gate(contact_range(ground_contact(on_ground(model))), floor=floor))
+    gated = range_gate(contact_range(ground_contact(on_ground(model))), floor=floor)
+    return quad_thrust_estimator(with_measurement_noise(gated, noise))
 
 
 def _heli3dof(names: set, declared: list[dict], noise, params: dict) -> KalmanEstimator:

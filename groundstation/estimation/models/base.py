@@ -181,6 +181,28 @@ class LinearModel:
         )
 
 
+def with_measurement_noise(model: LinearModel, noise: dict[str, np.ndarray] | None) -> LinearModel:
+    """``model`` with each named sensor's R from ``noise`` (``groundstation noise``'s output: sensor
+    -> R). A sensor the model lacks, or an R of another size than the sensor's, is a ValueError: a
+    noise file made for another model must not be taken silently as this one's."""
+    if not noise:
+        return model
+    meas = dict(model.measurements)
+    for sensor, R in noise.items():
+        keys = [k for k, mm in meas.items() if mm.name == sensor]
+        if not keys:
+            raise ValueError(f"--noise: the {model.name} model has no sensor {sensor!r}")
+        R = np.atleast_2d(np.asarray(R, dtype=float))
+        for k in keys:
+            if R.shape != np.atleast_2d(meas[k].R).shape:
+                raise ValueError(
+                    f"--noise: {sensor}'s R is {R.shape[0]}x{R.shape[1]}, the {model.name} model's is "
+                    f"{np.atleast_2d(meas[k].R).shape[0]}x{np.atleast_2d(meas[k].R).shape[1]}"
+                )
+            meas[k] = replace(meas[k], R=R)
+    return replace(model, measurements=meas)
+
+
 #: longest the held attitude is carried forward by its rates (a dropout holds it instead)
 ATTITUDE_HOLD_MAX = 0.1
 
