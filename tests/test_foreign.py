@@ -14,7 +14,7 @@ from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.registry import build_estimator
 from groundstation.estimation.whiteness import effective_size
 
-from .conftest import REPO, foreign_file
+from .conftest import REPO, foreign2_file, foreign_file
 
 _spec = importlib.util.spec_from_file_location("bench_foreign", REPO / "bench" / "foreign.py")
 assert _spec is not None and _spec.loader is not None
@@ -168,3 +168,42 @@ def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
     assert accel is not None and gyro is not None
     assert np.allclose(accel.values(), [1.0, 2.0, -9.8 * 1.05])
     assert np.allclose(gyro.values(), [1.0, 2.0, -9.8])
+
+
+@pytest.mark.slow
+def test_replayed_without_a_rangefinder_the_baro_noise_comes_from_the_still_stretch():
+    """The second generator's clean .bin flight without a rangefinder: its baro's noise, read from the
+    still stretch before the arming, is a fraction of the model's, and the live estimate with it is
+    well under the model's level's and within the issue's 1.3 times a plain filter's (bench/plain_kf.py)."""
+    import json
+
+    from groundstation.estimation import still_noise
+    from groundstation.estimation.logs import load_blocked
+
+    log = foreign2_file("clean_s1.bin")
+    meta = json.loads(log.with_name("clean_s1_meta.json").read_text())
+    truth = np.genfromtxt(log.with_name("clean_s1_truth.csv"), delimiter=",", names=True)
+    blocked = load_blocked(log)
+    assert blocked is not None
+
+    def run(noise):
+        est = build_estimator("altitude", noise=noise, vehicle=blocked.vehicle, stated=blocked.stated)
+        loop = EstimationLoop([est], reorder_s=0.0)
+        sub = loop.snapshots.subscribe()
+        for m in blocked.measurements:
+            loop.push(m)
+        snaps = sub.get_nowait()
+        t, z = np.array([s.t for s in snaps]), np.array([s.x[0] for s in snaps])
+        return bench_foreign.flight_error(t, z, truth, meta), est
+
+    still, est = run(None)
+    model_r = float(est.model.measurements["baro"].R[0, 0])
+    levels = [v for k in still_noise.HEIGHT_OF if (v := still_noise.level(k, est.filter.ctx)) is not None]
+    assert levels and max(levels) < model_r / still_noise.DIFFERS**2, (levels, model_r)
+    kept, _ = run({"baro": [[model_r]]})
+    spec = importlib.util.spec_from_file_location("plain_kf", REPO / "bench" / "plain_kf.py")
+    assert spec is not None and spec.loader is not None
+    plain_kf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(plain_kf)
+    plain = bench_foreign.flight_error(*plain_kf.run(plain_kf.read(log), meta["times"]["arm"]), truth, meta)
+    assert still < 0.7 * kept and still < 1.3 * plain, (still, kept, plain)

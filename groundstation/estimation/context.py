@@ -98,6 +98,10 @@ class Context:
     zeros: dict[str, Zero] = field(default_factory=dict)
     baro_has_pressure: bool = False  #: the log gives the baro as a pressure (its altitude form is then not used)
     gps_origin: tuple[float, float] | None = None  #: lat, lon [deg] of the horizontal filter's origin
+    #: the still stretch's readings of each sensor by kind (estimation.still_noise): the last reading's
+    #: time and height, the pairs and their summed squared differences
+    still_noise: dict[str, tuple[float, float, int, float]] = field(default_factory=dict)
+    still_over: bool = False  #: the still stretch before the first take-off has ended
 
     # -- the range sensor and the ground (models.ground, models.contact, models.range_gate) --------
     range_read_at: float | None = None  #: the last reading used
@@ -124,6 +128,7 @@ class Context:
         new = object.__new__(type(self))
         new.__dict__.update(self.__dict__)
         new.zeros = dict(self.zeros)
+        new.still_noise = dict(self.still_noise)
         new.throttle_lps = dict(self.throttle_lps)
         new.thrust_lps = dict(self.thrust_lps)
         return new
@@ -132,6 +137,7 @@ class Context:
         """Back to a snapshot taken with :meth:`copy`, in place (whoever holds this context keeps it)."""
         self.__dict__.update(snapshot.__dict__)
         self.zeros = dict(snapshot.zeros)
+        self.still_noise = dict(snapshot.still_noise)
         self.throttle_lps = dict(snapshot.throttle_lps)
         self.thrust_lps = dict(snapshot.thrust_lps)
 

@@ -16,6 +16,7 @@ import numpy as np
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.validity import reading_problem
 
+from . import still_noise as still
 from .context import Context
 from .filters import InnovationRecord, ModelFilter
 from .models.base import LinearModel
@@ -68,6 +69,7 @@ class KalmanEstimator:
         name: str | None = None,
         jump_back: float = 0.5,
         max_gap: float = 5.0,
+        still_noise: bool = False,
     ) -> None:
         self.name = name or model.name
         self.model = model
@@ -84,6 +86,8 @@ class KalmanEstimator:
         # kinds that only carry constraints on the state as it is (MeasurementModel.untimed): they
         # leave the filter's clock alone, unless the kind is an input as well
         self._untimed = {k for k, mms in self._by_kind.items() if k not in inputs and all(mm.untimed for mm in mms)}
+        #: the kinds whose noise is read from the still stretch before the first take-off (:mod:`.still_noise`)
+        self.still_kinds = frozenset(still.HEIGHT_OF) & set(self._by_kind) if still_noise else frozenset()
 
     @property
     def kinds(self) -> set[Kind]:
@@ -201,6 +205,8 @@ class KalmanEstimator:
         f = self.filter
         ctx = f.ctx
         rec = None
+        if m.kind in self.still_kinds:
+            still.see(m, ctx)
         for mm in mms:
             if mm.instance is not None and m.instance != mm.instance:
                 continue
@@ -213,6 +219,9 @@ class KalmanEstimator:
             if not all(map(math.isfinite, (z if isinstance(z, np.ndarray) else np.asarray(z)).ravel().tolist())):
                 self.counters.skip(f"{mm.name}_invalid")
                 continue
-            rec = f.update(mm, z, R=mm.R / m.samples if mm.per_sample and m.samples > 1 else None)
+            R = still.still_R(m.kind, mm.R, ctx) if m.kind in self.still_kinds else None
+            if mm.per_sample and m.samples > 1:
+                R = (mm.R if R is None else R) / m.samples
+            rec = f.update(mm, z, R=R)
             self.counters.updates += 1
         return rec

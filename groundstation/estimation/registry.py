@@ -72,7 +72,8 @@ def _altitude(names: set, declared: list[dict], noise, params: dict) -> KalmanEs
     # landed, the ground holds the vehicle (models.ground; fed by the throttle, where the link sends one),
     # and a range reading there is no height until the vehicle climbs (models.range_gate)
     model = altitude_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
-    return altitude_estimator(with_measurement_noise(range_gate(on_ground(model)), noise))
+    # a noise file is the operator's word on R; without one, the baro's is read from the still stretch
+    return altitude_estimator(with_measurement_noise(range_gate(on_ground(model)), noise), still_noise=not noise)
 
 
 def _quad_thrust(names: set, declared: list[dict], noise, params: dict) -> KalmanEstimator:
@@ -84,7 +85,7 @@ def _quad_thrust(names: set, declared: list[dict], noise, params: dict) -> Kalma
     # throttle, the model sank 1.5 m below the ground in the 1.5 s after each landing of a simulated quad
     model = quad_thrust_model(range_tilt="range_tilt" in names, range_offset=range_offset(declared), **params)
     gated = range_gate(contact_range(ground_contact(on_ground(model))), floor=floor)
-    return quad_thrust_estimator(with_measurement_noise(gated, noise))
+    return quad_thrust_estimator(with_measurement_noise(gated, noise), still_noise=not noise)
 
 
 def _heli3dof(names: set, declared: list[dict], noise, params: dict) -> KalmanEstimator:

@@ -165,7 +165,9 @@ def vertical_acceleration(m: Measurement, ctx: Context) -> np.ndarray | None:
     return np.array([ctx.f_up - G, ctx.down_row[2]])
 
 
-def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+def altitude_estimator(model: LinearModel | None = None, *, still_noise: bool = False) -> KalmanEstimator:
+    """``still_noise``: the baro's noise from the still stretch before the first take-off
+    (:mod:`.still_noise`; the live estimators', not a diagnosis's, which matches its own)."""
     return KalmanEstimator(
         model or altitude_model(),
         inputs={Kind.ACCEL: vertical_acceleration},
@@ -177,6 +179,7 @@ def altitude_estimator(model: LinearModel | None = None) -> KalmanEstimator:
             Kind.ACTUATOR: read_throttle,
             Kind.VEHICLE_STATUS: read_vehicle_status,
         },
+        still_noise=still_noise,
     )
 
 
@@ -266,11 +269,15 @@ THRUST_CONTEXT = {
 }
 
 
-def quad_thrust_estimator(model: LinearModel | None = None) -> KalmanEstimator:
+def quad_thrust_estimator(model: LinearModel | None = None, *, still_noise: bool = False) -> KalmanEstimator:
+    """``still_noise``: as :func:`altitude_estimator`'s."""
     model = model or quad_thrust_model()
     inp = thrust_input_on_ground if model.options.get("ground_contact") else thrust_input
     return KalmanEstimator(
-        model, inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp}, context=dict(THRUST_CONTEXT)
+        model,
+        inputs={Kind.ACTUATOR: inp, Kind.THROTTLE: inp, Kind.ATTITUDE: inp},
+        context=dict(THRUST_CONTEXT),
+        still_noise=still_noise,
     )
 
 
