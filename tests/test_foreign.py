@@ -200,6 +200,7 @@ def test_replayed_without_a_rangefinder_the_baro_noise_comes_from_the_still_stre
     model_r = float(est.model.measurements["baro"].R[0, 0])
     levels = [v for k in still_noise.HEIGHT_OF if (v := still_noise.level(k, est.filter.ctx)) is not None]
     assert levels and max(levels) < model_r / still_noise.DIFFERS**2, (levels, model_r)
+    assert "used in flight" in est.still_noise_note, est.still_noise_note
     kept, _ = run({"baro": [[model_r]]})
     spec = importlib.util.spec_from_file_location("plain_kf", REPO / "bench" / "plain_kf.py")
     assert spec is not None and spec.loader is not None

@@ -132,6 +132,8 @@ class Outputs:
             parts.append(f"the estimator diverged and restarted {c.diverged} times")
         if self.loop.counters.shed:
             parts.append(f"decimated {self.loop.counters.shed} readings under load")
+        if note := self.estimator.still_noise_note:
+            parts.append(note)
         for w, what in ((self.estimates, "estimates"), (self.measurements, "measurement rows")):
             if w is None:
                 continue

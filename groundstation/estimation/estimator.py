@@ -106,6 +106,12 @@ class KalmanEstimator:
     def t(self) -> float:
         return self.filter.t
 
+    @property
+    def still_noise_note(self) -> str:
+        """What the still stretch before take-off said of the sensors' noise (:func:`.still_noise.note`)."""
+        R_of = {k: self._by_kind[k][0].R for k in self.still_kinds}
+        return still.note(self.still_kinds, R_of, self.filter.ctx)
+
     def _time(self, t: float) -> bool:
         f = self.filter
         if not self.started:

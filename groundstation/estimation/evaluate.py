@@ -52,6 +52,8 @@ class Evaluation:
     nees: float = float("nan")  # the height's mean squared error in sigmas
     #: the range's ground clearance the log states, taken as its mounting offset ('' if none was)
     clearance: str = ""
+    #: what the still stretch before take-off said of the baro's noise (estimation.still_noise)
+    noise: str = ""
 
     def table(self) -> str:
         out = [
@@ -59,6 +61,7 @@ class Evaluation:
             f"model: {self.model}, {self.estimates} estimates"
             + (f"; the estimator skipped {counted(self.skipped)}" if self.skipped else "")
             + (f"; range offset {self.clearance}" if self.clearance else ""),
+            *([self.noise] if self.noise else []),
             f"{'sensor':<10}{'n':>7}{'raw RMSE vs truth [m]':>24}{'NIS mean':>10}{'whiteness p':>13}",
         ]
         for r in self.rows:
@@ -164,4 +167,5 @@ def evaluate(
         within,
         nees,
         clearance,
+        est.still_noise_note,
     )

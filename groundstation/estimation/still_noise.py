@@ -107,3 +107,23 @@ def still_R(kind: Kind, R: np.ndarray, ctx: Context) -> np.ndarray | None:
     if 1.0 / DIFFERS**2 <= v / r <= DIFFERS**2:
         return None
     return np.array([[v]])
+
+
+def note(kinds: frozenset[Kind], R_of: dict[Kind, np.ndarray], ctx: Context) -> str:
+    """What the still stretch gave, in a line for a person ("" where it gave nothing): the level read
+    and whether the model's was kept, and why."""
+    out = []
+    for kind in sorted(kinds, key=lambda k: k.value):
+        v = level(kind, ctx)
+        if v is None or (kind is Kind.BARO_ALTITUDE and ctx.baro_has_pressure):  # read from its pressure
+            continue
+        r = float(R_of[kind][0, 0])
+        said = f"baro noise {v**0.5:.3g} m before take-off (the model's {r**0.5:.3g} m)"
+        if ctx.range_read_at is not None or ctx.range_on_ground_at is not None:
+            said += ": the model's kept, a range sensor reads"
+        elif 1.0 / DIFFERS**2 <= v / r <= DIFFERS**2:
+            said += ": the model's kept, within its sampling error"
+        else:
+            said += ": used in flight"
+        out.append(said)
+    return "; ".join(out)
