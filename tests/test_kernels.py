@@ -83,6 +83,50 @@ def test_a_scalar_update_is_the_references():
     assert nis == pytest.approx(y * y / s, rel=1e-12)
 
 
+@pytest.mark.parametrize("k", [2, 3])
+def test_a_vector_update_is_the_references(k):
+    """A 2- and a 3-axis reading (the 3-DOF rig's accelerometer and gyro) on a 6-state filter: the
+    compiled Gauss-Jordan inverse and Joseph form against numpy's inverse and products."""
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.quad_thrust import quad_thrust_model
+
+    rng = np.random.default_rng(5 + k)
+    f = ModelFilter(quad_thrust_model())
+    L = rng.normal(0.0, 0.3, (6, 6))
+    x, P = rng.normal(0.0, 1.0, 6), L @ L.T + 0.01 * np.eye(6)
+    B = rng.normal(0.0, 0.1, (k, k))
+    H, R, z = rng.normal(0.0, 1.0, (k, 6)), B @ B.T + 0.01 * np.eye(k), rng.normal(0.0, 1.0, k)
+    f.kf.x, f.kf.P = x.copy(), P.copy()
+    got_x, got_P, got_K, got_S, got_y, got_nis, ok = compiled[3](x, P, H, R, z)
+    assert ok
+    kernels._compiled = None  # the reference, as GROUNDSTATION_KERNELS=python runs it
+    try:
+        nis = f._update_written_out(z, H, R)
+    finally:
+        kernels._compiled = compiled
+    np.testing.assert_allclose(got_x, f.kf.x, rtol=1e-11)
+    np.testing.assert_allclose(got_P, f.kf.P, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(got_K, f.kf.K, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(got_S, f.kf.S, rtol=1e-13)
+    np.testing.assert_allclose(got_y, f.kf.y, rtol=1e-13)
+    assert got_nis == pytest.approx(nis, rel=1e-10)
+
+
+def test_a_singular_vector_innovation_covariance_is_refused_as_the_reference_refuses_it():
+    from groundstation.estimation.filters import ModelFilter
+    from groundstation.estimation.models.quad_thrust import quad_thrust_model
+
+    for kern in (compiled, None):
+        kernels._compiled = kern
+        try:
+            f = ModelFilter(quad_thrust_model())
+            f.kf.P = np.zeros((6, 6))
+            with pytest.raises(np.linalg.LinAlgError, match="[Ss]ingular"):
+                f._update_written_out(np.zeros(2), np.eye(2, 6), np.zeros((2, 2)))
+        finally:
+            kernels._compiled = compiled
+
+
 def test_a_zero_innovation_variance_is_refused_as_the_reference_refuses_it():
     from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.models.quad_thrust import quad_thrust_model

@@ -497,7 +497,13 @@ class ModelFilter:
         y^T S^-1 y."""
         kf = self.kf
         P = kf.P
-        k = kernels.compiled() if H.shape[0] == 1 else None
+        k = kernels.compiled()
+        if k is not None and H.shape[0] > 1:
+            x, P, K, S, y, nis, ok = k[3](_c(kf.x), _c(P), _c(H), _c(R), _c(z))
+            if not ok:  # as numpy's inverse of S: a filter run away is the caller's to catch
+                raise np.linalg.LinAlgError("singular innovation covariance")
+            kf.x, kf.P, kf.y, kf.S, kf.K = x, P, y, S, K
+            return float(nis)
         if k is not None:
             x, P, K, s, y0 = k[1](_c(kf.x), _c(P), _c(H), float(R[0, 0]), float(z[0]))
             if s == 0.0:  # as the reference: a filter run away is the caller's to catch

@@ -1,20 +1,22 @@
-"""The filter's inner steps compiled: the discretisation's series, a scalar reading's update, and the
-state's step.
+"""The filter's inner steps compiled: the discretisation's series, a scalar and a vector reading's
+update, and the state's step.
 
 A diagnosis runs its model over a log a hundred times and more, and in each run nearly half the time
 went to two small steps: the fourth-order series of a step's (Phi, G, Q_k) where A moves with the
 input (a thrust model's A with every throttle record), and the Joseph-form update of a scalar
 reading (a baro, a range). Each is a few dozen 6x6 products, where numpy's cost is its call, not
 its arithmetic. So is the state's step x <- Phi x + G u at every IMU sample: two products and a
-sum, 3.4 us in numpy and 1.6 us compiled, most of either the call. numba compiles the three to
+sum, 3.4 us in numpy and 1.6 us compiled, most of either the call; and so is a vector reading's
+update (the 3-DOF rig's gyro and accelerometer) with its S^-1: 31 us an update through numpy's
+inverse, 6 us as loops with a Gauss-Jordan inverse. numba compiles the four to
 loops (:mod:`.kernels_numba`; ``cache=True``: once a machine, in ``__pycache__``): a diagnosis of
 the thrust model on a 7-minute DataFlash log takes 131 s where the numpy forms take 181 s, with
 the same findings.
 
 The numpy forms stay the reference: :func:`groundstation.estimation.models.base.discretize_series`,
-``ModelFilter._update_written_out``'s and ``ModelFilter.predict_to``'s. ``GROUNDSTATION_KERNELS=python``,
-or numba missing, runs them alone, and ``tests/test_kernels.py`` holds the compiled ones to them.
-numba is imported at the first step a filter takes, never by a command that runs none
+``ModelFilter._update_written_out``'s (scalar and vector) and ``ModelFilter.predict_to``'s.
+``GROUNDSTATION_KERNELS=python``, or numba missing, runs them alone, and ``tests/test_kernels.py``
+holds the compiled ones to them. numba is imported at the first step a filter takes, never by a command that runs none
 (``groundstation --help`` stays quick).
 """
 
@@ -27,12 +29,12 @@ from collections.abc import Callable
 import numpy as np
 
 #: the kernels, compiled at first use; None: the numpy reference (numba missing or not wanted)
-_compiled: tuple[Callable, Callable, Callable] | None | bool = False
+_compiled: tuple[Callable, Callable, Callable, Callable] | None | bool = False
 
 
-def compiled() -> tuple[Callable, Callable, Callable] | None:
-    """(discretized_step, scalar_update, state_step) compiled (:mod:`.kernels_numba`), or None where the numpy
-    reference runs."""
+def compiled() -> tuple[Callable, Callable, Callable, Callable] | None:
+    """(discretized_step, scalar_update, state_step, vector_update) compiled (:mod:`.kernels_numba`),
+    or None where the numpy reference runs."""
     global _compiled
     if _compiled is False:
         _compiled = None if os.environ.get("GROUNDSTATION_KERNELS") == "python" else _compile()
@@ -47,11 +49,12 @@ def warm() -> None:
             k[0](np.eye(n), np.ones((n, 1)), np.eye(n), 0.01, True, 0.2, 6)
             k[1](np.zeros(n), np.eye(n), np.ones((1, n)), 1.0, 0.0)
             k[2](np.eye(n), np.ones((n, 1)), np.zeros(n), np.zeros(1))
+            k[3](np.zeros(n), np.eye(n), np.ones((2, n)), np.eye(2), np.zeros(2))
 
 
-def _compile() -> tuple[Callable, Callable, Callable] | None:
+def _compile() -> tuple[Callable, Callable, Callable, Callable] | None:
     try:  # imported here, not above: numba takes half a second to import
         k = importlib.import_module(f"{__package__}.kernels_numba")
     except ImportError:
         return None
-    return k.discretized_step, k.scalar_update, k.state_step
+    return k.discretized_step, k.scalar_update, k.state_step, k.vector_update

@@ -153,3 +153,77 @@ def state_step(Phi: np.ndarray, G: np.ndarray, x: np.ndarray, u: np.ndarray) -> 
             g += G[i, j] * u[j]
         out[i] = s + g
     return out
+
+
+@_jit
+def _inverse(S: np.ndarray):
+    """S^-1 by Gauss-Jordan elimination with partial pivoting, and False where a pivot is 0 or not
+    finite (S singular: numpy's inverse raises there)."""
+    k = S.shape[0]
+    a = S.copy()
+    inv = np.eye(k)
+    for c in range(k):
+        p = c
+        best = abs(a[c, c])
+        for r in range(c + 1, k):
+            if abs(a[r, c]) > best:
+                best = abs(a[r, c])
+                p = r
+        if best == 0.0 or not math.isfinite(best):
+            return inv, False
+        if p != c:
+            for j in range(k):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+                inv[c, j], inv[p, j] = inv[p, j], inv[c, j]
+        d = 1.0 / a[c, c]
+        for j in range(k):
+            a[c, j] *= d
+            inv[c, j] *= d
+        for r in range(k):
+            if r != c:
+                f = a[r, c]
+                if f != 0.0:
+                    for j in range(k):
+                        a[r, j] -= f * a[c, j]
+                        inv[r, j] -= f * inv[c, j]
+    return inv, True
+
+
+@_jit
+def vector_update(x: np.ndarray, P: np.ndarray, H: np.ndarray, R: np.ndarray, z: np.ndarray):
+    """A vector reading's update as ``ModelFilter._update_written_out`` makes it (y = z - H x,
+    S = H P H^T + R, K = P H^T S^-1, x + K y, Joseph's P = (I - K H) P (I - K H)^T + K R K^T), as
+    loops: (x, P, K, S, y, NIS y^T S^-1 y, ok). ok False: S is singular, the caller's to refuse
+    (x and P are then returned as they came)."""
+    n = x.shape[0]
+    k = H.shape[0]
+    PHt = _mm(P, H.T)
+    S = _mm(H, PHt)
+    for i in range(k):
+        for j in range(k):
+            S[i, j] += R[i, j]
+    y = np.empty(k)
+    for i in range(k):
+        hx = 0.0
+        for j in range(n):
+            hx += H[i, j] * x[j]
+        y[i] = z[i] - hx
+    SI, ok = _inverse(S)
+    if not ok:
+        return x.copy(), P.copy(), np.zeros((n, k)), S, y, 0.0, False
+    K = _mm(PHt, SI)
+    xn = x.copy()
+    for i in range(n):
+        s = 0.0
+        for j in range(k):
+            s += K[i, j] * y[j]
+        xn[i] += s
+    I_KH = np.eye(n) - _mm(K, H)
+    Pn = _mm(_mm(I_KH, P), I_KH.T) + _mm(_mm(K, R), K.T)
+    nis = 0.0
+    for i in range(k):
+        s = 0.0
+        for j in range(k):
+            s += SI[i, j] * y[j]
+        nis += y[i] * s
+    return xn, Pn, K, S, y, nis, True
