@@ -66,7 +66,11 @@ state: its term ``q w`` is process noise)::
 ``mu`` [1/s] is the linear drag over mass (the vehicle file's; the simulated
 quadcopter's is 0.35). The prediction is first order at the gyro rate (500 Hz
 and more) with the Jacobian below; the update is filterpy's
-``ExtendedKalmanFilter.update`` (the measurement is linear).
+``ExtendedKalmanFilter.update`` (the measurement is linear), whose equations (K = P H^T S^-1,
+Joseph's P) :func:`.kernels_numba.vector_update` computes as loops where numba is: at the
+accelerometer's 500 Hz filterpy's call, its inverse and its copies were two thirds of a run.
+``GROUNDSTATION_KERNELS=python`` runs filterpy's, the reference ``tests/test_attitude.py`` holds
+the compiled one to.
 """
 
 from __future__ import annotations
@@ -79,6 +83,8 @@ from filterpy.kalman import ExtendedKalmanFilter
 from groundstation.core.frames import accel_attitude, euler_rates
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.units import G
+
+from . import kernels
 
 
 class ComplementaryFilter:
@@ -220,11 +226,22 @@ class DragAttitudeEKF:
                 self.ekf.x = np.array([*accel_attitude(m.value), 0.0, 0.0, 0.0, 0.0])
                 self.t, self.started = m.t, True
             else:
-                e = self.ekf
-                e.update(np.asarray(m.value[:2], dtype=float), HJacobian=lambda x: self.H, Hx=lambda x: self.H @ x)
-                self.nis.append(float(e.y @ np.linalg.solve(e.S, e.y)))
+                self._update(np.array(m.value[:2], dtype=float))
         elif m.kind is Kind.GYRO and self.started:
             self._predict(m.value, m.t)
+
+    def _update(self, z: np.ndarray) -> None:
+        e = self.ekf
+        k = kernels.compiled()
+        if k is None:
+            e.update(z, HJacobian=lambda x: self.H, Hx=lambda x: self.H @ x)
+            self.nis.append(float(e.y @ np.linalg.solve(e.S, e.y)))
+            return
+        x, P, K, S, y, nis, ok = k[3](np.asarray(e.x, dtype=float), np.ascontiguousarray(e.P), self.H, e.R, z)
+        if not ok:  # as filterpy's inverse of S would
+            raise np.linalg.LinAlgError("singular innovation covariance")
+        e.x, e.P, e.K, e.S, e.y = x, P, K, S, y
+        self.nis.append(float(nis))
 
     def _predict(self, w, t: float) -> None:
         T = t - self.t
