@@ -25,6 +25,11 @@ def run(*args, timeout=120):
     return subprocess.run(GS + list(args), capture_output=True, text=True, timeout=timeout)
 
 
+def replay_max(log, *args):
+    """``replay LOG`` at full speed, headless and quiet, with ``args``."""
+    return run("replay", str(log), "--speed", "max", "--no-web", "--quiet", *args)
+
+
 def assert_one_line_error(r, text):
     assert r.returncode == 2, r
     assert "Traceback" not in r.stderr
@@ -68,13 +73,8 @@ def test_replay_takes_a_vehicle_file_for_its_estimator(tmp_path):
     first = {}
     for vehicle in (None, "sim_quad"):
         est = tmp_path / f"{vehicle}.csv"
-        r = run(
-            "replay",
-            str(log),
-            "--speed",
-            "max",
-            "--no-web",
-            "--quiet",
+        r = replay_max(
+            log,
             "--model",
             "quad_thrust",
             "--export",
@@ -387,18 +387,7 @@ def test_noise_of_the_altitude_model_before_the_arming_and_replay_takes_it(tmp_p
 
     def sigma_in_flight(noise_file):
         out = tmp_path / "est.csv"
-        r = run(
-            "replay",
-            str(log),
-            "--speed",
-            "max",
-            "--no-web",
-            "--quiet",
-            "--noise",
-            str(noise_file),
-            "--export",
-            str(out),
-        )
+        r = replay_max(log, "--noise", str(noise_file), "--export", str(out))
         assert r.returncode == 0, r.stderr
         return max(float(row["sigma_z"]) for row in csv.DictReader(open(out)) if 10.0 < float(row["t"]) < 15.0)
 
@@ -408,5 +397,5 @@ def test_noise_of_the_altitude_model_before_the_arming_and_replay_takes_it(tmp_p
     assert sigma_in_flight(noisy) > 10.0 * sigma_in_flight(noise)
     other = tmp_path / "heli.json"
     assert run("noise", str(log), "--model", "heli3dof", "--out", str(other)).returncode == 0
-    r = run("replay", str(log), "--speed", "max", "--no-web", "--quiet", "--noise", str(other))
+    r = replay_max(log, "--noise", str(other))
     assert_one_line_error(r, "the altitude model has no sensor")
