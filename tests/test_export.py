@@ -88,3 +88,20 @@ def test_a_vehicle_clock_declares_a_restart_on_three_agreeing_readings_only():
     assert c.restarts == 0 and c.outliers == 1
     assert not c.observe(0.5, 1000.3) and not c.observe(0.51, 1000.31)
     assert c.observe(0.52, 1000.32) and c.restarts == 1  # the third agrees: it rebooted
+
+
+def test_a_reading_with_unused_components_keeps_its_numbers(tmp_path):
+    """SERVO_OUTPUT_RAW's eight channels on a quadrotor: four motors, four unused (NaN). The motors'
+    outputs are written, the unused channels left out and not counted as refused; a reading that
+    is all NaN, or has an infinite component, is refused whole."""
+    w = MeasurementCsvWriter(tmp_path / "m.csv")
+    outputs = np.array([0.55, 0.56, 0.54, 0.55, np.nan, np.nan, np.nan, np.nan])
+    w.write(Measurement(1.0, Kind.ACTUATOR, outputs, "mav/1.1"))
+    w.write(Measurement(1.1, Kind.ACTUATOR, np.full(8, np.nan), "mav/1.1"))
+    w.write(Measurement(1.2, Kind.ACTUATOR, np.array([0.5, np.inf, np.nan, 0.5]), "mav/1.1"))
+    w.close()
+    rows = list(csv.DictReader(open(tmp_path / "m.csv")))
+    assert [(r["t"], r["component"], float(r["value"])) for r in rows] == [
+        (rows[0]["t"], str(j), v) for j, v in enumerate([0.55, 0.56, 0.54, 0.55])
+    ]
+    assert w.refused == 2

@@ -31,7 +31,11 @@ steps back again and again, forged or broken) the rows that would go back in tim
 
 **What is refused.** A row whose time is not finite or not a possible uptime (negative, or the
 uint32 milliseconds' sentinel and beyond: :data:`MAX_UPTIME_S`), or whose values are not finite,
-is counted (``refused``), not written: a CSV of the session must read back as numbers.
+is counted (``refused``), not written: a CSV of the session must read back as numbers. In the
+measurements' long format a reading with some components NaN and others not (SERVO_OUTPUT_RAW's
+unused channels beside the motors') keeps its numbers: NaN there is "no value", and its
+components are left out, not counted; a reading with no number at all, or an infinite one, is
+refused whole.
 """
 
 from __future__ import annotations
@@ -120,7 +124,10 @@ class MeasurementCsvWriter(_SegmentedCsv):
         self._held: dict[str, list[Measurement]] = {}  # source -> its readings behind its newest
 
     def write(self, m: Measurement) -> None:
-        if not self._possible(m.t, m.value.tolist()):
+        values = m.value.tolist()
+        if any(math.isnan(v) for v in values) and not all(math.isnan(v) for v in values):
+            values = [v for v in values if not math.isnan(v)]  # the components it gives (module docstring)
+        if not self._possible(m.t, values):
             return
         newest = self._newest.get(m.source)
         held = self._held.get(m.source)
@@ -151,7 +158,9 @@ class MeasurementCsvWriter(_SegmentedCsv):
             self._newest[m.source] = m.t
         names = KIND_COMPONENTS.get(m.kind)
         var = m.variance
-        for j, v in enumerate(m.value):
+        for j, v in enumerate(m.value.tolist()):
+            if math.isnan(v):  # a component the reading does not give
+                continue
             name = names[j] if names and j < len(names) else str(j)
             self._w.writerow(
                 (_fmt(m.t), m.kind.value, m.instance, name, _fmt(v), _fmt(var[j]) if var is not None else "", m.source)
