@@ -399,3 +399,7 @@ def test_noise_of_the_altitude_model_before_the_arming_and_replay_takes_it(tmp_p
     assert run("noise", str(log), "--model", "heli3dof", "--out", str(other)).returncode == 0
     r = replay_max(log, "--noise", str(other))
     assert_one_line_error(r, "the altitude model has no sensor")
+    for bad in ("NaN", "-1.0"):
+        broken = tmp_path / "broken.json"
+        broken.write_text('{"baro": {"R": [[' + bad + "]]}}")
+        assert_one_line_error(replay_max(log, "--noise", str(broken)), "baro's R is not a covariance")

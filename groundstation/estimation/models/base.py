@@ -183,8 +183,9 @@ class LinearModel:
 
 def with_measurement_noise(model: LinearModel, noise: dict[str, np.ndarray] | None) -> LinearModel:
     """``model`` with each named sensor's R from ``noise`` (``groundstation noise``'s output: sensor
-    -> R). A sensor the model lacks, or an R of another size than the sensor's, is a ValueError: a
-    noise file made for another model must not be taken silently as this one's."""
+    -> R). A sensor the model lacks, an R of another size than the sensor's, or one that is not a
+    covariance (NaN, not positive definite) is a ValueError: a noise file made for another model must
+    not be taken silently as this one's, nor a broken one put into the filter."""
     if not noise:
         return model
     meas = dict(model.measurements)
@@ -193,6 +194,8 @@ def with_measurement_noise(model: LinearModel, noise: dict[str, np.ndarray] | No
         if not keys:
             raise ValueError(f"--noise: the {model.name} model has no sensor {sensor!r}")
         R = np.atleast_2d(np.asarray(R, dtype=float))
+        if not (np.all(np.isfinite(R)) and np.allclose(R, R.T) and np.all(np.linalg.eigvalsh(R) > 0.0)):
+            raise ValueError(f"--noise: {sensor}'s R is not a covariance (finite, symmetric, positive definite)")
         for k in keys:
             if R.shape != np.atleast_2d(meas[k].R).shape:
                 raise ValueError(
