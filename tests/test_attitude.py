@@ -121,30 +121,3 @@ def test_derived_tilt_against_vicon_on_the_crazyflie_logs(name):
     for est, true in ((att[:, 1], roll), (att[:, 2], pitch)):
         err = np.degrees(np.interp(t, att[:, 0], est) - true)[fly]
         assert np.sqrt(np.mean(err**2)) < 1.2, (name, np.sqrt(np.mean(err**2)))
-
-
-def test_the_drag_ekfs_compiled_update_is_filterpys(tmp_path):
-    """The drag EKF's update with the compiled kernel and with filterpy's own call (the reference,
-    as ``GROUNDSTATION_KERNELS=python`` runs it) over the same 10 s of simulated flight."""
-    from groundstation.estimation import kernels
-
-    compiled = kernels.compiled()
-    if compiled is None:
-        pytest.skip("numba is not installed: filterpy's update runs alone")
-    run_fast(Scenario.from_args("quad", 4, 10.0, [], []), tmp_path / "q.tlog")
-    ms = list(Replay(tmp_path / "q.tlog").iter_measurements())
-    runs = []
-    for k in (compiled, None):
-        kernels._compiled = k
-        try:
-            drag = DragAttitudeEKF()
-            for m in ms:
-                drag.handle(m)
-        finally:
-            kernels._compiled = compiled
-        runs.append(drag)
-    fast, ref = runs
-    assert len(fast.nis) == len(ref.nis) > 1000
-    np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-7, atol=1e-12)
-    np.testing.assert_allclose(fast.ekf.x, ref.ekf.x, rtol=1e-8, atol=1e-12)
-    np.testing.assert_allclose(fast.P, ref.P, rtol=1e-7, atol=1e-15)

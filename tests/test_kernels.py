@@ -60,22 +60,33 @@ def test_a_step_takes_the_halvings_and_the_exponentials_the_reference_takes():
     assert compiled[0](A, B, Qc, 0.3, True, 0.2, 6)[3] >= 1
 
 
-def test_a_scalar_update_is_the_references():
+def _six_state_filter(rng):
+    """The thrust model's filter at a random state and covariance: (filter, x, P)."""
     from groundstation.estimation.filters import ModelFilter
     from groundstation.estimation.models.quad_thrust import quad_thrust_model
 
-    rng = np.random.default_rng(3)
     f = ModelFilter(quad_thrust_model())
     L = rng.normal(0.0, 0.3, (6, 6))
     x, P = rng.normal(0.0, 1.0, 6), L @ L.T + 0.01 * np.eye(6)
-    H, R, z = rng.normal(0.0, 1.0, (1, 6)), np.array([[0.04]]), np.array([0.7])
     f.kf.x, f.kf.P = x.copy(), P.copy()
-    got_x, got_P, got_K, s, y = compiled[1](x, P, H, 0.04, 0.7)
-    kernels._compiled = None  # the reference, as GROUNDSTATION_KERNELS=python runs it
+    return f, x, P
+
+
+def _reference_update(f, z, H, R) -> float:
+    """``f``'s update by the numpy reference, as GROUNDSTATION_KERNELS=python runs it: its NIS."""
+    kernels._compiled = None
     try:
-        nis = f._update_written_out(z, H, R)
+        return f._update_written_out(z, H, R)
     finally:
         kernels._compiled = compiled
+
+
+def test_a_scalar_update_is_the_references():
+    rng = np.random.default_rng(3)
+    f, x, P = _six_state_filter(rng)
+    H, R, z = rng.normal(0.0, 1.0, (1, 6)), np.array([[0.04]]), np.array([0.7])
+    got_x, got_P, got_K, s, y = compiled[1](x, P, H, 0.04, 0.7)
+    nis = _reference_update(f, z, H, R)
     np.testing.assert_allclose(got_x, f.kf.x, rtol=1e-12)
     np.testing.assert_allclose(got_P, f.kf.P, rtol=1e-11, atol=1e-15)
     np.testing.assert_allclose(got_K, f.kf.K, rtol=1e-12)
@@ -87,23 +98,13 @@ def test_a_scalar_update_is_the_references():
 def test_a_vector_update_is_the_references(k):
     """A 2- and a 3-axis reading (the 3-DOF rig's accelerometer and gyro) on a 6-state filter: the
     compiled Gauss-Jordan inverse and Joseph form against numpy's inverse and products."""
-    from groundstation.estimation.filters import ModelFilter
-    from groundstation.estimation.models.quad_thrust import quad_thrust_model
-
     rng = np.random.default_rng(5 + k)
-    f = ModelFilter(quad_thrust_model())
-    L = rng.normal(0.0, 0.3, (6, 6))
-    x, P = rng.normal(0.0, 1.0, 6), L @ L.T + 0.01 * np.eye(6)
+    f, x, P = _six_state_filter(rng)
     B = rng.normal(0.0, 0.1, (k, k))
     H, R, z = rng.normal(0.0, 1.0, (k, 6)), B @ B.T + 0.01 * np.eye(k), rng.normal(0.0, 1.0, k)
-    f.kf.x, f.kf.P = x.copy(), P.copy()
     got_x, got_P, got_K, got_S, got_y, got_nis, ok = compiled[3](x, P, H, R, z)
     assert ok
-    kernels._compiled = None  # the reference, as GROUNDSTATION_KERNELS=python runs it
-    try:
-        nis = f._update_written_out(z, H, R)
-    finally:
-        kernels._compiled = compiled
+    nis = _reference_update(f, z, H, R)
     np.testing.assert_allclose(got_x, f.kf.x, rtol=1e-11)
     np.testing.assert_allclose(got_P, f.kf.P, rtol=1e-10, atol=1e-14)
     np.testing.assert_allclose(got_K, f.kf.K, rtol=1e-10, atol=1e-14)
@@ -171,3 +172,30 @@ def test_the_state_step_is_the_references():
         Phi, G = rng.normal(0.0, 1.0, (n, n)), rng.normal(0.0, 1.0, (n, m))
         x, u = rng.normal(0.0, 1.0, n), rng.normal(0.0, 1.0, m)
         np.testing.assert_allclose(compiled[2](Phi, G, x, u), Phi @ x + G @ u, rtol=1e-13, atol=1e-15)
+
+
+def test_the_drag_ekfs_compiled_update_is_filterpys(tmp_path):
+    """The drag EKF's update with the compiled kernel and with filterpy's own call (the reference,
+    as ``GROUNDSTATION_KERNELS=python`` runs it) over the same 10 s of simulated flight."""
+    from drivers.replay import Replay
+    from groundstation.estimation.attitude_filters import DragAttitudeEKF
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    run_fast(Scenario.from_args("quad", 4, 10.0, [], []), tmp_path / "q.tlog")
+    ms = list(Replay(tmp_path / "q.tlog").iter_measurements())
+    runs = []
+    for k in (compiled, None):
+        kernels._compiled = k
+        try:
+            drag = DragAttitudeEKF()
+            for m in ms:
+                drag.handle(m)
+        finally:
+            kernels._compiled = compiled
+        runs.append(drag)
+    fast, ref = runs
+    assert len(fast.nis) == len(ref.nis) > 1000
+    np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(fast.ekf.x, ref.ekf.x, rtol=1e-8, atol=1e-12)
+    np.testing.assert_allclose(fast.P, ref.P, rtol=1e-7, atol=1e-15)
