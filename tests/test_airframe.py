@@ -43,6 +43,7 @@ def _curve(ms, **kw):
 
 
 @pytest.mark.parametrize("seed, undeclared", [(1012, ()), (1003, ("actuator_lag:tc=0.1",))])
+@pytest.mark.slow
 def test_the_accelerometer_reads_the_simulated_quadcopters_thrust_curve(tmp_path, seed, undeclared):
     """alpha, beta and the drag within 3 %, 0.3 m/s^2 and 10 % of the simulator's (22, -1.2, 0.35); the hover
     throttle alone gives 19.8 with beta held at 0. A lag in the motors is fitted along (0.1 s here), as a
@@ -57,6 +58,7 @@ def test_the_accelerometer_reads_the_simulated_quadcopters_thrust_curve(tmp_path
     assert c.sigma["alpha"] < 0.03 * c.alpha and c.seconds > 15.0
 
 
+@pytest.mark.slow
 def test_a_log_the_curve_cannot_be_read_from_gives_none_and_the_hover_prior_stays(tmp_path):
     """Without an accelerometer (ArduPilot's underpowered.log has none) or with too little flight: None,
     never a guess, and the diagnosis keeps the hover prior. NaN samples are skipped, not propagated."""
@@ -105,6 +107,7 @@ def test_from_the_log_alone_a_005_s_lag_is_found_and_sized(tmp_path):
     assert "thrust curve from the accelerometer (α 22." in markdown(as_json(d), 60.0)  # the dashboard's panel
 
 
+@pytest.mark.slow
 def test_with_a_vehicle_file_the_accelerometers_curve_is_read_beside_it(tmp_path):
     """``--vehicle sim_quad``: the file's curve is the model's, and the accelerometer's is read beside it
     (22.2 here for the file's 22), for the report to say when a file is not the log's airframe."""

@@ -77,6 +77,7 @@ def test_dataflash_bin_matches_dfreader():
     assert np.all(np.diff(bulk["ATT"].t) > 0) and 90 < bulk["ATT"].t[-1] - bulk["ATT"].t[0] < 110
 
 
+@pytest.mark.slow
 def test_damaged_dataflash_names_the_offset_and_keeps_data_on_both_sides(tmp_path):
     raw = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin").read_bytes()
     bad = tmp_path / "bad.bin"

@@ -238,6 +238,7 @@ async def test_connect_records_until_sigint(tmp_path):
     assert sum(r["kind"] == "baro_pressure" for r in rows) == 20
 
 
+@pytest.mark.slow
 def test_sim_fast_writes_log_truth_and_declared(tmp_path):
     log, truth = tmp_path / "s.tlog", tmp_path / "s.csv"
     r = run(

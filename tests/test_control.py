@@ -144,7 +144,7 @@ def test_anti_windup_freezes_the_integrators_while_saturated_and_lets_them_unwin
     assert out.saturated and hold.i == 0.0
 
 
-@pytest.mark.parametrize("vehicle,thrust", [("quad", None), ("coax", COAX_THRUST)])
+@pytest.mark.parametrize("vehicle,thrust", [("quad", None), pytest.param("coax", COAX_THRUST, marks=pytest.mark.slow)])
 def test_altitude_hold_flies_the_altitude_filter_to_the_reference(vehicle, thrust):
     c = AltitudeHold(thrust) if thrust else AltitudeHold()
     f = fly(

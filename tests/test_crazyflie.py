@@ -70,6 +70,7 @@ def test_foreign_files_are_clear_errors(tmp_path, content, text):
 
 
 @pytest.mark.parametrize("name", LOGS)
+@pytest.mark.slow
 def test_evaluate_the_altitude_filter_against_vicon(name):
     p = real_file(f"crazyflie_util/{name}")
     r = subprocess.run([sys.executable, "-m", "groundstation", "evaluate", str(p)], capture_output=True, text=True)

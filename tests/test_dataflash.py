@@ -114,6 +114,7 @@ def test_replay_export_and_evaluate_on_dataflash(tmp_path):
     assert int(re.search(r"done: (\d+) measurements", r.stdout).group(1)) == n_max
 
 
+@pytest.mark.slow
 def test_a_baro_given_as_pressure_and_altitude_is_one_update_with_its_own_zero():
     """DataFlash BARO carries Press and Alt for one sample: the filter reads it once (it once
     read it twice, the two against one shared zero, and NIS came out at 5e5)."""

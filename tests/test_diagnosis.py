@@ -300,6 +300,7 @@ def test_diagnose_on_a_bad_file_is_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.startswith("groundstation: error:") and "Traceback" not in r.stderr
 
 
+@pytest.mark.slow
 def test_diagnose_says_why_when_the_model_asked_for_cannot_run_on_a_log(tmp_path):
     """Asked for the altitude model on a log without an accelerometer: one line of why, and no empty
     report folder left where the report would have gone (without ``--model`` the log's readings pick
@@ -567,6 +568,7 @@ def test_diagnose_on_a_log_too_short_to_score_is_one_line(tmp_path):
     assert not (tmp_path / "short.tlog.diagnosis" / "report.json").exists()
 
 
+@pytest.mark.slow
 def test_thrust_model_constants_survive_a_hard_landing(tmp_path):
     """The diagnosis' thrust model on a clean simulated flight that ends with a 0.8 m/s touchdown,
     the throttle still at 0.36: the ground carries the vehicle (the model's inputs switch off), so
@@ -630,6 +632,7 @@ def test_the_lag_candidate_lags_each_output_stream_and_keeps_unused_outputs_nan(
     assert lag_throttle(ms, 1e-6)[-2].value[0] == pytest.approx(1.0)  # tc -> 0: the outputs themselves
 
 
+@pytest.mark.slow
 def test_a_throttle_dip_in_the_air_is_not_a_landing(tmp_path):
     """The thrust test flight's descent from 3.6 m (seed 1002) cuts the throttle below ground idle
     (TAU_GROUND) for 40 ms. Taken as landed, the model's inputs switched off (no thrust, no gravity)

@@ -89,6 +89,7 @@ def test_the_accelerometers_noise_follows_the_imu_rate(tmp_path, imu_hz):
     assert 1.9 < nis.statistic < 2.1, nis
 
 
+@pytest.mark.slow
 def test_the_truth_records_the_accelerometer_noise_the_innovations_carry(tmp_path):
     """The simulator's truth records what its accelerometer readings add to the specific force
     (noise and rounding) over each 10 ms row, and the bench judges that noise as it judges the

@@ -177,6 +177,7 @@ def test_nees_and_nis_inside_their_95_percent_bands_over_20_seeded_runs(tmp_path
         assert lo1 <= np.mean(v) <= hi1, (s, np.mean(v), lo1, hi1)
 
 
+@pytest.mark.slow
 def test_rmse_below_the_range_sensor_noise_and_below_a_low_pass_of_equal_lag(tmp_path):
     est, snaps, truth, rng = run_altitude(tmp_path, 3)
     t, e, _ = errors(snaps, truth, 0.0)

@@ -29,6 +29,7 @@ def test_every_example_is_listed_and_runs_here():
     assert listed == {p.name for p in EXAMPLES.glob("[0-9][0-9]_*.py")}
 
 
+@pytest.mark.slow
 def test_01_the_estimate_beats_the_range_sensor_and_its_sigma_holds_the_truth():
     out = run("01_replay_through_the_estimation_loop.py", 20)
     est, raw = numbers(r"estimate ([0-9.]+) mm, raw range ([0-9.]+) mm", out)
@@ -44,6 +45,7 @@ def test_02_rls_reads_the_atmospheres_diluted_slope():
     assert a == pytest.approx(expected, rel=0.05)
 
 
+@pytest.mark.slow
 def test_03_the_filters_beat_the_accelerometer_alone():
     out = run("03_attitude_filters.py", 30)
     (alone,) = numbers(r"accelerometer alone\s+([0-9.]+) deg", out)

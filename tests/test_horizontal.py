@@ -3,6 +3,7 @@
 import csv
 
 import numpy as np
+import pytest
 
 from drivers.replay import Replay
 from groundstation.estimation.loop import EstimationLoop, Snapshot
@@ -11,6 +12,7 @@ from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
 
+@pytest.mark.slow
 def test_horizontal_filter_tracks_velocity_and_says_what_gps_allows(tmp_path):
     run_fast(Scenario.from_args("quad", 401, 90.0, [], []), tmp_path / "q.tlog", tmp_path / "q.csv")
     tr = list(csv.DictReader(open(tmp_path / "q.csv")))

@@ -138,6 +138,7 @@ def test_a_zero_innovation_variance_is_refused_as_the_reference_refuses_it():
         f._update_written_out(np.array([1.0]), np.eye(1, 6), np.array([[0.0]]))
 
 
+@pytest.mark.slow
 def test_a_run_of_the_model_scores_as_the_reference_does(tmp_path):
     """The thrust model over a simulated flight (its A moves with every throttle record, so every
     step takes the series), run in a process with the kernels and in one without."""

@@ -45,6 +45,7 @@ def _height_error(scale: float, k: float = 3.0, **params: float) -> tuple[float,
     return float(np.sqrt(np.mean(np.square(est)))), float(np.sqrt(np.mean(np.square(baro))))
 
 
+@pytest.mark.slow
 def test_the_thrust_scale_takes_the_rotor_wash_out_of_the_vehicles_own_height():
     wrong, _ = _height_error(0.0)
     right, baro = _height_error(-RHO_G * 3.0)

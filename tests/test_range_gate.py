@@ -126,6 +126,7 @@ def test_underpowered_log_stands_on_the_ground_and_flies_on_its_sonar(model):
     assert abs(np.median(z[in_air]) - np.median(rng[:, 1])) < 0.15
 
 
+@pytest.mark.slow
 def test_replay_says_what_the_reader_and_the_estimator_skipped():
     """The counted skips are on the replay's first and last lines, and on evaluate's first two: the
     sonar's clamps (the reader) and its echoes on the ground (the estimator)."""

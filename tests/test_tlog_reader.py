@@ -116,6 +116,6 @@ def test_damaged_file(tmp_path):
     assert "bad CRC" in got.damage and "truncated" in got.damage
 
 
-@pytest.mark.parametrize("name", ["ardusub_small.tlog", "dronekit_flight.tlog"])
+@pytest.mark.parametrize("name", ["ardusub_small.tlog", pytest.param("dronekit_flight.tlog", marks=pytest.mark.slow)])
 def test_recorded_logs(name):
     assert_same_as_replay(FIXTURES / name)

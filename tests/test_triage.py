@@ -109,6 +109,7 @@ def test_px4_ulog_reads_and_triages():
     assert not [f for f in tr.findings if f.severity in ("critical", "error")]
 
 
+@pytest.mark.slow
 def test_triage_command_says_the_crash_first(tmp_path):
     """``groundstation triage LOG --json`` on the erle log: the roll-over first."""
     p = real_file("ardupilot_dataflash/erle_pxf_copter_Loiter_RTL.bin")
