@@ -30,6 +30,16 @@ def test_the_entry_and_its_parser_load_nothing_numerical():
     assert not {m for m in mods if m.split(".")[0] in HEAVY}, sorted(m for m in mods if m.split(".")[0] in HEAVY)
 
 
+def test_triage_loads_the_logs_reader_and_its_checks_not_the_filters():
+    """``triage`` answers in about a second: its command loads no filter library (filterpy pulls in
+    scipy.stats and matplotlib, a second of imports before the log is read)."""
+    mods = _loaded_after("import groundstation.app.triage_cli")
+    assert not {m for m in mods if m.split(".")[0] in ("filterpy", "scipy", "matplotlib", "numba", "viser")}, sorted(
+        m for m in mods if m.split(".")[0] in ("filterpy", "scipy", "matplotlib", "numba", "viser")
+    )
+    assert "groundstation.estimation.estimator" not in mods
+
+
 def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path):
     gs = [sys.executable, "-m", "groundstation"]
     r = subprocess.run([*gs, "--help"], capture_output=True, text=True, timeout=60)

@@ -24,6 +24,20 @@ from groundstation.core.measurement import Kind, Measurement
 
 from .tables import LogTables
 
+#: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
+#: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which.
+MOTOR_OUTPUTS = {
+    mavlink.MAV_TYPE_QUADROTOR: 4,
+    mavlink.MAV_TYPE_COAXIAL: 2,
+    mavlink.MAV_TYPE_HELICOPTER: 1,
+    mavlink.MAV_TYPE_HEXAROTOR: 6,
+    mavlink.MAV_TYPE_OCTOROTOR: 8,
+    mavlink.MAV_TYPE_TRICOPTER: 3,
+    mavlink.MAV_TYPE_DECAROTOR: 10,
+    mavlink.MAV_TYPE_DODECAROTOR: 12,
+}
+
+
 #: ArduCopter ``FRAME_CLASS`` -> MAV_TYPE (Copter's ``get_frame_mav_type``): 1 quad, 2 hexa, 3 octa,
 #: 4 octaquad, 5 Y6, 12 dodecahexa, 14 deca
 MAV_TYPE_OF_FRAME_CLASS = {

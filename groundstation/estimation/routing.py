@@ -11,8 +11,8 @@ import math
 from collections.abc import Iterable
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
 
+from drivers.logs.frame import MOTOR_OUTPUTS
 from groundstation.core.frames import euler_from_quaternion
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
@@ -95,20 +95,6 @@ def throttle_at_reading(ctx: Context, t: float) -> float | None:
     1.6 V of error in the voltage carried forward (thrust_voltage's n = 1.5 read 1.85)."""
     since = ctx.throttle_since if ctx.throttle_since is not None else -math.inf
     return ctx.throttle_before if since >= t else ctx.throttle
-
-
-#: MAV_TYPE -> how many of the first outputs drive rotors (the rest are servos: a
-#: coaxial helicopter's swash plate); SERVO_OUTPUT_RAW does not say which is which.
-MOTOR_OUTPUTS = {
-    mavlink.MAV_TYPE_QUADROTOR: 4,
-    mavlink.MAV_TYPE_COAXIAL: 2,
-    mavlink.MAV_TYPE_HELICOPTER: 1,
-    mavlink.MAV_TYPE_HEXAROTOR: 6,
-    mavlink.MAV_TYPE_OCTOROTOR: 8,
-    mavlink.MAV_TYPE_TRICOPTER: 3,
-    mavlink.MAV_TYPE_DECAROTOR: 10,
-    mavlink.MAV_TYPE_DODECAROTOR: 12,
-}
 
 
 def motor_outputs(ctx: Context) -> int:

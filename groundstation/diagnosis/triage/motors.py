@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.logs.frame import mav_type_of_params, mav_type_of_text, px4_logs_mav_type, px4_motor_columns
+from drivers.logs.frame import (
+    MOTOR_OUTPUTS,
+    mav_type_of_params,
+    mav_type_of_text,
+    px4_logs_mav_type,
+    px4_motor_columns,
+)
 from drivers.logs.tables import LogTables
-from groundstation.estimation.routing import MOTOR_OUTPUTS
 
 from .finding import DOCS, TriageFinding, runs
 
