@@ -115,3 +115,25 @@ def test_ctrl_c_stops_a_batch_replay_with_what_was_estimated_written(tmp_path):
     assert stopped and int(stopped.group(2)) < int(stopped.group(3)), last
     rows = _estimates(est)
     assert 0 < len(rows["t"]) and rows["t"][-1] <= float(stopped.group(1)) + 0.05
+
+
+def test_ctrl_c_wrapped_by_a_compiled_kernels_loader_is_still_ctrl_c():
+    """Ctrl-C that lands while numba unpickles a cached kernel reaches Python as a SystemError caused
+    by the KeyboardInterrupt (the timing cannot be caused at will, so the chain is built as numba
+    builds it): a stop, exit status 130; a SystemError of any other cause stays an error."""
+    from groundstation.app.main import one_line_errors
+    from groundstation.app.signals import is_interrupt
+
+    def wrapped(_args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as k:
+            raise SystemError("<function _numba_unpickle> returned a result with an exception set") from k
+
+    def other(_args):
+        raise SystemError("a bug")
+
+    assert one_line_errors(wrapped, None) == 130
+    with pytest.raises(SystemError):
+        one_line_errors(other, None)
+    assert not is_interrupt(ValueError("x")) and is_interrupt(KeyboardInterrupt())

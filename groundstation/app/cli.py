@@ -55,7 +55,7 @@ from .options import key_of
 from .outputs import Outputs, VehicleOutputs
 from .param_cli import run_param
 from .parser import build_parser
-from .signals import on_stop_signal
+from .signals import is_interrupt, on_stop_signal
 from .sim_cli import cmd_sim, run_demo
 from .supervise import Supervisor
 
@@ -128,7 +128,9 @@ def _run(args) -> int:
     ) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as e:
+        if not is_interrupt(e):
+            raise
         return 130
 
 
@@ -459,7 +461,9 @@ def _estimate_all(out: VehicleOutputs, ms) -> float | None:
         for m in ms:
             t = m.t
             out.see(m)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as e:
+        if not is_interrupt(e):
+            raise
         return t
     return None
 

@@ -108,7 +108,11 @@ def one_line_errors(command, args) -> int:
     except (ValueError, OSError) as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as e:
+        from groundstation.app.signals import is_interrupt
+
+        if not is_interrupt(e):
+            raise
         return 130
 
 
