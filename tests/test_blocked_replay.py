@@ -121,8 +121,8 @@ def test_ctrl_c_wrapped_by_a_compiled_kernels_loader_is_still_ctrl_c():
     """Ctrl-C that lands while numba unpickles a cached kernel reaches Python as a SystemError caused
     by the KeyboardInterrupt (the timing cannot be caused at will, so the chain is built as numba
     builds it): a stop, exit status 130; a SystemError of any other cause stays an error."""
+    from groundstation.app.interrupts import is_interrupt
     from groundstation.app.main import one_line_errors
-    from groundstation.app.signals import is_interrupt
 
     def wrapped(_args):
         try:

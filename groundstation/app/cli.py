@@ -50,12 +50,13 @@ from .command_cli import run_command_cli
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
 from .diagnose_cli import cmd_diagnose
 from .fleet_cli import cmd_fleet
+from .interrupts import is_interrupt
 from .logs_cli import run_logs
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
 from .param_cli import run_param
 from .parser import build_parser
-from .signals import is_interrupt, on_stop_signal
+from .signals import on_stop_signal
 from .sim_cli import cmd_sim, run_demo
 from .supervise import Supervisor
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from drivers.connection import ConnectionStringError, parse_connection  # pure parsing: nothing numerical
 
+from .interrupts import is_interrupt
 from .parser import build_parser, command_usage_problem
 
 #: the commands that read a log file given as ``file``
@@ -109,8 +110,6 @@ def one_line_errors(command, args) -> int:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as e:
-        from groundstation.app.signals import is_interrupt
-
         if not is_interrupt(e):
             raise
         return 130
