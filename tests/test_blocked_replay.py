@@ -10,6 +10,8 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -137,3 +139,18 @@ def test_ctrl_c_wrapped_by_a_compiled_kernels_loader_is_still_ctrl_c():
     with pytest.raises(SystemError):
         one_line_errors(other, None)
     assert not is_interrupt(ValueError("x")) and is_interrupt(KeyboardInterrupt())
+
+
+def test_ctrl_c_while_a_command_loads_its_modules_is_a_stop(monkeypatch, capsys):
+    """Ctrl-C in the second or so a command spends importing numpy, scipy and the estimators (before
+    its own code runs) is exit status 130 without a traceback, as it is later on. The moment cannot
+    be hit at will, so the import raises it."""
+    from groundstation.app import main as entry
+
+    def interrupted(name):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(entry, "importlib", SimpleNamespace(import_module=interrupted))
+    log = Path(__file__).parent / "fixtures" / "ardusub_small.tlog"
+    assert entry.main(["replay", str(log), "--no-web"]) == 130
+    assert "Traceback" not in capsys.readouterr().err

@@ -80,6 +80,17 @@ ONE_BLAS_THREAD = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line; Ctrl-C at any point of it, the imports a command loads included, is exit
+    status 130 without a traceback."""
+    try:
+        return _main(argv)
+    except (KeyboardInterrupt, SystemError) as e:
+        if not is_interrupt(e):
+            raise
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     for name, value in ONE_BLAS_THREAD.items():  # before numpy is loaded: the count is read once
         os.environ.setdefault(name, value)
     args = build_parser().parse_args(argv)
