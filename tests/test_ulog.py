@@ -14,7 +14,7 @@ from groundstation.core.measurement import Kind
 from groundstation.estimation.logs import load_log
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
-from tests.conftest import foreign2_file
+from tests.conftest import REPO, foreign2_file
 
 
 @pytest.fixture(scope="module")
@@ -93,3 +93,17 @@ def test_the_writer_refuses_what_a_ulog_cannot_hold():
         w.parameter("P", 1.0)
     with pytest.raises(ValueError, match="level is 0 to 7"):
         w.log(9, 0, "no")
+
+
+def test_a_sitl_logs_records_stamped_off_its_epoch_clock_are_counted_not_placed_decades_back():
+    """PX4 SITL stamps from the UNIX epoch; a few topics published before its clock was set carry 0
+    X. They are counted as skipped, and the
+    log, its triage's findings included, starts where the flight does."""
+    from groundstation.diagnosis.triage import triage
+
+    log = read_ulog(REPO / "tests" / "fixtures" / "px4_sitl_events.ulg")
+    assert log.skipped["timestamp_off_the_log_clock"] == 12
+    t0, t1 = log.tables.span
+    assert -1.0 < t0 < 0.0 and 30.0 < t1 < 32.0
+    tr = triage(log.tables, log.measurements)
+    assert all(-1.0 < f.t_start for f in tr.findings), tr.summary()

@@ -130,8 +130,14 @@ def read_ulog(path: str | Path, source: str = "ulog/1.1", *, imu_columns: bool =
         if "timestamp" not in d.data:
             untimed["topic_without_timestamp"] += 1  # no clock to put it on
             continue
-        t = (np.asarray(d.data["timestamp"], dtype=float) - zero_us) * 1e-6
+        raw = np.asarray(d.data["timestamp"], dtype=float)
         cols = {k: np.asarray(v) for k, v in d.data.items() if k != "timestamp"}
+        if zero_us and (off := raw < EPOCH_US).any():
+            # a topic published before SITL's clock was set, stamped 0 or from boot: on no clock of
+            # this log (it had put the parameters' risks 1.7e9 s before the flight), so counted, not placed
+            untimed["timestamp_off_the_log_clock"] += int(off.sum())
+            raw, cols = raw[~off], {k: v[~off] for k, v in cols.items()}
+        t = (raw - zero_us) * 1e-6
         if zero_us and "timestamp_sample" in cols:
             cols["timestamp_sample"] = cols["timestamp_sample"].astype(float) - zero_us
         tables.tables[name] = Table(t, cols)
