@@ -392,6 +392,39 @@ def test_a_rotor_harmonic_gives_a_harmonic_notch(tmp_path):
     assert suggest_notch(load_log(p).measurements, "ardupilot") == []
 
 
+def _idle_then_flight(throttle_record: bool) -> list[Measurement]:
+    """60 s armed at idle on the ground with a strong 60 Hz shake, then 30 s in flight with a weaker
+    123 Hz rotor harmonic: a 500 Hz IMU, four motor outputs at 50 Hz, and a throttle record beside
+    them only where ``throttle_record`` (a PX4 1.14 ULog has none)."""
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 90.0, 0.002)
+    flying = t >= 60.0
+    shake = np.where(flying, 0.3 * np.sin(2 * np.pi * 123.0 * t), 1.0 * np.sin(2 * np.pi * 60.0 * t))
+    ms = []
+    for kind, rest in ((Kind.GYRO, (0.0, 0.0, 0.0)), (Kind.ACCEL, (0.0, 0.0, -9.81))):
+        v = np.array(rest) + shake[:, None] + rng.normal(0.0, 0.05, (len(t), 3))
+        ms += [Measurement(ti, kind, vi, "imu", ti) for ti, vi in zip(t.tolist(), v)]
+    for ti in np.arange(0.0, 90.0, 0.02).tolist():
+        u = 0.5 if ti >= 60.0 else 0.05
+        ms.append(Measurement(ti, Kind.ACTUATOR, np.full(4, u), "outputs", ti))
+        if throttle_record:
+            ms.append(Measurement(ti, Kind.THROTTLE, np.array([u]), "throttle", ti))
+    return sorted(ms, key=lambda m: m.t)
+
+
+def test_the_notch_is_read_in_flight_also_from_the_motor_outputs_alone():
+    """The flight's 123 Hz, not the longer and stronger idle shake on the ground, with a throttle
+    record and with the motor outputs alone; the hover throttle only from the throttle record (the
+    outputs are on another scale)."""
+    from groundstation.diagnosis.report.autopilot_params import notch_from_imu
+
+    with_throttle = notch_from_imu(_idle_then_flight(True))
+    outputs_alone = notch_from_imu(_idle_then_flight(False))
+    assert with_throttle is not None and outputs_alone is not None
+    assert with_throttle[0] == pytest.approx(123.0, abs=1.0) and with_throttle[2] == pytest.approx(0.5)
+    assert outputs_alone[0] == pytest.approx(123.0, abs=1.0) and np.isnan(outputs_alone[2])
+
+
 @pytest.mark.slow
 def test_the_diagnosis_suggests_the_notch_alike_on_one_process_and_beside_it(tmp_path):
     """``diagnose`` reads the notch from the raw IMU before the diagnosis lets go of it: on one process

@@ -46,9 +46,11 @@ import numpy as np
 from drivers.mavlink.param_ranges import outside
 from groundstation.core.imu import IMU_KINDS, ImuColumns
 from groundstation.core.measurement import Kind, Measurement
+from groundstation.diagnosis.catalogue.thrust_model import throttle_series
 from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.engine import Diagnosis
 from groundstation.diagnosis.triage.finding import cell_count
+from groundstation.estimation.stated import TAU_AIRBORNE
 
 G = 9.80665
 R_AIR = 287.05  # J/(kg K)
@@ -303,11 +305,18 @@ def notch_from_imu(ms: Sequence[Measurement], imu: ImuColumns | None = None) -> 
     over the spectrum's median, the median throttle there, the sensor it stands out on), or None
     when the IMU is too slow to show rotor harmonics (below 200 Hz) or no peak stands out. Welch's
     PSD per axis, summed, of the gyro and of the accelerometer (a rotor harmonic shows on both,
-    more or less), over the samples with the throttle above idle. ``imu``: the raw IMU as columns
-    (else read from ``ms``)."""
+    more or less), over the samples with the throttle above idle. A log without a throttle record
+    (a PX4 ULog from 1.14 on: no ``actuator_controls_0``) is masked by its motor outputs' mean
+    carrying the vehicle (:data:`~groundstation.estimation.stated.TAU_AIRBORNE`), as its ground
+    segments are: over every sample, a long armed idle's own harmonic outweighed the flight's. The
+    outputs are not the autopilot's throttle scale, so no hover throttle is read from them.
+    ``imu``: the raw IMU as columns (else read from ``ms``)."""
     if imu is None:
         _, imu = ImuColumns.split(m for m in ms if m.kind in IMU_KINDS)
     thr = [(m.t, float(m.value[0])) for m in ms if m.kind is Kind.THROTTLE]
+    idle, on_throttle_scale = 0.1, bool(thr)
+    if not thr:
+        thr, idle = throttle_series(ms), TAU_AIRBORNE
     best: tuple[float, float, float, str] | None = None
     for kind in (Kind.GYRO, Kind.ACCEL):
         sensor = imu.get(kind, 0)
@@ -321,8 +330,8 @@ def notch_from_imu(ms: Sequence[Measurement], imu: ImuColumns | None = None) -> 
         if thr:
             tt, tv = np.array(thr).T
             u = np.interp(t, tt, tv)
-            flying = u > 0.1
-            hover = float(np.median(u[flying])) if flying.any() else math.nan
+            flying = u > idle
+            hover = float(np.median(u[flying])) if flying.any() and on_throttle_scale else math.nan
         if flying.sum() < 2048:
             continue
         x = sensor.values(flying)
