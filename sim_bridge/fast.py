@@ -108,7 +108,7 @@ def _ulog(sim: Simulator, vehicle: str, log: Path, seconds: float) -> int:
     """What PX4's logger would keep from boot, as a ULog (:mod:`.px4_log`); the samples written."""
     n = 0
     with open(log, "wb") as f:
-        px4 = Px4Log(f, vehicle)
+        px4 = Px4Log(f, vehicle, esc=sim.scenario.sensors.esc)
         for _ in range(int(round(seconds / sim.dt))):
             samples = sim.step()
             n += len(samples)

@@ -12,7 +12,9 @@ vehicle_gps_position   lat, lon [1e-7 deg], alt [mm], vel_*_m_s,    gps (3-D fix
                        fix_type
 vehicle_attitude       q[4] (w, x, y, z: FRD to NED)                attitude (the autopilot's
                                                                     estimate)
-actuator_outputs       noutputs, output[16] [us]                    actuators (1000 + 1000·u)
+actuator_outputs       noutputs, output[16] [us], or DShot values   actuators (1000 + 1000·u; DShot:
+                                                                    DSHOT_MIN's idle + (1999 - it)·u,
+                                                                    PWM_MAIN_TIM0 -3, DShot600)
 battery_status         voltage_v [V], current_a [A]                 battery
 vehicle_status         arming_state, system_type (MAV_TYPE)         the vehicle, armed (2)
 =====================  ===========================================  ===========================
@@ -41,6 +43,8 @@ MAV_TYPE = {"quad": 2, "coax": 3, "heli3dof": 4}
 ARMED = 2  # vehicle_status.arming_state: ARMING_STATE_ARMED
 DOWNWARD = 25  # distance_sensor.orientation: ROTATION_DOWNWARD_FACING
 OUTPUTS = 16
+DSHOT600 = -3  # PWM_MAIN_TIMn: the timer's outputs speak DShot600
+DSHOT_MIN = 0.055  # PX4's default: the armed idle as a share of DShot's throttle range
 
 TOPICS = {
     "sensor_combined": "uint64_t timestamp;float[3] gyro_rad;int32_t accelerometer_timestamp_relative;"
@@ -62,15 +66,21 @@ class Px4Log:
     """A ULog of the simulator's samples: :meth:`step` with each step's samples, :meth:`close` at
     the end (``out`` stays the caller's to close)."""
 
-    def __init__(self, out: BinaryIO, vehicle: str) -> None:
+    def __init__(self, out: BinaryIO, vehicle: str, *, esc: str = "pwm") -> None:
+        if esc not in ("pwm", "dshot"):
+            raise ValueError(f"ESC protocol {esc!r}: pwm or dshot")
         self.w = UlogWriter(out)
         self.mav_type = MAV_TYPE.get(vehicle, 0)
+        self.dshot = esc == "dshot"
         for name, fields in TOPICS.items():
             self.w.define(name, fields)
         self.w.info("sys_name", "PX4")
         self.w.info("ver_hw", "SITL (simulated)")
         self.w.info("ver_sw_release", RELEASE)
         self.w.parameter("MAV_TYPE", self.mav_type)
+        if self.dshot:
+            self.w.parameter("PWM_MAIN_TIM0", DSHOT600)
+            self.w.parameter("DSHOT_MIN", DSHOT_MIN)
         for name in TOPICS:
             self.w.add(name)
         self.w.log(6, 0, "[simulated] PX4 v1.14.0")
@@ -99,7 +109,11 @@ class Px4Log:
         elif s.sensor == "attitude":
             w.write("vehicle_attitude", us, *quaternion_from_euler(*v[:3]))
         elif s.sensor == "actuators":
-            out = [1000.0 + 1000.0 * min(1.0, max(0.0, u)) for u in v[:OUTPUTS]]
+            if self.dshot:  # PX4's mixer: its minimum value at a motor command of 0, 1999 at 1 (always armed)
+                idle = float(max(int(DSHOT_MIN * 1999), 1))
+                out = [float(round(idle + (1999.0 - idle) * min(1.0, max(0.0, u)))) for u in v[:OUTPUTS]]
+            else:
+                out = [1000.0 + 1000.0 * min(1.0, max(0.0, u)) for u in v[:OUTPUTS]]
             w.write("actuator_outputs", us, len(out), *out, *[0.0] * (OUTPUTS - len(out)))
         elif s.sensor == "battery":
             w.write("battery_status", us, v[0], v[1])

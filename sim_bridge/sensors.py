@@ -71,6 +71,9 @@ class SensorConfig:
     battery_v_sigma: float = 0.02
     battery_i_sigma: float = 0.1
     encoder_counts: int = 4096
+    #: the ESCs' protocol a PX4 log's actuator_outputs show: "pwm" pulse widths [us], "dshot" DShot
+    #: values (0 .. 1999; ArduPilot and MAVLink give DShot outputs as pulse widths all the same)
+    esc: str = "pwm"
 
 
 #: which sensors each vehicle carries

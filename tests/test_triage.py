@@ -293,6 +293,21 @@ def test_simulated_weak_motor_shows_as_that_motor_working_harder(tmp_path):
     assert not _named(tr, "flip") and not _named(tr, "motor_saturation")
 
 
+def test_a_weak_motor_shows_alike_through_dshot_escs(tmp_path):
+    """The same weak motor in a PX4 log whose ESCs speak DShot (``actuator_outputs`` 0..1999): read
+    as the pulse of the same share of the range, motor 2 works harder by what the pulse widths show
+    (the idle's share aside); read as microseconds, by 184 "us", an error where there is a warning."""
+    from sim_bridge.fast import run_fast
+    from sim_bridge.scenario import Scenario
+
+    sc = Scenario.from_args("quad", 3, 30.0, [], ["motor_failure:motor=2,loss=0.15,t=8"])
+    sc.sensors.esc = "dshot"
+    p = tmp_path / "f.ulg"
+    run_fast(sc, p)
+    (imb,) = _named(_triage(p)[1], "motor_imbalance")
+    assert imb.detail["motor"] == 2 and 50 < imb.detail["offset_us"] < 100 and "(DShot)" in imb.evidence
+
+
 def test_simulated_failing_motor_saturates_then_the_vehicle_flips(tmp_path):
     """Motor 1 losing half its thrust from 15 s: at full output it still falls short, the vehicle
     rolls over: the flip first, then the saturated motor and its imbalance before the flip."""

@@ -107,3 +107,27 @@ def test_a_sitl_logs_records_stamped_off_its_epoch_clock_are_counted_not_placed_
     assert -1.0 < t0 < 0.0 and 30.0 < t1 < 32.0
     tr = triage(log.tables, log.measurements)
     assert all(-1.0 < f.t_start for f in tr.findings), tr.summary()
+
+
+def test_dshot_outputs_read_as_the_same_share_of_the_motors_range_as_pulse_widths(tmp_path):
+    """One flight as PX4 logs it with PWM ESCs (pulse widths) and with DShot ESCs (values 0..1999,
+    ``PWM_MAIN_TIM0`` -3 and ``DSHOT_MIN`` saying so): the outputs' share of the motors' working range
+    (the stated motor curve's) is the same to DShot's quantum, where DShot values read as microseconds
+    were -0.89 at idle."""
+    from groundstation.estimation.stated import motor_curve
+
+    read = {}
+    for esc in ("pwm", "dshot"):
+        sc = Scenario.from_args("quad", 5, 30.0, [], [])
+        sc.sensors.esc = esc
+        log = load_log(run_fast(sc, tmp_path / f"{esc}.ulg").log)
+        curve = motor_curve({**log.tables.params, "THR_MDL_FAC": 0.0})  # as a PX4 log states it (its default)
+        assert curve is not None, esc
+        outputs = [m.value for m in log.measurements if m.kind is Kind.ACTUATOR]
+        read[esc] = (curve, np.array([curve.thrust(list(v), clip=False) for v in outputs]), np.array(outputs))
+    (pwm_curve, pwm, _), (dshot_curve, dshot, raw) = read["pwm"], read["dshot"]
+    assert (pwm_curve.low, pwm_curve.high) == (0.0, 1.0) and "DShot" not in pwm_curve.source
+    assert dshot_curve.low == pytest.approx(109 / 1999) and dshot_curve.high == 1.0 and "DShot" in dshot_curve.source
+    assert raw.min() >= dshot_curve.low - 1e-9 and raw.max() <= 1.0
+    assert len(pwm) == len(dshot) and np.abs(dshot - pwm).max() < 1.0 / 1890
+    assert pwm.max() > 0.3  # the flight, not only its idle

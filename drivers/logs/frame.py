@@ -107,6 +107,45 @@ def px4_motor_columns(params: dict[str, float]) -> list[int] | None:
     return sorted(motor_of_column, key=motor_of_column.__getitem__) or None
 
 
+#: PX4's DShot driver's output values (``DShot.h``): 0 disarmed, 1 .. 1999 the throttle range
+DSHOT_DISARMED, DSHOT_MIN_THROTTLE, DSHOT_MAX_THROTTLE = 0, 1, 1999
+#: ``PWM_MAIN_TIMn``'s protocols that are DShot (PX4 1.14 on): -5 DShot150, -4 300, -3 600, -2 1200
+PX4_DSHOT_TIMER_PROTOCOLS = (-5, -4, -3, -2)
+
+
+def px4_dshot_outputs(params: dict[str, float]) -> bool:
+    """Whether a PX4 log's main outputs drive DShot ESCs, by its parameters: the first timer's
+    protocol (``PWM_MAIN_TIM0``, whose group holds output 1, where motor 1 is on every airframe) from
+    v1.14 on, ``DSHOT_CONFIG`` before (on the FMU's outputs: the main ones on a board without an IO
+    co-processor, ``SYS_USE_IO`` 0). Their ``actuator_outputs`` are then DShot values, 0 to 1999,
+    not pulse widths in microseconds (:func:`px4_output_fraction`)."""
+    tim = params.get("PWM_MAIN_TIM0")
+    if tim is not None and math.isfinite(tim):
+        return int(tim) in PX4_DSHOT_TIMER_PROTOCOLS
+    config = params.get("DSHOT_CONFIG")
+    on_fmu = params.get("SYS_USE_IO", 0.0) == 0.0
+    return config is not None and math.isfinite(config) and config > 0 and on_fmu
+
+
+def px4_output_fraction(values: np.ndarray, dshot: bool) -> np.ndarray:
+    """``actuator_outputs``' values as the fraction of the ESC's full range ``Kind.ACTUATOR`` holds:
+    a pulse (us - 1000) / 1000 (0 us: an output not driven, NaN), a DShot value over 1999 (0: the
+    motor stopped, disarmed). The two read alike: 0 the motor stopped, 1 full throttle, the armed
+    idle the autopilot's minimum (``PWM_MAIN_MINn``, ``DSHOT_MIN``)."""
+    if dshot:
+        return np.clip(values, DSHOT_DISARMED, DSHOT_MAX_THROTTLE) / DSHOT_MAX_THROTTLE
+    return np.where(values > 0, (values - 1000.0) / 1000.0, math.nan)
+
+
+def px4_dshot_idle(params: dict[str, float]) -> float:
+    """The armed idle of PX4's DShot outputs as :func:`px4_output_fraction` reads it: ``DSHOT_MIN``
+    (0.055 by default) of the throttle range, and at least its first value (``DShot::update_params``)."""
+    share = params.get("DSHOT_MIN")
+    share = share if share is not None and math.isfinite(share) and 0.0 <= share <= 1.0 else 0.055
+    lowest = min(max(int(share * DSHOT_MAX_THROTTLE), DSHOT_MIN_THROTTLE), DSHOT_MAX_THROTTLE)
+    return lowest / DSHOT_MAX_THROTTLE
+
+
 def px4_mav_type(params: dict[str, float], system_type: float | None) -> int | None:
     """The MAV_TYPE of a PX4 vehicle's rotors: control allocation's own count (``CA_ROTOR_COUNT``)
     where the log has it, else the type ``vehicle_status`` (or ``MAV_TYPE``) announces, where it

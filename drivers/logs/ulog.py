@@ -19,8 +19,10 @@ vehicle_gps_position      lat, lon [1e-7 deg], alt [mm], fix_type     GPS (3-D f
                           vel_ned_valid                               vel_ned_valid only); vel_d
                                                                       alone as GPS_VD
 vehicle_attitude          q[4] (w, x, y, z; FRD to NED)               ATTITUDE [rad]
-actuator_outputs          output[0..n] [us] (the motors': PWM_MAIN_   ACTUATOR, (us - 1000) / 1000
-                          FUNCn, else the first noutputs)
+actuator_outputs          output[0..n] [us] (the motors': PWM_MAIN_   ACTUATOR, (us - 1000) / 1000;
+                          FUNCn, else the first noutputs); DShot     value / 1999 (.frame)
+                          values 0..1999 where the parameters say
+                          DShot (PWM_MAIN_TIM0, DSHOT_CONFIG)
 vehicle_status            system_type (MAV_TYPE), CA_ROTOR_COUNT      VEHICLE_STATUS's mav_type, at
                                                                       the first sample (.frame)
 actuator_controls_0       control[3] (thrust 0..1)                    THROTTLE
@@ -45,7 +47,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from groundstation.core.imu import ImuColumns, ImuSeries
 from groundstation.core.measurement import Kind, Measurement
 
-from .frame import frame_status, px4_logs_mav_type, px4_motor_columns
+from .frame import frame_status, px4_dshot_outputs, px4_logs_mav_type, px4_motor_columns, px4_output_fraction
 from .quiet import quiet
 from .tables import LogTables, Table
 from .ulog_check import ULogStructureError, check
@@ -256,7 +258,7 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
     if ao is not None:
         pwm = _motor_outputs(ao, tables.params)
         if pwm is not None:
-            add_rows(Kind.ACTUATOR, ao.t, np.where(pwm > 0, (pwm - 1000.0) / 1000.0, math.nan))
+            add_rows(Kind.ACTUATOR, ao.t, px4_output_fraction(pwm, px4_dshot_outputs(tables.params)))
     ac = tables.get("actuator_controls_0")
     if ac is not None and (thr := ac.numeric("control[3]")) is not None:
         add_rows(Kind.THROTTLE, ac.t, np.clip(thr, 0.0, 1.0)[:, None])

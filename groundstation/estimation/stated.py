@@ -25,7 +25,8 @@ to correct.
 **The motors' working range.** A motor makes thrust between the output its autopilot spins it at
 when armed and idle and its full output: ArduPilot's ``MOT_SPIN_MIN``/``MOT_SPIN_MAX`` within
 ``MOT_PWM_MIN``/``MOT_PWM_MAX`` (``AP_MotorsMulticopter::thrust_to_actuator``), PX4's
-``PWM_MAIN_MINn``/``PWM_MAIN_MAXn`` of the first motor's output (``PWM_MAIN_FUNCn`` says which).
+``PWM_MAIN_MINn``/``PWM_MAIN_MAXn`` of the first motor's output (``PWM_MAIN_FUNCn`` says which),
+or with DShot ESCs ``DSHOT_MIN`` to the protocol's full throttle.
 The rotor wash on a static port scales with the thrust, so its signal is the motors' mean output
 as a fraction of that range, zero at idle: with the raw output, a vehicle idling on the ground at
 ``MOT_SPIN_ARM`` (0.1) showed a wash that was not there, and on another generator's flight a
@@ -45,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.logs.frame import px4_motor_columns
+from drivers.logs.frame import px4_dshot_idle, px4_dshot_outputs, px4_motor_columns
 from drivers.logs.tables import LogTables
 from groundstation.core.measurement import Kind, Measurement
 from groundstation.core.readings import Readings
@@ -112,6 +113,9 @@ def motor_curve(params: dict[str, float]) -> MotorCurve | None:
             hi = (pwm_lo + spin_hi * (pwm_hi - pwm_lo) - 1000.0) / 1000.0
             return MotorCurve(expo, lo, hi, f"MOT_THST_EXPO {expo:g}, MOT_SPIN_MIN/MAX {spin_lo:g}/{spin_hi:g}")
     fac = _param(params, "THR_MDL_FAC")
+    if fac is not None and 0.0 <= fac <= 1.0 and px4_dshot_outputs(params):
+        # DShot ESCs: from DSHOT_MIN's idle to the protocol's full throttle (no pulse widths)
+        return MotorCurve(fac, px4_dshot_idle(params), 1.0, f"THR_MDL_FAC {fac:g}, DShot")
     if fac is not None and 0.0 <= fac <= 1.0:
         # the first motor's output (its function says which: ``PWM_MAIN_FUNCn``), else output 1
         n = (px4_motor_columns(params) or [0])[0] + 1

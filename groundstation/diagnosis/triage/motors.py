@@ -3,9 +3,11 @@ propeller, a centre of gravity off, a twisted arm), and motors at the end of the
 controller has no authority left: thrust loss, overweight, a failing motor).
 
 Outputs are PWM [us]: ArduPilot RCOU (``C1``.. or ``Ch1``..) or MOT (ArduCopter 3.1's motor
-records), MAVLink SERVO_OUTPUT_RAW, PX4 ``actuator_outputs``. Only samples with every motor above
-its idle (in flight) count. Thresholds follow ArduPilot's LogAnalyzer motor-balance test: a
-motor's mean 50 us off the others' is worth a look, 75 us is a fault.
+records), MAVLink SERVO_OUTPUT_RAW, PX4 ``actuator_outputs`` (DShot's values, 0 to 1999, read as
+the pulse of the same share of the range: :func:`drivers.logs.frame.px4_output_fraction`). Only
+samples with every motor above its idle (in flight) count. Thresholds follow ArduPilot's
+LogAnalyzer motor-balance test: a motor's mean 50 us off the others' is worth a look, 75 us is a
+fault.
 """
 
 from __future__ import annotations
@@ -16,8 +18,10 @@ from drivers.logs.frame import (
     MOTOR_OUTPUTS,
     mav_type_of_params,
     mav_type_of_text,
+    px4_dshot_outputs,
     px4_logs_mav_type,
     px4_motor_columns,
+    px4_output_fraction,
 )
 from drivers.logs.tables import LogTables
 
@@ -61,7 +65,10 @@ def _outputs(tables: LogTables, n: int) -> tuple[np.ndarray, np.ndarray, str] | 
             columns = list(range(1, n + 1))
         cols = [tb.numeric(pattern.format(i)) for i in columns]
         if all(c is not None for c in cols):
-            return tb.t, np.column_stack(cols), name  # type: ignore[arg-type]
+            pwm = np.column_stack(cols)  # type: ignore[arg-type]
+            if name == "actuator_outputs" and px4_dshot_outputs(tables.params):
+                return tb.t, 1000.0 + 1000.0 * px4_output_fraction(pwm, dshot=True), f"{name} (DShot)"
+            return tb.t, pwm, name
     return None
 
 
