@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import BinaryIO
 
+from drivers.logs.frame import DSHOT_MAX_THROTTLE, px4_dshot_idle
 from drivers.logs.ulog_writer import UlogWriter
 from groundstation.core.atmosphere import altitude_at
 from groundstation.core.frames import quaternion_from_euler
@@ -110,8 +111,9 @@ class Px4Log:
             w.write("vehicle_attitude", us, *quaternion_from_euler(*v[:3]))
         elif s.sensor == "actuators":
             if self.dshot:  # PX4's mixer: its minimum value at a motor command of 0, 1999 at 1 (always armed)
-                idle = float(max(int(DSHOT_MIN * 1999), 1))
-                out = [float(round(idle + (1999.0 - idle) * min(1.0, max(0.0, u)))) for u in v[:OUTPUTS]]
+                top = DSHOT_MAX_THROTTLE
+                idle = px4_dshot_idle({"DSHOT_MIN": DSHOT_MIN}) * top
+                out = [float(round(idle + (top - idle) * min(1.0, max(0.0, u)))) for u in v[:OUTPUTS]]
             else:
                 out = [1000.0 + 1000.0 * min(1.0, max(0.0, u)) for u in v[:OUTPUTS]]
             w.write("actuator_outputs", us, len(out), *out, *[0.0] * (OUTPUTS - len(out)))
