@@ -62,6 +62,12 @@ RECORDS = {
 }
 
 
+def collective(vehicle: str, actuators) -> float:
+    """The throttle the simulated autopilot commands, as its logs keep it (DataFlash's CTUN.ThO,
+    PX4's collective thrust): a quad's four outputs carry it alike, a coax's two rotors' mean."""
+    return float(actuators[0]) if vehicle == "quad" else float(sum(actuators[:2]) / 2)
+
+
 @dataclass
 class FlightLog:
     """One log: its number, when it began (Unix seconds, for LOG_ENTRY) and its bytes."""
@@ -209,7 +215,7 @@ class FlightLogs:
             n = min(len(v), 14)
             w.define("RCOU", "Q" + "H" * n, "TimeUS," + ",".join(f"C{k}" for k in range(1, n + 1)))
         w.write("RCOU", us, *(int(round(1000 + 1000 * min(1.0, max(0.0, u)))) for u in v[:14]))
-        thr = v[0] if self.vehicle == "quad" else sum(v[:2]) / 2
+        thr = collective(self.vehicle, v)
         if self.height is not None:
             w.write("CTUN", us, min(1.0, max(0.0, thr)), *self.height())
         else:

@@ -1,23 +1,25 @@
 """The simulated vehicle's flight as PX4's logger keeps it: a ULog (``.ulg``) of its uORB topics.
 
-=====================  ===========================================  ===========================
-topic                  fields                                       from the sample
-=====================  ===========================================  ===========================
-sensor_combined        gyro_rad[3] [rad/s], accelerometer_m_s2[3]   imu (FRD)
-vehicle_air_data       baro_alt_meter (pressure altitude),          baro
-                       baro_temp_celcius, baro_pressure_pa
-distance_sensor        current_distance [m], min/max_distance,      range (downward: orientation
-                       signal_quality, orientation                  25)
-vehicle_gps_position   lat, lon [1e-7 deg], alt [mm], vel_*_m_s,    gps (3-D fix)
-                       fix_type
-vehicle_attitude       q[4] (w, x, y, z: FRD to NED)                attitude (the autopilot's
-                                                                    estimate)
-actuator_outputs       noutputs, output[16] [us], or DShot values   actuators (1000 + 1000·u; DShot:
-                                                                    DSHOT_MIN's idle + (1999 - it)·u,
-                                                                    PWM_MAIN_TIM0 -3, DShot600)
-battery_status         voltage_v [V], current_a [A]                 battery
-vehicle_status         arming_state, system_type (MAV_TYPE)         the vehicle, armed (2)
-=====================  ===========================================  ===========================
+=======================  ===========================================  ===========================
+topic                    fields                                       from the sample
+=======================  ===========================================  ===========================
+sensor_combined          gyro_rad[3] [rad/s], accelerometer_m_s2[3]   imu (FRD)
+vehicle_air_data         baro_alt_meter (pressure altitude),          baro
+                         baro_temp_celcius, baro_pressure_pa
+distance_sensor          current_distance [m], min/max_distance,      range (downward: orientation
+                         signal_quality, orientation                  25)
+vehicle_gps_position     lat, lon [1e-7 deg], alt [mm], vel_*_m_s,    gps (3-D fix)
+                         fix_type
+vehicle_attitude         q[4] (w, x, y, z: FRD to NED)                attitude (the autopilot's
+                                                                      estimate)
+actuator_outputs         noutputs, output[16] [us], or DShot values   actuators (1000 + 1000·u; DShot:
+                                                                      DSHOT_MIN's idle + (1999 - it)·u,
+                                                                      PWM_MAIN_TIM0 -3, DShot600)
+vehicle_thrust_setpoint  xyz[3] (the collective thrust, -1..0 on z)   actuators (the throttle, as
+                                                                      the DataFlash log's CTUN.ThO)
+battery_status           voltage_v [V], current_a [A]                 battery
+vehicle_status           arming_state, system_type (MAV_TYPE)         the vehicle, armed (2)
+=======================  ===========================================  ===========================
 
 Time is the vehicle's clock from boot (``timestamp`` [us]), as PX4's; the info names the system
 and a release, the parameters the vehicle's type (the range's limits are its topic's). The topics'
@@ -34,7 +36,7 @@ from drivers.logs.ulog_writer import UlogWriter
 from groundstation.core.atmosphere import altitude_at
 from groundstation.core.frames import quaternion_from_euler
 
-from .flight_log import RANGE_LIMITS_CM
+from .flight_log import RANGE_LIMITS_CM, collective
 from .simulator import Sample
 
 #: PX4's v1.14.0 release as ``ver_sw_release`` (0xAABBCCTT: major, minor, patch, type 0xFF release)
@@ -58,6 +60,7 @@ TOPICS = {
     "float vel_e_m_s;float vel_d_m_s;uint8_t fix_type",
     "vehicle_attitude": "uint64_t timestamp;float[4] q",
     "actuator_outputs": f"uint64_t timestamp;uint32_t noutputs;float[{OUTPUTS}] output",
+    "vehicle_thrust_setpoint": "uint64_t timestamp;uint64_t timestamp_sample;float[3] xyz",
     "battery_status": "uint64_t timestamp;float voltage_v;float current_a",
     "vehicle_status": "uint64_t timestamp;uint8_t arming_state;uint8_t system_type",
 }
@@ -72,6 +75,7 @@ class Px4Log:
             raise ValueError(f"ESC protocol {esc!r}: pwm or dshot")
         self.w = UlogWriter(out)
         self.mav_type = MAV_TYPE.get(vehicle, 0)
+        self.vehicle = vehicle
         self.dshot = esc == "dshot"
         for name, fields in TOPICS.items():
             self.w.define(name, fields)
@@ -117,6 +121,8 @@ class Px4Log:
             else:
                 out = [1000.0 + 1000.0 * min(1.0, max(0.0, u)) for u in v[:OUTPUTS]]
             w.write("actuator_outputs", us, len(out), *out, *[0.0] * (OUTPUTS - len(out)))
+            # the controller's collective thrust, normalised and along body z (up is negative)
+            w.write("vehicle_thrust_setpoint", us, us, 0.0, 0.0, -min(1.0, max(0.0, collective(self.vehicle, v))))
         elif s.sensor == "battery":
             w.write("battery_status", us, v[0], v[1])
 

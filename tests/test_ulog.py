@@ -131,3 +131,48 @@ def test_dshot_outputs_read_as_the_same_share_of_the_motors_range_as_pulse_width
     assert raw.min() >= dshot_curve.low - 1e-9 and raw.max() <= 1.0
     assert len(pwm) == len(dshot) and np.abs(dshot - pwm).max() < 1.0 / 1890
     assert pwm.max() > 0.3  # the flight, not only its idle
+
+
+def test_px4_1_14s_collective_thrust_reads_as_the_throttle(flight):
+    """PX4 1.14 logs no ``actuator_controls_0``: the mixer's input, the collective thrust, is
+    ``vehicle_thrust_setpoint``'s ``xyz[2]`` (FRD, negative up). It reads as THROTTLE 0..1, the same
+    command the flight's motor outputs carry, sample for sample."""
+    log = load_log(flight)
+    thr = [(m.t, float(m.value[0])) for m in log.measurements if m.kind is Kind.THROTTLE]
+    out = [(m.t, float(m.value[0])) for m in log.measurements if m.kind is Kind.ACTUATOR]
+    assert len(thr) == len(out) > 1000
+    (t1, v1), (t2, v2) = np.array(thr).T, np.array(out).T
+    assert np.array_equal(t1, t2) and np.abs(v1 - v2).max() < 1e-6  # float32 in the log
+    assert 0.0 <= v1.min() and v1.max() <= 1.0 and 0.2 < np.median(v1[v1 > 0.1]) < 0.8
+
+
+def test_actuator_controls_is_the_throttle_where_a_log_has_both(tmp_path):
+    """A log from before control allocation keeps ``actuator_controls_0``: its ``control[3]`` is the
+    throttle, and a thrust setpoint beside it (as a VTOL's or a replayed log's) is not read twice."""
+    path = tmp_path / "both.ulg"
+    with open(path, "wb") as f:
+        w = UlogWriter(f)
+        w.define("actuator_controls_0", "uint64_t timestamp;float[8] control")
+        w.define("vehicle_thrust_setpoint", "uint64_t timestamp;uint64_t timestamp_sample;float[3] xyz")
+        w.info("sys_name", "PX4")
+        w.add("actuator_controls_0")
+        w.add("vehicle_thrust_setpoint")
+        for k in range(50):
+            us = 1_000_000 + 20_000 * k
+            w.write("actuator_controls_0", us, 0.0, 0.0, 0.0, 0.45, 0.0, 0.0, 0.0, 0.0)
+            w.write("vehicle_thrust_setpoint", us + 5_000, us + 5_000, 0.0, 0.0, -0.7)
+    thr = [m for m in read_ulog(path).measurements if m.kind is Kind.THROTTLE]
+    assert len(thr) == 50 and {round(float(m.value[0]), 6) for m in thr} == {0.45}
+
+
+def test_a_px4_sitl_logs_throttle_hovers_where_px4_estimates_its_hover_thrust():
+    """A PX4 SITL log (1.15, control allocation: ``vehicle_thrust_setpoint``, no
+    ``actuator_controls_0``): the throttle read from it, in flight, has its median at the hover
+    thrust PX4's own estimator logged (``hover_thrust_estimate``, valid), on the same scale."""
+    path = REPO / "tests" / "fixtures" / "px4_sitl_events.ulg"
+    log = read_ulog(path)
+    thr = np.array([float(m.value[0]) for m in log.measurements if m.kind is Kind.THROTTLE])
+    assert len(thr) > 1000 and 0.0 <= thr.min() and thr.max() <= 1.0
+    est = next(d for d in ULog(str(path)).data_list if d.name == "hover_thrust_estimate").data
+    hover = est["hover_thrust"][est["valid"] == 1]
+    assert len(hover) and np.median(thr[thr > 0.1]) == pytest.approx(float(np.median(hover)), abs=0.02)

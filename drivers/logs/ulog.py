@@ -26,6 +26,8 @@ actuator_outputs          output[0..n] [us] (the motors': PWM_MAIN_   ACTUATOR, 
 vehicle_status            system_type (MAV_TYPE), CA_ROTOR_COUNT      VEHICLE_STATUS's mav_type, at
                                                                       the first sample (.frame)
 actuator_controls_0       control[3] (thrust 0..1)                    THROTTLE
+vehicle_thrust_setpoint   xyz[2] (thrust, -1..0: FRD; PX4 1.14 on,    THROTTLE, as -xyz[2]
+                          without actuator_controls_0)
 battery_status            voltage_v [V], current_a [A]                BATTERY_VOLTAGE, BATTERY_CURRENT
 ========================  ==========================================  ==============================
 
@@ -259,9 +261,9 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
         pwm = _motor_outputs(ao, tables.params)
         if pwm is not None:
             add_rows(Kind.ACTUATOR, ao.t, px4_output_fraction(pwm, px4_dshot_outputs(tables.params)))
-    ac = tables.get("actuator_controls_0")
-    if ac is not None and (thr := ac.numeric("control[3]")) is not None:
-        add_rows(Kind.THROTTLE, ac.t, np.clip(thr, 0.0, 1.0)[:, None])
+    t_thr, thr = _collective_thrust(tables)
+    if thr is not None:
+        add_rows(Kind.THROTTLE, t_thr, np.clip(thr, 0.0, 1.0)[:, None])
     bat = tables.get("battery_status")
     if bat is not None:
         v, i = bat.numeric("voltage_v"), bat.numeric("current_a")
@@ -270,6 +272,20 @@ def _measurements(tables: LogTables, log: UlogLog, s: str, imu_columns: bool = F
             skipped["battery_not_connected"] += int((~ok).sum())
             add_rows(Kind.BATTERY_VOLTAGE, bat.t[ok], v[ok][:, None])
             add_rows(Kind.BATTERY_CURRENT, bat.t[ok], i[ok][:, None])
+
+
+def _collective_thrust(tables: LogTables) -> tuple[np.ndarray, np.ndarray | None]:
+    """The controller's collective thrust 0..1: ``actuator_controls_0``'s ``control[3]`` up to PX4
+    1.13; from 1.14 on (control allocation) the mixer's input is ``vehicle_thrust_setpoint``, whose
+    ``xyz[2]`` is the same normalised thrust along body z, negative up (FRD). Instance 0 is the
+    multicopter's (a VTOL's fixed-wing thrust is instance 1)."""
+    ac = tables.get("actuator_controls_0")
+    if ac is not None and (thr := ac.numeric("control[3]")) is not None:
+        return ac.t, thr
+    ts = tables.get("vehicle_thrust_setpoint")
+    if ts is not None and (z := ts.numeric("xyz[2]")) is not None:
+        return ts.t, -z
+    return np.empty(0), None
 
 
 def _motor_outputs(ao: Table, params: dict[str, float]) -> np.ndarray | None:

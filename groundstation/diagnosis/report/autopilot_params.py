@@ -306,10 +306,11 @@ def notch_from_imu(ms: Sequence[Measurement], imu: ImuColumns | None = None) -> 
     when the IMU is too slow to show rotor harmonics (below 200 Hz) or no peak stands out. Welch's
     PSD per axis, summed, of the gyro and of the accelerometer (a rotor harmonic shows on both,
     more or less), over the samples with the throttle above idle. A log without a throttle record
-    (a PX4 ULog from 1.14 on: no ``actuator_controls_0``) is masked by its motor outputs' mean
-    carrying the vehicle (:data:`~groundstation.estimation.stated.TAU_AIRBORNE`), as its ground
-    segments are: over every sample, a long armed idle's own harmonic outweighed the flight's. The
-    outputs are not the autopilot's throttle scale, so no hover throttle is read from them.
+    (a ULog with neither ``actuator_controls_0`` nor ``vehicle_thrust_setpoint``) is masked by its
+    motor outputs' mean carrying the vehicle (:data:`~groundstation.estimation.stated.TAU_AIRBORNE`),
+    as its ground segments are: over every sample, a long armed idle's own harmonic outweighed the
+    flight's. The outputs are not the autopilot's throttle scale, so no hover throttle is read from
+    them.
     ``imu``: the raw IMU as columns (else read from ``ms``)."""
     if imu is None:
         _, imu = ImuColumns.split(m for m in ms if m.kind in IMU_KINDS)
