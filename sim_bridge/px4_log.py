@@ -37,6 +37,7 @@ from groundstation.core.atmosphere import altitude_at
 from groundstation.core.frames import quaternion_from_euler
 
 from .flight_log import RANGE_LIMITS_CM, collective
+from .sensors import ESC_PROTOCOLS
 from .simulator import Sample
 
 #: PX4's v1.14.0 release as ``ver_sw_release`` (0xAABBCCTT: major, minor, patch, type 0xFF release)
@@ -71,8 +72,8 @@ class Px4Log:
     the end (``out`` stays the caller's to close)."""
 
     def __init__(self, out: BinaryIO, vehicle: str, *, esc: str = "pwm") -> None:
-        if esc not in ("pwm", "dshot"):
-            raise ValueError(f"ESC protocol {esc!r}: pwm or dshot")
+        if esc not in ESC_PROTOCOLS:
+            raise ValueError(f"ESC protocol {esc!r}: one of {', '.join(ESC_PROTOCOLS)}")
         self.w = UlogWriter(out)
         self.mav_type = MAV_TYPE.get(vehicle, 0)
         self.vehicle = vehicle

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from .effects import Effect, parse_effect
 from .names import FLIGHTS, RIG_FLIGHTS, VEHICLES
-from .sensors import SensorConfig
+from .sensors import ESC_PROTOCOLS, SensorConfig
 
 
 class ScenarioError(ValueError):
@@ -48,6 +48,8 @@ class Scenario:
             raise ScenarioError("the 3-DOF rig is on its stand: it flies no guided flight")
         if self.flight in RIG_FLIGHTS and self.vehicle != "heli3dof":
             raise ScenarioError(f"the {self.flight} flight is the 3-DOF helicopter's: use --vehicle heli3dof")
+        if self.sensors.esc not in ESC_PROTOCOLS:
+            raise ScenarioError(f"unknown ESC protocol {self.sensors.esc!r}; use one of {', '.join(ESC_PROTOCOLS)}")
 
     @property
     def effects(self) -> list[Effect]:

@@ -76,6 +76,10 @@ class SensorConfig:
     esc: str = "pwm"
 
 
+#: the ESC protocols a simulated PX4 log can state (:attr:`SensorConfig.esc`)
+ESC_PROTOCOLS = ("pwm", "dshot")
+
+
 #: which sensors each vehicle carries
 VEHICLE_SENSORS = {
     "quad": ("imu", "baro", "range", "gps", "attitude", "actuators", "battery"),

@@ -221,3 +221,30 @@ async def test_set_attitude_target_and_disconnect_on_demand(tmp_path):
         bridge.close()
         await runner
         await link.close()
+
+
+@pytest.mark.slow
+def test_a_scenario_file_the_simulator_cannot_fly_is_a_one_line_error(tmp_path):
+    """A scenario file that is not JSON, names a sensor setting the simulator has not, or an ESC
+    protocol its PX4 log cannot state: exit 2, one line naming the file's fault, nothing written."""
+    import subprocess
+    import sys
+
+    cases = {
+        "broken.json": ("{not json", "cannot read scenario"),
+        "setting.json": ('{"sensors": {"imu_rate": 250}}', "unknown sensor setting 'imu_rate'"),
+        "esc.json": ('{"sensors": {"esc": "oneshot"}}', "unknown ESC protocol 'oneshot'; use one of pwm, dshot"),
+    }
+    for name, (text, words) in cases.items():
+        scenario = tmp_path / name
+        scenario.write_text(text)
+        log = tmp_path / f"{name}.ulg"
+        r = subprocess.run(
+            [sys.executable, "-m", "groundstation", "sim", "--fast", "--scenario", str(scenario), "--log", str(log)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert r.returncode == 2 and words in r.stderr, (name, r.returncode, r.stderr)
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert not log.exists()
