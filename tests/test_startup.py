@@ -137,3 +137,40 @@ def test_the_light_lists_name_what_the_registries_hold():
 
     assert tuple(MODEL_HELP) == tuple(DIAGNOSABLE)
     assert CLI_MODELS == tuple(n for n, s in MODELS.items() if s.cli)
+
+
+def test_the_simulators_bad_arguments_answer_with_numpy_alone_loaded(tmp_path):
+    """A mistyped effect, a scenario file the simulator cannot fly, ``--fast`` without its log, a bad
+    ``--udp`` or system id: one line from the arguments, with the scenario built (its effects need
+    numpy) and nothing else numerical loaded (each had waited a second and a half for the filters
+    and the dashboard). ``--list-effects`` likewise."""
+    scenario = tmp_path / "s.json"
+    scenario.write_text('{"sensors": {"esc": "oneshot"}}')
+    for argv, why in (
+        (["sim", "--effect", "warp_drive:k=1"], "unknown effect 'warp_drive'"),
+        (["sim", "--undeclared", "accel_bias:z=lots"], "not a number"),
+        (["sim", "--scenario", str(scenario)], "unknown ESC protocol 'oneshot'"),
+        (["sim", "--fast"], "--fast needs --log"),
+        (["sim", "--udp", "nohost"], "expected HOST:PORT"),
+        (["sim", "--sysid", "0"], "system id is 1-255"),
+    ):
+        code = (
+            "import contextlib, io\n"
+            "from groundstation.app.main import main\n"
+            "err = io.StringIO()\n"
+            "with contextlib.redirect_stderr(err):\n"
+            f"    rc = main({argv!r})\n"
+            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
+            f"assert {why!r} in err.getvalue(), err.getvalue()"
+        )
+        heavy = sorted({m.split(".")[0] for m in _loaded_after(code)} & set(HEAVY))
+        assert heavy == ["numpy"], (argv, heavy)
+    code = (
+        "import contextlib, io\n"
+        "from groundstation.app.main import main\n"
+        "out = io.StringIO()\n"
+        "with contextlib.redirect_stdout(out):\n"
+        "    assert main(['sim', '--list-effects']) == 0\n"
+        "assert '`baro_thrust`' in out.getvalue()"
+    )
+    assert sorted({m.split(".")[0] for m in _loaded_after(code)} & set(HEAVY)) == ["numpy"]

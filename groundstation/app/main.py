@@ -2,8 +2,9 @@
 nothing numerical), and only then the command's code. ``groundstation --help`` and a usage error
 answer before numpy, scipy, filterpy or viser are loaded (they had made every one-line error wait
 for 4 s of imports); so does a file that is missing or is no log, checked here by its first bytes,
-a file another argument names that is not there, a connection string that names no transport, and
-a vehicle command short of what it needs.
+a file another argument names that is not there, a connection string that names no transport, a
+vehicle command short of what it needs, and a simulator's scenario it cannot fly (with numpy alone
+loaded: the effects are built to be checked).
 """
 
 from __future__ import annotations
@@ -103,6 +104,15 @@ def _main(argv: list[str] | None) -> int:
     if why is not None:
         print(f"groundstation: error: {why}", file=sys.stderr)
         return 2
+    if args.command == "sim":  # the scenario and the simulator's options, before the simulator loads
+        sim_args = importlib.import_module("groundstation.app.sim_args")
+        if args.list_effects:
+            print(sim_args.catalogue_markdown())
+            return 0
+        why = sim_args.problem(args)
+        if why is not None:
+            print(f"groundstation: error: {why}", file=sys.stderr)
+            return 2
     if args.command == "triage":  # about a second a log: the reader and the checks, nothing else
         return one_line_errors(importlib.import_module("groundstation.app.triage_cli").cmd_triage, args)
     cli = importlib.import_module("groundstation.app.cli")  # the commands, loaded once they are asked for

@@ -6,7 +6,6 @@ import asyncio
 import csv
 import datetime as _dt
 import json
-import math
 from pathlib import Path
 
 from drivers.board import BoardLink
@@ -16,7 +15,6 @@ from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.models.heli3dof_rig import Heli3dofRig
 from groundstation.estimation.registry import build_estimator, vehicle_config
 from sim_bridge.bridge import LinkFaults, SimBridge
-from sim_bridge.effects import catalogue_markdown
 from sim_bridge.fast import declared_path, run_fast
 from sim_bridge.pty_port import PtyPort
 from sim_bridge.scenario import Scenario
@@ -26,25 +24,20 @@ from web.dashboard import Dashboard
 from .console import StatusLine, print_control_notes, print_link_events
 from .options import key_of
 from .signals import on_stop_signal
+from .sim_args import catalogue_markdown, problem, scenario_from, sysid, udp_target, unasked_rate
 from .supervise import Supervisor
-
-
-def scenario_from(args) -> Scenario:
-    duration = args.duration if args.duration else 60.0
-    return Scenario.from_args(
-        args.vehicle, args.seed, duration, args.effect, args.undeclared, args.scenario, args.flight
-    )
 
 
 def cmd_sim(args) -> int:
     if args.list_effects:
         print(catalogue_markdown())
         return 0
+    why = problem(args)  # as the entry checked them: here for a caller of cli.run
+    if why is not None:
+        raise ValueError(why)
     scenario = scenario_from(args)
     if args.fast:
-        if args.log is None:
-            raise ValueError("--fast needs --log OUT.tlog")
-        r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration, sysid=_sysid(args.sysid))
+        r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration, sysid=sysid(args.sysid))
         print(
             f"sim: {scenario.vehicle} seed {scenario.seed}: {r.seconds:g} s simulated in {r.wall:.2f} s "
             f"({r.speedup:.0f}x real time), {r.frames} frames -> {r.log}"
@@ -55,41 +48,19 @@ def cmd_sim(args) -> int:
     return asyncio.run(_run_realtime(args, scenario))
 
 
-def _udp(text: str):
-    if text.lower() == "none":
-        return None
-    host, _, port = text.rpartition(":")
-    if not port.isdigit():
-        raise ValueError(f"--udp {text!r}: expected HOST:PORT")
-    return host or "127.0.0.1", int(port)
-
-
-def _unasked_rate(hz: float) -> float | None:
-    """The bridge's ``unasked_rate``: None for 0 (every stream at its sensor's rate from the start)."""
-    if not (math.isfinite(hz) and hz >= 0.0):
-        raise ValueError(f"--unasked-rate {hz}: a rate in Hz, 0 or more")
-    return hz if hz > 0 else None
-
-
-def _sysid(n: int) -> int:
-    if not 1 <= n <= 255:
-        raise ValueError(f"--sysid {n}: a MAVLink system id is 1-255")
-    return n
-
-
 async def _run_realtime(args, scenario: Scenario) -> int:
     pty = PtyPort(args.serial_link) if (args.serial or args.serial_link) else None
     board = PtyPort() if args.board else None
     bridge = SimBridge(
         scenario,
-        udp_to=_udp(args.udp),
+        udp_to=udp_target(args.udp),
         pty=pty,
         board=board,
         speed=args.speed,
         faults=LinkFaults(loss=args.loss / 100.0, corrupt=args.corrupt / 100.0),
-        sysid=_sysid(args.sysid),
+        sysid=sysid(args.sysid),
         signing_key=key_of(args),
-        unasked_rate=_unasked_rate(args.unasked_rate),
+        unasked_rate=unasked_rate(args.unasked_rate),
     )
     truth_file = None
     if args.truth:
