@@ -56,9 +56,9 @@ def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path
         assert r.returncode == 2 and why in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
 
 
-def _one_line_before_any_import(argv: list[str], why: str) -> None:
-    """The entry given ``argv`` answers with exit status 2 and one line saying ``why``, with nothing
-    numerical loaded."""
+def _heavy_after_one_line(argv: list[str], why: str) -> list[str]:
+    """The entry given ``argv`` answers with exit status 2 and one line saying ``why``: the heavy
+    packages it had loaded by then."""
     code = (
         "import contextlib, io\n"
         "from groundstation.app.main import main\n"
@@ -68,7 +68,12 @@ def _one_line_before_any_import(argv: list[str], why: str) -> None:
         "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
         f"assert {why!r} in err.getvalue(), err.getvalue()"
     )
-    heavy = sorted(m for m in _loaded_after(code) if m.split(".")[0] in HEAVY)
+    return sorted({m.split(".")[0] for m in _loaded_after(code)} & set(HEAVY))
+
+
+def _one_line_before_any_import(argv: list[str], why: str) -> None:
+    """The entry given ``argv`` answers in one line saying ``why``, with nothing numerical loaded."""
+    heavy = _heavy_after_one_line(argv, why)
     assert not heavy, (argv, heavy)
 
 
@@ -154,17 +159,7 @@ def test_the_simulators_bad_arguments_answer_with_numpy_alone_loaded(tmp_path):
         (["sim", "--udp", "nohost"], "expected HOST:PORT"),
         (["sim", "--sysid", "0"], "system id is 1-255"),
     ):
-        code = (
-            "import contextlib, io\n"
-            "from groundstation.app.main import main\n"
-            "err = io.StringIO()\n"
-            "with contextlib.redirect_stderr(err):\n"
-            f"    rc = main({argv!r})\n"
-            "assert rc == 2 and len(err.getvalue().splitlines()) == 1, (rc, err.getvalue())\n"
-            f"assert {why!r} in err.getvalue(), err.getvalue()"
-        )
-        heavy = sorted({m.split(".")[0] for m in _loaded_after(code)} & set(HEAVY))
-        assert heavy == ["numpy"], (argv, heavy)
+        assert _heavy_after_one_line(argv, why) == ["numpy"], argv
     code = (
         "import contextlib, io\n"
         "from groundstation.app.main import main\n"
