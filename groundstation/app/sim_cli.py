@@ -102,12 +102,18 @@ async def _run_realtime(args, scenario: Scenario) -> int:
 
 
 def _fresh_path(p: Path) -> Path:
-    """``p``, or ``p`` with ``-2``, ``-3``, ... before the suffix when a file of that name exists."""
+    """``p``, or ``p`` with ``-2``, ``-3``, ... before the suffix when a file of that name exists:
+    created here, empty (exclusively: two demos started in the same second had both taken the same
+    free name, and recorded into one file)."""
+    p.parent.mkdir(parents=True, exist_ok=True)
     candidate, n = p, 1
-    while candidate.exists():
-        n += 1
-        candidate = p.with_name(f"{p.stem}-{n}{p.suffix}")
-    return candidate
+    while True:
+        try:
+            with open(candidate, "x"):
+                return candidate
+        except FileExistsError:
+            n += 1
+            candidate = p.with_name(f"{p.stem}-{n}{p.suffix}")
 
 
 def rig_constants(path: str | None) -> Heli3dofRig | None:
