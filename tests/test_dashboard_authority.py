@@ -145,15 +145,18 @@ def test_a_dashboard_on_the_network_needs_allow_remote():
     )
 
 
-def test_the_command_line_refuses_a_network_dashboard_in_one_line():
+def test_the_command_line_refuses_a_network_dashboard_in_one_line(tmp_path):
+    """Said from the arguments, before anything starts: no recording begun (the demo's own file)."""
     r = subprocess.run(
         [sys.executable, "-m", "groundstation", "demo", "--host", "0.0.0.0", "--duration", "1"],
         capture_output=True,
         text=True,
         timeout=60,
+        cwd=tmp_path,
     )
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("groundstation: error: dashboard on 0.0.0.0")
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_request_naming_its_host_or_origin_twice_is_refused_in_words():

@@ -104,6 +104,10 @@ def test_a_file_an_option_names_that_is_not_there_and_a_duration_of_nothing_are_
         (["diagnose", str(log), "--declared", f"{gone}.json"], "no such file of declared effects"),
         (["fleet", "diagnose", str(gone), "--out", str(tmp_path / "fleet")], "not a folder"),
         (["param", "udpin:0.0.0.0:14550", "load", f"{gone}.param"], "cannot read: no such file"),
+        (["diagnose", str(log), "--vehicle", "nosuch"], "no vehicle configuration 'nosuch'; known: apm2_sonar"),
+        (["replay", str(log), "--vehicle", f"{gone}.json"], "no vehicle file"),
+        (["evaluate", str(log), "--vehicle", "nosuch"], "no vehicle configuration"),
+        (["replay", str(log), "--host", "0.0.0.0"], "exposes it to the network; pass --allow-remote"),
     ):
         _one_line_before_any_import(argv, why)
     assert not (tmp_path / "fleet").exists() and not log.with_name("flight.tlog.diagnosis").exists()

@@ -49,6 +49,17 @@ class RemoteRefused(ValueError):
     """Binding to a non-loopback address without ``allow_remote`` (one line)."""
 
 
+def remote_refusal(host: str, allow_remote: bool) -> str | None:
+    """Why a dashboard may not be served on ``host`` (one line), or None: a network address needs
+    ``allow_remote``."""
+    if is_loopback(host) or allow_remote:
+        return None
+    return (
+        f"dashboard on {host}: that exposes it to the network; pass --allow-remote to do so "
+        "(control then needs the session's token)"
+    )
+
+
 @dataclass
 class Authority:
     host: str
@@ -59,11 +70,9 @@ class Authority:
     holder: int | None = None
 
     def __post_init__(self) -> None:
-        if not is_loopback(self.host) and not self.allow_remote:
-            raise RemoteRefused(
-                f"dashboard on {self.host}: that exposes it to the network; pass --allow-remote to do so "
-                "(control then needs the session's token)"
-            )
+        why = remote_refusal(self.host, self.allow_remote)
+        if why is not None:
+            raise RemoteRefused(why)
 
     # -- addresses -------------------------------------------------------------------------------
     @property

@@ -15,6 +15,8 @@ import sys
 from pathlib import Path
 
 from drivers.connection import ConnectionStringError, parse_connection  # pure parsing: nothing numerical
+from groundstation.estimation.vehicles import vehicle_file  # a JSON file read: nothing numerical
+from web.authority import remote_refusal  # an address's check: nothing numerical
 
 from .interrupts import is_interrupt
 from .parser import build_parser, command_usage_problem
@@ -49,8 +51,11 @@ def argument_problem(args) -> str | None:
     """Why the arguments cannot be run (one line), or None: a file or folder an argument names that
     cannot be read (the truth a diagnosis is scored against, the effects it is told of, the archive a
     fleet reads, the parameter file loaded onto a vehicle), a connection string that names no
-    transport, a vehicle command short of what it needs. A truth file that is not there had been
-    passed over in silence, and the diagnosis ran for minutes without the error it was asked for."""
+    transport, a vehicle command short of what it needs, a dashboard asked for on a network address
+    without ``--allow-remote`` (before a recording is begun). A truth file that is not there had been
+    passed over in silence, and the diagnosis ran for minutes without the error it was asked for. A
+    vehicle file that is not there, or a name no airframe file has, is said before the log is read:
+    a log no model describes (a submarine's) is reported on without one, and would pass it unseen."""
     if args.command in CONNECTS:
         try:
             parse_connection(getattr(args, CONNECTS[args.command]))
@@ -70,6 +75,14 @@ def argument_problem(args) -> str | None:
             return f"{path}: {why}"
     if args.command == "fleet" and not args.archive.is_dir():
         return f"{args.archive}: not a folder"
+    if hasattr(args, "allow_remote") and not args.no_web and remote_refusal(args.host, args.allow_remote):
+        return remote_refusal(args.host, args.allow_remote)
+    vehicle = getattr(args, "vehicle", None)  # an airframe's file; sim's and demo's name a simulated vehicle
+    if args.command not in ("sim", "demo") and isinstance(vehicle, str) and vehicle:
+        try:
+            vehicle_file(vehicle)
+        except ValueError as e:
+            return str(e)
     return None
 
 
