@@ -15,6 +15,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from groundstation.app.session_files import discard_if_empty, session_path
 from sim_bridge.mavlink_vehicle import MavlinkVehicle
 
 from .conftest import async_test, free_udp_port, real_file
@@ -149,6 +150,30 @@ def test_replay_of_a_truncated_file_keeps_what_is_there(tmp_path):
 )
 def test_connect_errors_are_one_line(url, text):
     assert_one_line_error(run("connect", url, "--no-web", "--no-record"), text)
+
+
+def test_a_connection_that_never_opens_leaves_no_session_file(tmp_path):
+    """Recording by default (``sessions/``), a device that is not there: the one-line error, and no
+    empty tlog or folder left behind."""
+    r = subprocess.run(
+        GS + ["connect", "/dev/ttyNO_SUCH_PORT,57600", "--no-web"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert_one_line_error(r, "no such device")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_sessions_begun_in_the_same_second_each_take_a_file_of_their_own(tmp_path):
+    """Eight threads asking for a session's file at once (as two vehicles' sessions or two demos
+    begun together): eight names, each file there, none shared."""
+    with ThreadPoolExecutor(8) as pool:
+        paths = list(pool.map(lambda _: session_path(str(tmp_path / "sessions"), "s-"), range(8)))
+    assert len(set(paths)) == 8 and all(p.is_file() and p.stat().st_size == 0 for p in paths)
+    discard_if_empty(paths[0])
+    assert not paths[0].exists() and (tmp_path / "sessions").is_dir()  # the others keep the folder
 
 
 @async_test(timeout=60)

@@ -15,7 +15,6 @@ never a traceback.
 from __future__ import annotations
 
 import asyncio
-import datetime as _dt
 import json
 import math
 import os
@@ -56,6 +55,7 @@ from .options import key_of
 from .outputs import Outputs, VehicleOutputs
 from .param_cli import run_param
 from .parser import build_parser
+from .session_files import discard_if_empty, session_path
 from .signals import on_stop_signal
 from .sim_cli import cmd_sim, run_demo
 from .supervise import Supervisor
@@ -302,13 +302,18 @@ async def run_connect(args) -> int:
     endpoint = parse_connection(args.url)
     record = None
     if not args.no_record:
-        record = args.record or Path("sessions") / f"{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog"
+        record = args.record or session_path("sessions")  # one file a session, even two begun at once
     link = MavlinkLink(
         endpoint, record=record, lost_after=args.lost_after, max_rate=args.max_rate, signing_key=key_of(args)
     )
     sub = link.measurements()
     events = link.events()
-    await link.open()
+    try:
+        await link.open()
+    except BaseException:
+        if record is not None and not args.record:
+            discard_if_empty(record)  # the session's fresh file, when its link never opened
+        raise
     where = link.transport.local_address if link.transport else None
     print(
         f"link open: {endpoint}"

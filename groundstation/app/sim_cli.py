@@ -4,9 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import csv
-import datetime as _dt
 import json
-from pathlib import Path
 
 from drivers.board import BoardLink
 from drivers.mavlink.link import MavlinkLink
@@ -23,6 +21,7 @@ from web.dashboard import Dashboard
 
 from .console import StatusLine, print_control_notes, print_link_events
 from .options import key_of
+from .session_files import session_path
 from .signals import on_stop_signal
 from .sim_args import catalogue_markdown, problem, scenario_from, sysid, udp_target, unasked_rate
 from .supervise import Supervisor
@@ -101,21 +100,6 @@ async def _run_realtime(args, scenario: Scenario) -> int:
     return 0
 
 
-def _fresh_path(p: Path) -> Path:
-    """``p``, or ``p`` with ``-2``, ``-3``, ... before the suffix when a file of that name exists:
-    created here, empty (exclusively: two demos started in the same second had both taken the same
-    free name, and recorded into one file)."""
-    p.parent.mkdir(parents=True, exist_ok=True)
-    candidate, n = p, 1
-    while True:
-        try:
-            with open(candidate, "x"):
-                return candidate
-        except FileExistsError:
-            n += 1
-            candidate = p.with_name(f"{p.stem}-{n}{p.suffix}")
-
-
 def rig_constants(path: str | None) -> Heli3dofRig | None:
     """A rig file's constants (``heli3dof.rig``), or None without one; a one-line error for a file
     that holds none."""
@@ -131,7 +115,7 @@ async def run_demo(args) -> int:
     """Bridge and ground station in one process, over real loopback UDP."""
 
     if args.record is None:  # one run per file: a tlog appended to run after run reads as one flight with gaps
-        args.record = _fresh_path(Path("out") / f"demo-{_dt.datetime.now():%Y%m%d-%H%M%S}.tlog")
+        args.record = session_path("out", "demo-")
     link = MavlinkLink("udpin:127.0.0.1:0", record=args.record)
     sub, events = link.measurements(), link.events()
     await link.open()
