@@ -322,7 +322,6 @@ def test_a_real_time_sims_bad_stream_rate_is_one_line(rate):
     assert_one_line_error(r, "--unasked-rate")
 
 
-@pytest.mark.slow
 def _demo(cwd: Path) -> tuple[int, str]:
     """`make demo`'s command for 2 s, headless, in ``cwd``: the messages it counted and its file."""
     r = subprocess.run(
@@ -346,6 +345,7 @@ def _holds_one_run(tlog: Path, messages: int) -> None:
     assert messages <= records < 1.5 * messages and seconds > 1.0, (messages, info.stdout)
 
 
+@pytest.mark.slow
 def test_demo_runs_and_records_a_fresh_file_per_run(tmp_path):
     """`make demo`'s command, twice, headless: exit 0, messages without loss, and each run in a
     file of its own (a tlog appended run after run would read as one flight with hours of gaps);
