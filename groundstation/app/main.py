@@ -75,8 +75,9 @@ def argument_problem(args) -> str | None:
             return f"{path}: {why}"
     if args.command == "fleet" and not args.archive.is_dir():
         return f"{args.archive}: not a folder"
-    if hasattr(args, "allow_remote") and not args.no_web and remote_refusal(args.host, args.allow_remote):
-        return remote_refusal(args.host, args.allow_remote)
+    refusal = remote_refusal(args.host, args.allow_remote) if hasattr(args, "allow_remote") else None
+    if refusal is not None and not args.no_web:
+        return refusal
     vehicle = getattr(args, "vehicle", None)  # an airframe's file; sim's and demo's name a simulated vehicle
     if args.command not in ("sim", "demo") and isinstance(vehicle, str) and vehicle:
         try:

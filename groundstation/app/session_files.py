@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 from pathlib import Path
 
@@ -30,9 +31,7 @@ def session_path(folder: str, prefix: str = "") -> Path:
 def discard_if_empty(p: Path) -> None:
     """Remove ``p`` if it holds nothing (a fresh file whose session never began), and its folder if
     that is then empty: a connection that failed leaves no trace."""
-    try:
+    with contextlib.suppress(OSError):  # not there, not empty, or not ours to remove: left as it is
         if p.stat().st_size == 0:
             p.unlink()
             p.parent.rmdir()
-    except OSError:  # not there, not empty, or not ours to remove: left as it is
-        pass

@@ -11,7 +11,7 @@ import math
 from sim_bridge.effects import catalogue_markdown
 from sim_bridge.scenario import Scenario
 
-__all__ = ["catalogue_markdown", "problem", "scenario_from", "sysid", "udp_target", "unasked_rate"]
+__all__ = ["catalogue_markdown", "checked", "problem", "scenario_from", "sysid", "udp_target", "unasked_rate"]
 
 
 def scenario_from(args) -> Scenario:
@@ -44,20 +44,26 @@ def sysid(n: int) -> int:
     return n
 
 
+def checked(args) -> Scenario:
+    """The scenario ``sim``'s arguments make (effects, scenario file, vehicle and flight), with the
+    rest of them checked: ``--fast`` without its log, the system id, and in real time the UDP target
+    and the unasked streams' rate. A ValueError (a ScenarioError is one) says what is wrong."""
+    scenario = scenario_from(args)
+    if args.fast and args.log is None:
+        raise ValueError("--fast needs --log OUT.tlog")
+    sysid(args.sysid)
+    if not args.fast:
+        udp_target(args.udp)
+        unasked_rate(args.unasked_rate)
+    return scenario
+
+
 def problem(args) -> str | None:
-    """Why ``sim``'s arguments cannot run (one line), or None: the scenario they make (effects,
-    scenario file, vehicle and flight), ``--fast`` without its log, the system id, and in real time
-    the UDP target and the unasked streams' rate."""
+    """Why ``sim``'s arguments cannot run (one line, :func:`checked`'s), or None."""
     if args.list_effects:
         return None
     try:
-        scenario_from(args)
-        if args.fast and args.log is None:
-            raise ValueError("--fast needs --log OUT.tlog")
-        sysid(args.sysid)
-        if not args.fast:
-            udp_target(args.udp)
-            unasked_rate(args.unasked_rate)
-    except ValueError as e:  # a ScenarioError is one
+        checked(args)
+    except ValueError as e:
         return str(e)
     return None

@@ -23,7 +23,7 @@ from .console import StatusLine, print_control_notes, print_link_events
 from .options import key_of
 from .session_files import session_path
 from .signals import on_stop_signal
-from .sim_args import catalogue_markdown, problem, scenario_from, sysid, udp_target, unasked_rate
+from .sim_args import catalogue_markdown, checked, sysid, udp_target, unasked_rate
 from .supervise import Supervisor
 
 
@@ -31,10 +31,7 @@ def cmd_sim(args) -> int:
     if args.list_effects:
         print(catalogue_markdown())
         return 0
-    why = problem(args)  # as the entry checked them: here for a caller of cli.run
-    if why is not None:
-        raise ValueError(why)
-    scenario = scenario_from(args)
+    scenario = checked(args)  # as the entry did: here for a caller of cli.run
     if args.fast:
         r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration, sysid=sysid(args.sysid))
         print(
