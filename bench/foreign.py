@@ -21,7 +21,9 @@ many seconds later as the log is read (``baro``, ``gps`` the whole fix, ``gps-he
 alone, ``range``). It becomes the flight's hidden effect, ``sensor_delay``; the oracle is the plain
 filter on the log as written, the nominal the plain filter on the late one. ``--baro-error
 thermal=0.1`` (m/K, on the truth file's IMU temperature from the log's start: ``baro_thermal``) or
-``drift=0.01`` (m/s from the log's start: ``baro_bias_drift``) adds a baro error as the log is read
+``drift=0.01`` (m/s from the log's start: ``baro_bias_drift``), ``thrust=1.0`` (m per unit of the
+truth's thrust over weight, lagged 0.35 s: ``baro_thrust``) or ``ground=-0.4`` (m at the ground, times
+the thrust over weight, falling off over 0.45 m: ``baro_ground_effect``) adds a baro error as the log is read
 instead, and ``--accel-scale 0.05`` the accelerometer's body-z axis reading 5 % high (``accel_scale``),
 scored alike.
 """
@@ -77,11 +79,29 @@ LATE_SENSOR = {"baro": "baro", "gps": "gps", "gps-height": "gps", "range": "rang
 BARO_ERRORS = {
     "thermal": ("baro_thermal", lambda t, truth, k: k * (_imu_temperature(t, truth) - truth["imu_temp_c"][0])),
     "drift": ("baro_bias_drift", lambda t, truth, k: k * (t - truth["t"][0])),
+    "thrust": ("baro_thrust", lambda t, truth, k: k * _wash(t, truth)),
+    "ground": ("baro_ground_effect", lambda t, truth, k: k * _near_ground(t, truth)),
 }
+#: [s] the lag of an added thrust-linked baro error; [m] the height over which an added ground effect
+#: falls off. Each a middle of its range in the second source's README (0.3-0.4 s, 0.4-0.5 m)
+WASH_TAU_S = 0.35
+GROUND_H0_M = 0.45
 
 
 def _imu_temperature(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.interp(t, truth["t"], truth["imu_temp_c"])
+
+
+def _wash(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """The rotors' thrust over the weight, lagged WASH_TAU_S: per unit of a thrust-linked baro error."""
+    return np.interp(t, truth["t"], lowpass(truth["t"], truth["thrust_over_weight"], WASH_TAU_S))
+
+
+def _near_ground(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """The thrust over the weight (at most 1.3) times exp(-z / GROUND_H0_M): per unit of a ground effect
+    (its A, negative: the baro reading low)."""
+    g = np.clip(truth["thrust_over_weight"], 0.0, 1.3) * np.exp(-np.maximum(truth["z"], 0.0) / GROUND_H0_M)
+    return np.interp(t, truth["t"], g)
 
 
 DATA = Path(os.environ.get("GROUNDSTATION_DATA", ROOT.parent / "shared" / "data")) / "foreign"
@@ -431,7 +451,11 @@ def main() -> int:
     ap.add_argument("--flights", default="")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--late", default="", help="sensors made late, e.g. baro=0.2,gps=0.25 (bin-ulg)")
-    ap.add_argument("--baro-error", default="", help="a baro error added: thermal=K [m/K] or drift=R [m/s] (bin-ulg)")
+    ap.add_argument(
+        "--baro-error",
+        default="",
+        help="a baro error added: thermal=K [m/K], drift=R [m/s], thrust=K [m per T/W], ground=A [m] (bin-ulg)",
+    )
     ap.add_argument(
         "--accel-scale", type=float, default=None, help="the accelerometer's body z this much high (bin-ulg)"
     )
