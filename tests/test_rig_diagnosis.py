@@ -12,8 +12,8 @@ import sys
 import numpy as np
 import pytest
 
+from groundstation.app.demo_cli import rig_constants
 from groundstation.app.offline_flight import fly
-from groundstation.app.sim_cli import rig_constants
 from groundstation.control.controllers import PitchPD
 from groundstation.control.feedback import FEEDBACK_3DOF
 from groundstation.control.station import ControlStation

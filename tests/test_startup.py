@@ -7,6 +7,8 @@ import subprocess
 import sys
 import time
 
+from groundstation.app.main import ALONE
+
 HEAVY = ("numpy", "scipy", "filterpy", "viser", "pymavlink", "matplotlib", "dask", "pyulog", "numba")
 
 
@@ -30,13 +32,17 @@ def test_the_entry_and_its_parser_load_nothing_numerical():
     assert not {m for m in mods if m.split(".")[0] in HEAVY}, sorted(m for m in mods if m.split(".")[0] in HEAVY)
 
 
-def test_triage_loads_the_logs_reader_and_its_checks_not_the_filters():
-    """``triage`` answers in about a second: its command loads no filter library (filterpy pulls in
-    scipy.stats and matplotlib, a second of imports before the log is read)."""
-    mods = _loaded_after("import groundstation.app.triage_cli")
-    filters = sorted(m for m in mods if m.split(".")[0] in ("filterpy", "scipy", "matplotlib", "numba", "viser"))
-    assert not filters, filters
-    assert "groundstation.estimation.estimator" not in mods
+def test_the_commands_that_need_no_filter_load_none():
+    """``triage`` and ``info`` (a log's reader and checks), ``param``, ``logs`` and ``command`` (the
+    MAVLink link) and ``sim --fast`` (the simulator) answer in a fraction of a second: what the entry
+    loads for each (main.ALONE) holds no filter library and no dashboard (filterpy pulls in
+    scipy.stats, viser its web server: two seconds of imports before a vehicle is asked anything)."""
+    assert {"triage", "info", "param", "logs", "command", "sim"} <= set(ALONE)
+    for command, (module, name) in ALONE.items():
+        mods = _loaded_after(f"from {module} import {name}")
+        heavy = sorted(m for m in mods if m.split(".")[0] in ("filterpy", "scipy", "matplotlib", "numba", "viser"))
+        assert not heavy, (command, heavy)
+        assert "groundstation.estimation.estimator" not in mods, command
 
 
 def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path):

@@ -20,7 +20,6 @@ import math
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -33,31 +32,32 @@ from drivers.mavlink.link import GCS_SYSTEM_ID, LinkState, MavlinkLink
 from drivers.mavlink.log_transfer import LogTransferError
 from drivers.mavlink.params import ParamError
 from drivers.replay import Replay
-from drivers.tlog import TlogError, TlogIndex
+from drivers.tlog import TlogError
 from drivers.transports import TransportError
 from groundstation.control.station import ControlStation
 from groundstation.estimation.evaluate import evaluate
-from groundstation.estimation.identity import identify
-from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_log, load_measurements
+from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_measurements
 from groundstation.estimation.noise import first_arming, stationary_noise
 from groundstation.estimation.registry import build_estimator, vehicle_config
 from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
-from .command_cli import run_command_cli
+from .command_cli import cmd_command
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
+from .demo_cli import run_demo
 from .diagnose_cli import cmd_diagnose
 from .fleet_cli import cmd_fleet
+from .info_cli import cmd_info
 from .interrupts import is_interrupt
-from .logs_cli import run_logs
+from .logs_cli import cmd_logs
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
-from .param_cli import run_param
+from .param_cli import cmd_param
 from .parser import build_parser
 from .session_files import discard_if_empty, session_path
 from .signals import on_stop_signal
-from .sim_cli import cmd_sim, run_demo
+from .sim_cli import cmd_sim
 from .supervise import Supervisor
 
 
@@ -95,11 +95,11 @@ def _run(args) -> int:
         if args.command == "fleet":
             return cmd_fleet(args)
         if args.command == "param":
-            return asyncio.run(run_param(args))
+            return cmd_param(args)
         if args.command == "logs":
-            return asyncio.run(run_logs(args))
+            return cmd_logs(args)
         if args.command == "command":
-            return asyncio.run(run_command_cli(args))
+            return cmd_command(args)
         if args.command == "sim":
             return cmd_sim(args)
         if args.command == "demo":
@@ -133,54 +133,6 @@ def _run(args) -> int:
         if not is_interrupt(e):
             raise
         return 130
-
-
-# ---------------------------------------------------------------- info
-def cmd_info(args) -> int:
-    """What a log holds: a tlog's frames, damage and loss (below); any other log (DataFlash, ULog,
-    Crazyflie) through its reader: format, duration, the vehicle, what it measured, its records."""
-    if not args.file.exists():
-        raise OSError(f"{args.file}: cannot read: no such file")
-    if is_dataflash(args.file) or is_ulog(args.file) or is_crazyflie_log(args.file):
-        return info_of_log(args.file)
-    idx = TlogIndex.scan(args.file)
-    rp = Replay(args.file, speed=math.inf)
-    n = sum(1 for _ in rp.iter_measurements())
-    c = rp.receiver.counters
-    print(
-        f"{args.file}: {len(idx)} records, {idx.duration:.1f} s, "
-        f"MAVLink1 {c.mavlink1} / MAVLink2 {c.mavlink2} frames, {n} measurements"
-    )
-    print(
-        f"  CRC errors {c.crc_errors}, garbage {c.bad_data}, unknown ids {c.unknown}, "
-        f"sequence loss {c.loss_percent:.2f}%"
-    )
-    for sysid in sorted({k[0] for k in c.per_source}):
-        print(f"  system {sysid}: loss {c.loss_percent_of(sysid):.2f}%")
-    damage = rp.skipped_summary()
-    if damage:
-        print(f"  damage: {damage}")
-    for name, count in sorted(c.by_type.items(), key=lambda kv: -kv[1]):
-        print(f"  {name:<28} {count:>8}")
-    return 0
-
-
-def info_of_log(path: Path) -> int:
-    log = load_log(path, imu_columns=True)
-    print(f"{path}: {log.description}")
-    v = identify(log.tables)
-    print(f"  vehicle: {v.name} ({v.evidence})" + (f"; firmware {log.tables.firmware}" if log.tables.firmware else ""))
-    kinds: dict[str, int] = {}
-    for m in log.measurements:
-        kinds[m.kind.value] = kinds.get(m.kind.value, 0) + 1
-    if log.imu is not None:
-        for (kind, inst), s in log.imu.series.items():
-            kinds[f"{kind.value}[{inst}]"] = len(s)
-    print("  measurements by kind: " + ", ".join(f"{k} {n}" for k, n in sorted(kinds.items(), key=lambda kv: -kv[1])))
-    print(f"  parameters: {len(log.tables.params)}; records by type:")
-    for name, tb in sorted(log.tables.tables.items(), key=lambda kv: -len(kv[1])):
-        print(f"  {name:<28} {len(tb):>8}")
-    return 0
 
 
 # ---------------------------------------------------------------- noise

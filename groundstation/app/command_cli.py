@@ -5,12 +5,21 @@ dashboard's ARM asks for a confirmation."""
 
 from __future__ import annotations
 
+import asyncio
+
 from drivers.mavlink.commands import CommandError, run_command
 from drivers.mavlink.link import MavlinkLink
 
 from .options import key_of
 from .param_cli import wait_for_vehicle
 from .parser import command_usage_problem
+
+#: its errors that are one line on the command line (beside ValueError and OSError)
+ONE_LINE_ERRORS = (CommandError,)
+
+
+def cmd_command(args) -> int:
+    return asyncio.run(run_command_cli(args))
 
 
 async def run_command_cli(args) -> int:

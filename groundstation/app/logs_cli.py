@@ -5,6 +5,7 @@ kept beside it as ``.part``)."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 import sys
 import time
@@ -50,6 +51,14 @@ class Progress:
     def done(self) -> None:
         if self.tty:
             print(file=sys.stderr)
+
+
+#: its errors that are one line on the command line (beside ValueError and OSError)
+ONE_LINE_ERRORS = (LogTransferError,)
+
+
+def cmd_logs(args) -> int:
+    return asyncio.run(run_logs(args))
 
 
 async def run_logs(args) -> int:

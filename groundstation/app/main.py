@@ -26,6 +26,18 @@ READS_A_LOG = frozenset({"replay", "info", "noise", "evaluate", "diagnose", "tri
 #: a log's first bytes, by format: a DataFlash record header, a ULog magic, a Crazyflie uSD log's
 #: magic; a tlog begins with a big-endian UNIX time [us] (its first byte 0x00 until 2106)
 MAGIC = (b"\xa3\x95", b"ULog\x01\x12\x35", b"\xbc")
+#: the commands that need no filter and no dashboard -> the module that runs them and its function:
+#: that module is loaded alone (the whole command line loads filterpy with scipy.stats, and viser: 2 s
+#: before a vehicle's parameters are asked for or a simulated vehicle speaks, a third of a second
+#: without them). A module's ``ONE_LINE_ERRORS`` are its errors beside ValueError and OSError
+ALONE = {
+    "triage": ("groundstation.app.triage_cli", "cmd_triage"),
+    "info": ("groundstation.app.info_cli", "cmd_info"),
+    "sim": ("groundstation.app.sim_cli", "cmd_sim"),
+    "param": ("groundstation.app.param_cli", "cmd_param"),
+    "logs": ("groundstation.app.logs_cli", "cmd_logs"),
+    "command": ("groundstation.app.command_cli", "cmd_command"),
+}
 #: the commands that talk to a vehicle -> the argument holding its connection string
 CONNECTS = {"connect": "url", "param": "connection", "logs": "connection", "command": "connection"}
 
@@ -127,21 +139,24 @@ def _main(argv: list[str] | None) -> int:
         if why is not None:
             print(f"groundstation: error: {why}", file=sys.stderr)
             return 2
-    if args.command == "triage":  # about a second a log: the reader and the checks, nothing else
-        return one_line_errors(importlib.import_module("groundstation.app.triage_cli").cmd_triage, args)
+    if args.command in ALONE:
+        module, name = ALONE[args.command]
+        m = importlib.import_module(module)
+        return one_line_errors(getattr(m, name), args, getattr(m, "ONE_LINE_ERRORS", ()))
     cli = importlib.import_module("groundstation.app.cli")  # the commands, loaded once they are asked for
     return cli.run(args)
 
 
-def one_line_errors(command, args) -> int:
+def one_line_errors(command, args, also: tuple[type[Exception], ...] = ()) -> int:
     """``command(args)``, its errors a user can cause (every reader's is a ValueError or an
-    OSError) as one line and exit status 2."""
+    OSError, and those of ``also``: a vehicle's refusals) as one line and exit status 2."""
+    errors: tuple[type[Exception], ...] = (ValueError, OSError, *also)
     try:
         return command(args)
     except BrokenPipeError:  # output piped into `head` and closed: not an error
         sys.stdout = open(os.devnull, "w")
         return 0
-    except (ValueError, OSError) as e:
+    except errors as e:
         print(f"groundstation: error: {e}", file=sys.stderr)
         return 2
     except (KeyboardInterrupt, SystemError) as e:

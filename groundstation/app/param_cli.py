@@ -8,7 +8,7 @@ import contextlib
 import sys
 
 from drivers.mavlink.link import MavlinkLink
-from drivers.mavlink.params import ParamClient, load, save
+from drivers.mavlink.params import ParamClient, ParamError, load, save
 
 from .options import key_of
 
@@ -34,6 +34,14 @@ async def wait_for_vehicle(link: MavlinkLink, sysid: int | None) -> tuple[int, i
         # a link event wakes the check at once; a heartbeat is looked for again every 0.2 s
         with contextlib.suppress(TimeoutError, StopAsyncIteration):
             await asyncio.wait_for(events.__anext__(), min(left, 0.2))
+
+
+#: its errors that are one line on the command line (beside ValueError and OSError)
+ONE_LINE_ERRORS = (ParamError,)
+
+
+def cmd_param(args) -> int:
+    return asyncio.run(run_param(args))
 
 
 async def run_param(args) -> int:
