@@ -476,10 +476,21 @@ class ModelFilter:
             kf.x = kf.x.copy()
             kf.x[idx] = np.atleast_1d(z).astype(float)
             P = kf.P.copy()
-            P[idx, :] = 0.0
-            P[:, idx] = 0.0
-            P[np.ix_(idx, idx)] = R
+            if len(idx) == 1:  # (the ground's one state: indexing by a number, not by lists)
+                i = idx[0]
+                P[i, :] = 0.0
+                P[:, i] = 0.0
+                P[i, i] = R[0, 0]
+            else:
+                P[idx, :] = 0.0
+                P[:, idx] = 0.0
+                P[np.ix_(idx, idx)] = R
             kf.P = P
+            kf.y, kf.S, kf.K = y, S, K
+            return
+        if not idx:
+            # a reading scored and not used (a sensor left out): K = 0 leaves x and P as they are, and
+            # the Joseph form's products by I would give P back exactly
             kf.y, kf.S, kf.K = y, S, K
             return
         K[idx] = PHt[idx] @ np.linalg.inv(S)
