@@ -200,3 +200,21 @@ def test_the_drag_ekfs_compiled_update_is_filterpys(tmp_path):
     np.testing.assert_allclose(fast.nis, ref.nis, rtol=1e-7, atol=1e-12)
     np.testing.assert_allclose(fast.ekf.x, ref.ekf.x, rtol=1e-8, atol=1e-12)
     np.testing.assert_allclose(fast.P, ref.P, rtol=1e-7, atol=1e-15)
+
+
+def test_a_filter_made_has_its_kernels_loaded_before_its_first_reading():
+    """numba loads a kernel's machine code at its first call (a tenth of a second each): a live
+    filter that took that at its first reading stalled the event loop past a board link's 0.3 s and
+    the commander disarmed. Made in a fresh process, a filter has all four loaded before any step."""
+    code = (
+        "from groundstation.estimation import kernels_numba as k\n"
+        "from groundstation.estimation.filters import ModelFilter\n"
+        "from groundstation.estimation.models.heli3dof import heli3dof_model\n"
+        "names = ('discretized_step', 'scalar_update', 'state_step', 'vector_update')\n"
+        "assert not any(getattr(k, n).overloads for n in names)\n"
+        "ModelFilter(heli3dof_model())\n"
+        "print(' '.join(n for n in names if not getattr(k, n).overloads))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "", f"not loaded: {r.stdout}"

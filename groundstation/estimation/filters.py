@@ -289,6 +289,7 @@ class ModelFilter:
         self._u_dependent = self._nonlinear or not np.array_equal(model.A(u0), model.A(u0 + 1.0))
         #: with a list here, every step's gains go to it (:class:`GainTape`)
         self.tape: GainTape | None = None
+        kernels.ready()  # here, not at the first reading: a live loop must not stall on it
         self.reset(t0)
 
     def reset(self, t0: float) -> None:

@@ -16,8 +16,9 @@ the same findings.
 The numpy forms stay the reference: :func:`groundstation.estimation.models.base.discretize_series`,
 ``ModelFilter._update_written_out``'s (scalar and vector) and ``ModelFilter.predict_to``'s.
 ``GROUNDSTATION_KERNELS=python``, or numba missing, runs them alone, and ``tests/test_kernels.py``
-holds the compiled ones to them. numba is imported at the first step a filter takes, never by a command that runs none
-(``groundstation --help`` stays quick).
+holds the compiled ones to them. numba is imported, and the kernels loaded from its cache, when
+the first filter is made (:func:`ready`), never by a command that makes none (``groundstation
+--help`` stays quick).
 """
 
 from __future__ import annotations
@@ -41,8 +42,24 @@ def compiled() -> tuple[Callable, Callable, Callable, Callable] | None:
     return _compiled  # type: ignore[return-value]
 
 
+def ready() -> None:
+    """The kernels loaded now, once a process (a filter being made calls it). numba loads a kernel's
+    machine code from its cache at the kernel's first call, about a tenth of a second each: taken at
+    a live filter's first reading, the 3-DOF rig's estimate stalled the event loop for 0.34 s right
+    after arming, longer than the 0.3 s after which a silent board link is lost, and the commander
+    disarmed."""
+    global _ready
+    if not _ready:
+        _ready = True
+        warm()
+
+
+_ready = False
+
+
 def warm() -> None:
-    """Compile the kernels now, into numba's cache (``make setup``: not at a diagnosis' first step)."""
+    """Compile the kernels now, into numba's cache (``make setup``: not at a diagnosis' first step),
+    or load them from it."""
     k = compiled()
     if k is not None:
         for n in (3, 6):
