@@ -1,10 +1,9 @@
-"""``groundstation``: the command line.
+"""``groundstation``'s commands that run a filter or the dashboard (the entry, :mod:`.main`, runs the
+others from their own modules, ``main.ALONE``):
 
     groundstation connect URL [--record FILE] [--export OUT.csv] [--model NAME] [--no-web]
     groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
-    groundstation info FILE.tlog
-    groundstation sim --vehicle {quad,coax,heli3dof} [--effect NAME:k=v] [--undeclared NAME:k=v] --seed N
-    groundstation sim ... --fast --duration S --log OUT.tlog --truth OUT.csv
+    groundstation evaluate | noise | diagnose | fleet ...
     groundstation demo
 
 Every failure the user can cause (bad connection string, missing device,
@@ -43,31 +42,20 @@ from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
 
-from .command_cli import cmd_command
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
 from .demo_cli import run_demo
 from .diagnose_cli import cmd_diagnose
 from .fleet_cli import cmd_fleet
-from .info_cli import cmd_info
 from .interrupts import is_interrupt
-from .logs_cli import cmd_logs
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
-from .param_cli import cmd_param
-from .parser import build_parser
 from .session_files import discard_if_empty, session_path
 from .signals import on_stop_signal
-from .sim_cli import cmd_sim
 from .supervise import Supervisor
 
 
 class UsageError(Exception):
     """A user error reported as one line."""
-
-
-def main(argv: list[str] | None = None) -> int:
-    """The command line (as the script's :func:`~.main.main`, with the commands loaded at once)."""
-    return run(build_parser().parse_args(argv))
 
 
 def run(args) -> int:
@@ -81,8 +69,6 @@ def run(args) -> int:
 
 def _run(args) -> int:
     try:
-        if args.command == "info":
-            return cmd_info(args)
         if args.command == "evaluate":
             if args.truth is not None and not args.truth.is_file():
                 raise UsageError(f"{args.truth}: no such truth file")
@@ -94,14 +80,6 @@ def _run(args) -> int:
             return cmd_diagnose(args)
         if args.command == "fleet":
             return cmd_fleet(args)
-        if args.command == "param":
-            return cmd_param(args)
-        if args.command == "logs":
-            return cmd_logs(args)
-        if args.command == "command":
-            return cmd_command(args)
-        if args.command == "sim":
-            return cmd_sim(args)
         if args.command == "demo":
             return asyncio.run(run_demo(args))
         if args.vehicle:
@@ -527,7 +505,3 @@ async def run_replay(args) -> int:
         flush=True,
     )
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,7 +17,7 @@ def cmd_sim(args) -> int:
     if args.list_effects:
         print(catalogue_markdown())
         return 0
-    scenario = checked(args)  # as the entry did: here for a caller of cli.run
+    scenario = checked(args)  # the entry checked them without the simulator loaded; here it is made
     if args.fast:
         r = run_fast(scenario, args.log, args.truth, args.duration or scenario.duration, sysid=sysid(args.sysid))
         print(
