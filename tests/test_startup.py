@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from groundstation.app.main import ALONE
+from groundstation.app.main import ALONE, NO_FILTER
 
 HEAVY = ("numpy", "scipy", "filterpy", "viser", "pymavlink", "matplotlib", "dask", "pyulog", "numba")
 
@@ -35,14 +35,17 @@ def test_the_entry_and_its_parser_load_nothing_numerical():
 def test_the_commands_that_need_no_filter_load_none():
     """``triage`` and ``info`` (a log's reader and checks), ``param``, ``logs`` and ``command`` (the
     MAVLink link) and ``sim --fast`` (the simulator) answer in a fraction of a second: what the entry
-    loads for each (main.ALONE) holds no filter library and no dashboard (filterpy pulls in
-    scipy.stats, viser its web server: two seconds of imports before a vehicle is asked anything)."""
-    assert {"triage", "info", "param", "logs", "command", "sim"} <= set(ALONE)
+    loads for each (main.NO_FILTER) holds no filter library and no dashboard (filterpy pulls in
+    scipy.stats, viser its web server: two seconds of imports before a vehicle is asked anything).
+    ``diagnose`` and ``fleet`` load their filters, and neither the dashboard nor the control station."""
+    assert {"triage", "info", "param", "logs", "command", "sim"} <= NO_FILTER <= set(ALONE)
     for command, (module, name) in ALONE.items():
         mods = _loaded_after(f"from {module} import {name}")
-        heavy = sorted(m for m in mods if m.split(".")[0] in ("filterpy", "scipy", "matplotlib", "numba", "viser"))
-        assert not heavy, (command, heavy)
-        assert "groundstation.estimation.estimator" not in mods, command
+        heavy = ("filterpy", "scipy", "matplotlib", "numba", "viser") if command in NO_FILTER else ("viser",)
+        assert not sorted(m for m in mods if m.split(".")[0] in heavy), (command, heavy)
+        assert "groundstation.control.station" not in mods, command
+        if command in NO_FILTER:
+            assert "groundstation.estimation.estimator" not in mods, command
 
 
 def test_help_usage_errors_and_a_file_that_is_no_log_answer_in_one_line(tmp_path):

@@ -1,9 +1,10 @@
-"""``groundstation``'s commands that run a filter or the dashboard (the entry, :mod:`.main`, runs the
-others from their own modules, ``main.ALONE``):
+"""``groundstation``'s commands that run a filter beside the dashboard or the control station, and
+the small ones that share their readers (the entry, :mod:`.main`, runs the others from their own
+modules, ``main.ALONE``):
 
     groundstation connect URL [--record FILE] [--export OUT.csv] [--model NAME] [--no-web]
     groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
-    groundstation evaluate | noise | diagnose | fleet ...
+    groundstation evaluate | noise ...
     groundstation demo
 
 Every failure the user can cause (bad connection string, missing device,
@@ -44,8 +45,6 @@ from web.dashboard import Dashboard
 
 from .console import REPLAY_HELP, print_control_notes, print_link_events, replay_command
 from .demo_cli import run_demo
-from .diagnose_cli import cmd_diagnose
-from .fleet_cli import cmd_fleet
 from .interrupts import is_interrupt
 from .options import key_of
 from .outputs import Outputs, VehicleOutputs
@@ -76,10 +75,6 @@ def _run(args) -> int:
             return 0
         if args.command == "noise":
             return cmd_noise(args)
-        if args.command == "diagnose":
-            return cmd_diagnose(args)
-        if args.command == "fleet":
-            return cmd_fleet(args)
         if args.command == "demo":
             return asyncio.run(run_demo(args))
         if args.vehicle:

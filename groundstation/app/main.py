@@ -26,10 +26,9 @@ READS_A_LOG = frozenset({"replay", "info", "noise", "evaluate", "diagnose", "tri
 #: a log's first bytes, by format: a DataFlash record header, a ULog magic, a Crazyflie uSD log's
 #: magic; a tlog begins with a big-endian UNIX time [us] (its first byte 0x00 until 2106)
 MAGIC = (b"\xa3\x95", b"ULog\x01\x12\x35", b"\xbc")
-#: the commands that need no filter and no dashboard -> the module that runs them and its function:
-#: that module is loaded alone (the whole command line loads filterpy with scipy.stats, and viser: 2 s
-#: before a vehicle's parameters are asked for or a simulated vehicle speaks, a third of a second
-#: without them). A module's ``ONE_LINE_ERRORS`` are its errors beside ValueError and OSError
+#: the commands that need no dashboard -> the module that runs them and its function: that module is
+#: loaded alone (the whole command line loads viser and the control station as well: a third of a
+#: second more). A module's ``ONE_LINE_ERRORS`` are its errors beside ValueError and OSError
 ALONE = {
     "triage": ("groundstation.app.triage_cli", "cmd_triage"),
     "info": ("groundstation.app.info_cli", "cmd_info"),
@@ -37,7 +36,12 @@ ALONE = {
     "param": ("groundstation.app.param_cli", "cmd_param"),
     "logs": ("groundstation.app.logs_cli", "cmd_logs"),
     "command": ("groundstation.app.command_cli", "cmd_command"),
+    "diagnose": ("groundstation.app.diagnose_cli", "cmd_diagnose"),
+    "fleet": ("groundstation.app.fleet_cli", "cmd_fleet"),
 }
+#: of those, the commands that need no filter either: filterpy loads scipy.stats, 2 s before a
+#: vehicle's parameters are asked for or a simulated vehicle speaks, a third of a second without it
+NO_FILTER = frozenset({"triage", "info", "sim", "param", "logs", "command"})
 #: the commands that talk to a vehicle -> the argument holding its connection string
 CONNECTS = {"connect": "url", "param": "connection", "logs": "connection", "command": "connection"}
 

@@ -212,6 +212,26 @@ def _scale_param(run) -> dict:
     return {"s": c / (1.0 - c), "sigma_s": sc / (1.0 - c) ** 2}
 
 
+#: the largest accelerometer scale error a vehicle's IMU can have: a MEMS accelerometer's sensitivity is
+#: within +-3 % of nominal from the factory (InvenSense MPU-6000 and ICM-20689, Bosch BMI088 datasheets)
+#: and moves +-0.02 %/K with temperature, under 2 % more over an airframe's range; an autopilot's
+#: calibration takes what is left. Twice the sum: past it a fitted scale is the model lacking
+#: something else that acts through the accelerometer (a bias that steps as the IMU warms took
+#: s = 0.2-0.3 on another generator's flights)
+SCALE_PLAUSIBLE = 0.1
+
+
+def _plausible_scale(params: dict) -> str | None:
+    s = params.get("s")
+    if s is None or abs(s) <= SCALE_PLAUSIBLE:
+        return None
+    return (
+        f"s = {s:.3g} ± {params.get('sigma_s', math.nan):.2g} is no accelerometer's scale error (a MEMS "
+        f"sensitivity is within a few percent; this bar is {SCALE_PLAUSIBLE:.0%}): the model lacks something "
+        "else that acts through the accelerometer, such as a bias that steps"
+    )
+
+
 def scale_accelerometer(ms: Iterable[Measurement], s: float) -> Readings:
     """The log as an accelerometer with scale error s would have recorded it (f_meas = (1 + s) f)."""
     return Readings.of(ms).with_values(Kind.ACCEL, lambda v: v * (1.0 + s))
@@ -315,6 +335,21 @@ def _ground_effect(model: LinearModel, h0: float = 0.5, *, by_thrust: bool = Fal
     return with_regressor(model, "baro", "A_ground", _ground(h0, by_thrust), GROUND_PRIOR)
 
 
+def _plausible_ground(params: dict) -> str | None:
+    """A rotor's ground cushion raises the pressure at the static port, so the baro reads low near
+    the ground (A < 0): what the autopilots' compensations take (ArduCopter's take-off and touch-down
+    handling of "negative baro disturbances due to rotor wash ground interaction", EK3_GND_EFF_DZ,
+    EKF2_GND_EFF_DZ), and a Crazyflie's real logs show (the data README: the baro dips at spin-up). A
+    baro reading high there is something else that happens low down, at take-off and landing."""
+    A = params.get("A")
+    if A is None or A <= 0:
+        return None
+    return (
+        f"A = {A:+.3g} m: the baro reads high near the ground, where a rotor's ground effect makes it read "
+        "low; the model lacks something else that acts at take-off and landing"
+    )
+
+
 def _ground_effect_columns(model: LinearModel, h0: float = 0.5, *, by_thrust: bool = False) -> list[Column]:
     g = _ground(h0, by_thrust)
     return [Column("A_ground", GROUND_PRIOR, "baro", lambda ctx, x: g(ctx), exact=False)]  # reads the estimate
@@ -364,6 +399,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
             _scale_param,
             perturb=scale_accelerometer,
             columns=accel_scale_columns,
+            plausible=_plausible_scale,
         ),
         sensor_delay("range", RANGE_DELAYS, {Kind.RANGE}),
     ]
@@ -436,6 +472,7 @@ def altitude_catalogue(kinds: set) -> list[Candidate]:
                 columns=columns,
                 form=form,
                 needs_option=option,
+                plausible=_plausible_ground,
             )
             for augment, columns, form, option in (
                 (_ground_effect, _ground_effect_columns, "rotors running", None),

@@ -66,6 +66,10 @@ class Candidate:
     #: the parameters its states are (empty: every one in ``params``); the others restate them in another
     #: unit (a wash per unit thrust over weight, also per unit of the command) and add no evidence of size
     fitted: tuple[str, ...] = ()
+    #: the physics' bar on the fitted parameters: (params) -> why they are no such effect, or None. A
+    #: fit outside it is the model lacking something else that the candidate's state soaks up, a
+    #: finding about the model, not a calibration to load
+    plausible: Callable[[dict], str | None] | None = None
 
 
 def with_regressor(
