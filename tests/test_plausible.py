@@ -73,6 +73,9 @@ def test_an_implausible_fit_is_turned_away_before_its_held_out_runs():
     c = _candidate("accel_scale")
     h = holdout.check(c, None, None, {"s": 0.29, "sigma_s": 0.025}, None, None, None, None, [])  # type: ignore[arg-type]
     assert not h.holds and "no accelerometer's scale error" in (h.reason or "")
+    assert h.as_dict()["implausible"] is True
+    small = holdout.check(c, None, None, {"s": 0.29, "sigma_s": 0.5}, None, None, None, None, [])  # type: ignore[arg-type]
+    assert not small.holds and "sigma from zero" in (small.reason or "") and "implausible" not in small.as_dict()
 
 
 @pytest.mark.slow
@@ -81,6 +84,8 @@ def test_an_accelerometer_bias_that_steps_is_not_taken_for_a_scale_error():
     a third and two thirds of the flight: nothing is claimed (its scale was, at s = 0.29), and the
     height is no further off the truth after than before."""
     from groundstation.diagnosis.engine import diagnose
+    from groundstation.diagnosis.report.conclusion import conclusion
+    from groundstation.diagnosis.report.report import as_json
     from groundstation.estimation.logs import load_log
     from groundstation.estimation.truth import truth_from
 
@@ -95,8 +100,10 @@ def test_an_accelerometer_bias_that_steps_is_not_taken_for_a_scale_error():
         ms, source=str(path), imu=log.imu, vehicle=log.vehicle, truth=truth_from(ms, path, None), veto_with_truth=False
     )
     assert [e.name for e in d.effects] == [], [(e.name, e.params) for e in d.effects]
-    assert any(
-        e.name == "accel_scale" and "no accelerometer's scale error" in e.evidence.get("reason", "") for e in d.rejected
-    )
+    assert any(e.name == "accel_scale" and e.evidence.get("implausible") for e in d.rejected)
+    # a fit the physics turns away is a finding about the model: not "the model is complete"
+    said = conclusion(d, as_json(d))
+    assert "the model lacks something the catalogue does not describe" in said, said
+    assert "the model is complete" not in said
     before, after = (d.truth.error(r, r.t[0] + 3.0, r.t[-1] - 3.0) for r in (d.before, d.after))
     assert after <= before + 1e-9, (before, after)

@@ -300,6 +300,8 @@ def _drop_unsupported(s: Search) -> bool:
         _, why = holdout.sizes(e.params, delay=False, fitted=c.fitted)
         if why is None and c.plausible is not None:
             why = c.plausible(e.params)
+            if why is not None:
+                e.evidence["implausible"] = True
         if why is not None:
             dropped.append(i)
             e.evidence["reason"] = f"with the effects added after it, {why}"

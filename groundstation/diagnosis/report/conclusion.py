@@ -92,14 +92,17 @@ def _effects_said(d: Diagnosis) -> list[str]:
 
 
 def _nothing_said(d: Diagnosis) -> list[str]:
-    parts = [
-        "No effect in the catalogue improves the model by strong evidence"
-        + (
-            ", but the innovations follow something outside it (below)."
-            if d.discoveries
-            else ": as far as these data can tell, the model is complete."
+    if d.discoveries:
+        tail = ", but the innovations follow something outside it (below)."
+    elif any(e.evidence.get("implausible") for e in d.rejected):
+        # a fit the physics turns away still says the model lacks something: not "complete"
+        tail = (
+            ", but what fits best is no such effect at its size (below): the model lacks something the "
+            "catalogue does not describe."
         )
-    ]
+    else:
+        tail = ": as far as these data can tell, the model is complete."
+    parts = ["No effect in the catalogue improves the model by strong evidence" + tail]
     if d.detectable:
         parts.append(
             "The smallest sizes they would have shown about half the time: "

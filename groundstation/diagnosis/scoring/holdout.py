@@ -102,6 +102,8 @@ class Holdout:
     gain_by_block: list[float] = field(default_factory=list)  # held-out log-likelihood gain per block
     gain_by_sensor: dict[str, float] = field(default_factory=dict)  # summed over the blocks
     reason: str | None = None  # why it is not claimed; None: it holds
+    #: the reason is the physics' bar (``Candidate.plausible``): the fit is no such effect at its size
+    implausible: bool = False
 
     @property
     def holds(self) -> bool:
@@ -117,6 +119,7 @@ class Holdout:
             "held_out_gain": round(self.gain, 1),
             "held_out_gain_by_block": [round(g, 1) for g in self.gain_by_block],
             "held_out_gain_by_sensor": {k: round(v, 1) for k, v in self.gain_by_sensor.items()},
+            **({"implausible": True} if self.implausible else {}),
         }
 
 
@@ -318,9 +321,11 @@ def check(
     where the filter's gains do not depend on the data. Otherwise a fitted effect's blocks are
     fitted on up to ``workers`` processes."""
     z, reason = sizes(params, bool(cand.delays), cand.fitted)
+    implausible = False
     if reason is None and cand.plausible is not None:
         reason = cand.plausible(params)
-    h = Holdout(z=z, reason=reason)
+        implausible = reason is not None
+    h = Holdout(z=z, reason=reason, implausible=implausible)
     if reason is not None:
         return h
     if aug.f is not None:  # a rebuilt nonlinear model: size only
