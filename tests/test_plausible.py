@@ -105,5 +105,11 @@ def test_an_accelerometer_bias_that_steps_is_not_taken_for_a_scale_error():
     said = conclusion(d, as_json(d))
     assert "the model lacks something the catalogue does not describe" in said, said
     assert "the model is complete" not in said
+    # and the bias's steps are said, as the model's own state moved: down by about the second step's
+    # 0.5 (the first came before a third of the log), in body z
+    (bias,) = [e for e in d.modelled if e.name == "accel_bias"]
+    moved = bias.evidence["moved"]
+    assert -0.6 < moved["to"] - moved["from"] < -0.2 and moved["z"] >= 3, moved
+    assert "an accelerometer whose bias changes in flight" in said
     before, after = (d.truth.error(r, r.t[0] + 3.0, r.t[-1] - 3.0) for r in (d.before, d.after))
     assert after <= before + 1e-9, (before, after)

@@ -174,11 +174,23 @@ def _rejected_said(d: Diagnosis) -> list[str]:
     return parts
 
 
+def _moved_said(moved: dict | None) -> str:
+    if not moved:
+        return ""
+    return (
+        f" It moved from {moved['from']:+.3f} to {moved['to']:+.3f} m/s^2 between {moved['t_from']:.0f} s and "
+        f"{moved['t_to']:.0f} s ({moved['z']:.0f} standard errors): an accelerometer whose bias changes in "
+        "flight, as an IMU's does as it warms, which the model's bias follows only over seconds. The IMU's "
+        "temperature calibration (ArduPilot INS_TCAL, PX4 TC_A) takes that out; its offset alone does not."
+    )
+
+
 def _outside_said(d: Diagnosis) -> list[str]:
     """What the model's own states carry, the range's offset against truth, and what lies outside the
     catalogue."""
     parts = [
         f"The model's own state {e.evidence['state']} carries {e.name}: {format_params(e.name, e.params)}."
+        + _moved_said(e.evidence.get("moved"))
         for e in d.modelled
     ]
     parts += [
