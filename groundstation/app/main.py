@@ -27,8 +27,9 @@ READS_A_LOG = frozenset({"replay", "info", "noise", "evaluate", "diagnose", "tri
 #: magic; a tlog begins with a big-endian UNIX time [us] (its first byte 0x00 until 2106)
 MAGIC = (b"\xa3\x95", b"ULog\x01\x12\x35", b"\xbc")
 #: the commands that need no dashboard -> the module that runs them and its function: that module is
-#: loaded alone (the whole command line loads viser and the control station as well: a third of a
-#: second more). A module's ``ONE_LINE_ERRORS`` are its errors beside ValueError and OSError
+#: loaded alone (the whole command line loads viser and the control station as well: 0.2-0.26 s more
+#: after ``diagnose``'s own imports). A module's ``ONE_LINE_ERRORS`` are its errors beside ValueError
+#: and OSError
 ALONE = {
     "triage": ("groundstation.app.triage_cli", "cmd_triage"),
     "info": ("groundstation.app.info_cli", "cmd_info"),
