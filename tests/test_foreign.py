@@ -144,22 +144,27 @@ def test_a_baro_error_added_as_the_log_is_read_moves_its_heights_and_pressures_a
             assert b.value[0] == 2.0
 
 
-def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
-    """bench/foreign.py --accel-scale: each accelerometer's body-z reading 1 + s times what it was, as
-    columns and as records; x, y and the gyro as read."""
+def _imu_log(n: int, dt: float):
+    """A log of ``n`` accelerometer and gyro readings ``dt`` apart, each (1, 2, -9.8), as records and
+    as columns."""
     from groundstation.core.imu import ImuColumns
     from groundstation.core.measurement import Measurement
     from groundstation.core.readings import Readings
     from groundstation.estimation.logs import LoadedLog
 
     ms = [
-        Measurement(0.01 * k, kind, np.array([1.0, 2.0, -9.8]), "imu")
-        for k in range(10)
+        Measurement(dt * k, kind, np.array([1.0, 2.0, -9.8]), "imu")
+        for k in range(n)
         for kind in (Kind.ACCEL, Kind.GYRO)
     ]
     _, imu = ImuColumns.split(ms)
-    log = LoadedLog(measurements=Readings.of(ms), description="", vehicle=None, imu=imu)
-    out = bench_foreign.with_accel_scale(log, 0.05)
+    return LoadedLog(measurements=Readings.of(ms), description="", vehicle=None, imu=imu)
+
+
+def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
+    """bench/foreign.py --accel-scale: each accelerometer's body-z reading 1 + s times what it was, as
+    columns and as records; x, y and the gyro as read."""
+    out = bench_foreign.with_accel_scale(_imu_log(10, 0.01), 0.05)
     for m in out.measurements:
         want = [1.0, 2.0, -9.8 * 1.05] if m.kind is Kind.ACCEL else [1.0, 2.0, -9.8]
         assert np.allclose(m.value, want)
@@ -167,6 +172,21 @@ def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
     accel, gyro = out.imu.get(Kind.ACCEL), out.imu.get(Kind.GYRO)
     assert accel is not None and gyro is not None
     assert np.allclose(accel.values(), [1.0, 2.0, -9.8 * 1.05])
+    assert np.allclose(gyro.values(), [1.0, 2.0, -9.8])
+
+
+def test_an_accelerometer_bias_step_added_as_the_log_is_read_moves_body_z_from_each_step():
+    """bench/foreign.py --accel-step: body z raised by the step after each of its times, as records
+    and as columns; x, y and the gyro as read."""
+    out = bench_foreign.with_accel_step(_imu_log(30, 0.1), 0.3, (1.0, 2.0))
+    for m in out.measurements:
+        steps = int(m.t >= 1.0) + int(m.t >= 2.0)
+        want = [1.0, 2.0, -9.8 + 0.3 * steps] if m.kind is Kind.ACCEL else [1.0, 2.0, -9.8]
+        assert np.allclose(m.value, want), (m.t, m.value)
+    assert out.imu is not None
+    accel, gyro = out.imu.get(Kind.ACCEL), out.imu.get(Kind.GYRO)
+    assert accel is not None and gyro is not None
+    assert np.allclose(accel.values()[:, 2], -9.8 + 0.3 * np.searchsorted([1.0, 2.0], accel.t, side="right"))
     assert np.allclose(gyro.values(), [1.0, 2.0, -9.8])
 
 

@@ -122,9 +122,8 @@ def _bias_moved(run: Run) -> dict | None:
     moved by :data:`BIAS_MOVED` or more and by the claim's :data:`~.holdout.MIN_Z` standard errors (the
     two estimates' taken as independent: they are positively correlated, so the bar is the stricter
     for it); else None. An IMU's bias that steps as it warms is no catalogue effect (the bias is the
-    model's own state, whose random walk follows it over seconds), and on another generator's
-    flights with such steps it was otherwise not said at all. From a third in, not the start: the
-    bias is first found there, from its prior."""
+    model's own state, whose random walk follows it over seconds), so this is where such steps are
+    said. From a third in, not the start: until the bias is found from its prior, it moves anyway."""
     if len(run.t) < 3:
         return None
     i = run.model.index("b_acc")
@@ -133,14 +132,14 @@ def _bias_moved(run: Run) -> dict | None:
     s_before = math.sqrt(max(float(run.P_rows(slice(k, k + 1))[0, i, i]), 0.0))
     after, s_after = run.final("b_acc")
     change, sigma = after - before, math.hypot(s_before, s_after)
-    if abs(change) < BIAS_MOVED or abs(change) < holdout.MIN_Z * sigma:
-        return None
+    if sigma <= 0.0 or abs(change) < BIAS_MOVED or abs(change) < holdout.MIN_Z * sigma:
+        return None  # (a bias held exactly says nothing of how it moved)
     return {
         "from": round(-before, 4),
         "to": round(-after, 4),
         "t_from": round(float(run.t[k]), 1),
         "t_to": round(float(run.t[-1]), 1),
-        "z": round(abs(change) / sigma, 1) if sigma > 0 else math.inf,
+        "z": round(abs(change) / sigma, 1),
     }
 
 
