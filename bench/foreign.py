@@ -29,7 +29,7 @@ scored alike. ``--accel-step 0.3`` steps the accelerometer's body-z bias by that
 two thirds of the way from lift-off to landing, as an IMU's bias steps with its temperature: no
 catalogue name fits it (the base model's accelerometer bias is a state), so its bar is that of an
 effect outside the catalogue that a diagnosis may leave alone: no catalogue name claimed, after no
-worse than before, and before within the plain filter's factor of the plain filter on the same log.
+worse than before, and before within 1.3 times the plain filter's error on the same log.
 """
 
 from __future__ import annotations
