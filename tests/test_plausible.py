@@ -55,7 +55,7 @@ def test_an_implausible_fit_is_turned_away_before_its_held_out_runs():
 @pytest.mark.slow
 def test_an_accelerometer_bias_that_steps_is_not_taken_for_a_scale_error():
     """Another generator's indoor .bin flight with the accelerometer's z bias stepping by -0.5 m/s^2 at
-    a third and two thirds of the flight: nothing is claimed (its scale was, at s = 0.29), and the
+    a third and two thirds of the flight: nothing is claimed (without the bar, its scale is: s = 0.29), and the
     height is no further off the truth after than before."""
     from groundstation.diagnosis.engine import diagnose
     from groundstation.diagnosis.report.conclusion import conclusion
