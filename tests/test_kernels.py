@@ -218,3 +218,17 @@ def test_a_filter_made_has_its_kernels_loaded_before_its_first_reading():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "", f"not loaded: {r.stdout}"
+
+
+def test_the_drag_ekf_made_has_its_update_loaded_before_its_first_reading():
+    """The same for the multirotor attitude EKF, whose accelerometer update is the compiled one."""
+    code = (
+        "from groundstation.estimation import kernels_numba as k\n"
+        "from groundstation.estimation.attitude_filters import DragAttitudeEKF\n"
+        "assert not k.vector_update.overloads\n"
+        "DragAttitudeEKF()\n"
+        "print('' if k.vector_update.overloads else 'vector_update')\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "", f"not loaded: {r.stdout}"

@@ -208,6 +208,7 @@ class DragAttitudeEKF:
         self.t = math.nan
         self.started = False
         self.nis: list[float] = []  # per accelerometer update
+        kernels.ready()  # its update is compiled: loaded here, not at a live loop's first reading
 
     @property
     def x(self) -> np.ndarray:
