@@ -289,6 +289,14 @@ def late_reader(late: dict[str, float]):
     return load
 
 
+def _row_times(ms: Readings, i: int) -> np.ndarray:
+    """The time of each row of stream ``i``'s values (NaN for a row no reading points at)."""
+    t = np.full(len(ms.streams[i].values), np.nan)
+    sel = ms.stream == i
+    t[ms.row[sel]] = ms.t[sel]
+    return t
+
+
 def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> Readings:
     """``ms`` with ``error(t)`` [m] added to each baro height, and the pressure it is taken from each
     baro pressure (dp = -rho g dh, rho g at the log's own pressure and temperature)."""
@@ -297,9 +305,7 @@ def with_baro_error(ms: Readings, error: Callable[[np.ndarray], np.ndarray]) -> 
     for i, s in enumerate(streams):
         if s.kind not in (Kind.BARO_ALTITUDE, Kind.BARO_PRESSURE):
             continue
-        sel = ms.stream == i
-        t = np.full(len(s.values), np.nan)
-        t[ms.row[sel]] = ms.t[sel]
+        t = _row_times(ms, i)
         v = np.array(s.values, dtype=float)
         e = np.nan_to_num(error(t))
         v[:, 0] += e if s.kind is Kind.BARO_ALTITUDE else -weight * e
@@ -335,9 +341,7 @@ def with_accel_step(log: LoadedLog, step: float, at: tuple[float, ...]) -> Loade
     for i, s in enumerate(streams):
         if s.kind is not Kind.ACCEL:
             continue
-        sel = ms.stream == i
-        t = np.full(len(s.values), np.nan)
-        t[ms.row[sel]] = ms.t[sel]
+        t = _row_times(ms, i)
         v = np.array(s.values, dtype=float)
         v[:, 2] += np.where(np.isnan(t), 0.0, bias(np.nan_to_num(t)))
         streams[i] = Stream(s.kind, s.source, s.instance, v, s.variance)
