@@ -25,8 +25,9 @@ thermal=0.1`` (m/K, on the truth file's IMU temperature from the log's start: ``
 truth's thrust over weight, lagged 0.35 s: ``baro_thrust``) or ``ground=-0.4`` (m at the ground, times
 the thrust over weight, falling off over 0.45 m: ``baro_ground_effect``) adds a baro error as the log is read
 instead, and ``--accel-scale 0.05`` the accelerometer's body-z axis reading 5 % high (``accel_scale``),
-scored alike. ``--accel-step 0.3`` steps the accelerometer's body-z bias by that much [m/s^2] a third and
-two thirds of the way from lift-off to landing, as an IMU's bias steps with its temperature: no
+scored alike. ``--accel-bias step=0.3`` steps the accelerometer's body-z bias by that much [m/s^2] a third
+and two thirds of the way from lift-off to landing, as an IMU's bias steps with its temperature, and
+``--accel-bias thermal=0.03`` moves it with the IMU's temperature (m/s^2 per K, from the log's start): no
 catalogue name fits it (the base model's accelerometer bias is a state), so its bar is that of an
 effect outside the catalogue that a diagnosis may leave alone: no catalogue name claimed, after no
 worse than before, and before within 1.3 times the plain filter's error on the same log.
@@ -86,6 +87,14 @@ BARO_ERRORS = {
     "thrust": ("baro_thrust", lambda t, truth, k: k * _wash(t, truth)),
     "ground": ("baro_ground_effect", lambda t, truth, k: k * _near_ground(t, truth)),
 }
+#: the accelerometer biases ``--accel-bias`` can add (none a catalogue name: the base model's bias is a
+#: state), on the body z [m/s^2] at the times ``t`` of a flight with the truth file ``truth`` and the
+#: event times ``times``, of size ``k``: a bias that steps by ``k`` a third and two thirds of the way
+#: from lift-off to landing, and one that follows the IMU's temperature at ``k`` per kelvin
+ACCEL_BIASES = {
+    "step": lambda t, truth, times, k: k * np.searchsorted(_thirds(times), t, side="right"),
+    "thermal": lambda t, truth, times, k: k * (_imu_temperature(t, truth) - truth["imu_temp_c"][0]),
+}
 #: [s] the lag of an added thrust-linked baro error; [m] the height over which an added ground effect
 #: falls off. Each a middle of its range in the second source's README (0.3-0.4 s, 0.4-0.5 m)
 WASH_TAU_S = 0.35
@@ -94,6 +103,11 @@ GROUND_H0_M = 0.45
 
 def _imu_temperature(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
     return np.interp(t, truth["t"], truth["imu_temp_c"])
+
+
+def _thirds(times: dict) -> np.ndarray:
+    up, down = times["liftoff"], times["land_complete"]
+    return np.array([up + (down - up) / 3, up + 2 * (down - up) / 3])
 
 
 def _wash(t: np.ndarray, truth: np.ndarray) -> np.ndarray:
@@ -328,14 +342,9 @@ def with_accel_scale(log: LoadedLog, scale: float) -> LoadedLog:
     return log
 
 
-def with_accel_step(log: LoadedLog, step: float, at: tuple[float, ...]) -> LoadedLog:
-    """``log`` with its accelerometers' body-z readings ``step`` [m/s^2] higher after each time of
-    ``at`` (a bias that steps), as records and as columns."""
-    edges = np.asarray(at, dtype=float)
-
-    def bias(t: np.ndarray) -> np.ndarray:
-        return step * np.searchsorted(edges, t, side="right")
-
+def with_accel_bias(log: LoadedLog, bias: Callable[[np.ndarray], np.ndarray]) -> LoadedLog:
+    """``log`` with ``bias(t)`` [m/s^2] added to its accelerometers' body-z readings, as records and
+    as columns."""
     ms = Readings.of(log.measurements)
     streams = list(ms.streams)
     for i, s in enumerate(streams):
@@ -362,11 +371,11 @@ def changed_reader(
     late: dict[str, float],
     error: Callable[[np.ndarray], np.ndarray] | None = None,
     scale: float | None = None,
-    step: tuple[float, tuple[float, ...]] | None = None,
+    accel_bias: Callable[[np.ndarray], np.ndarray] | None = None,
 ):
     """``load_log`` with the sensors of ``late`` re-stamped that many seconds later, the baro
-    reading ``error(t)`` high, the accelerometer's body z ``1 + scale`` times what it reads, and its
-    bias stepping by ``step[0]`` at the times ``step[1]``."""
+    reading ``error(t)`` high, the accelerometer's body z ``1 + scale`` times what it reads, and
+    ``accel_bias(t)`` added to it."""
 
     def load(path: Path, **kw):
         log = late_reader(late)(path, **kw)
@@ -374,8 +383,8 @@ def changed_reader(
             log.measurements = with_baro_error(log.measurements, error)
         if scale is not None:
             log = with_accel_scale(log, scale)
-        if step is not None:
-            log = with_accel_step(log, *step)
+        if accel_bias is not None:
+            log = with_accel_bias(log, accel_bias)
         return log
 
     return load
@@ -387,17 +396,17 @@ def evaluate2(
     late: dict[str, float] | None = None,
     baro: tuple[str, float] | None = None,
     scale: float | None = None,
-    step: float | None = None,
+    accel: tuple[str, float] | None = None,
 ) -> dict:
     """One flight of the second source (ArduPilot .bin, PX4 .ulg), as a pilot runs it: ``diagnose``
     on the log alone (a copy of the log where no truth file lies beside it), scored against truth
     afterwards, beside the plain filter (bench/plain_kf.py) with and without the hidden effect.
     ``late``: sensors made late (the module docstring), the flight's hidden effect then; the late reader
     is the loaders' for this flight alone (a pool's process goes on to the next flight). ``baro``: a baro
-    error added (``BARO_ERRORS``' form and size), ``scale`` the accelerometer's and ``step`` its bias's
-    steps, alike."""
+    error added (``BARO_ERRORS``' form and size), ``scale`` the accelerometer's, and ``accel`` a bias
+    that moves (``ACCEL_BIASES``' form and size), alike."""
     try:
-        return _evaluate2(name, data, late, baro, scale, step)
+        return _evaluate2(name, data, late, baro, scale, accel)
     finally:
         pipeline.load_log = plain_kf.load_log = load_log
 
@@ -408,14 +417,14 @@ def _evaluate2(
     late: dict[str, float] | None,
     baro: tuple[str, float] | None,
     scale: float | None,
-    step: float | None,
+    accel: tuple[str, float] | None,
 ) -> dict:
     meta = json.loads((data / f"{name}_meta.json").read_text())
     truth = np.genfromtxt(data / f"{name}_truth.csv", delimiter=",", names=True)
     log = data / f"{name}.{meta['format']}"
     hidden = [e["name"] for e in meta["hidden_effects"]]
     arm = meta["times"]["arm"]
-    changed = bool(late) or baro is not None or scale is not None or step is not None
+    changed = bool(late) or baro is not None or scale is not None or accel is not None
     if changed:
         written = plain_kf.read(log, meta["noise"].get("range_gnd_clear_m"))
         error = None
@@ -425,10 +434,14 @@ def _evaluate2(
             def error(t: np.ndarray) -> np.ndarray:
                 return form(t, truth, k)
 
-        times = meta["times"]
-        up, down = times["liftoff"], times["land_complete"]
-        steps = None if step is None else (step, (up + (down - up) / 3, up + 2 * (down - up) / 3))
-        pipeline.load_log = plain_kf.load_log = changed_reader(late or {}, error, scale, steps)
+        bias = None
+        if accel is not None:
+            form_a, size = ACCEL_BIASES[accel[0]], accel[1]
+
+            def bias(t: np.ndarray) -> np.ndarray:
+                return form_a(t, truth, meta["times"], size)
+
+        pipeline.load_log = plain_kf.load_log = changed_reader(late or {}, error, scale, bias)
         hidden = (["sensor_delay"] if late else []) + ([BARO_ERRORS[baro[0]][0]] if baro is not None else [])
         hidden += ["accel_scale"] if scale is not None else []
         meta = {**meta, "hidden_effects": [{"name": h} for h in hidden], "false_if_claimed": []}
@@ -451,7 +464,7 @@ def _evaluate2(
     acceptable = {a for e in meta["hidden_effects"] for a in e.get("acceptable", [e["name"]])}
     false = set(meta.get("false_if_claimed", []))
     ok_base = before <= PLAIN_FACTOR * nominal + 1e-9
-    if step is not None and not hidden:  # outside the catalogue, and one a diagnosis may leave alone
+    if accel is not None and not hidden:  # outside the catalogue, and one a diagnosis may leave alone
         wrong = [c for c in claimed if c != "discovered"]
         ok = not wrong and after <= before + 1e-9 and ok_base
         why = f"claimed {claimed or 'nothing'}, after {after:.3f}, before {before:.3f}"
@@ -503,6 +516,20 @@ def table2(rows: list[dict]) -> None:
     print(f"{sum(r['ok'] for r in rows)} of {len(rows)} flights of the second source meet their bar")
 
 
+def _form_and_size(ap: argparse.ArgumentParser, flag: str, value: str, forms: dict) -> tuple[str, float] | None:
+    """``FORM=SIZE`` of an option, the form one of ``forms``; None where the option is not given."""
+    if not value:
+        return None
+    form, _, size = value.partition("=")
+    try:
+        number = float(size)
+    except ValueError:
+        number = math.nan
+    if form not in forms or not math.isfinite(number):
+        ap.error(f"{flag} takes {' or '.join(f'{f}=SIZE' for f in forms)}")
+    return form, number
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -520,22 +547,20 @@ def main() -> int:
         "--accel-scale", type=float, default=None, help="the accelerometer's body z this much high (bin-ulg)"
     )
     ap.add_argument(
-        "--accel-step", type=float, default=None, help="the accelerometer's body-z bias steps twice by this [m/s^2]"
+        "--accel-bias",
+        default="",
+        help="the accelerometer's body-z bias moves: step=B [m/s^2, twice], thermal=K [m/s^2 per K] (bin-ulg)",
     )
     a = ap.parse_args()
     late = {k: float(v) for k, v in (x.split("=") for x in a.late.split(",") if x)}
     if set(late) - set(LATE_KINDS):
         ap.error(f"--late takes {', '.join(LATE_KINDS)}")
-    baro = None
-    if a.baro_error:
-        form, _, size = a.baro_error.partition("=")
-        if form not in BARO_ERRORS or not size:
-            ap.error(f"--baro-error takes {' or '.join(f'{f}=SIZE' for f in BARO_ERRORS)}")
-        baro = (form, float(size))
+    baro = _form_and_size(ap, "--baro-error", a.baro_error, BARO_ERRORS)
+    accel = _form_and_size(ap, "--accel-bias", a.accel_bias, ACCEL_BIASES)
     if a.suite in ("bin-ulg", "both") and a.data2.is_dir():
         names2 = [n for n in (a.flights.split(",") if a.flights else flights2(a.data2)) if n in flights2(a.data2)]
         if (
-            late or baro or a.accel_scale is not None or a.accel_step is not None
+            late or baro or a.accel_scale is not None or accel
         ):  # a clean flight's with the sensors made late, whose only hidden effect is then the one added
             metas = {n: json.loads((a.data2 / f"{n}_meta.json").read_text()) for n in names2}
             names2 = [
@@ -546,9 +571,7 @@ def main() -> int:
         n = len(names2)
         with threadpool_limits(limits=1, user_api="blas"), ProcessPoolExecutor(a.jobs) as pool:
             rows2 = list(
-                pool.map(
-                    evaluate2, names2, [a.data2] * n, [late] * n, [baro] * n, [a.accel_scale] * n, [a.accel_step] * n
-                )
+                pool.map(evaluate2, names2, [a.data2] * n, [late] * n, [baro] * n, [a.accel_scale] * n, [accel] * n)
             )
         table2(rows2)
         if a.suite == "bin-ulg":

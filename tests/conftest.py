@@ -1,8 +1,10 @@
 import asyncio
 import functools
+import importlib.util
 import os
 import socket
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -52,6 +54,16 @@ def foreign2_file(rel: str) -> Path:
     if not p.exists():
         pytest.skip(f"foreign flights not available: {p} is absent (set GROUNDSTATION_DATA to the shared data folder)")
     return p
+
+
+def bench_module(name: str) -> ModuleType:
+    """The script ``bench/<name>.py`` loaded as a module: bench/ is no package (its scripts run as
+    commands), and the tests use what they compute (the plain filter, the foreign flights' variants)."""
+    spec = importlib.util.spec_from_file_location(f"bench_{name}", REPO / "bench" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def free_udp_port() -> int:

@@ -2,8 +2,6 @@
 its own physics, rates, noise and take-offs. The full table is ``bench/foreign.py``; here one clean
 indoor flight, one clean outdoor flight and one outdoor baro effect, against the same bars."""
 
-import importlib.util
-
 import numpy as np
 import pytest
 from scipy.stats import chi2
@@ -14,12 +12,9 @@ from groundstation.estimation.loop import EstimationLoop
 from groundstation.estimation.registry import build_estimator
 from groundstation.estimation.whiteness import effective_size
 
-from .conftest import REPO, foreign2_file, foreign_file
+from .conftest import bench_module, foreign2_file, foreign_file
 
-_spec = importlib.util.spec_from_file_location("bench_foreign", REPO / "bench" / "foreign.py")
-assert _spec is not None and _spec.loader is not None
-bench_foreign = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench_foreign)
+bench_foreign = bench_module("foreign")
 
 
 @pytest.mark.slow
@@ -176,9 +171,11 @@ def test_an_accelerometer_scale_added_as_the_log_is_read_scales_body_z_alone():
 
 
 def test_an_accelerometer_bias_step_added_as_the_log_is_read_moves_body_z_from_each_step():
-    """bench/foreign.py --accel-step: body z raised by the step after each of its times, as records
-    and as columns; x, y and the gyro as read."""
-    out = bench_foreign.with_accel_step(_imu_log(30, 0.1), 0.3, (1.0, 2.0))
+    """bench/foreign.py --accel-bias step=: body z raised by the step after each third of the way from
+    lift-off to landing, as records and as columns; x, y and the gyro as read."""
+    step = bench_foreign.ACCEL_BIASES["step"]
+    times = {"liftoff": 0.0, "land_complete": 3.0}
+    out = bench_foreign.with_accel_bias(_imu_log(30, 0.1), lambda t: step(t, None, times, 0.3))
     for m in out.measurements:
         steps = int(m.t >= 1.0) + int(m.t >= 2.0)
         want = [1.0, 2.0, -9.8 + 0.3 * steps] if m.kind is Kind.ACCEL else [1.0, 2.0, -9.8]
@@ -222,9 +219,6 @@ def test_replayed_without_a_rangefinder_the_baro_noise_comes_from_the_still_stre
     assert levels and max(levels) < model_r / still_noise.DIFFERS**2, (levels, model_r)
     assert "used in flight" in est.still_noise_note, est.still_noise_note
     kept, _ = run({"baro": [[model_r]]})
-    spec = importlib.util.spec_from_file_location("plain_kf", REPO / "bench" / "plain_kf.py")
-    assert spec is not None and spec.loader is not None
-    plain_kf = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(plain_kf)
+    plain_kf = bench_module("plain_kf")
     plain = bench_foreign.flight_error(*plain_kf.run(plain_kf.read(log), meta["times"]["arm"]), truth, meta)
     assert still < 0.7 * kept and still < 1.3 * plain, (still, kept, plain)

@@ -372,15 +372,11 @@ def test_pyulog_seeking_back_past_a_short_read_lands_where_it_meant():
 def test_the_fuzzers_ulog_mutants_that_kept_pyulog_reading_are_read_at_once(tmp_path):
     """Mutants 1 and 258 of the fuzzer's ULog share (seed 7000): each kept pyulog 1.3 reading until
     the fuzzer's alarm, which its reader then reported as the file refused."""
-    import importlib.util
     import time
 
-    from .conftest import REPO
+    from .conftest import bench_module
 
-    spec = importlib.util.spec_from_file_location("fuzz_bench", REPO / "bench" / "fuzz.py")
-    assert spec is not None and spec.loader is not None
-    fuzz = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(fuzz)
+    fuzz = bench_module("fuzz")
     rng, base = random.Random(7000), fuzz.seed_ulg()
     mutants = [fuzz.mutate(base, rng) for _ in range(259)]
     for k in (1, 258):

@@ -6,7 +6,6 @@ them up at s = 0.2-0.3 when nothing bounds it, and outdoors a baro "ground effec
 what is left: heights after up to seven times as far off the truth as before.
 """
 
-import importlib.util
 import json
 
 import pytest
@@ -15,12 +14,9 @@ from groundstation.core.measurement import Kind
 from groundstation.diagnosis.catalogue.altitude import SCALE_PLAUSIBLE, altitude_catalogue
 from groundstation.diagnosis.scoring import holdout
 
-from .conftest import REPO, foreign2_file
+from .conftest import bench_module, foreign2_file
 
-_spec = importlib.util.spec_from_file_location("bench_foreign", REPO / "bench" / "foreign.py")
-assert _spec is not None and _spec.loader is not None
-bench_foreign = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench_foreign)
+bench_foreign = bench_module("foreign")
 
 KINDS = {Kind.ACCEL, Kind.ATTITUDE, Kind.BARO_PRESSURE, Kind.GPS, Kind.RANGE, Kind.THROTTLE}
 
@@ -65,10 +61,8 @@ def test_an_accelerometer_bias_that_steps_is_not_taken_for_a_scale_error():
 
     path = foreign2_file("clean_range_s1.bin")
     times = json.loads(path.with_name("clean_range_s1_meta.json").read_text())["times"]
-    up, down = times["liftoff"], times["land_complete"]
-    log = bench_foreign.with_accel_step(
-        load_log(path, imu_columns=True), -0.5, (up + (down - up) / 3, up + 2 * (down - up) / 3)
-    )
+    step = bench_foreign.ACCEL_BIASES["step"]
+    log = bench_foreign.with_accel_bias(load_log(path, imu_columns=True), lambda t: step(t, None, times, -0.5))
     ms = log.measurements
     d = diagnose(
         ms, source=str(path), imu=log.imu, vehicle=log.vehicle, truth=truth_from(ms, path, None), veto_with_truth=False

@@ -3,7 +3,6 @@ score as their own filter runs do: exactly for effects linear in their parameter
 diagnosis finds the same with either path on simulated, foreign and real logs."""
 
 import gc
-import importlib.util
 import math
 import pickle
 import weakref
@@ -22,12 +21,9 @@ from groundstation.estimation.truth import truth_from
 from sim_bridge.fast import run_fast
 from sim_bridge.scenario import Scenario
 
-from .conftest import REPO, foreign_file, real_file
+from .conftest import bench_module, foreign_file, real_file
 
-_spec = importlib.util.spec_from_file_location("bench_speed", REPO / "bench" / "diagnosis_speed.py")
-assert _spec is not None and _spec.loader is not None
-bench_speed = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench_speed)
+bench_speed = bench_module("diagnosis_speed")
 
 
 @pytest.fixture(scope="module")

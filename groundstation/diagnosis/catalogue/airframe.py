@@ -186,10 +186,15 @@ def curve_points(
     voltage_ref: float | None = None,
     range_limits: tuple[float, float] = (0.05, math.inf),
     height: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    bias_track: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> CurvePoints | None:
     """The fit's data (:func:`thrust_curve` says what each argument is), or None when the log cannot
     give it. ``height``: (t, h, v_up) of an estimate to take the height and vertical speed from,
-    instead of the range sensor's readings (an altitude filter's run, where the log has no range)."""
+    instead of the range sensor's readings (an altitude filter's run, where the log has no range).
+    ``bias_track``: (t, b_z) of an estimate of the accelerometer's body-z bias [m/s^2] through the
+    flight (the altitude filter's ``b_acc``, which the height sensors hold to the accelerometer): its
+    change from the spin-up on is taken out of the specific force as the bias measured on the ground
+    is, so that a bias moving as the IMU warms is not read as the thrust changing."""
     r = Readings.of(ms)
     t, _, v = r.columns(Kind.ACCEL)
     acc = np.column_stack([t, v[:, 2]])[np.isfinite(v[:, 2])] if v.shape[1] >= 3 else np.zeros((0, 2))
@@ -221,7 +226,11 @@ def curve_points(
     fine = np.arange(grid[0] - WINDOW, grid[-1] + WINDOW, 0.005)  # the held throttle, sampled finely
     tau_fine = _held(th[:, 0], th[:, 1], fine)
     tau = _window_mean(fine, tau_fine, grid, WINDOW)
-    y = _window_mean(acc[:, 0], -(acc[:, 1] - bias), grid, WINDOW)
+    drift = np.zeros(len(acc))
+    if bias_track is not None and len(bias_track[0]):
+        bt, bz = bias_track
+        drift = np.interp(acc[:, 0], bt, bz) - float(np.interp(t_spin, bt, bz))
+    y = _window_mean(acc[:, 0], -(acc[:, 1] - bias - drift), grid, WINDOW)
     c = c_of(grid)
     if height is None:
         h, v = _height_and_speed(rng[:, 0], rng[:, 1] * c_of(rng[:, 0]), grid, WINDOW)
