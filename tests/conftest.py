@@ -3,6 +3,7 @@ import functools
 import importlib.util
 import os
 import socket
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -62,6 +63,7 @@ def bench_module(name: str) -> ModuleType:
     spec = importlib.util.spec_from_file_location(f"bench_{name}", REPO / "bench" / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # as an import does: a dataclass there looks its module up
     spec.loader.exec_module(module)
     return module
 

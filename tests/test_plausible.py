@@ -11,7 +11,7 @@ import json
 import pytest
 
 from groundstation.core.measurement import Kind
-from groundstation.diagnosis.catalogue.altitude import SCALE_PLAUSIBLE, altitude_catalogue
+from groundstation.diagnosis.catalogue.altitude import SCALE_PLAUSIBLE, altitude_catalogue, gps_delays
 from groundstation.diagnosis.scoring import holdout
 
 from .conftest import bench_module, foreign2_file
@@ -46,6 +46,18 @@ def test_an_implausible_fit_is_turned_away_before_its_held_out_runs():
     assert h.as_dict()["implausible"] is True
     small = holdout.check(c, None, None, {"s": 0.29, "sigma_s": 0.5}, None, None, None, None, [])  # type: ignore[arg-type]
     assert not small.holds and "sigma from zero" in (small.reason or "") and "implausible" not in small.as_dict()
+
+
+def test_a_delay_without_evidence_at_its_innovations_effective_size_is_turned_away_before_its_held_out_runs():
+    """Rule 5 of the held-out bars: a GPS height delay of 0.29 s, 11.6 sigma from zero and Delta BIC -135
+    counted update by update, but +28.8 at the innovations' effective size (an outdoor flight whose
+    accelerometer bias moved as the IMU warmed), is not claimed, and no held-out run is made for it."""
+    c = gps_delays(KINDS | {Kind.GPS_VD})[-1]  # the height alone
+    assert c.sensor == "gps" and c.form == "height"
+    params = {"sensor": "gps", "seconds": 0.2904, "sigma_seconds": 0.0251}
+    h = holdout.check(c, None, None, params, None, None, None, None, [], delta_bic_effective=28.8)  # type: ignore[arg-type]
+    assert not h.holds and "effective size" in (h.reason or "") and "+28.8" in (h.reason or "")
+    assert "implausible" not in h.as_dict()
 
 
 @pytest.mark.slow

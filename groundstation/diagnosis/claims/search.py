@@ -234,6 +234,7 @@ class Search:
                     s.profile,
                     workers=self.workers,
                     fit=s.fit,
+                    delta_bic_effective=s.delta_bic_effective,
                 )
                 if ho.holds:
                     return s, ho
