@@ -1,10 +1,8 @@
-"""``groundstation``'s commands that run a filter beside the dashboard or the control station, and
-the small ones that share their readers (the entry, :mod:`.main`, runs the others from their own
-modules, ``main.ALONE``):
+"""``groundstation``'s commands that run a filter beside the dashboard or the control station (the
+entry, :mod:`.main`, runs the others from their own modules, ``main.ALONE``):
 
     groundstation connect URL [--record FILE] [--export OUT.csv] [--model NAME] [--no-web]
     groundstation replay FILE.tlog [--speed X|max] [--start S] [--loop] [--export OUT.csv] [--no-web]
-    groundstation evaluate | noise ...
     groundstation demo
 
 Every failure the user can cause (bad connection string, missing device,
@@ -15,13 +13,10 @@ never a traceback.
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 import os
 import sys
 import time
-
-import numpy as np
 
 from drivers.connection import ConnectionStringError, parse_connection
 from drivers.logs.crazyflie import CrazyflieLogError, is_crazyflie_log
@@ -35,10 +30,8 @@ from drivers.replay import Replay
 from drivers.tlog import TlogError
 from drivers.transports import TransportError
 from groundstation.control.station import ControlStation
-from groundstation.estimation.evaluate import evaluate
 from groundstation.estimation.logs import IMU_BLOCK_S, load_blocked, load_measurements
-from groundstation.estimation.noise import first_arming, stationary_noise
-from groundstation.estimation.registry import build_estimator, vehicle_config
+from groundstation.estimation.registry import vehicle_config
 from groundstation.estimation.vehicles import declared_beside
 from sim_bridge.scenario import ScenarioError
 from web.dashboard import Dashboard
@@ -53,10 +46,6 @@ from .signals import on_stop_signal
 from .supervise import Supervisor
 
 
-class UsageError(Exception):
-    """A user error reported as one line."""
-
-
 def run(args) -> int:
     """Run the parsed command: its one-line errors as exit status 2."""
     try:
@@ -68,13 +57,6 @@ def run(args) -> int:
 
 def _run(args) -> int:
     try:
-        if args.command == "evaluate":
-            if args.truth is not None and not args.truth.is_file():
-                raise UsageError(f"{args.truth}: no such truth file")
-            print(evaluate(args.file, args.model, vehicle=args.vehicle, truth_csv=args.truth).table())
-            return 0
-        if args.command == "noise":
-            return cmd_noise(args)
         if args.command == "demo":
             return asyncio.run(run_demo(args))
         if args.vehicle:
@@ -86,7 +68,6 @@ def _run(args) -> int:
     except BrokenPipeError:
         raise
     except (
-        UsageError,
         TlogError,
         TransportError,
         ConnectionStringError,
@@ -106,39 +87,6 @@ def _run(args) -> int:
         if not is_interrupt(e):
             raise
         return 130
-
-
-# ---------------------------------------------------------------- noise
-#: [s] the stationary window ends this long before the arming: an arming's own checks and the motors'
-#: spin-up are not at rest
-ARMING_MARGIN_S = 0.2
-
-
-def cmd_noise(args) -> int:
-    est = build_estimator(args.model)
-    ms = list(Replay(args.file, speed=math.inf).iter_measurements())
-    end = args.end
-    if end is None:
-        # before the vehicle arms it stands still; a log that states no arming: its first 1.9 s
-        armed = first_arming(ms)
-        end = armed - ARMING_MARGIN_S if armed is not None and armed - ARMING_MARGIN_S > args.start else 1.9
-    args.end = end
-    result = stationary_noise(ms, est, args.start, end)
-    if not result:
-        raise UsageError(
-            f"{args.file}: no measurements of the {args.model} model between {args.start:g} s and {end:g} s"
-        )
-    for name, r in result.items():
-        R = np.array(r["R"])
-        print(
-            f"{name} ({r['n']} samples, {args.start:g}-{args.end:g} s): R ="
-            + (f"  [{r['note']}]" if "note" in r else "")
-        )
-        print("  " + np.array2string(R, precision=3, separator=", ", prefix="  "))
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=2))
-        print(f"wrote {args.out} (use with --noise)")
-    return 0
 
 
 # ---------------------------------------------------------------- helpers

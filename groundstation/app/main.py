@@ -39,6 +39,8 @@ ALONE = {
     "command": ("groundstation.app.command_cli", "cmd_command"),
     "diagnose": ("groundstation.app.diagnose_cli", "cmd_diagnose"),
     "fleet": ("groundstation.app.fleet_cli", "cmd_fleet"),
+    "evaluate": ("groundstation.app.evaluate_cli", "cmd_evaluate"),
+    "noise": ("groundstation.app.evaluate_cli", "cmd_noise"),
 }
 #: of those, the commands that need no filter either: filterpy loads scipy.stats, 2 s before a
 #: vehicle's parameters are asked for or a simulated vehicle speaks, a third of a second without it
