@@ -215,9 +215,7 @@ def test_a_filter_made_has_its_kernels_loaded_before_its_first_reading():
         "ModelFilter(heli3dof_model())\n"
         "print(' '.join(n for n in names if not getattr(k, n).overloads))\n"
     )
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
-    assert r.returncode == 0, r.stderr
-    assert r.stdout.strip() == "", f"not loaded: {r.stdout}"
+    _nothing_left_to_load(code)
 
 
 def test_the_drag_ekf_made_has_its_update_loaded_before_its_first_reading():
@@ -229,6 +227,11 @@ def test_the_drag_ekf_made_has_its_update_loaded_before_its_first_reading():
         "DragAttitudeEKF()\n"
         "print('' if k.vector_update.overloads else 'vector_update')\n"
     )
+    _nothing_left_to_load(code)
+
+
+def _nothing_left_to_load(code: str) -> None:
+    """``code`` run in a fresh process prints the kernels a filter it made has not loaded: none."""
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=REPO)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "", f"not loaded: {r.stdout}"
