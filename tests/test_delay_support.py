@@ -114,3 +114,29 @@ def test_a_late_gps_fix_counts_its_velocity_as_its_own_readings():
     h = Holdout(gain_by_block=[30.0], gain_by_sensor={"baro": 5.0, "gps": 5.0, "gps_vz": 20.0})
     assert _not_on_own_sensor(fix, model, h) is None
     assert _not_on_own_sensor(height, model, h) is not None
+
+
+def test_each_sensors_delay_grid_reaches_two_steps_past_what_its_autopilots_can_be_told():
+    """A delay at the end of its grid is not located (scoring.trace: the profile still rising there is
+    "at the edge of the search range", not a finding), so each sensor's grid runs two steps past the
+    largest delay its autopilots' parameters take (their documented ranges): a delay as late as an
+    autopilot can be told is found, sized between grid values, and written back."""
+    from drivers.mavlink.param_ranges import DOCUMENTED
+    from groundstation.diagnosis.catalogue import altitude, thrust
+
+    told = {
+        "range": ["EKF2_RNG_DELAY"],
+        "baro": ["EK3_HGT_DELAY", "EKF2_BARO_DELAY"],
+        "gps": ["GPS_DELAY_MS", "EKF2_GPS_DELAY"],
+    }
+    grids = {
+        "range": [altitude.RANGE_DELAYS, thrust.RANGE_DELAYS],
+        "baro": [altitude.BARO_DELAYS],
+        "gps": [altitude.GPS_DELAYS],
+    }
+    for sensor, names in told.items():
+        most = max(DOCUMENTED[n][1] for n in names) / 1000.0
+        for grid in grids[sensor]:
+            step = grid[1] - grid[0]
+            assert grid[0] == 0.0 and np.allclose(np.diff(grid), step), grid  # profile_sigma reads one step
+            assert grid[-1] >= most + 2 * step - 1e-9, (sensor, grid, most)

@@ -367,12 +367,16 @@ def _thermal_columns(model: LinearModel) -> list[Column]:
     return [Column("k_thermal", THERMAL_PRIOR, "baro", lambda ctx, x: _temperature(ctx))]
 
 
-#: [s] the delays a range sensor's and a baro's profiles are scanned over
-RANGE_DELAYS = (0.0, 0.04, 0.08, 0.12, 0.16, 0.2)
-BARO_DELAYS = (0.0, 0.06, 0.12, 0.18, 0.24, 0.3)
-#: [s] a GPS receiver's height lag: the autopilots' own ranges (GPS_DELAY_MS 0-250 ms, EKF2_GPS_DELAY
-#: 0-300 ms) and a little beyond
-GPS_DELAYS = (0.0, 0.08, 0.16, 0.24, 0.32, 0.4)
+#: [s] the delays each sensor's profile is scanned over: past the most its autopilot can be told
+#: (EKF2_RNG_DELAY, EKF2_BARO_DELAY and EKF2_GPS_DELAY 0-300 ms; EK3_HGT_DELAY and GPS_DELAY_MS
+#: 0-250 ms) by at least two grid steps, so that a delay at that most is located, not left at the
+#: range's edge (a GPS fix 0.4 s late on a grid ending at 0.4 s was not named in its own form, and
+#: its height alone was, at 0.32 s, beside a rotor wash the rest of the lag drew). The scan stops
+#: two values past a profile's fall (:func:`~groundstation.diagnosis.scoring.trials.scan_grid`):
+#: a flight without a delay runs none of the longer ones
+RANGE_DELAYS = (0.0, 0.04, 0.08, 0.12, 0.16, 0.2, 0.24, 0.28, 0.32, 0.36, 0.4)
+BARO_DELAYS = (0.0, 0.06, 0.12, 0.18, 0.24, 0.3, 0.36, 0.42)
+GPS_DELAYS = (0.0, 0.08, 0.16, 0.24, 0.32, 0.4, 0.48, 0.56, 0.64)
 
 
 def gps_in_altitude(kinds: set) -> bool:
