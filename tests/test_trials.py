@@ -2,9 +2,11 @@
 another: the ranking, the held-out evidence and a diverging candidate, on a simulated flight with
 a baro effect and a late range sensor."""
 
+import math
 import subprocess
 import sys
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -495,3 +497,29 @@ def test_left_out_runs_begun_again_replace_those_begun_before(flight):
     finally:
         runs.close()
     assert got and all(x.before == x.after for x in got)  # the model before's own, not the louder one's
+
+
+def test_a_wash_time_constant_is_not_carried_past_what_a_wake_takes_to_settle():
+    """A profile that still rises at its longest shape (a slow error the baro and the GPS share outdoors,
+    which a wash of ever longer lag fits) is carried outward no further than ``most``, the end of the
+    two-stage filter's grid (gains.WASH_GRID), and the shapes beyond it are not run; a profile with its
+    peak inside is refined to it as before."""
+    from groundstation.diagnosis.scoring.gains import WASH_GRID
+
+    def run_at(lik):
+        asked = []
+
+        def at(shape):
+            asked.append(shape)
+            return SimpleNamespace(loglik=lik(math.log(shape)))
+
+        return at, asked
+
+    rising, asked = run_at(lambda v: 100.0 * v)
+    shape, r = log_profile(rising, (0.15, 0.5, 1.5, 3.0), most=WASH_GRID[-1])
+    assert shape == pytest.approx(WASH_GRID[-1], rel=1e-3) and max(asked) <= WASH_GRID[-1] + 1e-9, asked
+    assert 1.5 <= WASH_GRID[-1] <= 2.5  # a couple of seconds (catalogue.altitude.WASH_TCS)
+    unbounded, asked = run_at(lambda v: 100.0 * v)
+    assert log_profile(unbounded, (0.15, 0.5, 1.5))[0] > 4.0  # without the bound: 4.5 s and more
+    peaked, asked = run_at(lambda v: -100.0 * (v - math.log(0.35)) ** 2)
+    assert log_profile(peaked, (0.15, 0.5, 1.5), most=WASH_GRID[-1])[0] == pytest.approx(0.35, rel=0.02)

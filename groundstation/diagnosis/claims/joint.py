@@ -15,7 +15,7 @@ from groundstation.diagnosis.catalogue.candidate import Candidate
 from groundstation.diagnosis.effect import Effect
 from groundstation.diagnosis.runs.run import Prepared, Run, run_model
 from groundstation.diagnosis.scoring import trials
-from groundstation.diagnosis.scoring.gains import profile_shape
+from groundstation.diagnosis.scoring.gains import WASH_GRID, profile_shape
 from groundstation.diagnosis.scoring.trace import with_shape
 from groundstation.diagnosis.scoring.trials import log_profile
 from groundstation.estimation.models.base import LinearModel
@@ -96,7 +96,7 @@ def joint_shapes(
                 return None
 
         shapes = (s0 / JOINT_SHAPE_STEP, s0, s0 * JOINT_SHAPE_STEP)
-        shape, r = log_profile(run_at, shapes, known={s0: base})
+        shape, r = log_profile(run_at, shapes, known={s0: base}, most=WASH_GRID[-1])
         if r is None or shape == s0:
             continue
         e.evidence["params_when_added"] = dict(e.params)

@@ -24,9 +24,14 @@ from groundstation.estimation.models.ground import LANDED
 from groundstation.estimation.whiteness import effective_size
 
 #: [s] the rotor wash's time constants profiled at once (a candidate with ``refine_shape``): from a
-#: twentieth of a second to four, each 1.5 times the one before; the profile's parabola through the
-#: best and its neighbours (in log tau) places the shape between them
-WASH_GRID = tuple(round(0.05 * 1.5**k, 4) for k in range(12))
+#: twentieth of a second to about two, each 1.5 times the one before; the profile's parabola through
+#: the best and its neighbours (in log tau) places the shape between them. The grid ends where a
+#: rotor's wake settling at the static port does (altitude.WASH_TCS: a tenth of a second to a couple
+#: of seconds): slower, the term fits the slow wander a GPS and a baro share outdoors. With time
+#: constants to 4.3 s, a wash of 0.3 m per unit thrust over the weight (0.35 s) added to an outdoor
+#: flight was fitted at 4.3 s and 1.06 m, lost on its held-out blocks and was not named (27.9 cm);
+#: to 1.9 s it is named and leaves 4.9 cm
+WASH_GRID = tuple(round(0.05 * 1.5**k, 4) for k in range(10))
 #: a stand-in's gain (its best fit's) counted at this share of what a claim needs before the effect's
 #: own runs are made: it is linear in the effect only to first order
 SCREEN_SHARE = 0.5

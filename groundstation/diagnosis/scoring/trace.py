@@ -47,6 +47,7 @@ from groundstation.diagnosis.runs.signature import Signatures
 from groundstation.diagnosis.scoring import trials
 from groundstation.diagnosis.scoring.gains import (
     SCREEN_SHARE,
+    WASH_GRID,
     CatalogueColumns,
     Fit,
     best_shape,
@@ -113,7 +114,7 @@ def score(cand: Candidate, model: LinearModel, base: Run, trials: Trials, i: int
         # refined where the shapes already find the effect worth its parameters (Delta BIC < 0): the
         # five runs a refinement costs are spent on an effect being sized, not on every ranking of
         # every flight without it
-        shape, r = log_profile(lambda x: trials.run(i, x), cand.shapes)
+        shape, r = log_profile(lambda x: trials.run(i, x), cand.shapes, most=WASH_GRID[-1])
         assert r is not None  # the best of finite likelihoods
         best = (r, shape)
     if best is None:

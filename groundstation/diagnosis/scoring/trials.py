@@ -241,13 +241,17 @@ LOG_PROFILE_EXTEND = 2
 
 
 def log_profile(
-    run_at: Callable[[float], Run | None], shapes: Iterable[float], known: dict[float, Run] | None = None
+    run_at: Callable[[float], Run | None],
+    shapes: Iterable[float],
+    known: dict[float, Run] | None = None,
+    most: float = math.inf,
 ) -> tuple[float, Run | None]:
     """A continuous shape's best value (a time constant) and its run: the profile likelihood over the
     shape's logarithm, sampled at ``shapes``, carried outward while the best is at an end (up to
-    :data:`LOG_PROFILE_EXTEND` steps of the end's spacing), and refined by :func:`profile_steps`.
-    ``run_at(shape)`` runs the model at a shape (None: its filter diverged, the worst there is);
-    ``known``: runs already made, by shape."""
+    :data:`LOG_PROFILE_EXTEND` steps of the end's spacing, and not past ``most``, the longest the
+    effect's physics has: the two-stage filter's grid ends there too, gains.WASH_GRID), and refined by
+    :func:`profile_steps`. ``run_at(shape)`` runs the model at a shape (None: its filter diverged, the
+    worst there is); ``known``: runs already made, by shape."""
     known = known or {}
     shape_of: dict[float, float] = {}
     runs: dict[float, Run | None] = {}  # of the best likelihood so far only: that is the run returned
@@ -264,7 +268,10 @@ def log_profile(
                 del runs[u]
         return lik[v]
 
-    for s in shapes:
+    top = math.log(most)
+    shapes = list(shapes)
+    inside = [s for s in shapes if s <= most] or [min(shapes)]
+    for s in inside:
         shape_of[round(math.log(s), 4)] = s
         at(math.log(s))
     for _ in range(LOG_PROFILE_EXTEND):
@@ -273,7 +280,12 @@ def log_profile(
         if len(vs) < 2 or vs[0] < best < vs[-1]:
             break
         step = vs[-1] - vs[-2] if best == vs[-1] else vs[0] - vs[1]
-        at(best + step)
+        v = min(best + step, top)
+        if round(float(v), 4) in lik:
+            break
+        if v == top:
+            shape_of.setdefault(round(top, 4), most)  # the bound itself, not its logarithm's rounding
+        at(v)
     profile_steps(at, lik)
     v = max(lik, key=lambda x: lik[x])
     return shape_of[v], runs[v]
